@@ -1,0 +1,18 @@
+//! calibd: a calibration service for precision robots.
+//!
+//! Module map (pure maths apart from device procedures, apart from jobs and storage):
+//! - [`util`]: seeded random numbers, descriptive statistics.
+//! - [`geometry`]: rigid transforms and elementary motions (no I/O).
+//! - [`model`]: robot models (serial chains from DH files or URDF), FK, Jacobians, torques.
+//! - [`identify`]: least squares shared by every method: Levenberg-Marquardt, rank detection
+//!   by pivoted QR, covariance and reports.
+//! - [`measure`]: measurement models (ball coincidence, Cartesian points).
+//! - [`design`]: observability indices and configuration selection (DETMAX).
+//! - [`twin`]: digital twins (true parameters and noise) for tests and simulation.
+//! - [`jobs`]: job specifications, inputs, dispatch to the job kinds, results.
+//! - [`bench`]: benchmarks printed by `calibd bench`.
+#![warn(missing_docs)]
+
+pub mod geometry;
+pub mod model;
+pub mod util;

@@ -1,0 +1,552 @@
+//! Serial kinematic chain: MDH+beta joints (DH model files) or URDF joints with placement
+//! errors, base and tool frames, static gravity torques and joint compliance, forward
+//! kinematics and the analytic Jacobian of a point with respect to every parameter.
+//!
+//! Conventions are those of `../shared/spec/serial-robot.md` (MDH: `Rx(alpha) Dx(a) Ry(beta)
+//! Rz(theta) Dz(d)`) and `../shared/spec/humanoid.md` (URDF: `origin * Dx Dy Dz Rx Ry Rz *
+//! Rot(axis, theta)`), with `theta = q + offset + c * tau`. Internally angles are radians
+//! and lengths are in the model's length unit (mm for DH files, m for URDF).
+
+use nalgebra::Vector3;
+
+use super::ModelError;
+use super::params::{JointField, ParamId, Quantity, URDF_ERRORS, XYZABC};
+use crate::geometry::{Frame, Motion};
+
+/// Geometry of one joint.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Geometry {
+    /// Craig's modified DH with Hayati beta: `Rx(alpha) Dx(a) Ry(beta) Rz(theta) Dz(d)`.
+    Mdh {
+        /// alpha[i-1] (rad).
+        alpha: f64,
+        /// a[i-1] (length).
+        a: f64,
+        /// beta[i-1] (rad).
+        beta: f64,
+        /// d[i] (length).
+        d: f64,
+    },
+    /// URDF joint: `origin * Dx Dy Dz Rx Ry Rz (errors) * Rot(axis, theta)`.
+    Urdf {
+        /// The nominal `<origin>` of the joint.
+        origin: Frame,
+        /// Placement errors dx, dy, dz (length), rx, ry, rz (rad).
+        errors: [f64; 6],
+        /// Unit rotation axis in the joint frame (ignored for fixed joints).
+        axis: Vector3<f64>,
+    },
+}
+
+/// One joint of the chain.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Joint {
+    /// Name (DH: `j1`..; URDF: the joint's name).
+    pub name: String,
+    /// Geometry.
+    pub geometry: Geometry,
+    /// False for a fixed URDF joint (no joint variable).
+    pub revolute: bool,
+    /// Joint offset (theta_offset for MDH), rad.
+    pub offset: f64,
+    /// Compliance, rad/(N*m).
+    pub compliance: f64,
+    /// Limits of the joint variable q (rad), if any.
+    pub limits: Option<[f64; 2]>,
+    /// Effort limit (N*m), if known (URDF).
+    pub effort: Option<f64>,
+}
+
+/// A point mass moving with the frame after joint `body`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointMass {
+    /// Name (link name).
+    pub name: String,
+    /// Index of the joint whose output frame carries the mass.
+    pub body: usize,
+    /// Mass (kg).
+    pub mass: f64,
+    /// Centre of mass in that frame (model length unit).
+    pub com: Vector3<f64>,
+}
+
+/// Unit system of a model's files and reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Units {
+    /// True: lengths in millimetres; false: metres.
+    pub mm: bool,
+    /// True: angles in degrees in files; false: radians.
+    pub deg: bool,
+}
+
+impl Units {
+    /// Unit name of a quantity in files and reports.
+    pub fn name(&self, q: Quantity) -> &'static str {
+        match (q, self.mm, self.deg) {
+            (Quantity::Length, true, _) => "mm",
+            (Quantity::Length, false, _) => "m",
+            (Quantity::Angle, _, true) => "deg",
+            (Quantity::Angle, _, false) => "rad",
+            (Quantity::Compliance, _, true) => "deg/(N*m)",
+            (Quantity::Compliance, _, false) => "rad/(N*m)",
+            (Quantity::Scalar, _, _) => "1",
+        }
+    }
+
+    /// Factor from the internal value to the file value.
+    pub fn to_file(&self, q: Quantity) -> f64 {
+        match q {
+            Quantity::Angle | Quantity::Compliance if self.deg => 180.0 / std::f64::consts::PI,
+            _ => 1.0,
+        }
+    }
+
+    /// Metres per model length unit.
+    pub fn metre(&self) -> f64 {
+        if self.mm { 1e-3 } else { 1.0 }
+    }
+}
+
+/// A serial chain with base and tool frames and its masses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chain {
+    /// Joints from the base outwards.
+    pub joints: Vec<Joint>,
+    /// Robot frame {0} in the world frame {W}: x, y, z (length), a, b, c (rad).
+    pub base: [f64; 6],
+    /// TCP frame in the last joint's frame: x, y, z, a, b, c.
+    pub tool: [f64; 6],
+    /// Gravity vector in frame {0} (m/s^2).
+    pub gravity: Vector3<f64>,
+    /// Masses carried by the chain (links and payload).
+    pub masses: Vec<PointMass>,
+    /// Units of files and reports.
+    pub units: Units,
+    /// Cached constant part of each joint (`pre` transform), refreshed on every change.
+    pre: Vec<Frame>,
+    /// Index of the joint of each joint variable (revolute joints only).
+    actuated: Vec<usize>,
+    /// Index of the first parameter of each joint in the flat parameter list.
+    param_start: Vec<usize>,
+}
+
+/// Where a joint's generator acts, recorded during the forward pass for the Jacobian.
+#[derive(Clone, Copy)]
+enum Gen {
+    Rot { axis: Vector3<f64>, origin: Vector3<f64> },
+    Trans { dir: Vector3<f64> },
+}
+
+impl Chain {
+    /// A chain from its parts; computes the caches.
+    pub fn new(
+        joints: Vec<Joint>,
+        base: [f64; 6],
+        tool: [f64; 6],
+        gravity: Vector3<f64>,
+        masses: Vec<PointMass>,
+        units: Units,
+    ) -> Self {
+        let mut c = Self {
+            joints,
+            base,
+            tool,
+            gravity,
+            masses,
+            units,
+            pre: Vec::new(),
+            actuated: Vec::new(),
+            param_start: Vec::new(),
+        };
+        c.refresh();
+        c
+    }
+
+    /// Recompute the caches; called after any geometric change.
+    fn refresh(&mut self) {
+        self.pre = self.joints.iter().map(pre_frame).collect();
+        self.actuated = (0..self.joints.len()).filter(|&j| self.joints[j].revolute).collect();
+        let mut start = 0;
+        self.param_start = self
+            .joints
+            .iter()
+            .map(|j| {
+                let s = start;
+                start += joint_fields(j).len();
+                s
+            })
+            .collect();
+    }
+
+    /// Number of joint variables (revolute joints).
+    pub fn dof(&self) -> usize {
+        self.actuated.len()
+    }
+
+    /// Indices of the revolute joints, in joint-variable order.
+    pub fn actuated(&self) -> &[usize] {
+        &self.actuated
+    }
+
+    /// Every parameter of the model, in a fixed order: joints, then base, then tool.
+    pub fn param_ids(&self) -> Vec<ParamId> {
+        let mut ids: Vec<ParamId> = Vec::new();
+        for (j, joint) in self.joints.iter().enumerate() {
+            ids.extend(joint_fields(joint).iter().map(|f| ParamId::Joint(j, *f)));
+        }
+        ids.extend((0..6).map(ParamId::Base));
+        ids.extend((0..6).map(ParamId::Tool));
+        ids
+    }
+
+    /// Position of `id` in [`Chain::param_ids`].
+    pub fn param_index(&self, id: ParamId) -> Option<usize> {
+        let nj = self.param_start.last().map_or(0, |s| s + joint_fields(&self.joints[self.joints.len() - 1]).len());
+        match id {
+            ParamId::Joint(j, f) => {
+                let fields = joint_fields(self.joints.get(j)?);
+                fields.iter().position(|x| *x == f).map(|k| self.param_start[j] + k)
+            }
+            ParamId::Base(k) => Some(nj + k as usize),
+            ParamId::Tool(k) => Some(nj + 6 + k as usize),
+        }
+    }
+
+    /// The public name of a parameter.
+    pub fn param_name(&self, id: ParamId) -> String {
+        match id {
+            ParamId::Base(k) => format!("base.{}", XYZABC[k as usize]),
+            ParamId::Tool(k) => format!("tool.{}", XYZABC[k as usize]),
+            ParamId::Joint(j, f) => match (&self.joints[j].geometry, f) {
+                (Geometry::Mdh { .. }, JointField::Alpha) => format!("alpha{j}"),
+                (Geometry::Mdh { .. }, JointField::A) => format!("a{j}"),
+                (Geometry::Mdh { .. }, JointField::Beta) => format!("beta{j}"),
+                (Geometry::Mdh { .. }, JointField::D) => format!("d{}", j + 1),
+                (Geometry::Mdh { .. }, JointField::Offset) => format!("theta_offset{}", j + 1),
+                (Geometry::Mdh { .. }, JointField::Compliance) => format!("c{}", j + 1),
+                (_, JointField::Err(k)) => format!("{}.{}", self.joints[j].name, URDF_ERRORS[k as usize]),
+                (_, JointField::Offset) => format!("{}.offset", self.joints[j].name),
+                (_, JointField::Compliance) => format!("{}.c", self.joints[j].name),
+                (_, other) => format!("{}.{other:?}", self.joints[j].name),
+            },
+        }
+    }
+
+    /// The parameter with a public name.
+    pub fn param_by_name(&self, name: &str) -> Result<ParamId, ModelError> {
+        self.param_ids()
+            .into_iter()
+            .find(|id| self.param_name(*id) == name)
+            .ok_or_else(|| ModelError::UnknownParameter(name.to_string()))
+    }
+
+    /// Current value of a parameter (internal units).
+    pub fn param(&self, id: ParamId) -> f64 {
+        match id {
+            ParamId::Base(k) => self.base[k as usize],
+            ParamId::Tool(k) => self.tool[k as usize],
+            ParamId::Joint(j, f) => {
+                let joint = &self.joints[j];
+                match (&joint.geometry, f) {
+                    (_, JointField::Offset) => joint.offset,
+                    (_, JointField::Compliance) => joint.compliance,
+                    (Geometry::Mdh { alpha, .. }, JointField::Alpha) => *alpha,
+                    (Geometry::Mdh { a, .. }, JointField::A) => *a,
+                    (Geometry::Mdh { beta, .. }, JointField::Beta) => *beta,
+                    (Geometry::Mdh { d, .. }, JointField::D) => *d,
+                    (Geometry::Urdf { errors, .. }, JointField::Err(k)) => errors[k as usize],
+                    _ => f64::NAN,
+                }
+            }
+        }
+    }
+
+    /// Set one parameter (internal units).
+    pub fn set_param(&mut self, id: ParamId, v: f64) {
+        self.set_param_raw(id, v);
+        if let ParamId::Joint(j, _) = id {
+            self.pre[j] = pre_frame(&self.joints[j]);
+        }
+    }
+
+    /// Set many parameters at once (internal units), refreshing caches once.
+    pub fn set_params(&mut self, ids: &[ParamId], values: &[f64]) {
+        for (id, v) in ids.iter().zip(values) {
+            self.set_param_raw(*id, *v);
+        }
+        self.pre = self.joints.iter().map(pre_frame).collect();
+    }
+
+    fn set_param_raw(&mut self, id: ParamId, v: f64) {
+        match id {
+            ParamId::Base(k) => self.base[k as usize] = v,
+            ParamId::Tool(k) => self.tool[k as usize] = v,
+            ParamId::Joint(j, f) => {
+                let joint = &mut self.joints[j];
+                match (&mut joint.geometry, f) {
+                    (_, JointField::Offset) => joint.offset = v,
+                    (_, JointField::Compliance) => joint.compliance = v,
+                    (Geometry::Mdh { alpha, .. }, JointField::Alpha) => *alpha = v,
+                    (Geometry::Mdh { a, .. }, JointField::A) => *a = v,
+                    (Geometry::Mdh { beta, .. }, JointField::Beta) => *beta = v,
+                    (Geometry::Mdh { d, .. }, JointField::D) => *d = v,
+                    (Geometry::Urdf { errors, .. }, JointField::Err(k)) => errors[k as usize] = v,
+                    _ => {}
+                }
+            }
+        }
+    }
+
+    /// Joint angles theta (rad) of the revolute joints: q + offset + c * tau.
+    fn theta(&self, j: usize, q: f64, tau: f64) -> f64 {
+        let joint = &self.joints[j];
+        q + joint.offset + joint.compliance * tau
+    }
+
+    /// Output frame of every joint in frame {0}, for joint variables `q` (rad) and optional
+    /// static torques `tau` (N*m, compliance off when `None`).
+    pub fn joint_frames(&self, q: &[f64], tau: Option<&[f64]>, out: &mut Vec<Frame>) {
+        out.clear();
+        let mut t = Frame::identity();
+        let mut k = 0;
+        for (j, joint) in self.joints.iter().enumerate() {
+            t = t.mul(&self.pre[j]);
+            if joint.revolute {
+                let th = self.theta(j, q[k], tau.map_or(0.0, |t| t[k]));
+                k += 1;
+                t = t.mul(&motion_frame(joint, th));
+            }
+            out.push(t);
+        }
+    }
+
+    /// Flange frame (output of the last joint) in {0}.
+    pub fn flange(&self, q: &[f64], tau: Option<&[f64]>) -> Frame {
+        let mut t = Frame::identity();
+        let mut k = 0;
+        for (j, joint) in self.joints.iter().enumerate() {
+            t = t.mul(&self.pre[j]);
+            if joint.revolute {
+                let th = self.theta(j, q[k], tau.map_or(0.0, |t| t[k]));
+                k += 1;
+                t = t.mul(&motion_frame(joint, th));
+            }
+        }
+        t
+    }
+
+    /// TCP frame in the world frame {W}: base * chain * tool.
+    pub fn tcp(&self, q: &[f64], tau: Option<&[f64]>) -> Frame {
+        Frame::from_xyzabc(&self.base).mul(&self.flange(q, tau)).mul(&Frame::from_xyzabc(&self.tool))
+    }
+
+    /// Static motor torques (N*m) of the revolute joints that hold the chain against gravity
+    /// at `q` (zero velocity and acceleration), compliance off.
+    pub fn static_torques(&self, q: &[f64]) -> Vec<f64> {
+        let mut frames = Vec::with_capacity(self.joints.len());
+        self.joint_frames(q, None, &mut frames);
+        self.torques_from_frames(&frames)
+    }
+
+    /// Static torques from precomputed joint frames (see [`Chain::joint_frames`]).
+    pub fn torques_from_frames(&self, frames: &[Frame]) -> Vec<f64> {
+        let n = self.joints.len();
+        // Mass and first moment of everything carried by each joint's output frame.
+        let mut m = vec![0.0; n];
+        let mut s = vec![Vector3::zeros(); n];
+        for pm in &self.masses {
+            if pm.body < n {
+                m[pm.body] += pm.mass;
+                s[pm.body] += frames[pm.body].apply(&pm.com) * pm.mass;
+            }
+        }
+        for j in (0..n.saturating_sub(1)).rev() {
+            m[j] += m[j + 1];
+            let next = s[j + 1];
+            s[j] += next;
+        }
+        let metre = self.units.metre();
+        let mut tau = Vec::with_capacity(self.dof());
+        for &j in &self.actuated {
+            // The joint axis passes through the output frame's origin (the motion rotates
+            // about its own axis), and its direction is the motion axis in that frame.
+            let f = &frames[j];
+            let axis = f.r * joint_axis(&self.joints[j]);
+            let moment = (s[j] - f.p * m[j]) * metre;
+            tau.push(axis.dot(&moment.cross(&(-self.gravity))));
+        }
+        tau
+    }
+
+    /// Position in {W} of a point fixed at `local` in the TCP frame, and its derivative with
+    /// respect to every parameter (columns in [`Chain::param_ids`] order, written to `jac`,
+    /// which must hold that many entries).
+    pub fn point_jacobian(
+        &self,
+        q: &[f64],
+        tau: Option<&[f64]>,
+        local: &Vector3<f64>,
+        jac: &mut [Vector3<f64>],
+    ) -> Vector3<f64> {
+        self.body_point_jacobian(q, tau, self.joints.len(), local, jac)
+    }
+
+    /// As [`Chain::point_jacobian`] for a point on the output frame of joint `body`
+    /// (`body == joints.len()` means the TCP frame, after the tool).
+    pub fn body_point_jacobian(
+        &self,
+        q: &[f64],
+        tau: Option<&[f64]>,
+        body: usize,
+        local: &Vector3<f64>,
+        jac: &mut [Vector3<f64>],
+    ) -> Vector3<f64> {
+        for v in jac.iter_mut() {
+            *v = Vector3::zeros();
+        }
+        // Records (parameter column, generator, coefficient) gathered on the way out.
+        let mut recs: Vec<(usize, Gen, f64)> = Vec::with_capacity(8 * self.joints.len() + 12);
+        let nb = self.param_index(ParamId::Base(0)).unwrap_or(0);
+        push_xyzabc_gens(&Frame::identity(), &self.base, nb, &mut recs);
+        let mut t = Frame::from_xyzabc(&self.base);
+        let mut k = 0;
+        let last = if body >= self.joints.len() { self.joints.len() } else { body + 1 };
+        for j in 0..last {
+            let joint = &self.joints[j];
+            let ps = self.param_start[j];
+            let th = if joint.revolute { self.theta(j, q[k], tau.map_or(0.0, |t| t[k])) } else { 0.0 };
+            let tau_k = if joint.revolute { tau.map_or(0.0, |t| t[k]) } else { 0.0 };
+            match &joint.geometry {
+                Geometry::Mdh { alpha, a, beta, d } => {
+                    let f0 = t;
+                    recs.push((ps, Gen::Rot { axis: f0.r.column(0).into(), origin: f0.p }, 1.0));
+                    let f1 = f0.mul(&Frame::rot_x(*alpha));
+                    recs.push((ps + 1, Gen::Trans { dir: f1.r.column(0).into() }, 1.0));
+                    let f1 = f1.mul(&Frame::trans(*a, 0.0, 0.0));
+                    recs.push((ps + 2, Gen::Rot { axis: f1.r.column(1).into(), origin: f1.p }, 1.0));
+                    let f2 = f1.mul(&Frame::rot_y(*beta));
+                    let zg = Gen::Rot { axis: f2.r.column(2).into(), origin: f2.p };
+                    recs.push((ps + 4, zg, 1.0));
+                    recs.push((ps + 5, zg, tau_k));
+                    recs.push((ps + 3, Gen::Trans { dir: f2.r.column(2).into() }, 1.0));
+                    t = f2.mul(&Frame::rot_z(th)).mul(&Frame::trans(0.0, 0.0, *d));
+                }
+                Geometry::Urdf { origin, errors, axis } => {
+                    let mut f = t.mul(origin);
+                    let motions = [Motion::Dx, Motion::Dy, Motion::Dz, Motion::Rx, Motion::Ry, Motion::Rz];
+                    for (e, m) in motions.iter().enumerate() {
+                        let dir: Vector3<f64> = f.r * m.axis();
+                        let g = if m.is_rotation() { Gen::Rot { axis: dir, origin: f.p } } else { Gen::Trans { dir } };
+                        recs.push((ps + e, g, 1.0));
+                        f = f.mul(&m.frame(errors[e]));
+                    }
+                    if joint.revolute {
+                        let g = Gen::Rot { axis: f.r * axis, origin: f.p };
+                        recs.push((ps + 6, g, 1.0));
+                        recs.push((ps + 7, g, tau_k));
+                        f = f.mul(&Frame::rot_axis(axis, th));
+                    }
+                    t = f;
+                }
+            }
+            if joint.revolute {
+                k += 1;
+            }
+        }
+        if body >= self.joints.len() {
+            let nt = self.param_index(ParamId::Tool(0)).unwrap_or(0);
+            push_xyzabc_gens(&t, &self.tool, nt, &mut recs);
+            t = t.mul(&Frame::from_xyzabc(&self.tool));
+        }
+        let p = t.apply(local);
+        for (col, g, coef) in recs {
+            let v = match g {
+                Gen::Rot { axis, origin } => axis.cross(&(p - origin)),
+                Gen::Trans { dir } => dir,
+            };
+            jac[col] += v * coef;
+        }
+        p
+    }
+
+    /// Check a joint vector against the limits; returns the first violation
+    /// (variable index, value, limits) if any.
+    pub fn limit_violation(&self, q: &[f64]) -> Option<(usize, f64, [f64; 2])> {
+        for (k, &j) in self.actuated.iter().enumerate() {
+            if let Some(l) = self.joints[j].limits {
+                let v = q[k];
+                let tol = 1e-9;
+                if !(v >= l[0] - tol && v <= l[1] + tol) {
+                    return Some((k, v, l));
+                }
+            }
+        }
+        None
+    }
+}
+
+/// Records the generators of `frame * Dx Dy Dz Rz(a) Ry(b) Rx(c)` starting at column `col0`.
+fn push_xyzabc_gens(frame: &Frame, v: &[f64; 6], col0: usize, recs: &mut Vec<(usize, Gen, f64)>) {
+    for k in 0..3 {
+        recs.push((col0 + k, Gen::Trans { dir: frame.r.column(k).into() }, 1.0));
+    }
+    let o = frame.apply(&Vector3::new(v[0], v[1], v[2]));
+    let r = frame.r;
+    recs.push((col0 + 3, Gen::Rot { axis: r.column(2).into(), origin: o }, 1.0));
+    let rz = r * Frame::rot_z(v[3]).r;
+    recs.push((col0 + 4, Gen::Rot { axis: rz.column(1).into(), origin: o }, 1.0));
+    let ry = rz * Frame::rot_y(v[4]).r;
+    recs.push((col0 + 5, Gen::Rot { axis: ry.column(0).into(), origin: o }, 1.0));
+}
+
+/// The parameter fields a joint has, in flat-list order.
+fn joint_fields(j: &Joint) -> &'static [JointField] {
+    use JointField::*;
+    match (&j.geometry, j.revolute) {
+        (Geometry::Mdh { .. }, _) => &[Alpha, A, Beta, D, Offset, Compliance],
+        (Geometry::Urdf { .. }, true) => &[Err(0), Err(1), Err(2), Err(3), Err(4), Err(5), Offset, Compliance],
+        (Geometry::Urdf { .. }, false) => &[Err(0), Err(1), Err(2), Err(3), Err(4), Err(5)],
+    }
+}
+
+/// The constant transform before the joint motion.
+fn pre_frame(j: &Joint) -> Frame {
+    match &j.geometry {
+        Geometry::Mdh { alpha, a, beta, .. } => {
+            Frame::rot_x(*alpha).mul(&Frame::trans(*a, 0.0, 0.0)).mul(&Frame::rot_y(*beta))
+        }
+        Geometry::Urdf { origin, errors, .. } => origin.mul(&Frame::from_urdf_errors(errors)),
+    }
+}
+
+/// The joint motion (and, for MDH, the following Dz(d)).
+fn motion_frame(j: &Joint, theta: f64) -> Frame {
+    match &j.geometry {
+        Geometry::Mdh { d, .. } => {
+            let mut f = Frame::rot_z(theta);
+            f.p.z = *d;
+            f
+        }
+        Geometry::Urdf { axis, .. } => Frame::rot_axis(axis, theta),
+    }
+}
+
+/// Rotation axis of a joint in its output frame.
+fn joint_axis(j: &Joint) -> Vector3<f64> {
+    match &j.geometry {
+        Geometry::Mdh { .. } => Vector3::z(),
+        Geometry::Urdf { axis, .. } => *axis,
+    }
+}
+
+impl Frame {
+    /// `Dx(dx) Dy(dy) Dz(dz) Rx(rx) Ry(ry) Rz(rz)`: URDF placement errors.
+    pub fn from_urdf_errors(e: &[f64; 6]) -> Frame {
+        let r = Frame::rot_x(e[3]).r * Frame::rot_y(e[4]).r * Frame::rot_z(e[5]).r;
+        Frame { r, p: Vector3::new(e[0], e[1], e[2]) }
+    }
+}
+
+#[cfg(test)]
+#[path = "chain_tests.rs"]
+mod tests;

@@ -1,0 +1,227 @@
+//! URDF models: parsed with `urdf-rs`, chains from a root link to a tip link with six
+//! placement errors per joint origin plus a joint offset (`../shared/spec/humanoid.md`),
+//! and the calibrated URDF written back by editing only the `<origin>` of changed joints,
+//! so meshes, transmissions and comments survive.
+
+use std::collections::HashMap;
+
+use nalgebra::Vector3;
+
+use super::ModelError;
+use super::chain::{Chain, Geometry, Joint, PointMass, Units};
+use crate::geometry::Frame;
+
+/// Standard gravity (m/s^2).
+pub const G: f64 = 9.80665;
+
+/// A parsed URDF with its original text.
+#[derive(Debug, Clone)]
+pub struct UrdfModel {
+    /// The text as given, used as the template of the calibrated file.
+    pub text: String,
+    /// The parsed robot.
+    pub robot: urdf_rs::Robot,
+    /// Index of the joint whose child is each link.
+    parent_joint: HashMap<String, usize>,
+}
+
+fn pose_frame(p: &urdf_rs::Pose) -> Frame {
+    Frame::from_xyzabc(&[p.xyz[0], p.xyz[1], p.xyz[2], p.rpy[2], p.rpy[1], p.rpy[0]])
+}
+
+impl UrdfModel {
+    /// Parse URDF text.
+    pub fn parse(text: &str) -> Result<Self, ModelError> {
+        let robot = urdf_rs::read_from_string(text).map_err(|e| ModelError::Parse(format!("URDF: {e}")))?;
+        let mut parent_joint = HashMap::new();
+        for (i, j) in robot.joints.iter().enumerate() {
+            if parent_joint.insert(j.child.link.clone(), i).is_some() {
+                return Err(ModelError::Parse(format!("URDF: link `{}` is the child of two joints", j.child.link)));
+            }
+        }
+        Ok(Self { text: text.to_string(), robot, parent_joint })
+    }
+
+    /// Whether a link of that name exists.
+    pub fn has_link(&self, name: &str) -> bool {
+        self.robot.links.iter().any(|l| l.name == name)
+    }
+
+    /// Indices (in `robot.joints`) of the joints from `root` to `tip`, root first.
+    pub fn path(&self, root: &str, tip: &str) -> Result<Vec<usize>, ModelError> {
+        for l in [root, tip] {
+            if !self.has_link(l) {
+                return Err(ModelError::Chain(format!("no link named `{l}` in the URDF")));
+            }
+        }
+        let mut path = Vec::new();
+        let mut link = tip.to_string();
+        while link != root {
+            let Some(&j) = self.parent_joint.get(&link) else {
+                return Err(ModelError::Chain(format!("`{tip}` does not descend from `{root}`")));
+            };
+            path.push(j);
+            link = self.robot.joints[j].parent.link.clone();
+        }
+        path.reverse();
+        Ok(path)
+    }
+
+    /// The chain from `root` to `tip` (metres, radians), base and tool at identity, gravity
+    /// along -z of the root frame. Masses: each chain link's, plus every link hanging off the
+    /// chain through other joints, placed at their zero joint values.
+    pub fn chain(&self, root: &str, tip: &str) -> Result<Chain, ModelError> {
+        let path = self.path(root, tip)?;
+        let mut joints = Vec::with_capacity(path.len());
+        for &ji in &path {
+            let j = &self.robot.joints[ji];
+            let revolute = match j.joint_type {
+                urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => true,
+                urdf_rs::JointType::Fixed => false,
+                ref other => {
+                    return Err(ModelError::Chain(format!("joint `{}` is {other:?}: only revolute, continuous and fixed joints are supported", j.name)));
+                }
+            };
+            let axis = Vector3::from(*j.axis.xyz);
+            if revolute && !(axis.norm() > 0.0) {
+                return Err(ModelError::Field { field: format!("joint `{}` axis", j.name), reason: "zero axis".into() });
+            }
+            let limits = (j.joint_type == urdf_rs::JointType::Revolute && j.limit.lower.is_finite() && j.limit.upper.is_finite() && j.limit.lower < j.limit.upper)
+                .then_some([j.limit.lower, j.limit.upper]);
+            joints.push(Joint {
+                name: j.name.clone(),
+                geometry: Geometry::Urdf { origin: pose_frame(&j.origin), errors: [0.0; 6], axis: axis.normalize() },
+                revolute,
+                offset: 0.0,
+                compliance: 0.0,
+                limits,
+                effort: (revolute && j.limit.effort > 0.0).then_some(j.limit.effort),
+            });
+        }
+        let masses = self.masses_along(&path);
+        Ok(Chain::new(joints, [0.0; 6], [0.0; 6], Vector3::new(0.0, 0.0, -G), masses, Units { mm: false, deg: false }))
+    }
+
+    /// Point masses of the chain's links and of everything hanging off them.
+    fn masses_along(&self, path: &[usize]) -> Vec<PointMass> {
+        let on_chain: Vec<&str> = path.iter().map(|&j| self.robot.joints[j].child.link.as_str()).collect();
+        let mut out = Vec::new();
+        for (body, &ji) in path.iter().enumerate() {
+            let link = &self.robot.joints[ji].child.link;
+            // Depth-first over the subtree not on the chain, with the pose of each link in the
+            // chain link's frame (other joints at zero).
+            let mut stack = vec![(link.clone(), Frame::identity())];
+            while let Some((name, pose)) = stack.pop() {
+                if let Some(l) = self.robot.links.iter().find(|l| l.name == name) {
+                    let m = l.inertial.mass.value;
+                    if m > 0.0 {
+                        let c = pose.apply(&Vector3::from(*l.inertial.origin.xyz));
+                        out.push(PointMass { name: name.clone(), body, mass: m, com: c });
+                    }
+                }
+                for j in self.robot.joints.iter().filter(|j| j.parent.link == name) {
+                    if !on_chain.contains(&j.child.link.as_str()) {
+                        stack.push((j.child.link.clone(), pose.mul(&pose_frame(&j.origin))));
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// The URDF text with the placement errors and offsets of `chain` folded into the
+    /// `<origin>` of each of its joints: `origin' = origin * E(errors) * Rot(axis, offset)`,
+    /// which reproduces the chain's forward kinematics exactly.
+    pub fn write_calibrated(&self, chain: &Chain) -> Result<String, ModelError> {
+        let mut text = self.text.clone();
+        for joint in &chain.joints {
+            let Geometry::Urdf { origin, errors, axis } = &joint.geometry else { continue };
+            let mut o = origin.mul(&Frame::from_urdf_errors(errors));
+            if joint.revolute {
+                o = o.mul(&Frame::rot_axis(axis, joint.offset));
+            }
+            let v = o.to_xyzabc();
+            let tag = format!("<origin xyz=\"{} {} {}\" rpy=\"{} {} {}\"/>", v[0], v[1], v[2], v[5], v[4], v[3]);
+            text = replace_origin(&text, &joint.name, &tag)
+                .ok_or_else(|| ModelError::Chain(format!("joint `{}` not found in the URDF text", joint.name)))?;
+        }
+        Ok(text)
+    }
+}
+
+/// Replace (or insert) the `<origin .../>` of the `<joint name=.. type=..>` element.
+fn replace_origin(text: &str, name: &str, new_tag: &str) -> Option<String> {
+    let mut from = 0;
+    while let Some(rel) = text[from..].find("<joint") {
+        let start = from + rel;
+        let head_end = start + text[start..].find('>')?;
+        let head = &text[start..=head_end];
+        from = head_end;
+        let has_name = head.contains(&format!("name=\"{name}\"")) || head.contains(&format!("name='{name}'"));
+        // Joints inside <transmission> have a name but no type.
+        if !has_name || !head.contains("type=") {
+            continue;
+        }
+        if head.ends_with("/>") {
+            return None;
+        }
+        let end = head_end + text[head_end..].find("</joint>")?;
+        let body = &text[head_end + 1..end];
+        let mut out = String::with_capacity(text.len() + new_tag.len());
+        out.push_str(&text[..=head_end]);
+        if let Some(o) = body.find("<origin") {
+            let o_abs = head_end + 1 + o;
+            let close = o_abs + text[o_abs..].find('>')?;
+            // `<origin ... />` or `<origin ...></origin>`.
+            let after = if text[o_abs..=close].ends_with("/>") {
+                close + 1
+            } else {
+                close + 1 + text[close + 1..].find("</origin>")? + "</origin>".len()
+            };
+            out.push_str(&text[head_end + 1..o_abs]);
+            out.push_str(new_tag);
+            out.push_str(&text[after..]);
+        } else {
+            out.push_str("\n    ");
+            out.push_str(new_tag);
+            out.push_str(&text[head_end + 1..]);
+        }
+        return Some(out);
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{JointField, ParamId};
+
+    const PANDA: &str = include_str!("../../tests/data/mukca/panda_nominal.urdf");
+
+    #[test]
+    fn panda_chain_and_write_back_reproduce_fk() {
+        let m = UrdfModel::parse(PANDA).unwrap();
+        let mut c = m.chain("panda_link0", "ball_link").unwrap();
+        assert_eq!(c.dof(), 7);
+        // Perturb every error and offset, fold them into the text, reload: same FK.
+        let ids: Vec<ParamId> = c.param_ids().into_iter().filter(|id| matches!(id, ParamId::Joint(_, JointField::Err(_) | JointField::Offset))).collect();
+        for (k, id) in ids.iter().enumerate() {
+            c.set_param(*id, 1e-3 * ((k as f64 * 1.7).sin()));
+        }
+        let text = m.write_calibrated(&c).unwrap();
+        let back = UrdfModel::parse(&text).unwrap().chain("panda_link0", "ball_link").unwrap();
+        let q = [0.3, -0.5, 0.2, -2.0, 0.4, 1.7, 0.8];
+        let (a, b) = (c.tcp(&q, None), back.tcp(&q, None));
+        assert!((a.p - b.p).norm() < 1e-12, "{}", (a.p - b.p).norm());
+        assert!(a.angle_to(&b) < 1e-12);
+        // Meshes and the rest of the text are untouched.
+        assert!(text.contains("<mesh") == PANDA.contains("<mesh"));
+    }
+
+    #[test]
+    fn missing_links_are_named() {
+        let m = UrdfModel::parse(PANDA).unwrap();
+        let e = m.chain("panda_link0", "no_such_link").unwrap_err().to_string();
+        assert!(e.contains("no_such_link"), "{e}");
+    }
+}
