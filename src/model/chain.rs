@@ -133,8 +133,13 @@ pub struct Chain {
 /// Where a joint's generator acts, recorded during the forward pass for the Jacobian.
 #[derive(Clone, Copy)]
 enum Gen {
-    Rot { axis: Vector3<f64>, origin: Vector3<f64> },
-    Trans { dir: Vector3<f64> },
+    Rot {
+        axis: Vector3<f64>,
+        origin: Vector3<f64>,
+    },
+    Trans {
+        dir: Vector3<f64>,
+    },
 }
 
 impl Chain {
@@ -165,7 +170,9 @@ impl Chain {
     /// Recompute the caches; called after any geometric change.
     fn refresh(&mut self) {
         self.pre = self.joints.iter().map(pre_frame).collect();
-        self.actuated = (0..self.joints.len()).filter(|&j| self.joints[j].revolute).collect();
+        self.actuated = (0..self.joints.len())
+            .filter(|&j| self.joints[j].revolute)
+            .collect();
         let mut start = 0;
         self.param_start = self
             .joints
@@ -201,11 +208,16 @@ impl Chain {
 
     /// Position of `id` in [`Chain::param_ids`].
     pub fn param_index(&self, id: ParamId) -> Option<usize> {
-        let nj = self.param_start.last().map_or(0, |s| s + joint_fields(&self.joints[self.joints.len() - 1]).len());
+        let nj = self.param_start.last().map_or(0, |s| {
+            s + joint_fields(&self.joints[self.joints.len() - 1]).len()
+        });
         match id {
             ParamId::Joint(j, f) => {
                 let fields = joint_fields(self.joints.get(j)?);
-                fields.iter().position(|x| *x == f).map(|k| self.param_start[j] + k)
+                fields
+                    .iter()
+                    .position(|x| *x == f)
+                    .map(|k| self.param_start[j] + k)
             }
             ParamId::Base(k) => Some(nj + k as usize),
             ParamId::Tool(k) => Some(nj + 6 + k as usize),
@@ -224,7 +236,9 @@ impl Chain {
                 (Geometry::Mdh { .. }, JointField::D) => format!("d{}", j + 1),
                 (Geometry::Mdh { .. }, JointField::Offset) => format!("theta_offset{}", j + 1),
                 (Geometry::Mdh { .. }, JointField::Compliance) => format!("c{}", j + 1),
-                (_, JointField::Err(k)) => format!("{}.{}", self.joints[j].name, URDF_ERRORS[k as usize]),
+                (_, JointField::Err(k)) => {
+                    format!("{}.{}", self.joints[j].name, URDF_ERRORS[k as usize])
+                }
                 (_, JointField::Offset) => format!("{}.offset", self.joints[j].name),
                 (_, JointField::Compliance) => format!("{}.c", self.joints[j].name),
                 (_, other) => format!("{}.{other:?}", self.joints[j].name),
@@ -337,7 +351,9 @@ impl Chain {
 
     /// TCP frame in the world frame {W}: base * chain * tool.
     pub fn tcp(&self, q: &[f64], tau: Option<&[f64]>) -> Frame {
-        Frame::from_xyzabc(&self.base).mul(&self.flange(q, tau)).mul(&Frame::from_xyzabc(&self.tool))
+        Frame::from_xyzabc(&self.base)
+            .mul(&self.flange(q, tau))
+            .mul(&Frame::from_xyzabc(&self.tool))
     }
 
     /// Static motor torques (N*m) of the revolute joints that hold the chain against gravity
@@ -410,38 +426,100 @@ impl Chain {
         push_xyzabc_gens(&Frame::identity(), &self.base, nb, &mut recs);
         let mut t = Frame::from_xyzabc(&self.base);
         let mut k = 0;
-        let last = if body >= self.joints.len() { self.joints.len() } else { body + 1 };
+        let last = if body >= self.joints.len() {
+            self.joints.len()
+        } else {
+            body + 1
+        };
         for j in 0..last {
             let joint = &self.joints[j];
             let ps = self.param_start[j];
-            let th = if joint.revolute { self.theta(j, q[k], tau.map_or(0.0, |t| t[k])) } else { 0.0 };
-            let tau_k = if joint.revolute { tau.map_or(0.0, |t| t[k]) } else { 0.0 };
+            let th = if joint.revolute {
+                self.theta(j, q[k], tau.map_or(0.0, |t| t[k]))
+            } else {
+                0.0
+            };
+            let tau_k = if joint.revolute {
+                tau.map_or(0.0, |t| t[k])
+            } else {
+                0.0
+            };
             match &joint.geometry {
                 Geometry::Mdh { alpha, a, beta, d } => {
                     let f0 = t;
-                    recs.push((ps, Gen::Rot { axis: f0.r.column(0).into(), origin: f0.p }, 1.0));
+                    recs.push((
+                        ps,
+                        Gen::Rot {
+                            axis: f0.r.column(0).into(),
+                            origin: f0.p,
+                        },
+                        1.0,
+                    ));
                     let f1 = f0.mul(&Frame::rot_x(*alpha));
-                    recs.push((ps + 1, Gen::Trans { dir: f1.r.column(0).into() }, 1.0));
+                    recs.push((
+                        ps + 1,
+                        Gen::Trans {
+                            dir: f1.r.column(0).into(),
+                        },
+                        1.0,
+                    ));
                     let f1 = f1.mul(&Frame::trans(*a, 0.0, 0.0));
-                    recs.push((ps + 2, Gen::Rot { axis: f1.r.column(1).into(), origin: f1.p }, 1.0));
+                    recs.push((
+                        ps + 2,
+                        Gen::Rot {
+                            axis: f1.r.column(1).into(),
+                            origin: f1.p,
+                        },
+                        1.0,
+                    ));
                     let f2 = f1.mul(&Frame::rot_y(*beta));
-                    let zg = Gen::Rot { axis: f2.r.column(2).into(), origin: f2.p };
+                    let zg = Gen::Rot {
+                        axis: f2.r.column(2).into(),
+                        origin: f2.p,
+                    };
                     recs.push((ps + 4, zg, 1.0));
                     recs.push((ps + 5, zg, tau_k));
-                    recs.push((ps + 3, Gen::Trans { dir: f2.r.column(2).into() }, 1.0));
+                    recs.push((
+                        ps + 3,
+                        Gen::Trans {
+                            dir: f2.r.column(2).into(),
+                        },
+                        1.0,
+                    ));
                     t = f2.mul(&Frame::rot_z(th)).mul(&Frame::trans(0.0, 0.0, *d));
                 }
-                Geometry::Urdf { origin, errors, axis } => {
+                Geometry::Urdf {
+                    origin,
+                    errors,
+                    axis,
+                } => {
                     let mut f = t.mul(origin);
-                    let motions = [Motion::Dx, Motion::Dy, Motion::Dz, Motion::Rx, Motion::Ry, Motion::Rz];
+                    let motions = [
+                        Motion::Dx,
+                        Motion::Dy,
+                        Motion::Dz,
+                        Motion::Rx,
+                        Motion::Ry,
+                        Motion::Rz,
+                    ];
                     for (e, m) in motions.iter().enumerate() {
                         let dir: Vector3<f64> = f.r * m.axis();
-                        let g = if m.is_rotation() { Gen::Rot { axis: dir, origin: f.p } } else { Gen::Trans { dir } };
+                        let g = if m.is_rotation() {
+                            Gen::Rot {
+                                axis: dir,
+                                origin: f.p,
+                            }
+                        } else {
+                            Gen::Trans { dir }
+                        };
                         recs.push((ps + e, g, 1.0));
                         f = f.mul(&m.frame(errors[e]));
                     }
                     if joint.revolute {
-                        let g = Gen::Rot { axis: f.r * axis, origin: f.p };
+                        let g = Gen::Rot {
+                            axis: f.r * axis,
+                            origin: f.p,
+                        };
                         recs.push((ps + 6, g, 1.0));
                         recs.push((ps + 7, g, tau_k));
                         f = f.mul(&Frame::rot_axis(axis, th));
@@ -488,15 +566,42 @@ impl Chain {
 /// Records the generators of `frame * Dx Dy Dz Rz(a) Ry(b) Rx(c)` starting at column `col0`.
 fn push_xyzabc_gens(frame: &Frame, v: &[f64; 6], col0: usize, recs: &mut Vec<(usize, Gen, f64)>) {
     for k in 0..3 {
-        recs.push((col0 + k, Gen::Trans { dir: frame.r.column(k).into() }, 1.0));
+        recs.push((
+            col0 + k,
+            Gen::Trans {
+                dir: frame.r.column(k).into(),
+            },
+            1.0,
+        ));
     }
     let o = frame.apply(&Vector3::new(v[0], v[1], v[2]));
     let r = frame.r;
-    recs.push((col0 + 3, Gen::Rot { axis: r.column(2).into(), origin: o }, 1.0));
+    recs.push((
+        col0 + 3,
+        Gen::Rot {
+            axis: r.column(2).into(),
+            origin: o,
+        },
+        1.0,
+    ));
     let rz = r * Frame::rot_z(v[3]).r;
-    recs.push((col0 + 4, Gen::Rot { axis: rz.column(1).into(), origin: o }, 1.0));
+    recs.push((
+        col0 + 4,
+        Gen::Rot {
+            axis: rz.column(1).into(),
+            origin: o,
+        },
+        1.0,
+    ));
     let ry = rz * Frame::rot_y(v[4]).r;
-    recs.push((col0 + 5, Gen::Rot { axis: ry.column(0).into(), origin: o }, 1.0));
+    recs.push((
+        col0 + 5,
+        Gen::Rot {
+            axis: ry.column(0).into(),
+            origin: o,
+        },
+        1.0,
+    ));
 }
 
 /// The parameter fields a joint has, in flat-list order.
@@ -504,7 +609,16 @@ fn joint_fields(j: &Joint) -> &'static [JointField] {
     use JointField::*;
     match (&j.geometry, j.revolute) {
         (Geometry::Mdh { .. }, _) => &[Alpha, A, Beta, D, Offset, Compliance],
-        (Geometry::Urdf { .. }, true) => &[Err(0), Err(1), Err(2), Err(3), Err(4), Err(5), Offset, Compliance],
+        (Geometry::Urdf { .. }, true) => &[
+            Err(0),
+            Err(1),
+            Err(2),
+            Err(3),
+            Err(4),
+            Err(5),
+            Offset,
+            Compliance,
+        ],
         (Geometry::Urdf { .. }, false) => &[Err(0), Err(1), Err(2), Err(3), Err(4), Err(5)],
     }
 }
@@ -512,9 +626,9 @@ fn joint_fields(j: &Joint) -> &'static [JointField] {
 /// The constant transform before the joint motion.
 fn pre_frame(j: &Joint) -> Frame {
     match &j.geometry {
-        Geometry::Mdh { alpha, a, beta, .. } => {
-            Frame::rot_x(*alpha).mul(&Frame::trans(*a, 0.0, 0.0)).mul(&Frame::rot_y(*beta))
-        }
+        Geometry::Mdh { alpha, a, beta, .. } => Frame::rot_x(*alpha)
+            .mul(&Frame::trans(*a, 0.0, 0.0))
+            .mul(&Frame::rot_y(*beta)),
         Geometry::Urdf { origin, errors, .. } => origin.mul(&Frame::from_urdf_errors(errors)),
     }
 }
@@ -543,7 +657,10 @@ impl Frame {
     /// `Dx(dx) Dy(dy) Dz(dz) Rx(rx) Ry(ry) Rz(rz)`: URDF placement errors.
     pub fn from_urdf_errors(e: &[f64; 6]) -> Frame {
         let r = Frame::rot_x(e[3]).r * Frame::rot_y(e[4]).r * Frame::rot_z(e[5]).r;
-        Frame { r, p: Vector3::new(e[0], e[1], e[2]) }
+        Frame {
+            r,
+            p: Vector3::new(e[0], e[1], e[2]),
+        }
     }
 }
 

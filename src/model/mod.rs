@@ -3,6 +3,7 @@
 pub mod chain;
 pub mod dh;
 pub mod params;
+pub mod pcr;
 pub mod urdf;
 
 pub use chain::{Chain, Geometry, Joint, PointMass};
