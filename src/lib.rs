@@ -14,5 +14,6 @@
 #![warn(missing_docs)]
 
 pub mod geometry;
+pub mod identify;
 pub mod model;
 pub mod util;
