@@ -15,5 +15,7 @@
 
 pub mod geometry;
 pub mod identify;
+pub mod measure;
+pub mod twin;
 pub mod model;
 pub mod util;
