@@ -26,7 +26,14 @@ pub struct LmOptions {
 
 impl Default for LmOptions {
     fn default() -> Self {
-        Self { max_iterations: 200, ftol: 1e-12, xtol: 1e-12, gtol: 1e-10, lower: None, upper: None }
+        Self {
+            max_iterations: 200,
+            ftol: 1e-12,
+            xtol: 1e-12,
+            gtol: 1e-10,
+            lower: None,
+            upper: None,
+        }
     }
 }
 
@@ -110,7 +117,10 @@ pub fn levenberg_marquardt(
 ) -> Result<LmReport, IdentifyError> {
     let (n, m) = (problem.residual_count(), problem.unknown_count());
     if n < m {
-        return Err(IdentifyError::Underdetermined { residuals: n, unknowns: m });
+        return Err(IdentifyError::Underdetermined {
+            residuals: n,
+            unknowns: m,
+        });
     }
     let mut x = x0.to_vec();
     project(&mut x, opts);
@@ -124,7 +134,10 @@ pub fn levenberg_marquardt(
     let mut j = DMatrix::zeros(n, m);
     problem.jacobian(&x, &mut j)?;
     // Moré's scaling: the largest column norm seen so far.
-    let mut d: Vec<f64> = (0..m).map(|k| j.column(k).norm()).map(|v| if v > 0.0 { v } else { 1.0 }).collect();
+    let mut d: Vec<f64> = (0..m)
+        .map(|k| j.column(k).norm())
+        .map(|v| if v > 0.0 { v } else { 1.0 })
+        .collect();
     let mut mu = 0.0;
     let mut nu = 2.0;
     let mut stop = StopReason::MaxIterations;
@@ -135,7 +148,10 @@ pub fn levenberg_marquardt(
             return Err(IdentifyError::Cancelled);
         }
         iterations += 1;
-        monitor.progress(iterations as f64 / opts.max_iterations as f64, "levenberg-marquardt");
+        monitor.progress(
+            iterations as f64 / opts.max_iterations as f64,
+            "levenberg-marquardt",
+        );
         if cost <= f64::MIN_POSITIVE * 1e10 {
             stop = StopReason::ZeroResidual;
             break;
@@ -143,9 +159,14 @@ pub fn levenberg_marquardt(
         let g = j.tr_mul(&r);
         // Active set: unknowns on a bound whose descent direction points outwards.
         let bounds = bound_state(&x, opts);
-        let free: Vec<usize> = (0..m).filter(|&k| !((bounds[k] < 0 && g[k] > 0.0) || (bounds[k] > 0 && g[k] < 0.0))).collect();
+        let free: Vec<usize> = (0..m)
+            .filter(|&k| !((bounds[k] < 0 && g[k] > 0.0) || (bounds[k] > 0 && g[k] < 0.0)))
+            .collect();
         let rn = cost.sqrt();
-        let gmax = free.iter().map(|&k| g[k].abs() / (j.column(k).norm().max(f64::MIN_POSITIVE) * rn)).fold(0.0, f64::max);
+        let gmax = free
+            .iter()
+            .map(|&k| g[k].abs() / (j.column(k).norm().max(f64::MIN_POSITIVE) * rn))
+            .fold(0.0, f64::max);
         if gmax <= opts.gtol {
             stop = StopReason::SmallGradient;
             break;
@@ -160,7 +181,11 @@ pub fn levenberg_marquardt(
         if mu == 0.0 {
             mu = 1e-3 * (0..mf).map(|k| a[(k, k)]).fold(0.0, f64::max);
         }
-        let xnorm = free.iter().map(|&k| (d[k] * x[k]).powi(2)).sum::<f64>().sqrt();
+        let xnorm = free
+            .iter()
+            .map(|&k| (d[k] * x[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
         // Inner loop: raise the damping until a step is accepted.
         loop {
             let mut damped = a.clone();
@@ -183,13 +208,25 @@ pub fn levenberg_marquardt(
             }
             project(&mut xn, opts);
             let step: Vec<f64> = (0..m).map(|k| xn[k] - x[k]).collect();
-            let step_norm = free.iter().map(|&k| (d[k] * step[k]).powi(2)).sum::<f64>().sqrt();
+            let step_norm = free
+                .iter()
+                .map(|&k| (d[k] * step[k]).powi(2))
+                .sum::<f64>()
+                .sqrt();
             let eval = problem.residuals(&xn, r_new.as_mut_slice());
-            let cost_new = if eval.is_ok() && r_new.iter().all(|v| v.is_finite()) { r_new.norm_squared() } else { f64::INFINITY };
+            let cost_new = if eval.is_ok() && r_new.iter().all(|v| v.is_finite()) {
+                r_new.norm_squared()
+            } else {
+                f64::INFINITY
+            };
             // Predicted cost from the linear model with the (projected) step.
             let lin = &r + &j * DVector::from_vec(step.clone());
             let predicted = cost - lin.norm_squared();
-            let rho = if predicted > 0.0 { (cost - cost_new) / predicted } else { -1.0 };
+            let rho = if predicted > 0.0 {
+                (cost - cost_new) / predicted
+            } else {
+                -1.0
+            };
             if rho > 0.0 && cost_new < cost {
                 let reduction = (cost - cost_new) / cost;
                 x = xn;
@@ -224,7 +261,16 @@ pub fn levenberg_marquardt(
         }
     }
     let at_bound = bound_state(&x, opts);
-    Ok(LmReport { x, residuals: r, jacobian: j, initial_cost, cost, iterations, stop, at_bound })
+    Ok(LmReport {
+        x,
+        residuals: r,
+        jacobian: j,
+        initial_cost,
+        cost,
+        iterations,
+        stop,
+        at_bound,
+    })
 }
 
 #[cfg(test)]
@@ -250,18 +296,31 @@ mod tests {
 
     #[test]
     fn finds_the_rosenbrock_minimum() {
-        let rep = levenberg_marquardt(&Rosenbrock, &[-1.2, 1.0], &LmOptions::default(), &NoMonitor).unwrap();
+        let rep = levenberg_marquardt(&Rosenbrock, &[-1.2, 1.0], &LmOptions::default(), &NoMonitor)
+            .unwrap();
         assert!(rep.stop.converged(), "{:?}", rep.stop);
-        assert!((rep.x[0] - 1.0).abs() < 1e-9 && (rep.x[1] - 1.0).abs() < 1e-9, "{:?}", rep.x);
+        assert!(
+            (rep.x[0] - 1.0).abs() < 1e-9 && (rep.x[1] - 1.0).abs() < 1e-9,
+            "{:?}",
+            rep.x
+        );
     }
 
     /// With x1 <= 0.5 the constrained minimum of Rosenbrock is on the bound: x1 = 0.5 and
     /// x2 = 0.25 (r0 = 0 is reachable on the bound).
     #[test]
     fn respects_bounds_and_reports_them() {
-        let o = LmOptions { upper: Some(vec![0.5, 10.0]), lower: Some(vec![-10.0, -10.0]), ..Default::default() };
+        let o = LmOptions {
+            upper: Some(vec![0.5, 10.0]),
+            lower: Some(vec![-10.0, -10.0]),
+            ..Default::default()
+        };
         let rep = levenberg_marquardt(&Rosenbrock, &[-1.2, 1.0], &o, &NoMonitor).unwrap();
-        assert!((rep.x[0] - 0.5).abs() < 1e-12 && (rep.x[1] - 0.25).abs() < 1e-8, "{:?}", rep.x);
+        assert!(
+            (rep.x[0] - 0.5).abs() < 1e-12 && (rep.x[1] - 0.25).abs() < 1e-8,
+            "{:?}",
+            rep.x
+        );
         assert_eq!(rep.at_bound, vec![1, 0]);
     }
 
@@ -286,8 +345,15 @@ mod tests {
 
     #[test]
     fn column_scaling_handles_units_a_million_apart() {
-        let rep = levenberg_marquardt(&Scaled, &[0.0, 0.0], &LmOptions::default(), &NoMonitor).unwrap();
+        let rep =
+            levenberg_marquardt(&Scaled, &[0.0, 0.0], &LmOptions::default(), &NoMonitor).unwrap();
         let x1 = 3.0 - 1e-4 / 4.5 / 1e-3;
-        assert!((rep.x[0] - 2.0).abs() < 1e-12 && (rep.x[1] - x1).abs() < 1e-9, "{:?} {:?} {}", rep.x, rep.stop, rep.iterations);
+        assert!(
+            (rep.x[0] - 2.0).abs() < 1e-12 && (rep.x[1] - x1).abs() < 1e-9,
+            "{:?} {:?} {}",
+            rep.x,
+            rep.stop,
+            rep.iterations
+        );
     }
 }

@@ -12,7 +12,7 @@ pub mod uncertainty;
 pub use lm::{LmOptions, LmReport, StopReason, levenberg_marquardt};
 pub use problem::{Problem, Restricted};
 pub use rank::{Pivoting, RankReport, rank_revealing};
-pub use solve::{ParamReport, SolveOptions, Solution, Unknown, solve};
+pub use solve::{ParamReport, Solution, SolveOptions, Unknown, solve};
 pub use uncertainty::{Uncertainty, uncertainty};
 
 /// Errors of the least-squares layer.

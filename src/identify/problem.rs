@@ -22,7 +22,11 @@ pub trait Problem: Sync {
 }
 
 /// Central-difference Jacobian of any problem (used as default and to check analytic ones).
-pub fn central_differences<P: Problem + ?Sized>(p: &P, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
+pub fn central_differences<P: Problem + ?Sized>(
+    p: &P,
+    x: &[f64],
+    j: &mut DMatrix<f64>,
+) -> Result<(), IdentifyError> {
     let n = p.residual_count();
     let mut xp = x.to_vec();
     let mut rp = vec![0.0; n];
@@ -50,7 +54,9 @@ pub struct Restricted<'a> {
 
 impl std::fmt::Debug for Restricted<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Restricted").field("free", &self.free).finish()
+        f.debug_struct("Restricted")
+            .field("free", &self.free)
+            .finish()
     }
 }
 

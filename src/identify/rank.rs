@@ -97,7 +97,14 @@ pub fn rank_revealing(j: &DMatrix<f64>, pivoting: &Pivoting, tol: f64) -> RankRe
     }
     dropped.extend(remaining);
     let dependencies = dropped.iter().map(|&c| dependency(j, &kept, c)).collect();
-    RankReport { rank: kept.len(), kept, dropped, r_diag, dependencies, tolerance: tol }
+    RankReport {
+        rank: kept.len(),
+        kept,
+        dropped,
+        r_diag,
+        dependencies,
+        tolerance: tol,
+    }
 }
 
 /// Least-squares expression of column `c` of `j` in the kept columns, coefficients sorted
@@ -111,8 +118,12 @@ fn dependency(j: &DMatrix<f64>, kept: &[usize], c: usize) -> Vec<(usize, f64)> {
         a.set_column(p, &j.column(k));
     }
     let b = j.column(c).clone_owned();
-    let Some(svd) = nalgebra::linalg::SVD::try_new(a, true, true, 1e-14, 0) else { return Vec::new() };
-    let Ok(coef) = svd.solve(&b, 1e-12) else { return Vec::new() };
+    let Some(svd) = nalgebra::linalg::SVD::try_new(a, true, true, 1e-14, 0) else {
+        return Vec::new();
+    };
+    let Ok(coef) = svd.solve(&b, 1e-12) else {
+        return Vec::new();
+    };
     let mut out: Vec<(usize, f64)> = kept.iter().copied().zip(coef.iter().copied()).collect();
     let big = out.iter().map(|v| v.1.abs()).fold(0.0, f64::max);
     out.retain(|v| v.1.abs() > 1e-6 * big.max(f64::MIN_POSITIVE));
@@ -127,7 +138,11 @@ mod tests {
     #[test]
     fn finds_the_dependent_column_and_its_combination() {
         // Column 2 = 2 * col0 - col1: rank 2 of 3.
-        let j = DMatrix::from_row_slice(4, 3, &[1.0, 0.0, 2.0, 0.0, 1.0, -1.0, 1.0, 1.0, 1.0, 2.0, 0.5, 3.5]);
+        let j = DMatrix::from_row_slice(
+            4,
+            3,
+            &[1.0, 0.0, 2.0, 0.0, 1.0, -1.0, 1.0, 1.0, 1.0, 2.0, 0.5, 3.5],
+        );
         let r = rank_revealing(&j, &Pivoting::Norm, 1e-10);
         assert_eq!(r.rank, 2);
         assert_eq!(r.dropped.len(), 1);
@@ -137,7 +152,10 @@ mod tests {
         let dep = &r.dependencies[0];
         let c0 = dep.iter().find(|d| d.0 == 0).unwrap().1;
         let c1 = dep.iter().find(|d| d.0 == 1).unwrap().1;
-        assert!((c0 - 2.0).abs() < 1e-12 && (c1 + 1.0).abs() < 1e-12, "{dep:?}");
+        assert!(
+            (c0 - 2.0).abs() < 1e-12 && (c1 + 1.0).abs() < 1e-12,
+            "{dep:?}"
+        );
         // Priority 2, 0, 1 keeps 2 and 0 and drops 1.
         let r = rank_revealing(&j, &Pivoting::Priority(vec![2, 0, 1]), 1e-10);
         assert_eq!(r.dropped, vec![1]);

@@ -5,7 +5,10 @@
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-use super::{IdentifyError, LmOptions, Pivoting, Problem, Restricted, StopReason, Uncertainty, levenberg_marquardt, rank_revealing, uncertainty};
+use super::{
+    IdentifyError, LmOptions, Pivoting, Problem, Restricted, StopReason, Uncertainty,
+    levenberg_marquardt, rank_revealing, uncertainty,
+};
 use crate::util::Monitor;
 
 /// Description of one unknown for reports.
@@ -43,7 +46,12 @@ pub struct SolveOptions {
 
 impl Default for SolveOptions {
     fn default() -> Self {
-        Self { lm: LmOptions::default(), pivoting: Pivoting::Norm, rank_tolerance: 1e-8, noise: None }
+        Self {
+            lm: LmOptions::default(),
+            pivoting: Pivoting::Norm,
+            rank_tolerance: 1e-8,
+            noise: None,
+        }
     }
 }
 
@@ -131,7 +139,11 @@ pub fn solve(
     free.sort_unstable();
     let restricted = Restricted::new(problem, x0.to_vec(), free.clone());
     let pick = |f: &dyn Fn(&Unknown) -> Option<f64>, default: f64| -> Option<Vec<f64>> {
-        free.iter().any(|&k| f(&unknowns[k]).is_some()).then(|| free.iter().map(|&k| f(&unknowns[k]).unwrap_or(default)).collect())
+        free.iter().any(|&k| f(&unknowns[k]).is_some()).then(|| {
+            free.iter()
+                .map(|&k| f(&unknowns[k]).unwrap_or(default))
+                .collect()
+        })
     };
     let lm_opts = LmOptions {
         lower: pick(&|u: &Unknown| u.lower, f64::NEG_INFINITY),
@@ -175,7 +187,11 @@ pub fn solve(
         .zip(&rank.dependencies)
         .map(|(&c, dep)| Dependency {
             name: unknowns[c].name.clone(),
-            combination: dep.iter().take(6).map(|&(k, v)| (unknowns[k].name.clone(), v)).collect(),
+            combination: dep
+                .iter()
+                .take(6)
+                .map(|&(k, v)| (unknowns[k].name.clone(), v))
+                .collect(),
         })
         .collect();
     let mut dropped = rank.dropped.clone();

@@ -23,11 +23,24 @@ pub struct Uncertainty {
 pub fn uncertainty(j: &DMatrix<f64>, r: &DVector<f64>) -> Uncertainty {
     let (n, m) = j.shape();
     let dof = n.saturating_sub(m);
-    let sigma = if dof > 0 { (r.norm_squared() / dof as f64).sqrt() } else { f64::NAN };
+    let sigma = if dof > 0 {
+        (r.norm_squared() / dof as f64).sqrt()
+    } else {
+        f64::NAN
+    };
     if m == 0 {
-        return Uncertainty { std: vec![], sigma, dof, condition_number: 1.0, singular_values: vec![] };
+        return Uncertainty {
+            std: vec![],
+            sigma,
+            dof,
+            condition_number: 1.0,
+            singular_values: vec![],
+        };
     }
-    let d: Vec<f64> = (0..m).map(|k| j.column(k).norm()).map(|v| if v > 0.0 { v } else { 1.0 }).collect();
+    let d: Vec<f64> = (0..m)
+        .map(|k| j.column(k).norm())
+        .map(|v| if v > 0.0 { v } else { 1.0 })
+        .collect();
     let mut js = j.clone();
     for k in 0..m {
         js.column_mut(k).unscale_mut(d[k]);
@@ -37,7 +50,13 @@ pub fn uncertainty(j: &DMatrix<f64>, r: &DVector<f64>) -> Uncertainty {
     let svd = rmat.svd(false, true);
     let s = svd.singular_values.clone();
     let Some(vt) = svd.v_t else {
-        return Uncertainty { std: vec![f64::NAN; m], sigma, dof, condition_number: f64::INFINITY, singular_values: s.iter().copied().collect() };
+        return Uncertainty {
+            std: vec![f64::NAN; m],
+            sigma,
+            dof,
+            condition_number: f64::INFINITY,
+            singular_values: s.iter().copied().collect(),
+        };
     };
     let mut order: Vec<usize> = (0..s.len()).collect();
     order.sort_by(|a, b| s[*b].total_cmp(&s[*a]));
@@ -45,7 +64,15 @@ pub fn uncertainty(j: &DMatrix<f64>, r: &DVector<f64>) -> Uncertainty {
     let smin = s[order[s.len() - 1]];
     let std = (0..m)
         .map(|k| {
-            let var: f64 = (0..s.len()).map(|i| if s[i] > 0.0 { (vt[(i, k)] / s[i]).powi(2) } else { f64::INFINITY }).sum();
+            let var: f64 = (0..s.len())
+                .map(|i| {
+                    if s[i] > 0.0 {
+                        (vt[(i, k)] / s[i]).powi(2)
+                    } else {
+                        f64::INFINITY
+                    }
+                })
+                .sum();
             sigma * var.sqrt() / d[k]
         })
         .collect();
@@ -53,7 +80,11 @@ pub fn uncertainty(j: &DMatrix<f64>, r: &DVector<f64>) -> Uncertainty {
         std,
         sigma,
         dof,
-        condition_number: if smin > 0.0 { smax / smin } else { f64::INFINITY },
+        condition_number: if smin > 0.0 {
+            smax / smin
+        } else {
+            f64::INFINITY
+        },
         singular_values: order.iter().map(|&i| s[i]).collect(),
     }
 }
@@ -74,6 +105,10 @@ mod tests {
         let sxx: f64 = xs.iter().map(|x| (x - 2.0f64).powi(2)).sum();
         let sb = (s2 / sxx).sqrt();
         let sa = (s2 * (1.0 / 5.0 + 4.0 / sxx)).sqrt();
-        assert!((u.std[0] - sa).abs() < 1e-12 && (u.std[1] - sb).abs() < 1e-12, "{:?} vs {sa} {sb}", u.std);
+        assert!(
+            (u.std[0] - sa).abs() < 1e-12 && (u.std[1] - sb).abs() < 1e-12,
+            "{:?} vs {sa} {sb}",
+            u.std
+        );
     }
 }

@@ -55,23 +55,46 @@ pub struct PointProblem {
 impl PointProblem {
     /// Build the problem. Static torques are evaluated once per configuration with the
     /// starting model (compliance off), as the spec prescribes.
-    pub fn new(chain: Chain, ids: Vec<ParamId>, plate: BallPlate, meas: Vec<PointMeasurement>) -> Result<Self, MeasureError> {
+    pub fn new(
+        chain: Chain,
+        ids: Vec<ParamId>,
+        plate: BallPlate,
+        meas: Vec<PointMeasurement>,
+    ) -> Result<Self, MeasureError> {
         for (r, m) in meas.iter().enumerate() {
             if let Target::Ball(k) = m.target {
                 if k >= plate.len() {
-                    return Err(MeasureError::Row { row: r + 1, reason: format!("ball {} but the plate has {} balls", k + 1, plate.len()) });
+                    return Err(MeasureError::Row {
+                        row: r + 1,
+                        reason: format!("ball {} but the plate has {} balls", k + 1, plate.len()),
+                    });
                 }
             }
         }
         let free_balls = plate.unknown_balls();
         for &b in &free_balls {
             if !meas.iter().any(|m| m.target == Target::Ball(b)) {
-                return Err(MeasureError::Plate(format!("ball {} has an unknown centre and no measurement", b + 1)));
+                return Err(MeasureError::Plate(format!(
+                    "ball {} has an unknown centre and no measurement",
+                    b + 1
+                )));
             }
         }
-        let cols = ids.iter().map(|id| chain.param_index(*id).unwrap_or(usize::MAX)).collect();
+        let cols = ids
+            .iter()
+            .map(|id| chain.param_index(*id).unwrap_or(usize::MAX))
+            .collect();
         let tau = meas.iter().map(|m| chain.static_torques(&m.q)).collect();
-        Ok(Self { chain, ids, cols, plate, free_balls, meas, tau, distance_weight: 10.0 })
+        Ok(Self {
+            chain,
+            ids,
+            cols,
+            plate,
+            free_balls,
+            meas,
+            tau,
+            distance_weight: 10.0,
+        })
     }
 
     /// The measurements.
@@ -144,7 +167,12 @@ impl PointProblem {
 
     /// Ball centres for unknowns `x` (fixed ones from the plate).
     pub fn centres(&self, x: &[f64]) -> Vec<Vector3<f64>> {
-        let mut out: Vec<Vector3<f64>> = self.plate.centres.iter().map(|c| c.unwrap_or_else(Vector3::zeros)).collect();
+        let mut out: Vec<Vector3<f64>> = self
+            .plate
+            .centres
+            .iter()
+            .map(|c| c.unwrap_or_else(Vector3::zeros))
+            .collect();
         for (k, &b) in self.free_balls.iter().enumerate() {
             let o = self.ids.len() + 3 * k;
             out[b] = Vector3::new(x[o], x[o + 1], x[o + 2]);
@@ -153,7 +181,10 @@ impl PointProblem {
     }
 
     fn free_slot(&self, ball: usize) -> Option<usize> {
-        self.free_balls.iter().position(|&b| b == ball).map(|k| self.ids.len() + 3 * k)
+        self.free_balls
+            .iter()
+            .position(|&b| b == ball)
+            .map(|k| self.ids.len() + 3 * k)
     }
 }
 

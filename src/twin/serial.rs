@@ -39,7 +39,9 @@ fn perturb(nominal: &Chain, seed: u64) -> Chain {
     let file = DhFile::parse(IRB120_JSON).ok();
     let names: Vec<String> = file.map(|f| f.identify).unwrap_or_default();
     for name in &names {
-        let Ok(id) = t.param_by_name(name) else { continue };
+        let Ok(id) = t.param_by_name(name) else {
+            continue;
+        };
         let v = t.param(id);
         let dv = match (id, id.quantity()) {
             (ParamId::Base(_), Quantity::Length) => 1.0 * rng.normal(),
@@ -61,8 +63,17 @@ impl SerialTwin {
         let nominal = file.to_chain().expect("the embedded IRB 120 file builds");
         let truth = perturb(&nominal, seed);
         let ballbar = [200.012, 199.987, 200.003];
-        let plate = BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2]).expect("valid triangle");
-        Self { file, nominal, truth, ballbar, plate, centring_epsilon_mm: 0.010, tracker_noise_mm: 0.010 }
+        let plate =
+            BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2]).expect("valid triangle");
+        Self {
+            file,
+            nominal,
+            truth,
+            ballbar,
+            plate,
+            centring_epsilon_mm: 0.010,
+            tracker_noise_mm: 0.010,
+        }
     }
 
     /// Where the true TCP is at joint values `q` (rad), with the true static deflection.
@@ -127,7 +138,10 @@ impl SerialTwin {
                 let q0 = self.random_q(&mut rng);
                 let e = Vector3::from(rng.in_ball(self.centring_epsilon_mm));
                 if let Some(q) = self.reach(&q0, &(centre + e)) {
-                    out.push(PointMeasurement { q, target: Target::Ball(b) });
+                    out.push(PointMeasurement {
+                        q,
+                        target: Target::Ball(b),
+                    });
                     got += 1;
                 }
             }
@@ -142,8 +156,12 @@ impl SerialTwin {
         (0..n)
             .map(|_| {
                 let q = self.random_q(&mut rng);
-                let noise = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * self.tracker_noise_mm;
-                PointMeasurement { target: Target::Point(self.true_tcp(&q) + noise), q }
+                let noise =
+                    Vector3::new(rng.normal(), rng.normal(), rng.normal()) * self.tracker_noise_mm;
+                PointMeasurement {
+                    target: Target::Point(self.true_tcp(&q) + noise),
+                    q,
+                }
             })
             .collect()
     }

@@ -30,7 +30,10 @@ pub struct SubMonitor<'a> {
 
 impl std::fmt::Debug for SubMonitor<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SubMonitor").field("lo", &self.lo).field("hi", &self.hi).finish()
+        f.debug_struct("SubMonitor")
+            .field("lo", &self.lo)
+            .field("hi", &self.hi)
+            .finish()
     }
 }
 
@@ -43,7 +46,10 @@ impl<'a> SubMonitor<'a> {
 
 impl Monitor for SubMonitor<'_> {
     fn progress(&self, fraction: f64, stage: &str) {
-        self.parent.progress(self.lo + (self.hi - self.lo) * fraction.clamp(0.0, 1.0), stage);
+        self.parent.progress(
+            self.lo + (self.hi - self.lo) * fraction.clamp(0.0, 1.0),
+            stage,
+        );
     }
     fn is_cancelled(&self) -> bool {
         self.parent.is_cancelled()
