@@ -124,6 +124,8 @@ pub struct Chain {
     pub units: Units,
     /// Cached constant part of each joint (`pre` transform), refreshed on every change.
     pre: Vec<Frame>,
+    /// Cached base and tool frames with the values they were built from.
+    ends: [([f64; 6], Frame); 2],
     /// Index of the joint of each joint variable (revolute joints only).
     actuated: Vec<usize>,
     /// Index of the first parameter of each joint in the flat parameter list.
@@ -160,6 +162,7 @@ impl Chain {
             masses,
             units,
             pre: Vec::new(),
+            ends: [([f64::NAN; 6], Frame::identity()); 2],
             actuated: Vec::new(),
             param_start: Vec::new(),
         };
@@ -170,6 +173,7 @@ impl Chain {
     /// Recompute the caches; called after any geometric change.
     fn refresh(&mut self) {
         self.pre = self.joints.iter().map(pre_frame).collect();
+        self.refresh_ends();
         self.actuated = (0..self.joints.len())
             .filter(|&j| self.joints[j].revolute)
             .collect();
@@ -183,6 +187,56 @@ impl Chain {
                 s
             })
             .collect();
+    }
+
+    fn refresh_ends(&mut self) {
+        self.ends = [
+            (self.base, Frame::from_xyzabc(&self.base)),
+            (self.tool, Frame::from_xyzabc(&self.tool)),
+        ];
+    }
+
+    /// Base frame ({0} in {W}), from the cache when the values have not changed.
+    pub fn base_frame(&self) -> Frame {
+        if self.ends[0].0 == self.base {
+            self.ends[0].1
+        } else {
+            Frame::from_xyzabc(&self.base)
+        }
+    }
+
+    /// Tool frame (TCP in the last joint's frame), cached like the base.
+    pub fn tool_frame(&self) -> Frame {
+        if self.ends[1].0 == self.tool {
+            self.ends[1].1
+        } else {
+            Frame::from_xyzabc(&self.tool)
+        }
+    }
+
+    /// `t * pre_j * motion_j(theta)`: one joint of the forward pass.
+    #[inline]
+    fn advance(&self, t: &Frame, j: usize, theta: f64) -> Frame {
+        let a = t.mul(&self.pre[j]);
+        match &self.joints[j].geometry {
+            Geometry::Mdh { d, .. } => {
+                // a * Rz(theta) * Dz(d): rotate the first two columns, move along the third.
+                let (s, c) = theta.sin_cos();
+                let (c0, c1, c2) = (
+                    a.r.column(0).into_owned(),
+                    a.r.column(1).into_owned(),
+                    a.r.column(2).into_owned(),
+                );
+                let mut r = a.r;
+                r.set_column(0, &(c0 * c + c1 * s));
+                r.set_column(1, &(c1 * c - c0 * s));
+                Frame {
+                    r,
+                    p: a.p + c2 * *d,
+                }
+            }
+            Geometry::Urdf { axis, .. } => a.mul(&Frame::rot_axis(axis, theta)),
+        }
     }
 
     /// Number of joint variables (revolute joints).
@@ -278,8 +332,9 @@ impl Chain {
     /// Set one parameter (internal units).
     pub fn set_param(&mut self, id: ParamId, v: f64) {
         self.set_param_raw(id, v);
-        if let ParamId::Joint(j, _) = id {
-            self.pre[j] = pre_frame(&self.joints[j]);
+        match id {
+            ParamId::Joint(j, _) => self.pre[j] = pre_frame(&self.joints[j]),
+            _ => self.refresh_ends(),
         }
     }
 
@@ -289,6 +344,7 @@ impl Chain {
             self.set_param_raw(*id, *v);
         }
         self.pre = self.joints.iter().map(pre_frame).collect();
+        self.refresh_ends();
     }
 
     fn set_param_raw(&mut self, id: ParamId, v: f64) {
@@ -324,11 +380,11 @@ impl Chain {
         let mut t = Frame::identity();
         let mut k = 0;
         for (j, joint) in self.joints.iter().enumerate() {
-            t = t.mul(&self.pre[j]);
             if joint.revolute {
-                let th = self.theta(j, q[k], tau.map_or(0.0, |t| t[k]));
+                t = self.advance(&t, j, self.theta(j, q[k], tau.map_or(0.0, |t| t[k])));
                 k += 1;
-                t = t.mul(&motion_frame(joint, th));
+            } else {
+                t = t.mul(&self.pre[j]);
             }
             out.push(t);
         }
@@ -339,11 +395,11 @@ impl Chain {
         let mut t = Frame::identity();
         let mut k = 0;
         for (j, joint) in self.joints.iter().enumerate() {
-            t = t.mul(&self.pre[j]);
             if joint.revolute {
-                let th = self.theta(j, q[k], tau.map_or(0.0, |t| t[k]));
+                t = self.advance(&t, j, self.theta(j, q[k], tau.map_or(0.0, |t| t[k])));
                 k += 1;
-                t = t.mul(&motion_frame(joint, th));
+            } else {
+                t = t.mul(&self.pre[j]);
             }
         }
         t
@@ -351,9 +407,9 @@ impl Chain {
 
     /// TCP frame in the world frame {W}: base * chain * tool.
     pub fn tcp(&self, q: &[f64], tau: Option<&[f64]>) -> Frame {
-        Frame::from_xyzabc(&self.base)
+        self.base_frame()
             .mul(&self.flange(q, tau))
-            .mul(&Frame::from_xyzabc(&self.tool))
+            .mul(&self.tool_frame())
     }
 
     /// Static motor torques (N*m) of the revolute joints that hold the chain against gravity
@@ -364,32 +420,27 @@ impl Chain {
         self.torques_from_frames(&frames)
     }
 
-    /// Static torques from precomputed joint frames (see [`Chain::joint_frames`]).
+    /// Static torques from precomputed joint frames (see [`Chain::joint_frames`]): one
+    /// backward pass accumulating the mass and first moment carried by each joint.
     pub fn torques_from_frames(&self, frames: &[Frame]) -> Vec<f64> {
-        let n = self.joints.len();
-        // Mass and first moment of everything carried by each joint's output frame.
-        let mut m = vec![0.0; n];
-        let mut s = vec![Vector3::zeros(); n];
-        for pm in &self.masses {
-            if pm.body < n {
-                m[pm.body] += pm.mass;
-                s[pm.body] += frames[pm.body].apply(&pm.com) * pm.mass;
-            }
-        }
-        for j in (0..n.saturating_sub(1)).rev() {
-            m[j] += m[j + 1];
-            let next = s[j + 1];
-            s[j] += next;
-        }
         let metre = self.units.metre();
-        let mut tau = Vec::with_capacity(self.dof());
-        for &j in &self.actuated {
-            // The joint axis passes through the output frame's origin (the motion rotates
-            // about its own axis), and its direction is the motion axis in that frame.
+        let mut tau = vec![0.0; self.dof()];
+        let mut k = tau.len();
+        let (mut mass, mut moment) = (0.0, Vector3::zeros());
+        for j in (0..self.joints.len()).rev() {
             let f = &frames[j];
-            let axis = f.r * joint_axis(&self.joints[j]);
-            let moment = (s[j] - f.p * m[j]) * metre;
-            tau.push(axis.dot(&moment.cross(&(-self.gravity))));
+            for pm in self.masses.iter().filter(|pm| pm.body == j) {
+                mass += pm.mass;
+                moment += f.apply(&pm.com) * pm.mass;
+            }
+            if self.joints[j].revolute {
+                // The joint axis passes through the output frame's origin (the motion rotates
+                // about its own axis); its direction is the motion axis in that frame.
+                k -= 1;
+                let axis = f.r * joint_axis(&self.joints[j]);
+                let arm = (moment - f.p * mass) * metre;
+                tau[k] = axis.dot(&arm.cross(&(-self.gravity)));
+            }
         }
         tau
     }
@@ -630,18 +681,6 @@ fn pre_frame(j: &Joint) -> Frame {
             .mul(&Frame::trans(*a, 0.0, 0.0))
             .mul(&Frame::rot_y(*beta)),
         Geometry::Urdf { origin, errors, .. } => origin.mul(&Frame::from_urdf_errors(errors)),
-    }
-}
-
-/// The joint motion (and, for MDH, the following Dz(d)).
-fn motion_frame(j: &Joint, theta: f64) -> Frame {
-    match &j.geometry {
-        Geometry::Mdh { d, .. } => {
-            let mut f = Frame::rot_z(theta);
-            f.p.z = *d;
-            f
-        }
-        Geometry::Urdf { axis, .. } => Frame::rot_axis(axis, theta),
     }
 }
 
