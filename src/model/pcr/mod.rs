@@ -5,6 +5,7 @@
 //! - [`params`]: the 28 robot parameters, names and units.
 //! - `rod`: RK4 integration of one rod with its variational equations.
 //! - `shooting`: residuals and Jacobians of the 12 x 12 shooting system, Newton.
+//! - [`sensitivity`]: the paper's Table 2 (finite differences per parameter type).
 //! - `solve`: [`Pcr`]: forward and inverse kinematics with continuation and warm starts,
 //!   pose Jacobians with respect to the parameters.
 //!
@@ -14,6 +15,7 @@ pub mod file;
 mod lu;
 pub mod params;
 mod rod;
+pub mod sensitivity;
 mod shooting;
 mod solve;
 #[cfg(test)]
