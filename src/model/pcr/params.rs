@@ -88,6 +88,30 @@ impl PcrParams {
         std::array::from_fn(|i| self.get(i))
     }
 
+    /// Parameters from the first [`ROBOT_PARAMS`] values of `v` in flat order (missing
+    /// values are zero).
+    pub fn from_slice(v: &[f64]) -> Self {
+        let zero = LimbParams {
+            ax: 0.0,
+            ay: 0.0,
+            gamma: 0.0,
+            alpha: 0.0,
+            bx: 0.0,
+            by: 0.0,
+            beta: 0.0,
+            l: 0.0,
+            d: 0.0,
+        };
+        let mut p = PcrParams {
+            limbs: [zero; 3],
+            e: 0.0,
+        };
+        for (k, x) in v.iter().take(ROBOT_PARAMS).enumerate() {
+            p.set(k, *x);
+        }
+        p
+    }
+
     /// Checks that every value is finite and lengths, diameters and `E` are positive.
     pub fn validate(&self) -> Result<(), PcrError> {
         for i in 0..ROBOT_PARAMS {
