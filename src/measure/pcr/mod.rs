@@ -8,7 +8,9 @@
 //!   extrinsics, with warm-started forward kinematics.
 //! - [`steps`]: the bounded three-step identification, gauge handling and the paper's
 //!   Table 3.
+//! - [`accuracy`]: ISO 9283 pose accuracy and repeatability (the paper's Table 4).
 
+pub mod accuracy;
 pub mod problem;
 pub mod steps;
 

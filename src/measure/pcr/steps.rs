@@ -130,7 +130,8 @@ pub struct ErrorStats {
 }
 
 impl ErrorStats {
-    fn of(v: &[f64], factor: f64) -> Self {
+    /// Max, mean and min of `v` multiplied by `factor` (a unit change).
+    pub fn of(v: &[f64], factor: f64) -> Self {
         let s = Summary::of(v, "");
         Self {
             max: s.max * factor,
