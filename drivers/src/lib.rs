@@ -11,6 +11,7 @@ pub mod actor;
 pub mod error;
 pub mod link;
 pub mod mock;
+pub mod qtm;
 pub mod tee;
 pub mod transcript;
 pub mod uwave;
