@@ -12,6 +12,7 @@ pub mod error;
 pub mod link;
 pub mod mock;
 pub mod qtm;
+pub mod rws;
 pub mod tee;
 pub mod transcript;
 pub mod uwave;

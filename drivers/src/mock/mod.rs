@@ -161,6 +161,7 @@ pub async fn start(args: MockArgs) -> Result<RunningMock, MockError> {
         None => match args.device {
             MockDevice::Uwave => crate::uwave::mock::handler(&args, faults),
             MockDevice::Qtm => crate::qtm::mock::handler(&args, faults),
+            MockDevice::Abb => crate::rws::mock::handler(&args, faults),
             _ => return Err(MockError::Usage("todo".into())),
         },
     };
