@@ -2,7 +2,7 @@
 //! checks in `.ci/checks/20-drivers-conformance.sh`:
 //! `cargo run -p calibd-drivers --example mock -- qtm --listen 127.0.0.1:0`.
 
-use calibd_drivers::mock::{run, MockArgs};
+use calibd_drivers::mock::{MockArgs, run};
 use clap::Parser;
 
 /// Runs one mock device server until Ctrl-C or SIGTERM.
@@ -16,10 +16,11 @@ struct Cli {
 async fn main() {
     let cli = Cli::parse();
     let shutdown = async {
-        let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(s) => s,
-            Err(_) => return std::future::pending().await,
-        };
+        let mut term =
+            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(s) => s,
+                Err(_) => return std::future::pending().await,
+            };
         tokio::select! {
             _ = tokio::signal::ctrl_c() => {}
             _ = term.recv() => {}

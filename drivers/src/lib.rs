@@ -13,6 +13,7 @@ pub mod link;
 pub mod mock;
 pub mod qtm;
 pub mod rws;
+pub mod smaract;
 pub mod tee;
 pub mod transcript;
 pub mod uwave;

@@ -162,6 +162,8 @@ pub async fn start(args: MockArgs) -> Result<RunningMock, MockError> {
             MockDevice::Uwave => crate::uwave::mock::handler(&args, faults),
             MockDevice::Qtm => crate::qtm::mock::handler(&args, faults),
             MockDevice::Abb => crate::rws::mock::handler(&args, faults),
+            MockDevice::Mcs => crate::smaract::mock::mcs_handler(&args, faults),
+            MockDevice::Mcs2 => crate::smaract::mock::mcs2_handler(&args, faults),
             _ => return Err(MockError::Usage("todo".into())),
         },
     };
