@@ -164,7 +164,7 @@ pub async fn start(args: MockArgs) -> Result<RunningMock, MockError> {
             MockDevice::Abb => crate::rws::mock::handler(&args, faults),
             MockDevice::Mcs => crate::smaract::mock::mcs_handler(&args, faults),
             MockDevice::Mcs2 => crate::smaract::mock::mcs2_handler(&args, faults),
-            _ => return Err(MockError::Usage("todo".into())),
+            MockDevice::Can => crate::can::mock::handler(&args, faults, &tracker, &token),
         },
     };
     let is_path = args.listen.contains('/');
