@@ -8,6 +8,7 @@
 #![warn(missing_docs)]
 
 pub mod actor;
+pub mod bench;
 pub mod can;
 pub mod error;
 pub mod link;

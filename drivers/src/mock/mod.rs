@@ -201,6 +201,25 @@ pub async fn start(args: MockArgs) -> Result<RunningMock, MockError> {
     })
 }
 
+/// Starts a TCP mock around any handler (e.g. one built with a digital-twin model through
+/// `qtm::mock::handler_with`, `rws::mock::handler_with`, ...).
+pub async fn start_with(listen: &str, handler: Handler) -> Result<RunningMock, MockError> {
+    let token = CancellationToken::new();
+    let tracker = TaskTracker::new();
+    let bind = |source| MockError::Bind {
+        addr: listen.to_string(),
+        source,
+    };
+    let listener = TcpListener::bind(listen).await.map_err(bind)?;
+    let addr = listener.local_addr().map_err(bind)?.to_string();
+    tracker.spawn(serve::serve_tcp(listener, token.clone(), handler));
+    Ok(RunningMock {
+        addr,
+        token,
+        tracker,
+    })
+}
+
 /// Runs a mock until `shutdown` resolves; prints `mock <device> ready on <addr>` on stdout
 /// once it accepts connections.
 pub async fn run(
