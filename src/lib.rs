@@ -13,6 +13,12 @@
 //! - [`bench`]: benchmarks printed by `calibd bench`.
 #![warn(missing_docs)]
 
+pub mod bench;
+pub mod design;
 pub mod geometry;
+pub mod identify;
+pub mod jobs;
+pub mod measure;
 pub mod model;
+pub mod twin;
 pub mod util;

@@ -67,44 +67,65 @@ impl Default for Frame {
 impl Frame {
     /// The identity transform.
     pub fn identity() -> Self {
-        Self { r: Matrix3::identity(), p: Vector3::zeros() }
+        Self {
+            r: Matrix3::identity(),
+            p: Vector3::zeros(),
+        }
     }
 
     /// A pure translation.
     pub fn trans(x: f64, y: f64, z: f64) -> Self {
-        Self { r: Matrix3::identity(), p: Vector3::new(x, y, z) }
+        Self {
+            r: Matrix3::identity(),
+            p: Vector3::new(x, y, z),
+        }
     }
 
     /// Rotation about x by `a` radians.
     pub fn rot_x(a: f64) -> Self {
         let (s, c) = a.sin_cos();
-        Self { r: Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c), p: Vector3::zeros() }
+        Self {
+            r: Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c),
+            p: Vector3::zeros(),
+        }
     }
 
     /// Rotation about y by `a` radians.
     pub fn rot_y(a: f64) -> Self {
         let (s, c) = a.sin_cos();
-        Self { r: Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c), p: Vector3::zeros() }
+        Self {
+            r: Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c),
+            p: Vector3::zeros(),
+        }
     }
 
     /// Rotation about z by `a` radians.
     pub fn rot_z(a: f64) -> Self {
         let (s, c) = a.sin_cos();
-        Self { r: Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0), p: Vector3::zeros() }
+        Self {
+            r: Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0),
+            p: Vector3::zeros(),
+        }
     }
 
     /// Rotation by `a` radians about the unit axis `u` (Rodrigues).
     pub fn rot_axis(u: &Vector3<f64>, a: f64) -> Self {
         let (s, c) = a.sin_cos();
         let k = u.cross_matrix();
-        Self { r: Matrix3::identity() + k * s + k * k * (1.0 - c), p: Vector3::zeros() }
+        Self {
+            r: Matrix3::identity() + k * s + k * k * (1.0 - c),
+            p: Vector3::zeros(),
+        }
     }
 
     /// `Dx(x) Dy(y) Dz(z) Rz(a) Ry(b) Rx(c)`: the base/tool convention of the serial
     /// model, and also URDF's `xyz` + `rpy` (roll = c, pitch = b, yaw = a). Angles in radians.
     pub fn from_xyzabc(v: &[f64; 6]) -> Self {
         let r = Frame::rot_z(v[3]).r * Frame::rot_y(v[4]).r * Frame::rot_x(v[5]).r;
-        Self { r, p: Vector3::new(v[0], v[1], v[2]) }
+        Self {
+            r,
+            p: Vector3::new(v[0], v[1], v[2]),
+        }
     }
 
     /// Inverse of [`Frame::from_xyzabc`]: ZYX Euler angles (b in [-pi/2, pi/2]).
@@ -123,13 +144,19 @@ impl Frame {
     /// Composition `self * other`.
     #[inline]
     pub fn mul(&self, o: &Frame) -> Frame {
-        Frame { r: self.r * o.r, p: self.r * o.p + self.p }
+        Frame {
+            r: self.r * o.r,
+            p: self.r * o.p + self.p,
+        }
     }
 
     /// The inverse transform.
     pub fn inverse(&self) -> Frame {
         let rt = self.r.transpose();
-        Frame { r: rt, p: -(rt * self.p) }
+        Frame {
+            r: rt,
+            p: -(rt * self.p),
+        }
     }
 
     /// Maps a point of the child frame into the parent frame.
@@ -162,7 +189,12 @@ mod tests {
         let f = Frame::from_xyzabc(&v);
         let back = f.to_xyzabc();
         for k in 0..6 {
-            assert!((back[k] - v[k]).abs() < 1e-12, "{k}: {} vs {}", back[k], v[k]);
+            assert!(
+                (back[k] - v[k]).abs() < 1e-12,
+                "{k}: {} vs {}",
+                back[k],
+                v[k]
+            );
         }
         let id = f * f.inverse();
         assert!((id.r - Matrix3::identity()).norm() < 1e-14);

@@ -33,7 +33,11 @@ impl Pose2 {
     /// The inverse transform.
     pub fn inverse(&self) -> Pose2 {
         let (s, c) = self.theta.sin_cos();
-        Pose2 { x: -(c * self.x + s * self.y), y: s * self.x - c * self.y, theta: -self.theta }
+        Pose2 {
+            x: -(c * self.x + s * self.y),
+            y: s * self.x - c * self.y,
+            theta: -self.theta,
+        }
     }
 
     /// Maps a point of the child frame into the parent frame.

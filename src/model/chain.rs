@@ -124,6 +124,8 @@ pub struct Chain {
     pub units: Units,
     /// Cached constant part of each joint (`pre` transform), refreshed on every change.
     pre: Vec<Frame>,
+    /// Cached base and tool frames with the values they were built from.
+    ends: [([f64; 6], Frame); 2],
     /// Index of the joint of each joint variable (revolute joints only).
     actuated: Vec<usize>,
     /// Index of the first parameter of each joint in the flat parameter list.
@@ -133,8 +135,13 @@ pub struct Chain {
 /// Where a joint's generator acts, recorded during the forward pass for the Jacobian.
 #[derive(Clone, Copy)]
 enum Gen {
-    Rot { axis: Vector3<f64>, origin: Vector3<f64> },
-    Trans { dir: Vector3<f64> },
+    Rot {
+        axis: Vector3<f64>,
+        origin: Vector3<f64>,
+    },
+    Trans {
+        dir: Vector3<f64>,
+    },
 }
 
 impl Chain {
@@ -155,6 +162,7 @@ impl Chain {
             masses,
             units,
             pre: Vec::new(),
+            ends: [([f64::NAN; 6], Frame::identity()); 2],
             actuated: Vec::new(),
             param_start: Vec::new(),
         };
@@ -165,7 +173,10 @@ impl Chain {
     /// Recompute the caches; called after any geometric change.
     fn refresh(&mut self) {
         self.pre = self.joints.iter().map(pre_frame).collect();
-        self.actuated = (0..self.joints.len()).filter(|&j| self.joints[j].revolute).collect();
+        self.refresh_ends();
+        self.actuated = (0..self.joints.len())
+            .filter(|&j| self.joints[j].revolute)
+            .collect();
         let mut start = 0;
         self.param_start = self
             .joints
@@ -176,6 +187,56 @@ impl Chain {
                 s
             })
             .collect();
+    }
+
+    fn refresh_ends(&mut self) {
+        self.ends = [
+            (self.base, Frame::from_xyzabc(&self.base)),
+            (self.tool, Frame::from_xyzabc(&self.tool)),
+        ];
+    }
+
+    /// Base frame ({0} in {W}), from the cache when the values have not changed.
+    pub fn base_frame(&self) -> Frame {
+        if self.ends[0].0 == self.base {
+            self.ends[0].1
+        } else {
+            Frame::from_xyzabc(&self.base)
+        }
+    }
+
+    /// Tool frame (TCP in the last joint's frame), cached like the base.
+    pub fn tool_frame(&self) -> Frame {
+        if self.ends[1].0 == self.tool {
+            self.ends[1].1
+        } else {
+            Frame::from_xyzabc(&self.tool)
+        }
+    }
+
+    /// `t * pre_j * motion_j(theta)`: one joint of the forward pass.
+    #[inline]
+    fn advance(&self, t: &Frame, j: usize, theta: f64) -> Frame {
+        let a = t.mul(&self.pre[j]);
+        match &self.joints[j].geometry {
+            Geometry::Mdh { d, .. } => {
+                // a * Rz(theta) * Dz(d): rotate the first two columns, move along the third.
+                let (s, c) = theta.sin_cos();
+                let (c0, c1, c2) = (
+                    a.r.column(0).into_owned(),
+                    a.r.column(1).into_owned(),
+                    a.r.column(2).into_owned(),
+                );
+                let mut r = a.r;
+                r.set_column(0, &(c0 * c + c1 * s));
+                r.set_column(1, &(c1 * c - c0 * s));
+                Frame {
+                    r,
+                    p: a.p + c2 * *d,
+                }
+            }
+            Geometry::Urdf { axis, .. } => a.mul(&Frame::rot_axis(axis, theta)),
+        }
     }
 
     /// Number of joint variables (revolute joints).
@@ -201,11 +262,16 @@ impl Chain {
 
     /// Position of `id` in [`Chain::param_ids`].
     pub fn param_index(&self, id: ParamId) -> Option<usize> {
-        let nj = self.param_start.last().map_or(0, |s| s + joint_fields(&self.joints[self.joints.len() - 1]).len());
+        let nj = self.param_start.last().map_or(0, |s| {
+            s + joint_fields(&self.joints[self.joints.len() - 1]).len()
+        });
         match id {
             ParamId::Joint(j, f) => {
                 let fields = joint_fields(self.joints.get(j)?);
-                fields.iter().position(|x| *x == f).map(|k| self.param_start[j] + k)
+                fields
+                    .iter()
+                    .position(|x| *x == f)
+                    .map(|k| self.param_start[j] + k)
             }
             ParamId::Base(k) => Some(nj + k as usize),
             ParamId::Tool(k) => Some(nj + 6 + k as usize),
@@ -224,7 +290,9 @@ impl Chain {
                 (Geometry::Mdh { .. }, JointField::D) => format!("d{}", j + 1),
                 (Geometry::Mdh { .. }, JointField::Offset) => format!("theta_offset{}", j + 1),
                 (Geometry::Mdh { .. }, JointField::Compliance) => format!("c{}", j + 1),
-                (_, JointField::Err(k)) => format!("{}.{}", self.joints[j].name, URDF_ERRORS[k as usize]),
+                (_, JointField::Err(k)) => {
+                    format!("{}.{}", self.joints[j].name, URDF_ERRORS[k as usize])
+                }
                 (_, JointField::Offset) => format!("{}.offset", self.joints[j].name),
                 (_, JointField::Compliance) => format!("{}.c", self.joints[j].name),
                 (_, other) => format!("{}.{other:?}", self.joints[j].name),
@@ -264,8 +332,9 @@ impl Chain {
     /// Set one parameter (internal units).
     pub fn set_param(&mut self, id: ParamId, v: f64) {
         self.set_param_raw(id, v);
-        if let ParamId::Joint(j, _) = id {
-            self.pre[j] = pre_frame(&self.joints[j]);
+        match id {
+            ParamId::Joint(j, _) => self.pre[j] = pre_frame(&self.joints[j]),
+            _ => self.refresh_ends(),
         }
     }
 
@@ -275,6 +344,7 @@ impl Chain {
             self.set_param_raw(*id, *v);
         }
         self.pre = self.joints.iter().map(pre_frame).collect();
+        self.refresh_ends();
     }
 
     fn set_param_raw(&mut self, id: ParamId, v: f64) {
@@ -310,11 +380,11 @@ impl Chain {
         let mut t = Frame::identity();
         let mut k = 0;
         for (j, joint) in self.joints.iter().enumerate() {
-            t = t.mul(&self.pre[j]);
             if joint.revolute {
-                let th = self.theta(j, q[k], tau.map_or(0.0, |t| t[k]));
+                t = self.advance(&t, j, self.theta(j, q[k], tau.map_or(0.0, |t| t[k])));
                 k += 1;
-                t = t.mul(&motion_frame(joint, th));
+            } else {
+                t = t.mul(&self.pre[j]);
             }
             out.push(t);
         }
@@ -325,11 +395,11 @@ impl Chain {
         let mut t = Frame::identity();
         let mut k = 0;
         for (j, joint) in self.joints.iter().enumerate() {
-            t = t.mul(&self.pre[j]);
             if joint.revolute {
-                let th = self.theta(j, q[k], tau.map_or(0.0, |t| t[k]));
+                t = self.advance(&t, j, self.theta(j, q[k], tau.map_or(0.0, |t| t[k])));
                 k += 1;
-                t = t.mul(&motion_frame(joint, th));
+            } else {
+                t = t.mul(&self.pre[j]);
             }
         }
         t
@@ -337,7 +407,9 @@ impl Chain {
 
     /// TCP frame in the world frame {W}: base * chain * tool.
     pub fn tcp(&self, q: &[f64], tau: Option<&[f64]>) -> Frame {
-        Frame::from_xyzabc(&self.base).mul(&self.flange(q, tau)).mul(&Frame::from_xyzabc(&self.tool))
+        self.base_frame()
+            .mul(&self.flange(q, tau))
+            .mul(&self.tool_frame())
     }
 
     /// Static motor torques (N*m) of the revolute joints that hold the chain against gravity
@@ -348,32 +420,27 @@ impl Chain {
         self.torques_from_frames(&frames)
     }
 
-    /// Static torques from precomputed joint frames (see [`Chain::joint_frames`]).
+    /// Static torques from precomputed joint frames (see [`Chain::joint_frames`]): one
+    /// backward pass accumulating the mass and first moment carried by each joint.
     pub fn torques_from_frames(&self, frames: &[Frame]) -> Vec<f64> {
-        let n = self.joints.len();
-        // Mass and first moment of everything carried by each joint's output frame.
-        let mut m = vec![0.0; n];
-        let mut s = vec![Vector3::zeros(); n];
-        for pm in &self.masses {
-            if pm.body < n {
-                m[pm.body] += pm.mass;
-                s[pm.body] += frames[pm.body].apply(&pm.com) * pm.mass;
-            }
-        }
-        for j in (0..n.saturating_sub(1)).rev() {
-            m[j] += m[j + 1];
-            let next = s[j + 1];
-            s[j] += next;
-        }
         let metre = self.units.metre();
-        let mut tau = Vec::with_capacity(self.dof());
-        for &j in &self.actuated {
-            // The joint axis passes through the output frame's origin (the motion rotates
-            // about its own axis), and its direction is the motion axis in that frame.
+        let mut tau = vec![0.0; self.dof()];
+        let mut k = tau.len();
+        let (mut mass, mut moment) = (0.0, Vector3::zeros());
+        for j in (0..self.joints.len()).rev() {
             let f = &frames[j];
-            let axis = f.r * joint_axis(&self.joints[j]);
-            let moment = (s[j] - f.p * m[j]) * metre;
-            tau.push(axis.dot(&moment.cross(&(-self.gravity))));
+            for pm in self.masses.iter().filter(|pm| pm.body == j) {
+                mass += pm.mass;
+                moment += f.apply(&pm.com) * pm.mass;
+            }
+            if self.joints[j].revolute {
+                // The joint axis passes through the output frame's origin (the motion rotates
+                // about its own axis); its direction is the motion axis in that frame.
+                k -= 1;
+                let axis = f.r * joint_axis(&self.joints[j]);
+                let arm = (moment - f.p * mass) * metre;
+                tau[k] = axis.dot(&arm.cross(&(-self.gravity)));
+            }
         }
         tau
     }
@@ -410,38 +477,100 @@ impl Chain {
         push_xyzabc_gens(&Frame::identity(), &self.base, nb, &mut recs);
         let mut t = Frame::from_xyzabc(&self.base);
         let mut k = 0;
-        let last = if body >= self.joints.len() { self.joints.len() } else { body + 1 };
+        let last = if body >= self.joints.len() {
+            self.joints.len()
+        } else {
+            body + 1
+        };
         for j in 0..last {
             let joint = &self.joints[j];
             let ps = self.param_start[j];
-            let th = if joint.revolute { self.theta(j, q[k], tau.map_or(0.0, |t| t[k])) } else { 0.0 };
-            let tau_k = if joint.revolute { tau.map_or(0.0, |t| t[k]) } else { 0.0 };
+            let th = if joint.revolute {
+                self.theta(j, q[k], tau.map_or(0.0, |t| t[k]))
+            } else {
+                0.0
+            };
+            let tau_k = if joint.revolute {
+                tau.map_or(0.0, |t| t[k])
+            } else {
+                0.0
+            };
             match &joint.geometry {
                 Geometry::Mdh { alpha, a, beta, d } => {
                     let f0 = t;
-                    recs.push((ps, Gen::Rot { axis: f0.r.column(0).into(), origin: f0.p }, 1.0));
+                    recs.push((
+                        ps,
+                        Gen::Rot {
+                            axis: f0.r.column(0).into(),
+                            origin: f0.p,
+                        },
+                        1.0,
+                    ));
                     let f1 = f0.mul(&Frame::rot_x(*alpha));
-                    recs.push((ps + 1, Gen::Trans { dir: f1.r.column(0).into() }, 1.0));
+                    recs.push((
+                        ps + 1,
+                        Gen::Trans {
+                            dir: f1.r.column(0).into(),
+                        },
+                        1.0,
+                    ));
                     let f1 = f1.mul(&Frame::trans(*a, 0.0, 0.0));
-                    recs.push((ps + 2, Gen::Rot { axis: f1.r.column(1).into(), origin: f1.p }, 1.0));
+                    recs.push((
+                        ps + 2,
+                        Gen::Rot {
+                            axis: f1.r.column(1).into(),
+                            origin: f1.p,
+                        },
+                        1.0,
+                    ));
                     let f2 = f1.mul(&Frame::rot_y(*beta));
-                    let zg = Gen::Rot { axis: f2.r.column(2).into(), origin: f2.p };
+                    let zg = Gen::Rot {
+                        axis: f2.r.column(2).into(),
+                        origin: f2.p,
+                    };
                     recs.push((ps + 4, zg, 1.0));
                     recs.push((ps + 5, zg, tau_k));
-                    recs.push((ps + 3, Gen::Trans { dir: f2.r.column(2).into() }, 1.0));
+                    recs.push((
+                        ps + 3,
+                        Gen::Trans {
+                            dir: f2.r.column(2).into(),
+                        },
+                        1.0,
+                    ));
                     t = f2.mul(&Frame::rot_z(th)).mul(&Frame::trans(0.0, 0.0, *d));
                 }
-                Geometry::Urdf { origin, errors, axis } => {
+                Geometry::Urdf {
+                    origin,
+                    errors,
+                    axis,
+                } => {
                     let mut f = t.mul(origin);
-                    let motions = [Motion::Dx, Motion::Dy, Motion::Dz, Motion::Rx, Motion::Ry, Motion::Rz];
+                    let motions = [
+                        Motion::Dx,
+                        Motion::Dy,
+                        Motion::Dz,
+                        Motion::Rx,
+                        Motion::Ry,
+                        Motion::Rz,
+                    ];
                     for (e, m) in motions.iter().enumerate() {
                         let dir: Vector3<f64> = f.r * m.axis();
-                        let g = if m.is_rotation() { Gen::Rot { axis: dir, origin: f.p } } else { Gen::Trans { dir } };
+                        let g = if m.is_rotation() {
+                            Gen::Rot {
+                                axis: dir,
+                                origin: f.p,
+                            }
+                        } else {
+                            Gen::Trans { dir }
+                        };
                         recs.push((ps + e, g, 1.0));
                         f = f.mul(&m.frame(errors[e]));
                     }
                     if joint.revolute {
-                        let g = Gen::Rot { axis: f.r * axis, origin: f.p };
+                        let g = Gen::Rot {
+                            axis: f.r * axis,
+                            origin: f.p,
+                        };
                         recs.push((ps + 6, g, 1.0));
                         recs.push((ps + 7, g, tau_k));
                         f = f.mul(&Frame::rot_axis(axis, th));
@@ -488,15 +617,42 @@ impl Chain {
 /// Records the generators of `frame * Dx Dy Dz Rz(a) Ry(b) Rx(c)` starting at column `col0`.
 fn push_xyzabc_gens(frame: &Frame, v: &[f64; 6], col0: usize, recs: &mut Vec<(usize, Gen, f64)>) {
     for k in 0..3 {
-        recs.push((col0 + k, Gen::Trans { dir: frame.r.column(k).into() }, 1.0));
+        recs.push((
+            col0 + k,
+            Gen::Trans {
+                dir: frame.r.column(k).into(),
+            },
+            1.0,
+        ));
     }
     let o = frame.apply(&Vector3::new(v[0], v[1], v[2]));
     let r = frame.r;
-    recs.push((col0 + 3, Gen::Rot { axis: r.column(2).into(), origin: o }, 1.0));
+    recs.push((
+        col0 + 3,
+        Gen::Rot {
+            axis: r.column(2).into(),
+            origin: o,
+        },
+        1.0,
+    ));
     let rz = r * Frame::rot_z(v[3]).r;
-    recs.push((col0 + 4, Gen::Rot { axis: rz.column(1).into(), origin: o }, 1.0));
+    recs.push((
+        col0 + 4,
+        Gen::Rot {
+            axis: rz.column(1).into(),
+            origin: o,
+        },
+        1.0,
+    ));
     let ry = rz * Frame::rot_y(v[4]).r;
-    recs.push((col0 + 5, Gen::Rot { axis: ry.column(0).into(), origin: o }, 1.0));
+    recs.push((
+        col0 + 5,
+        Gen::Rot {
+            axis: ry.column(0).into(),
+            origin: o,
+        },
+        1.0,
+    ));
 }
 
 /// The parameter fields a joint has, in flat-list order.
@@ -504,7 +660,16 @@ fn joint_fields(j: &Joint) -> &'static [JointField] {
     use JointField::*;
     match (&j.geometry, j.revolute) {
         (Geometry::Mdh { .. }, _) => &[Alpha, A, Beta, D, Offset, Compliance],
-        (Geometry::Urdf { .. }, true) => &[Err(0), Err(1), Err(2), Err(3), Err(4), Err(5), Offset, Compliance],
+        (Geometry::Urdf { .. }, true) => &[
+            Err(0),
+            Err(1),
+            Err(2),
+            Err(3),
+            Err(4),
+            Err(5),
+            Offset,
+            Compliance,
+        ],
         (Geometry::Urdf { .. }, false) => &[Err(0), Err(1), Err(2), Err(3), Err(4), Err(5)],
     }
 }
@@ -512,22 +677,10 @@ fn joint_fields(j: &Joint) -> &'static [JointField] {
 /// The constant transform before the joint motion.
 fn pre_frame(j: &Joint) -> Frame {
     match &j.geometry {
-        Geometry::Mdh { alpha, a, beta, .. } => {
-            Frame::rot_x(*alpha).mul(&Frame::trans(*a, 0.0, 0.0)).mul(&Frame::rot_y(*beta))
-        }
+        Geometry::Mdh { alpha, a, beta, .. } => Frame::rot_x(*alpha)
+            .mul(&Frame::trans(*a, 0.0, 0.0))
+            .mul(&Frame::rot_y(*beta)),
         Geometry::Urdf { origin, errors, .. } => origin.mul(&Frame::from_urdf_errors(errors)),
-    }
-}
-
-/// The joint motion (and, for MDH, the following Dz(d)).
-fn motion_frame(j: &Joint, theta: f64) -> Frame {
-    match &j.geometry {
-        Geometry::Mdh { d, .. } => {
-            let mut f = Frame::rot_z(theta);
-            f.p.z = *d;
-            f
-        }
-        Geometry::Urdf { axis, .. } => Frame::rot_axis(axis, theta),
     }
 }
 
@@ -543,7 +696,10 @@ impl Frame {
     /// `Dx(dx) Dy(dy) Dz(dz) Rx(rx) Ry(ry) Rz(rz)`: URDF placement errors.
     pub fn from_urdf_errors(e: &[f64; 6]) -> Frame {
         let r = Frame::rot_x(e[3]).r * Frame::rot_y(e[4]).r * Frame::rot_z(e[5]).r;
-        Frame { r, p: Vector3::new(e[0], e[1], e[2]) }
+        Frame {
+            r,
+            p: Vector3::new(e[0], e[1], e[2]),
+        }
     }
 }
 

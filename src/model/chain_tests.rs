@@ -8,7 +8,10 @@ use crate::model::dh::DhFile;
 use crate::model::urdf::UrdfModel;
 
 fn irb120() -> Chain {
-    let mut c = DhFile::parse(include_str!("../../tests/data/robots/irb120.json")).unwrap().to_chain().unwrap();
+    let mut c = DhFile::parse(include_str!("../../tests/data/robots/irb120.json"))
+        .unwrap()
+        .to_chain()
+        .unwrap();
     // Non-zero betas, compliances and tool angles so every column is exercised.
     for (k, id) in c.param_ids().into_iter().enumerate() {
         let v = c.param(id);
@@ -37,10 +40,17 @@ fn check_jacobian(c: &Chain, q: &[f64], tau: &[f64], local: Vector3<f64>) {
         a.set_param(*id, c.param(*id) + h);
         let mut b = c.clone();
         b.set_param(*id, c.param(*id) - h);
-        let fd = (a.tcp(q, Some(tau)).apply(&local) - b.tcp(q, Some(tau)).apply(&local)) / (2.0 * h);
+        let fd =
+            (a.tcp(q, Some(tau)).apply(&local) - b.tcp(q, Some(tau)).apply(&local)) / (2.0 * h);
         let err = (fd - jac[k]).norm();
         let scale = 1.0 + fd.norm();
-        assert!(err < 1e-6 * scale, "{}: analytic {:?} vs central {:?}", c.param_name(*id), jac[k], fd);
+        assert!(
+            err < 1e-6 * scale,
+            "{}: analytic {:?} vs central {:?}",
+            c.param_name(*id),
+            jac[k],
+            fd
+        );
     }
 }
 
@@ -77,7 +87,11 @@ fn static_torques_are_the_potential_gradient() {
         c.joint_frames(q, None, &mut frames);
         c.masses
             .iter()
-            .map(|m| -m.mass * c.gravity.dot(&(frames[m.body].apply(&m.com) * c.units.metre())))
+            .map(|m| {
+                -m.mass
+                    * c.gravity
+                        .dot(&(frames[m.body].apply(&m.com) * c.units.metre()))
+            })
             .sum::<f64>()
     };
     let tau = c.static_torques(&q);
@@ -87,10 +101,19 @@ fn static_torques_are_the_potential_gradient() {
         a[k] += h;
         b[k] -= h;
         let fd = (energy(&a) - energy(&b)) / (2.0 * h);
-        assert!((fd - tau[k]).abs() < 1e-6 * (1.0 + fd.abs()), "joint {}: {} vs {}", k + 1, tau[k], fd);
+        assert!(
+            (fd - tau[k]).abs() < 1e-6 * (1.0 + fd.abs()),
+            "joint {}: {} vs {}",
+            k + 1,
+            tau[k],
+            fd
+        );
     }
     // Joint 1 of the nominal arm is vertical: gravity gives it no torque.
-    let nominal = DhFile::parse(include_str!("../../tests/data/robots/irb120.json")).unwrap().to_chain().unwrap();
+    let nominal = DhFile::parse(include_str!("../../tests/data/robots/irb120.json"))
+        .unwrap()
+        .to_chain()
+        .unwrap();
     assert!(nominal.static_torques(&q)[0].abs() < 1e-9);
     // Joint 2 carries the arm stretched forward: several N*m.
     assert!(tau[1].abs() > 1.0, "{}", tau[1]);

@@ -135,27 +135,46 @@ pub struct Payload {
 
 impl Xyzabc {
     fn to_internal(self, deg: f64) -> [f64; 6] {
-        [self.x, self.y, self.z, self.a * deg, self.b * deg, self.c * deg]
+        [
+            self.x,
+            self.y,
+            self.z,
+            self.a * deg,
+            self.b * deg,
+            self.c * deg,
+        ]
     }
     fn from_internal(v: &[f64; 6], to_deg: f64) -> Self {
-        Xyzabc { x: v[0], y: v[1], z: v[2], a: v[3] * to_deg, b: v[4] * to_deg, c: v[5] * to_deg }
+        Xyzabc {
+            x: v[0],
+            y: v[1],
+            z: v[2],
+            a: v[3] * to_deg,
+            b: v[4] * to_deg,
+            c: v[5] * to_deg,
+        }
     }
 }
 
 fn field(field: impl Into<String>, reason: impl Into<String>) -> ModelError {
-    ModelError::Field { field: field.into(), reason: reason.into() }
+    ModelError::Field {
+        field: field.into(),
+        reason: reason.into(),
+    }
 }
 
 impl DhFile {
     /// Parse a DH model file from JSON text.
     pub fn parse(text: &str) -> Result<Self, ModelError> {
         let de = &mut serde_json::Deserializer::from_str(text);
-        serde_path_to_error::deserialize(de).map_err(|e| ModelError::Parse(format!("{} (at `{}`)", e.inner(), e.path())))
+        serde_path_to_error::deserialize(de)
+            .map_err(|e| ModelError::Parse(format!("{} (at `{}`)", e.inner(), e.path())))
     }
 
     /// Parse from an already-decoded JSON value.
     pub fn from_value(v: serde_json::Value) -> Result<Self, ModelError> {
-        serde_path_to_error::deserialize(v).map_err(|e| ModelError::Parse(format!("{} (at `{}`)", e.inner(), e.path())))
+        serde_path_to_error::deserialize(v)
+            .map_err(|e| ModelError::Parse(format!("{} (at `{}`)", e.inner(), e.path())))
     }
 
     fn units(&self) -> Result<Units, ModelError> {
@@ -171,10 +190,19 @@ impl DhFile {
         };
         let want = if deg { "deg/(N*m)" } else { "rad/(N*m)" };
         if self.units.compliance != want {
-            return Err(field("units.compliance", format!("`{}` must be `{want}` with angles in {}", self.units.compliance, self.units.angle)));
+            return Err(field(
+                "units.compliance",
+                format!(
+                    "`{}` must be `{want}` with angles in {}",
+                    self.units.compliance, self.units.angle
+                ),
+            ));
         }
         if self.units.mass != "kg" {
-            return Err(field("units.mass", format!("`{}` is not kg", self.units.mass)));
+            return Err(field(
+                "units.mass",
+                format!("`{}` is not kg", self.units.mass),
+            ));
         }
         Ok(Units { mm, deg })
     }
@@ -185,22 +213,43 @@ impl DhFile {
             return Err(field("kind", format!("`{}` is not `serial`", self.kind)));
         }
         let units = self.units()?;
-        let k = if units.deg { std::f64::consts::PI / 180.0 } else { 1.0 };
+        let k = if units.deg {
+            std::f64::consts::PI / 180.0
+        } else {
+            1.0
+        };
         if self.joints.is_empty() {
             return Err(field("joints", "at least one joint is needed"));
         }
         let mut joints = Vec::with_capacity(self.joints.len());
         for (i, j) in self.joints.iter().enumerate() {
-            let vals = [j.alpha, j.a, j.beta, j.d, j.theta_offset, j.compliance, j.limits[0], j.limits[1]];
+            let vals = [
+                j.alpha,
+                j.a,
+                j.beta,
+                j.d,
+                j.theta_offset,
+                j.compliance,
+                j.limits[0],
+                j.limits[1],
+            ];
             if vals.iter().any(|v| !v.is_finite()) {
                 return Err(field(format!("joints[{i}]"), "every number must be finite"));
             }
             if j.limits[0] >= j.limits[1] {
-                return Err(field(format!("joints[{i}].limits"), format!("lower {} is not below upper {}", j.limits[0], j.limits[1])));
+                return Err(field(
+                    format!("joints[{i}].limits"),
+                    format!("lower {} is not below upper {}", j.limits[0], j.limits[1]),
+                ));
             }
             joints.push(Joint {
                 name: j.name.clone(),
-                geometry: Geometry::Mdh { alpha: j.alpha * k, a: j.a, beta: j.beta * k, d: j.d },
+                geometry: Geometry::Mdh {
+                    alpha: j.alpha * k,
+                    a: j.a,
+                    beta: j.beta * k,
+                    d: j.d,
+                },
                 revolute: true,
                 offset: j.theta_offset * k,
                 compliance: j.compliance * k,
@@ -210,7 +259,10 @@ impl DhFile {
         }
         let g = Vector3::from(self.gravity.direction_in_base);
         if !(g.norm() > 0.0) || !self.gravity.magnitude.is_finite() {
-            return Err(field("gravity", "direction must be a non-zero vector and magnitude finite"));
+            return Err(field(
+                "gravity",
+                "direction must be a non-zero vector and magnitude finite",
+            ));
         }
         let gravity = g.normalize() * self.gravity.magnitude;
         let mut chain = Chain::new(
@@ -222,7 +274,14 @@ impl DhFile {
             units,
         );
         if !self.links.is_empty() && self.links.len() != self.joints.len() {
-            return Err(field("links", format!("{} links for {} joints (one link per joint)", self.links.len(), self.joints.len())));
+            return Err(field(
+                "links",
+                format!(
+                    "{} links for {} joints (one link per joint)",
+                    self.links.len(),
+                    self.joints.len()
+                ),
+            ));
         }
         // Centres of mass are given in {0} at q = 0: carry them into each link's frame
         // with the geometry as loaded (compliance off).
@@ -231,14 +290,27 @@ impl DhFile {
         let mut masses = Vec::new();
         for (i, l) in self.links.iter().enumerate() {
             if !(l.mass >= 0.0) || l.com_at_home_in_base.iter().any(|v| !v.is_finite()) {
-                return Err(field(format!("links[{i}]"), "mass must be >= 0 and the centre of mass finite"));
+                return Err(field(
+                    format!("links[{i}]"),
+                    "mass must be >= 0 and the centre of mass finite",
+                ));
             }
-            let com = frames[i].inverse().apply(&Vector3::from(l.com_at_home_in_base));
-            masses.push(PointMass { name: l.name.clone(), body: i, mass: l.mass, com });
+            let com = frames[i]
+                .inverse()
+                .apply(&Vector3::from(l.com_at_home_in_base));
+            masses.push(PointMass {
+                name: l.name.clone(),
+                body: i,
+                mass: l.mass,
+                com,
+            });
         }
         if let Some(p) = &self.payload {
             if !(p.mass >= 0.0) || p.com_in_flange.iter().any(|v| !v.is_finite()) {
-                return Err(field("payload", "mass must be >= 0 and the centre of mass finite"));
+                return Err(field(
+                    "payload",
+                    "mass must be >= 0 and the centre of mass finite",
+                ));
             }
             masses.push(PointMass {
                 name: "payload".into(),
@@ -249,7 +321,9 @@ impl DhFile {
         }
         chain.masses = masses;
         for name in &self.identify {
-            chain.param_by_name(name).map_err(|_| field("identify", format!("unknown parameter name `{name}`")))?;
+            chain
+                .param_by_name(name)
+                .map_err(|_| field("identify", format!("unknown parameter name `{name}`")))?;
         }
         Ok(chain)
     }
@@ -275,7 +349,11 @@ impl DhFile {
         let mut frames = Vec::new();
         chain.joint_frames(&vec![0.0; chain.dof()], None, &mut frames);
         for (i, l) in out.links.iter_mut().enumerate() {
-            if let Some(m) = chain.masses.iter().find(|m| m.body == i && m.name == l.name) {
+            if let Some(m) = chain
+                .masses
+                .iter()
+                .find(|m| m.body == i && m.name == l.name)
+            {
                 let c = frames[i].apply(&m.com);
                 l.com_at_home_in_base = [c.x, c.y, c.z];
             }
@@ -300,7 +378,11 @@ mod tests {
         // Wrist centre at q = 0 in {0}: x = a2 + d4 (70 + 302), z = d1 + a2 (290 + 270).
         let fl = c.flange(&[0.0; 6], None);
         // Flange: wrist centre plus d6 = 72 along +x (joint 6 axis points forward at home).
-        assert!((fl.p - Vector3::new(302.0 + 72.0, 0.0, 290.0 + 270.0 + 70.0)).norm() < 1e-9, "{:?}", fl.p);
+        assert!(
+            (fl.p - Vector3::new(302.0 + 72.0, 0.0, 290.0 + 270.0 + 70.0)).norm() < 1e-9,
+            "{:?}",
+            fl.p
+        );
     }
 
     #[test]

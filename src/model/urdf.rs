@@ -32,14 +32,22 @@ fn pose_frame(p: &urdf_rs::Pose) -> Frame {
 impl UrdfModel {
     /// Parse URDF text.
     pub fn parse(text: &str) -> Result<Self, ModelError> {
-        let robot = urdf_rs::read_from_string(text).map_err(|e| ModelError::Parse(format!("URDF: {e}")))?;
+        let robot =
+            urdf_rs::read_from_string(text).map_err(|e| ModelError::Parse(format!("URDF: {e}")))?;
         let mut parent_joint = HashMap::new();
         for (i, j) in robot.joints.iter().enumerate() {
             if parent_joint.insert(j.child.link.clone(), i).is_some() {
-                return Err(ModelError::Parse(format!("URDF: link `{}` is the child of two joints", j.child.link)));
+                return Err(ModelError::Parse(format!(
+                    "URDF: link `{}` is the child of two joints",
+                    j.child.link
+                )));
             }
         }
-        Ok(Self { text: text.to_string(), robot, parent_joint })
+        Ok(Self {
+            text: text.to_string(),
+            robot,
+            parent_joint,
+        })
     }
 
     /// Whether a link of that name exists.
@@ -51,14 +59,18 @@ impl UrdfModel {
     pub fn path(&self, root: &str, tip: &str) -> Result<Vec<usize>, ModelError> {
         for l in [root, tip] {
             if !self.has_link(l) {
-                return Err(ModelError::Chain(format!("no link named `{l}` in the URDF")));
+                return Err(ModelError::Chain(format!(
+                    "no link named `{l}` in the URDF"
+                )));
             }
         }
         let mut path = Vec::new();
         let mut link = tip.to_string();
         while link != root {
             let Some(&j) = self.parent_joint.get(&link) else {
-                return Err(ModelError::Chain(format!("`{tip}` does not descend from `{root}`")));
+                return Err(ModelError::Chain(format!(
+                    "`{tip}` does not descend from `{root}`"
+                )));
             };
             path.push(j);
             link = self.robot.joints[j].parent.link.clone();
@@ -79,18 +91,31 @@ impl UrdfModel {
                 urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => true,
                 urdf_rs::JointType::Fixed => false,
                 ref other => {
-                    return Err(ModelError::Chain(format!("joint `{}` is {other:?}: only revolute, continuous and fixed joints are supported", j.name)));
+                    return Err(ModelError::Chain(format!(
+                        "joint `{}` is {other:?}: only revolute, continuous and fixed joints are supported",
+                        j.name
+                    )));
                 }
             };
             let axis = Vector3::from(*j.axis.xyz);
             if revolute && !(axis.norm() > 0.0) {
-                return Err(ModelError::Field { field: format!("joint `{}` axis", j.name), reason: "zero axis".into() });
+                return Err(ModelError::Field {
+                    field: format!("joint `{}` axis", j.name),
+                    reason: "zero axis".into(),
+                });
             }
-            let limits = (j.joint_type == urdf_rs::JointType::Revolute && j.limit.lower.is_finite() && j.limit.upper.is_finite() && j.limit.lower < j.limit.upper)
+            let limits = (j.joint_type == urdf_rs::JointType::Revolute
+                && j.limit.lower.is_finite()
+                && j.limit.upper.is_finite()
+                && j.limit.lower < j.limit.upper)
                 .then_some([j.limit.lower, j.limit.upper]);
             joints.push(Joint {
                 name: j.name.clone(),
-                geometry: Geometry::Urdf { origin: pose_frame(&j.origin), errors: [0.0; 6], axis: axis.normalize() },
+                geometry: Geometry::Urdf {
+                    origin: pose_frame(&j.origin),
+                    errors: [0.0; 6],
+                    axis: axis.normalize(),
+                },
                 revolute,
                 offset: 0.0,
                 compliance: 0.0,
@@ -99,12 +124,25 @@ impl UrdfModel {
             });
         }
         let masses = self.masses_along(&path);
-        Ok(Chain::new(joints, [0.0; 6], [0.0; 6], Vector3::new(0.0, 0.0, -G), masses, Units { mm: false, deg: false }))
+        Ok(Chain::new(
+            joints,
+            [0.0; 6],
+            [0.0; 6],
+            Vector3::new(0.0, 0.0, -G),
+            masses,
+            Units {
+                mm: false,
+                deg: false,
+            },
+        ))
     }
 
     /// Point masses of the chain's links and of everything hanging off them.
     fn masses_along(&self, path: &[usize]) -> Vec<PointMass> {
-        let on_chain: Vec<&str> = path.iter().map(|&j| self.robot.joints[j].child.link.as_str()).collect();
+        let on_chain: Vec<&str> = path
+            .iter()
+            .map(|&j| self.robot.joints[j].child.link.as_str())
+            .collect();
         let mut out = Vec::new();
         for (body, &ji) in path.iter().enumerate() {
             let link = &self.robot.joints[ji].child.link;
@@ -116,7 +154,12 @@ impl UrdfModel {
                     let m = l.inertial.mass.value;
                     if m > 0.0 {
                         let c = pose.apply(&Vector3::from(*l.inertial.origin.xyz));
-                        out.push(PointMass { name: name.clone(), body, mass: m, com: c });
+                        out.push(PointMass {
+                            name: name.clone(),
+                            body,
+                            mass: m,
+                            com: c,
+                        });
                     }
                 }
                 for j in self.robot.joints.iter().filter(|j| j.parent.link == name) {
@@ -135,15 +178,26 @@ impl UrdfModel {
     pub fn write_calibrated(&self, chain: &Chain) -> Result<String, ModelError> {
         let mut text = self.text.clone();
         for joint in &chain.joints {
-            let Geometry::Urdf { origin, errors, axis } = &joint.geometry else { continue };
+            let Geometry::Urdf {
+                origin,
+                errors,
+                axis,
+            } = &joint.geometry
+            else {
+                continue;
+            };
             let mut o = origin.mul(&Frame::from_urdf_errors(errors));
             if joint.revolute {
                 o = o.mul(&Frame::rot_axis(axis, joint.offset));
             }
             let v = o.to_xyzabc();
-            let tag = format!("<origin xyz=\"{} {} {}\" rpy=\"{} {} {}\"/>", v[0], v[1], v[2], v[5], v[4], v[3]);
-            text = replace_origin(&text, &joint.name, &tag)
-                .ok_or_else(|| ModelError::Chain(format!("joint `{}` not found in the URDF text", joint.name)))?;
+            let tag = format!(
+                "<origin xyz=\"{} {} {}\" rpy=\"{} {} {}\"/>",
+                v[0], v[1], v[2], v[5], v[4], v[3]
+            );
+            text = replace_origin(&text, &joint.name, &tag).ok_or_else(|| {
+                ModelError::Chain(format!("joint `{}` not found in the URDF text", joint.name))
+            })?;
         }
         Ok(text)
     }
@@ -157,7 +211,8 @@ fn replace_origin(text: &str, name: &str, new_tag: &str) -> Option<String> {
         let head_end = start + text[start..].find('>')?;
         let head = &text[start..=head_end];
         from = head_end;
-        let has_name = head.contains(&format!("name=\"{name}\"")) || head.contains(&format!("name='{name}'"));
+        let has_name =
+            head.contains(&format!("name=\"{name}\"")) || head.contains(&format!("name='{name}'"));
         // Joints inside <transmission> have a name but no type.
         if !has_name || !head.contains("type=") {
             continue;
@@ -204,12 +259,24 @@ mod tests {
         let mut c = m.chain("panda_link0", "ball_link").unwrap();
         assert_eq!(c.dof(), 7);
         // Perturb every error and offset, fold them into the text, reload: same FK.
-        let ids: Vec<ParamId> = c.param_ids().into_iter().filter(|id| matches!(id, ParamId::Joint(_, JointField::Err(_) | JointField::Offset))).collect();
+        let ids: Vec<ParamId> = c
+            .param_ids()
+            .into_iter()
+            .filter(|id| {
+                matches!(
+                    id,
+                    ParamId::Joint(_, JointField::Err(_) | JointField::Offset)
+                )
+            })
+            .collect();
         for (k, id) in ids.iter().enumerate() {
             c.set_param(*id, 1e-3 * ((k as f64 * 1.7).sin()));
         }
         let text = m.write_calibrated(&c).unwrap();
-        let back = UrdfModel::parse(&text).unwrap().chain("panda_link0", "ball_link").unwrap();
+        let back = UrdfModel::parse(&text)
+            .unwrap()
+            .chain("panda_link0", "ball_link")
+            .unwrap();
         let q = [0.3, -0.5, 0.2, -2.0, 0.4, 1.7, 0.8];
         let (a, b) = (c.tcp(&q, None), back.tcp(&q, None));
         assert!((a.p - b.p).norm() < 1e-12, "{}", (a.p - b.p).norm());
@@ -221,7 +288,10 @@ mod tests {
     #[test]
     fn missing_links_are_named() {
         let m = UrdfModel::parse(PANDA).unwrap();
-        let e = m.chain("panda_link0", "no_such_link").unwrap_err().to_string();
+        let e = m
+            .chain("panda_link0", "no_such_link")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("no_such_link"), "{e}");
     }
 }

@@ -18,7 +18,9 @@ impl Rng {
             x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
             x ^ (x >> 31)
         };
-        Self { s: [next(), next(), next(), next()] }
+        Self {
+            s: [next(), next(), next(), next()],
+        }
     }
 
     /// The next 64 random bits.
@@ -61,7 +63,11 @@ impl Rng {
     /// A uniformly random point inside the ball of radius `r` (3-D).
     pub fn in_ball(&mut self, r: f64) -> [f64; 3] {
         loop {
-            let p = [self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0)];
+            let p = [
+                self.range(-1.0, 1.0),
+                self.range(-1.0, 1.0),
+                self.range(-1.0, 1.0),
+            ];
             let n2 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
             if n2 <= 1.0 {
                 return [p[0] * r, p[1] * r, p[2] * r];

@@ -1,0 +1,42 @@
+//! Least squares shared by every calibration method: the [`Problem`] trait, bounded
+//! Levenberg-Marquardt with column scaling ([`lm`]), rank detection by pivoted QR
+//! ([`rank`]), standard deviations and conditioning ([`uncertainty`]), and the
+//! rank -> LM -> covariance pipeline with its report ([`solve`]). No I/O.
+
+pub mod lm;
+pub mod problem;
+pub mod rank;
+pub mod solve;
+pub mod uncertainty;
+
+pub use lm::{LmOptions, LmReport, StopReason, levenberg_marquardt};
+pub use problem::{Problem, Restricted};
+pub use rank::{Pivoting, RankReport, rank_revealing};
+pub use solve::{ParamReport, Solution, SolveOptions, Unknown, solve};
+pub use uncertainty::{Uncertainty, uncertainty};
+
+/// Errors of the least-squares layer.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum IdentifyError {
+    /// The model could not be evaluated (e.g. a shooting method did not converge).
+    #[error("model evaluation failed: {0}")]
+    Model(String),
+    /// The residuals at the starting point are not finite.
+    #[error("residual {index} is not finite at the starting point")]
+    NonFinite {
+        /// Row of the first offending residual.
+        index: usize,
+    },
+    /// Fewer residuals than unknowns.
+    #[error("{residuals} residuals cannot determine {unknowns} unknowns")]
+    Underdetermined {
+        /// Residual count.
+        residuals: usize,
+        /// Unknown count.
+        unknowns: usize,
+    },
+    /// The work was cancelled through its monitor.
+    #[error("cancelled")]
+    Cancelled,
+}

@@ -1,0 +1,97 @@
+//! The `Problem` trait every identification implements, and `Restricted`, which holds some
+//! unknowns fixed (the ones rank detection found unidentifiable).
+
+use nalgebra::DMatrix;
+
+use super::IdentifyError;
+
+/// A nonlinear least-squares problem: minimise `|r(x)|^2`.
+pub trait Problem: Sync {
+    /// Number of residuals.
+    fn residual_count(&self) -> usize;
+    /// Number of unknowns.
+    fn unknown_count(&self) -> usize;
+    /// Residuals at `x` into `r` (length `residual_count`).
+    fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError>;
+    /// Jacobian `dr/dx` at `x` into `j` (`residual_count` x `unknown_count`). The default
+    /// uses central differences with steps `1e-6 * max(1, |x_i|)`; override it with an
+    /// analytic one where possible.
+    fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
+        central_differences(self, x, j)
+    }
+}
+
+/// Central-difference Jacobian of any problem (used as default and to check analytic ones).
+pub fn central_differences<P: Problem + ?Sized>(
+    p: &P,
+    x: &[f64],
+    j: &mut DMatrix<f64>,
+) -> Result<(), IdentifyError> {
+    let n = p.residual_count();
+    let mut xp = x.to_vec();
+    let mut rp = vec![0.0; n];
+    let mut rm = vec![0.0; n];
+    for k in 0..x.len() {
+        let h = 1e-6 * x[k].abs().max(1.0);
+        xp[k] = x[k] + h;
+        p.residuals(&xp, &mut rp)?;
+        xp[k] = x[k] - h;
+        p.residuals(&xp, &mut rm)?;
+        xp[k] = x[k];
+        for i in 0..n {
+            j[(i, k)] = (rp[i] - rm[i]) / (2.0 * h);
+        }
+    }
+    Ok(())
+}
+
+/// A view of a problem in which only the unknowns `free` vary; the others stay at `fixed`.
+pub struct Restricted<'a> {
+    inner: &'a dyn Problem,
+    fixed: Vec<f64>,
+    free: Vec<usize>,
+}
+
+impl std::fmt::Debug for Restricted<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Restricted")
+            .field("free", &self.free)
+            .finish()
+    }
+}
+
+impl<'a> Restricted<'a> {
+    /// Vary `free` (indices into the inner unknowns); hold the rest at `fixed`.
+    pub fn new(inner: &'a dyn Problem, fixed: Vec<f64>, free: Vec<usize>) -> Self {
+        Self { inner, fixed, free }
+    }
+
+    /// The full unknown vector for a restricted one.
+    pub fn expand(&self, x: &[f64]) -> Vec<f64> {
+        let mut full = self.fixed.clone();
+        for (k, &i) in self.free.iter().enumerate() {
+            full[i] = x[k];
+        }
+        full
+    }
+}
+
+impl Problem for Restricted<'_> {
+    fn residual_count(&self) -> usize {
+        self.inner.residual_count()
+    }
+    fn unknown_count(&self) -> usize {
+        self.free.len()
+    }
+    fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError> {
+        self.inner.residuals(&self.expand(x), r)
+    }
+    fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
+        let mut full = DMatrix::zeros(self.inner.residual_count(), self.inner.unknown_count());
+        self.inner.jacobian(&self.expand(x), &mut full)?;
+        for (k, &i) in self.free.iter().enumerate() {
+            j.set_column(k, &full.column(i));
+        }
+        Ok(())
+    }
+}

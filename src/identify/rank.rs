@@ -1,0 +1,171 @@
+//! Rank detection by QR with column pivoting on the column-scaled Jacobian. Columns whose
+//! remaining norm falls below a tolerance are structurally unidentifiable with the data:
+//! they are reported (with the combination of kept columns they duplicate) and held fixed.
+
+use nalgebra::{DMatrix, DVector};
+
+/// Which column the QR takes next.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Pivoting {
+    /// The column with the largest remaining norm (classic Businger-Golub pivoting).
+    Norm,
+    /// Columns in this priority order (indices); a column is kept if it adds a direction
+    /// not spanned by the columns kept before it.
+    Priority(Vec<usize>),
+}
+
+/// Result of rank detection.
+#[derive(Debug, Clone)]
+pub struct RankReport {
+    /// Numerical rank.
+    pub rank: usize,
+    /// Kept (identifiable) columns, in pivot order.
+    pub kept: Vec<usize>,
+    /// Dropped (unidentifiable) columns.
+    pub dropped: Vec<usize>,
+    /// |R_kk| of each kept column, in pivot order (columns scaled to unit norm).
+    pub r_diag: Vec<f64>,
+    /// For each dropped column, its expression as a combination of kept columns
+    /// (unscaled: dropped = sum coef * kept), largest coefficients first.
+    pub dependencies: Vec<Vec<(usize, f64)>>,
+    /// The relative tolerance used.
+    pub tolerance: f64,
+}
+
+/// Rank-revealing QR of `j` (rows x columns) with columns scaled to unit norm; a column is
+/// dependent when its remaining norm is below `tol` (relative to 1).
+pub fn rank_revealing(j: &DMatrix<f64>, pivoting: &Pivoting, tol: f64) -> RankReport {
+    let (n, m) = j.shape();
+    let norms: Vec<f64> = (0..m).map(|k| j.column(k).norm()).collect();
+    let mut a = j.clone();
+    for k in 0..m {
+        if norms[k] > 0.0 {
+            a.column_mut(k).unscale_mut(norms[k]);
+        }
+    }
+    let order: Vec<usize> = match pivoting {
+        Pivoting::Norm => (0..m).collect(),
+        Pivoting::Priority(p) => p.clone(),
+    };
+    let mut remaining: Vec<usize> = order.iter().copied().filter(|&k| norms[k] > 0.0).collect();
+    let mut dropped: Vec<usize> = order.iter().copied().filter(|&k| norms[k] == 0.0).collect();
+    let mut kept = Vec::new();
+    let mut r_diag = Vec::new();
+    let mut row = 0;
+    let tail_norm = |a: &DMatrix<f64>, k: usize, row: usize| a.view((row, k), (n - row, 1)).norm();
+    while !remaining.is_empty() && row < n {
+        let pick = match pivoting {
+            Pivoting::Norm => {
+                let (pos, best) = remaining
+                    .iter()
+                    .enumerate()
+                    .map(|(p, &k)| (p, tail_norm(&a, k, row)))
+                    .fold((0, -1.0), |acc, v| if v.1 > acc.1 { v } else { acc });
+                if best < tol {
+                    break;
+                }
+                pos
+            }
+            Pivoting::Priority(_) => {
+                let k = remaining[0];
+                if tail_norm(&a, k, row) < tol {
+                    dropped.push(remaining.remove(0));
+                    continue;
+                }
+                0
+            }
+        };
+        let k = remaining.remove(pick);
+        // Householder reflection of column k's tail, applied to every remaining column.
+        let x = a.view((row, k), (n - row, 1)).clone_owned();
+        let alpha = -x[0].signum() * x.norm();
+        let mut v: DVector<f64> = DVector::from_iterator(n - row, x.iter().copied());
+        v[0] -= alpha;
+        let vn2 = v.norm_squared();
+        if vn2 > 0.0 {
+            for &c in remaining.iter().chain(std::iter::once(&k)) {
+                let dot: f64 = (0..n - row).map(|i| v[i] * a[(row + i, c)]).sum();
+                let s = 2.0 * dot / vn2;
+                for i in 0..n - row {
+                    a[(row + i, c)] -= s * v[i];
+                }
+            }
+        }
+        r_diag.push(alpha.abs());
+        kept.push(k);
+        row += 1;
+    }
+    dropped.extend(remaining);
+    let dependencies = dropped.iter().map(|&c| dependency(j, &kept, c)).collect();
+    RankReport {
+        rank: kept.len(),
+        kept,
+        dropped,
+        r_diag,
+        dependencies,
+        tolerance: tol,
+    }
+}
+
+/// Least-squares expression of column `c` of `j` in the kept columns, coefficients sorted
+/// by decreasing magnitude and truncated to the significant ones.
+fn dependency(j: &DMatrix<f64>, kept: &[usize], c: usize) -> Vec<(usize, f64)> {
+    if kept.is_empty() {
+        return Vec::new();
+    }
+    let mut a = DMatrix::zeros(j.nrows(), kept.len());
+    for (p, &k) in kept.iter().enumerate() {
+        a.set_column(p, &j.column(k));
+    }
+    let b = j.column(c).clone_owned();
+    let Some(svd) = nalgebra::linalg::SVD::try_new(a, true, true, 1e-14, 0) else {
+        return Vec::new();
+    };
+    let Ok(coef) = svd.solve(&b, 1e-12) else {
+        return Vec::new();
+    };
+    let mut out: Vec<(usize, f64)> = kept.iter().copied().zip(coef.iter().copied()).collect();
+    let big = out.iter().map(|v| v.1.abs()).fold(0.0, f64::max);
+    out.retain(|v| v.1.abs() > 1e-6 * big.max(f64::MIN_POSITIVE));
+    out.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn finds_the_dependent_column_and_its_combination() {
+        // Column 2 = 2 * col0 - col1: rank 2 of 3.
+        let j = DMatrix::from_row_slice(
+            4,
+            3,
+            &[1.0, 0.0, 2.0, 0.0, 1.0, -1.0, 1.0, 1.0, 1.0, 2.0, 0.5, 3.5],
+        );
+        let r = rank_revealing(&j, &Pivoting::Norm, 1e-10);
+        assert_eq!(r.rank, 2);
+        assert_eq!(r.dropped.len(), 1);
+        // With priority 0, 1, 2 the last one is the dependent one, = 2 c0 - c1.
+        let r = rank_revealing(&j, &Pivoting::Priority(vec![0, 1, 2]), 1e-10);
+        assert_eq!(r.dropped, vec![2]);
+        let dep = &r.dependencies[0];
+        let c0 = dep.iter().find(|d| d.0 == 0).unwrap().1;
+        let c1 = dep.iter().find(|d| d.0 == 1).unwrap().1;
+        assert!(
+            (c0 - 2.0).abs() < 1e-12 && (c1 + 1.0).abs() < 1e-12,
+            "{dep:?}"
+        );
+        // Priority 2, 0, 1 keeps 2 and 0 and drops 1.
+        let r = rank_revealing(&j, &Pivoting::Priority(vec![2, 0, 1]), 1e-10);
+        assert_eq!(r.dropped, vec![1]);
+    }
+
+    #[test]
+    fn full_rank_keeps_everything() {
+        let j = DMatrix::from_row_slice(3, 2, &[1.0, 0.0, 0.0, 1e-6, 0.0, 0.0]);
+        let r = rank_revealing(&j, &Pivoting::Norm, 1e-10);
+        // Scaling makes the tiny column as good as the big one.
+        assert_eq!(r.rank, 2);
+    }
+}

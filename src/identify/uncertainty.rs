@@ -1,0 +1,114 @@
+//! Standard deviations of identified unknowns from the residual variance and `(J^T J)^-1`,
+//! and the conditioning of the scaled Jacobian.
+
+use nalgebra::{DMatrix, DVector};
+use serde::Serialize;
+
+/// Uncertainty of a least-squares solution.
+#[derive(Debug, Clone, Serialize)]
+pub struct Uncertainty {
+    /// Standard deviation of each unknown (internal units).
+    pub std: Vec<f64>,
+    /// Estimated residual standard deviation: sqrt(SSR / (n - m)).
+    pub sigma: f64,
+    /// Degrees of freedom n - m.
+    pub dof: usize,
+    /// Condition number of the column-scaled Jacobian (s_max / s_min).
+    pub condition_number: f64,
+    /// Singular values of the column-scaled Jacobian, largest first.
+    pub singular_values: Vec<f64>,
+}
+
+/// Uncertainty at a solution with Jacobian `j` and residuals `r`.
+pub fn uncertainty(j: &DMatrix<f64>, r: &DVector<f64>) -> Uncertainty {
+    let (n, m) = j.shape();
+    let dof = n.saturating_sub(m);
+    let sigma = if dof > 0 {
+        (r.norm_squared() / dof as f64).sqrt()
+    } else {
+        f64::NAN
+    };
+    if m == 0 {
+        return Uncertainty {
+            std: vec![],
+            sigma,
+            dof,
+            condition_number: 1.0,
+            singular_values: vec![],
+        };
+    }
+    let d: Vec<f64> = (0..m)
+        .map(|k| j.column(k).norm())
+        .map(|v| if v > 0.0 { v } else { 1.0 })
+        .collect();
+    let mut js = j.clone();
+    for k in 0..m {
+        js.column_mut(k).unscale_mut(d[k]);
+    }
+    // SVD of R from a QR of the tall matrix: same singular values, far cheaper.
+    let rmat = if n > m { js.qr().r() } else { js };
+    let svd = rmat.svd(false, true);
+    let s = svd.singular_values.clone();
+    let Some(vt) = svd.v_t else {
+        return Uncertainty {
+            std: vec![f64::NAN; m],
+            sigma,
+            dof,
+            condition_number: f64::INFINITY,
+            singular_values: s.iter().copied().collect(),
+        };
+    };
+    let mut order: Vec<usize> = (0..s.len()).collect();
+    order.sort_by(|a, b| s[*b].total_cmp(&s[*a]));
+    let smax = s[order[0]];
+    let smin = s[order[s.len() - 1]];
+    let std = (0..m)
+        .map(|k| {
+            let var: f64 = (0..s.len())
+                .map(|i| {
+                    if s[i] > 0.0 {
+                        (vt[(i, k)] / s[i]).powi(2)
+                    } else {
+                        f64::INFINITY
+                    }
+                })
+                .sum();
+            sigma * var.sqrt() / d[k]
+        })
+        .collect();
+    Uncertainty {
+        std,
+        sigma,
+        dof,
+        condition_number: if smin > 0.0 {
+            smax / smin
+        } else {
+            f64::INFINITY
+        },
+        singular_values: order.iter().map(|&i| s[i]).collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Straight-line fit y = a + b x: textbook standard errors.
+    #[test]
+    fn line_fit_standard_errors_match_the_closed_form() {
+        let xs = [0.0, 1.0, 2.0, 3.0, 4.0];
+        let res = [0.1, -0.2, 0.05, 0.15, -0.1];
+        let j = DMatrix::from_fn(5, 2, |i, k| if k == 0 { 1.0 } else { xs[i] });
+        let r = DVector::from_row_slice(&res);
+        let u = uncertainty(&j, &r);
+        let s2 = res.iter().map(|v| v * v).sum::<f64>() / 3.0;
+        let sxx: f64 = xs.iter().map(|x| (x - 2.0f64).powi(2)).sum();
+        let sb = (s2 / sxx).sqrt();
+        let sa = (s2 * (1.0 / 5.0 + 4.0 / sxx)).sqrt();
+        assert!(
+            (u.std[0] - sa).abs() < 1e-12 && (u.std[1] - sb).abs() < 1e-12,
+            "{:?} vs {sa} {sb}",
+            u.std
+        );
+    }
+}

@@ -1,0 +1,99 @@
+//! The error of the jobs layer: what was wrong with a job (field, row, value) or why it
+//! failed while running.
+
+use crate::identify::IdentifyError;
+use crate::measure::MeasureError;
+use crate::model::ModelError;
+
+/// Why a job was refused or failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum JobError {
+    /// A field of the job is invalid.
+    #[error("`{field}`: {message}")]
+    Invalid {
+        /// Field path.
+        field: String,
+        /// What is wrong, with the value.
+        message: String,
+    },
+    /// A row of a table is invalid.
+    #[error("`{field}` row {row}: {message}")]
+    Row {
+        /// Table field.
+        field: String,
+        /// 1-based data row.
+        row: usize,
+        /// What is wrong, with the value.
+        message: String,
+    },
+    /// The kind is not one calibd knows.
+    #[error("unknown job kind `{0}`")]
+    UnknownKind(String),
+    /// A model file is invalid.
+    #[error("`model`: {0}")]
+    Model(#[from] ModelError),
+    /// Measurement data are inconsistent.
+    #[error("{0}")]
+    Measure(#[from] MeasureError),
+    /// The computation failed.
+    #[error("{0}")]
+    Identify(IdentifyError),
+    /// A referenced input could not be read.
+    #[error("`{field}`: cannot read `{reference}`: {message}")]
+    Input {
+        /// Field that referenced it.
+        field: String,
+        /// Path or dataset id.
+        reference: String,
+        /// Why.
+        message: String,
+    },
+    /// The job was cancelled.
+    #[error("cancelled")]
+    Cancelled,
+    /// The job ran but could not produce a result.
+    #[error("{0}")]
+    Failed(String),
+}
+
+impl From<IdentifyError> for JobError {
+    fn from(e: IdentifyError) -> Self {
+        match e {
+            IdentifyError::Cancelled => JobError::Cancelled,
+            other => JobError::Identify(other),
+        }
+    }
+}
+
+impl JobError {
+    /// An invalid field.
+    pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
+        JobError::Invalid {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+
+    /// An invalid table row.
+    pub fn row(field: impl Into<String>, row: usize, message: impl Into<String>) -> Self {
+        JobError::Row {
+            field: field.into(),
+            row,
+            message: message.into(),
+        }
+    }
+
+    /// True if the job itself is at fault (a client error), not the execution.
+    pub fn is_invalid_input(&self) -> bool {
+        matches!(
+            self,
+            JobError::Invalid { .. }
+                | JobError::Row { .. }
+                | JobError::UnknownKind(_)
+                | JobError::Model(_)
+                | JobError::Measure(_)
+                | JobError::Input { .. }
+        )
+    }
+}

@@ -1,0 +1,152 @@
+//! Jobs: a JSON document with a `kind`, inputs and `options` (`../shared/spec/jobs.md`).
+//! [`prepare`] validates a job completely (models loaded, tables parsed, units and limits
+//! checked) before anything runs; [`Job::run`] executes it with a [`Monitor`] and wraps the
+//! kind's fields in the result envelope. The same path serves `calibd run`, the daemon and
+//! schedules.
+
+pub mod envelope;
+pub mod error;
+pub mod input;
+pub mod serial;
+pub mod table;
+
+use std::collections::BTreeMap;
+
+use serde_json::{Map, Value};
+
+pub use error::JobError;
+pub use input::{DirResolver, Inputs, NoReferences, Resolver};
+pub use table::Table;
+
+use crate::util::Monitor;
+
+/// Every job kind calibd runs offline, with a one-line description.
+pub const KINDS: &[(&str, &str)] = &[
+    (
+        "serial.fk",
+        "forward kinematics of a serial model over a joints table",
+    ),
+    (
+        "serial.identify",
+        "elasto-geometric identification of a serial arm from ball-centring or Cartesian measurements",
+    ),
+    (
+        "serial.design",
+        "DETMAX selection of n configurations from a pool, with observability indices",
+    ),
+    (
+        "serial.dispersion",
+        "dispersion of identification results over DETMAX-selected set sizes",
+    ),
+];
+
+/// A file produced by a job besides its result JSON.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Artefact {
+    /// File name, e.g. `calibrated_model.json`.
+    pub name: String,
+    /// Media type, e.g. `application/json`, `text/csv`, `image/svg+xml`.
+    pub media_type: String,
+    /// Content.
+    pub content: Vec<u8>,
+}
+
+/// What a kind returns: its result fields, its main table and artefacts.
+#[derive(Debug, Clone, Default)]
+pub struct Output {
+    /// Kind-specific result fields (merged into the envelope).
+    pub fields: Map<String, Value>,
+    /// The table `calibd run --out FILE.csv` writes.
+    pub main_table: Option<Table>,
+    /// Extra files (CSV tables, calibrated models, plots).
+    pub artefacts: Vec<Artefact>,
+}
+
+/// A validated job of one kind, ready to execute.
+pub trait Prepared: Send + Sync + std::fmt::Debug {
+    /// Execute it; long loops poll `monitor` for cancellation.
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError>;
+}
+
+/// A validated job.
+#[derive(Debug)]
+pub struct Job {
+    /// The job kind.
+    pub kind: String,
+    /// SHA-256 of the job document and of each input, by field name.
+    pub inputs_sha256: BTreeMap<String, String>,
+    prepared: Box<dyn Prepared>,
+}
+
+/// A finished job: the result JSON (envelope + fields) and what else it produced.
+#[derive(Debug, Clone)]
+pub struct Completed {
+    /// The result document.
+    pub result: Value,
+    /// The main table.
+    pub main_table: Option<Table>,
+    /// Artefacts.
+    pub artefacts: Vec<Artefact>,
+}
+
+/// Validate a job document; references (file names, dataset ids) go through `resolver`.
+pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
+    let obj = doc
+        .as_object()
+        .ok_or_else(|| JobError::invalid("job", "must be a JSON object"))?;
+    let kind = obj
+        .get("kind")
+        .and_then(Value::as_str)
+        .ok_or_else(|| JobError::invalid("kind", "missing or not a string"))?
+        .to_string();
+    let inputs = Inputs::new(resolver);
+    let prepared: Box<dyn Prepared> = match kind.as_str() {
+        "serial.fk" => Box::new(serial::fk::prepare(doc, &inputs)?),
+        "serial.identify" => Box::new(serial::identify::prepare(doc, &inputs)?),
+        "serial.design" => Box::new(serial::design::prepare(doc, &inputs)?),
+        "serial.dispersion" => Box::new(serial::dispersion::prepare(doc, &inputs)?),
+        other => return Err(JobError::UnknownKind(other.to_string())),
+    };
+    let mut inputs_sha256 = inputs.into_hashes();
+    inputs_sha256.insert(
+        "job".into(),
+        input::sha256_hex(&serde_json::to_vec(doc).unwrap_or_default()),
+    );
+    Ok(Job {
+        kind,
+        inputs_sha256,
+        prepared,
+    })
+}
+
+impl Job {
+    /// Run the job and wrap its output in the result envelope.
+    pub fn run(&self, monitor: &dyn Monitor) -> Result<Completed, JobError> {
+        let started = chrono::Utc::now();
+        let out = self.prepared.execute(monitor)?;
+        let finished = chrono::Utc::now();
+        let result = envelope::wrap(
+            &self.kind,
+            started,
+            finished,
+            &self.inputs_sha256,
+            out.fields,
+        );
+        Ok(Completed {
+            result,
+            main_table: out.main_table,
+            artefacts: out.artefacts,
+        })
+    }
+}
+
+/// Deserialize a job document into a kind's typed spec, naming the offending field.
+pub fn parse_spec<T: serde::de::DeserializeOwned>(doc: &Value) -> Result<T, JobError> {
+    serde_path_to_error::deserialize(doc).map_err(|e| {
+        let path = e.path().to_string();
+        JobError::invalid(
+            if path == "." { "job".to_string() } else { path },
+            e.into_inner().to_string(),
+        )
+    })
+}

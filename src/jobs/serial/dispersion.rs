@@ -1,0 +1,244 @@
+//! `serial.dispersion`: for each set size and repetition, a DETMAX selection from a random
+//! start, an identification and the validation errors; quartiles of their mean and std per
+//! size, and the spread of every parameter at the largest size (the paper's Figs. 8-9,
+//! Table 7). Repetitions run on all cores.
+
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use serde::Deserialize;
+use serde_json::{Map, Value, json};
+
+use super::design::DesignPool;
+use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, position_errors};
+use super::{ChainSpec, PlateSpec};
+use crate::design::{DetmaxOptions, detmax};
+use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::util::stats::{Quartiles, mean};
+use crate::util::{Monitor, Summary};
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Spec {
+    #[allow(dead_code)]
+    kind: String,
+    model: Value,
+    #[serde(default)]
+    chain: Option<ChainSpec>,
+    measurements: Value,
+    #[serde(default)]
+    ball_plate: Option<PlateSpec>,
+    validation: Value,
+    sizes: Vec<usize>,
+    repetitions: usize,
+    #[serde(default)]
+    options: IdentifyOptions,
+}
+
+/// A validated `serial.dispersion` job.
+#[derive(Debug)]
+pub struct DispersionJob {
+    inputs: IdentifyInputs,
+    sizes: Vec<usize>,
+    repetitions: usize,
+    seed: u64,
+}
+
+/// Validate a `serial.dispersion` job.
+pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<DispersionJob, JobError> {
+    let s: Spec = parse_spec(doc)?;
+    let seed = s.options.seed.unwrap_or(0);
+    let inp = parse_inputs(
+        inputs,
+        &s.model,
+        s.chain.as_ref(),
+        &s.measurements,
+        s.ball_plate.as_ref(),
+        Some(&s.validation),
+        s.options,
+    )?;
+    if s.sizes.is_empty() {
+        return Err(JobError::invalid("sizes", "give at least one set size"));
+    }
+    for (k, &n) in s.sizes.iter().enumerate() {
+        if n == 0 || n > inp.meas.len() {
+            return Err(JobError::invalid(
+                format!("sizes[{k}]"),
+                format!(
+                    "{n} must be between 1 and the {} measurements",
+                    inp.meas.len()
+                ),
+            ));
+        }
+    }
+    if s.repetitions == 0 {
+        return Err(JobError::invalid("repetitions", "must be at least 1"));
+    }
+    Ok(DispersionJob {
+        inputs: inp,
+        sizes: s.sizes,
+        repetitions: s.repetitions,
+        seed,
+    })
+}
+
+/// One identification of the study.
+struct Run {
+    size: usize,
+    mean_error: f64,
+    std_error: f64,
+    values: Vec<f64>,
+}
+
+/// The study as a library call: results per (size, repetition), in order.
+fn study(
+    inp: &IdentifyInputs,
+    sizes: &[usize],
+    reps: usize,
+    seed: u64,
+    monitor: &dyn Monitor,
+) -> Result<(Vec<Run>, usize), JobError> {
+    let dp = DesignPool::new(inp)?;
+    let validation = inp.validation.as_deref().unwrap_or(&[]);
+    let tasks: Vec<(usize, usize)> = sizes
+        .iter()
+        .flat_map(|&n| (0..reps).map(move |r| (n, r)))
+        .collect();
+    let next = AtomicUsize::new(0);
+    let done = AtomicUsize::new(0);
+    let results: Mutex<Vec<Option<Run>>> = Mutex::new((0..tasks.len()).map(|_| None).collect());
+    let failures = AtomicUsize::new(0);
+    let cancelled = std::sync::atomic::AtomicBool::new(false);
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(tasks.len().max(1));
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            s.spawn(|| {
+                loop {
+                    let t = next.fetch_add(1, Ordering::Relaxed);
+                    if t >= tasks.len() || monitor.is_cancelled() {
+                        if monitor.is_cancelled() {
+                            cancelled.store(true, Ordering::Relaxed);
+                        }
+                        break;
+                    }
+                    let (n, r) = tasks[t];
+                    let task_seed =
+                        seed ^ ((n as u64) << 32) ^ (r as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                    let run = detmax(
+                        &dp.pool,
+                        &DetmaxOptions {
+                            n,
+                            seed: task_seed,
+                            max_excursion: 4,
+                        },
+                        &crate::util::NoMonitor,
+                    )
+                    .ok()
+                    .and_then(|sel| {
+                        inp.identify(Some(&sel.selected), &crate::util::NoMonitor)
+                            .ok()
+                    })
+                    .filter(|(_, sol)| sol.stop.converged())
+                    .map(|(problem, sol)| {
+                        let e = position_errors(&problem.model(&sol.x), validation);
+                        let s = Summary::of(&e, "");
+                        Run {
+                            size: n,
+                            mean_error: s.mean,
+                            std_error: s.std,
+                            values: sol.params.iter().map(|p| p.value).collect(),
+                        }
+                    });
+                    if run.is_none() {
+                        failures.fetch_add(1, Ordering::Relaxed);
+                    }
+                    if let Ok(mut v) = results.lock() {
+                        v[t] = run;
+                    }
+                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                    monitor.progress(d as f64 / tasks.len() as f64, "identifications");
+                }
+            });
+        }
+    });
+    if cancelled.load(Ordering::Relaxed) {
+        return Err(JobError::Cancelled);
+    }
+    let runs = results
+        .into_inner()
+        .map_err(|_| JobError::Failed("a worker panicked".into()))?
+        .into_iter()
+        .flatten()
+        .collect();
+    Ok((runs, failures.load(Ordering::Relaxed)))
+}
+
+impl Prepared for DispersionJob {
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        let inp = &self.inputs;
+        let (runs, failures) = study(inp, &self.sizes, self.repetitions, self.seed, monitor)?;
+        let unit = inp.model.length_unit();
+        let mut per_size = Vec::new();
+        let mut table = Table::new(&[
+            "n",
+            "mean_min",
+            "mean_q1",
+            "mean_median",
+            "mean_q3",
+            "mean_max",
+            "std_min",
+            "std_q1",
+            "std_median",
+            "std_q3",
+            "std_max",
+        ]);
+        for &n in &self.sizes {
+            let rs: Vec<&Run> = runs.iter().filter(|r| r.size == n).collect();
+            if rs.is_empty() {
+                continue;
+            }
+            let m = Quartiles::of(&rs.iter().map(|r| r.mean_error).collect::<Vec<_>>());
+            let s = Quartiles::of(&rs.iter().map(|r| r.std_error).collect::<Vec<_>>());
+            table.push(vec![
+                n as f64, m.min, m.q1, m.median, m.q3, m.max, s.min, s.q1, s.median, s.q3, s.max,
+            ]);
+            per_size.push(json!({"n": n, "identifications": rs.len(), "mean_error": m, "std_error": s, "unit": unit}));
+        }
+        let largest = *self.sizes.iter().max().unwrap_or(&0);
+        let last: Vec<&Run> = runs.iter().filter(|r| r.size == largest).collect();
+        let names = crate::measure::PointProblem::new(
+            inp.model.chain.clone(),
+            inp.ids.clone(),
+            inp.plate.clone(),
+            inp.meas.clone(),
+        )?
+        .unknowns();
+        let params: Vec<Value> = names
+            .iter()
+            .enumerate()
+            .filter(|_| !last.is_empty())
+            .map(|(k, u)| {
+                let v: Vec<f64> = last.iter().map(|r| r.values[k]).collect();
+                let s = Summary::of(&v, &u.unit);
+                json!({"name": u.name, "unit": u.unit, "nominal": u.nominal * u.to_report, "mean": mean(&v), "std": s.std, "min": s.min, "max": s.max})
+            })
+            .collect();
+        let mut f = Map::new();
+        f.insert("sizes".into(), json!(per_size));
+        f.insert("repetitions".into(), json!(self.repetitions));
+        f.insert("identifications".into(), json!(runs.len()));
+        f.insert("failures".into(), json!(failures));
+        f.insert(
+            "parameters_at_largest_size".into(),
+            json!({"n": largest, "parameters": params}),
+        );
+        f.insert("seed".into(), json!(self.seed));
+        Ok(Output {
+            fields: f,
+            main_table: Some(table),
+            artefacts: vec![],
+        })
+    }
+}

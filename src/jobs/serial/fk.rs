@@ -1,0 +1,84 @@
+//! `serial.fk`: TCP poses (x, y, z, a, b, c in {W}) of a serial model over a joints table,
+//! with the static deflection of the model's compliances.
+
+use std::collections::BTreeMap;
+
+use serde::Deserialize;
+use serde_json::{Value, json};
+
+use super::{ChainSpec, SerialModel, load_model};
+use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::model::Quantity;
+use crate::util::Monitor;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Spec {
+    #[allow(dead_code)]
+    kind: String,
+    model: Value,
+    #[serde(default)]
+    chain: Option<ChainSpec>,
+    joints: Value,
+    #[serde(default)]
+    parameters: BTreeMap<String, f64>,
+    #[serde(default)]
+    #[allow(dead_code)]
+    options: Option<serde_json::Map<String, Value>>,
+}
+
+/// A validated `serial.fk` job.
+#[derive(Debug)]
+pub struct FkJob {
+    model: SerialModel,
+    q: Vec<Vec<f64>>,
+}
+
+/// Validate a `serial.fk` job.
+pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<FkJob, JobError> {
+    let spec: Spec = parse_spec(doc)?;
+    let mut model = load_model(inputs, &spec.model, spec.chain.as_ref())?;
+    for (name, v) in &spec.parameters {
+        let id = model.chain.param_by_name(name).map_err(|_| {
+            JobError::invalid(format!("parameters.{name}"), "unknown parameter name")
+        })?;
+        if !v.is_finite() {
+            return Err(JobError::invalid(
+                format!("parameters.{name}"),
+                format!("{v} is not finite"),
+            ));
+        }
+        let to_file = model.chain.units.to_file(id.quantity());
+        model.chain.set_param(id, v / to_file);
+    }
+    let table = inputs.table("joints", &spec.joints)?;
+    let q = model.joints("joints", &table)?;
+    Ok(FkJob { model, q })
+}
+
+impl Prepared for FkJob {
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        let c = &self.model.chain;
+        let k = c.units.to_file(Quantity::Angle);
+        let mut poses = Table::new(&["x", "y", "z", "a", "b", "c"]);
+        for (i, q) in self.q.iter().enumerate() {
+            if i % 1024 == 0 && monitor.is_cancelled() {
+                return Err(JobError::Cancelled);
+            }
+            let tau = c.static_torques(q);
+            let v = c.tcp(q, Some(&tau)).to_xyzabc();
+            poses.push(vec![v[0], v[1], v[2], v[3] * k, v[4] * k, v[5] * k]);
+        }
+        let mut fields = serde_json::Map::new();
+        fields.insert(
+            "units".into(),
+            json!({"length": self.model.length_unit(), "angle": self.model.angle_unit()}),
+        );
+        fields.insert("poses".into(), poses.to_json_rows());
+        Ok(Output {
+            fields,
+            main_table: Some(poses),
+            artefacts: vec![],
+        })
+    }
+}

@@ -1,0 +1,389 @@
+//! `serial.identify`: elasto-geometric identification of a serial arm from ball-centring
+//! (or Cartesian) measurements, with rank detection, standard deviations, residual and
+//! per-ball statistics, optional validation, and the calibrated model file.
+
+use serde::Deserialize;
+use serde_json::{Map, Value, json};
+
+use super::{ChainSpec, PlateSpec, SerialModel, load_model};
+use crate::identify::{Pivoting, Solution, SolveOptions, solve};
+use crate::jobs::{Artefact, Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::measure::{BallPlate, PointMeasurement, PointProblem, Target};
+use crate::model::{Chain, ParamId};
+use crate::util::{Monitor, Summary};
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Spec {
+    #[allow(dead_code)]
+    kind: String,
+    model: Value,
+    #[serde(default)]
+    chain: Option<ChainSpec>,
+    measurements: Value,
+    #[serde(default)]
+    ball_plate: Option<PlateSpec>,
+    #[serde(default)]
+    validation: Option<Value>,
+    #[serde(default)]
+    options: IdentifyOptions,
+}
+
+/// `options` of `serial.identify` (and of `serial.dispersion`).
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IdentifyOptions {
+    /// Parameters to identify (default: the model's list).
+    #[serde(default)]
+    pub identify: Option<Vec<String>>,
+    /// Relative tolerance of the rank detection (default 1e-8).
+    #[serde(default)]
+    pub rank_tolerance: Option<f64>,
+    /// Iteration limit of Levenberg-Marquardt (default 200).
+    #[serde(default)]
+    pub max_iterations: Option<usize>,
+    /// Measurement noise (model length unit) below which an effect is not observable
+    /// (default: the fitted residual standard deviation).
+    #[serde(default)]
+    pub noise: Option<f64>,
+    /// Seed of random choices (dispersion).
+    #[serde(default)]
+    pub seed: Option<u64>,
+}
+
+/// Everything an identification needs, validated.
+#[derive(Debug)]
+pub struct IdentifyInputs {
+    /// The starting model.
+    pub model: SerialModel,
+    /// Parameters to identify.
+    pub ids: Vec<ParamId>,
+    /// Ball plate (empty for Cartesian-only data).
+    pub plate: BallPlate,
+    /// Calibration measurements.
+    pub meas: Vec<PointMeasurement>,
+    /// Validation measurements (Cartesian).
+    pub validation: Option<Vec<PointMeasurement>>,
+    /// Options.
+    pub options: IdentifyOptions,
+}
+
+/// Parse the inputs shared by `serial.identify` and `serial.dispersion`.
+pub fn parse_inputs(
+    inputs: &Inputs<'_>,
+    model: &Value,
+    chain: Option<&ChainSpec>,
+    measurements: &Value,
+    plate: Option<&PlateSpec>,
+    validation: Option<&Value>,
+    options: IdentifyOptions,
+) -> Result<IdentifyInputs, JobError> {
+    let model = load_model(inputs, model, chain)?;
+    let ids = match &options.identify {
+        Some(names) => model.params("options.identify", names)?,
+        None => model.default_identify(),
+    };
+    if ids.is_empty() {
+        return Err(JobError::invalid(
+            "options.identify",
+            "no parameter to identify",
+        ));
+    }
+    let table = inputs.table("measurements", measurements)?;
+    let plate = match plate {
+        Some(p) => p.plate()?,
+        None if table.has("ball") => {
+            return Err(JobError::invalid(
+                "ball_plate",
+                "ball-centring measurements need a ball plate",
+            ));
+        }
+        None => BallPlate {
+            centres: vec![],
+            distances: vec![],
+            gauge: None,
+        },
+    };
+    let meas = model.measurements("measurements", &table, plate.len())?;
+    let validation = match validation {
+        Some(v) => {
+            let t = inputs.table("validation", v)?;
+            if !t.has("x") {
+                return Err(JobError::invalid(
+                    "validation",
+                    "needs columns x, y, z (TCP position in {W})",
+                ));
+            }
+            Some(model.measurements("validation", &t, 0)?)
+        }
+        None => None,
+    };
+    for (name, v) in [
+        ("options.rank_tolerance", options.rank_tolerance),
+        ("options.noise", options.noise),
+    ] {
+        if let Some(v) = v {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(JobError::invalid(
+                    name,
+                    format!("{v} must be a positive number"),
+                ));
+            }
+        }
+    }
+    Ok(IdentifyInputs {
+        model,
+        ids,
+        plate,
+        meas,
+        validation,
+        options,
+    })
+}
+
+impl IdentifyInputs {
+    /// Solver settings from the options.
+    pub fn solve_options(&self) -> SolveOptions {
+        let mut o = SolveOptions {
+            pivoting: Pivoting::Norm,
+            noise: self.options.noise,
+            ..Default::default()
+        };
+        if let Some(t) = self.options.rank_tolerance {
+            o.rank_tolerance = t;
+        }
+        if let Some(n) = self.options.max_iterations {
+            o.lm.max_iterations = n;
+        }
+        o
+    }
+
+    /// Identify from the measurements `subset` (all when `None`).
+    pub fn identify(
+        &self,
+        subset: Option<&[usize]>,
+        monitor: &dyn Monitor,
+    ) -> Result<(PointProblem, Solution), JobError> {
+        let meas = match subset {
+            Some(s) => s.iter().map(|&i| self.meas[i].clone()).collect(),
+            None => self.meas.clone(),
+        };
+        let problem = PointProblem::new(
+            self.model.chain.clone(),
+            self.ids.clone(),
+            self.plate.clone(),
+            meas,
+        )?;
+        let x0 = problem.initial();
+        let sol = solve(
+            &problem,
+            &problem.unknowns(),
+            &x0,
+            &self.solve_options(),
+            monitor,
+        )?;
+        Ok((problem, sol))
+    }
+}
+
+/// Absolute position errors of a model against Cartesian measurements (each model with its
+/// own static deflection).
+pub fn position_errors(chain: &Chain, meas: &[PointMeasurement]) -> Vec<f64> {
+    meas.iter()
+        .filter_map(|m| match m.target {
+            Target::Point(p) => {
+                Some((chain.tcp(&m.q, Some(&chain.static_torques(&m.q))).p - p).norm())
+            }
+            Target::Ball(_) => None,
+        })
+        .collect()
+}
+
+/// `{mean, median, std, max, unit}` (plus count, min, rms) of errors.
+pub fn stats(v: &[f64], unit: &str) -> Value {
+    serde_json::to_value(Summary::of(v, unit)).unwrap_or(Value::Null)
+}
+
+/// A validated `serial.identify` job.
+#[derive(Debug)]
+pub struct IdentifyJob {
+    inputs: IdentifyInputs,
+}
+
+/// Validate a `serial.identify` job.
+pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IdentifyJob, JobError> {
+    let s: Spec = parse_spec(doc)?;
+    Ok(IdentifyJob {
+        inputs: parse_inputs(
+            inputs,
+            &s.model,
+            s.chain.as_ref(),
+            &s.measurements,
+            s.ball_plate.as_ref(),
+            s.validation.as_ref(),
+            s.options,
+        )?,
+    })
+}
+
+/// Per-ball scatter of the model TCP and distances between the balls' mean positions.
+fn ball_report(
+    problem: &PointProblem,
+    start: &Chain,
+    end: &Chain,
+    centres: &[nalgebra::Vector3<f64>],
+    plate: &BallPlate,
+    unit: &str,
+) -> Value {
+    let mut balls = Vec::new();
+    let mut means: Vec<[Option<nalgebra::Vector3<f64>>; 2]> = Vec::new();
+    for b in 0..plate.len() {
+        let idx: Vec<usize> = (0..problem.measurements().len())
+            .filter(|&i| problem.measurements()[i].target == Target::Ball(b))
+            .collect();
+        if idx.is_empty() {
+            means.push([None, None]);
+            continue;
+        }
+        let mut entry = Map::new();
+        entry.insert("ball".into(), json!(b + 1));
+        entry.insert("count".into(), json!(idx.len()));
+        let mut m2 = [None, None];
+        for (slot, (label, chain)) in [("before", start), ("after", end)].into_iter().enumerate() {
+            let pts: Vec<_> = idx
+                .iter()
+                .map(|&i| {
+                    chain
+                        .tcp(&problem.measurements()[i].q, Some(&problem.torques()[i]))
+                        .p
+                })
+                .collect();
+            let mean = pts.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p) / pts.len() as f64;
+            let spread = (pts.iter().map(|p| (p - mean).norm_squared()).sum::<f64>()
+                / pts.len() as f64)
+                .sqrt();
+            entry.insert(format!("spread_rms_{label}"), json!(spread));
+            entry.insert(
+                format!("mean_position_{label}"),
+                json!([mean.x, mean.y, mean.z]),
+            );
+            m2[slot] = Some(mean);
+        }
+        entry.insert(
+            "centre".into(),
+            json!([centres[b].x, centres[b].y, centres[b].z]),
+        );
+        entry.insert("unit".into(), json!(unit));
+        balls.push(Value::Object(entry));
+        means.push(m2);
+    }
+    let mut dists = Vec::new();
+    for i in 0..plate.len() {
+        for j in i + 1..plate.len() {
+            let (Some(a0), Some(b0), Some(a1), Some(b1)) =
+                (means[i][0], means[j][0], means[i][1], means[j][1])
+            else {
+                continue;
+            };
+            let known = (centres[i] - centres[j]).norm();
+            dists.push(json!({
+                "balls": [i + 1, j + 1],
+                "known": known,
+                "error_before": (a0 - b0).norm() - known,
+                "error_after": (a1 - b1).norm() - known,
+                "unit": unit,
+            }));
+        }
+    }
+    json!({"balls": balls, "ball_distances": dists})
+}
+
+impl Prepared for IdentifyJob {
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        let inp = &self.inputs;
+        let (problem, sol) = inp.identify(None, monitor)?;
+        let calibrated = problem.model(&sol.x);
+        let unit = inp.model.length_unit();
+        let norms = |r: &nalgebra::DVector<f64>| -> Vec<f64> {
+            (0..problem.measurements().len())
+                .map(|i| r.rows(3 * i, 3).norm())
+                .collect()
+        };
+        let mut f = Map::new();
+        f.insert(
+            "parameters".into(),
+            serde_json::to_value(&sol.params).unwrap_or(Value::Null),
+        );
+        f.insert("unidentifiable".into(), json!(sol.unidentifiable));
+        f.insert(
+            "dependencies".into(),
+            serde_json::to_value(&sol.dependencies).unwrap_or(Value::Null),
+        );
+        f.insert("weakly_observable".into(), json!(sol.weakly_observable));
+        f.insert("gauge_freedom".into(), json!(inp.plate.gauge));
+        f.insert("convergence".into(), json!({
+            "stop_reason": sol.stop, "converged": sol.stop.converged(), "iterations": sol.iterations,
+            "cost_before": sol.cost_before, "cost_after": sol.cost_after, "cost_unit": format!("{unit}^2"),
+        }));
+        f.insert("rank".into(), json!({"rank": sol.free.len(), "unknowns": sol.params.len(), "tolerance": inp.solve_options().rank_tolerance}));
+        f.insert(
+            "condition_number".into(),
+            json!(sol.uncertainty.condition_number),
+        );
+        f.insert(
+            "residual_std".into(),
+            json!({"value": sol.uncertainty.sigma, "unit": unit, "dof": sol.uncertainty.dof}),
+        );
+        f.insert(
+            "residuals".into(),
+            json!({
+                "before": stats(&norms(&sol.residuals_before), unit),
+                "after": stats(&norms(&sol.residuals), unit),
+            }),
+        );
+        let centres = problem.centres(&sol.x);
+        if !inp.plate.is_empty() {
+            let r = ball_report(
+                &problem,
+                &inp.model.chain,
+                &calibrated,
+                &centres,
+                &inp.plate,
+                unit,
+            );
+            if let Value::Object(m) = r {
+                f.extend(m);
+            }
+        }
+        if let Some(v) = &inp.validation {
+            f.insert(
+                "validation".into(),
+                json!({
+                    "before": stats(&position_errors(&inp.model.chain, v), unit),
+                    "after": stats(&position_errors(&calibrated, v), unit),
+                }),
+            );
+        }
+        let provenance = json!({"method": "serial.identify", "calibd_version": crate::jobs::envelope::VERSION, "measurements": problem.measurements().len()});
+        let (model_value, model_file) = inp.model.calibrated(&calibrated, provenance)?;
+        f.insert("calibrated_model".into(), model_value);
+        let mut res = Table::new(&["measurement", "before", "after"]);
+        for (i, (a, b)) in norms(&sol.residuals_before)
+            .into_iter()
+            .zip(norms(&sol.residuals))
+            .enumerate()
+        {
+            res.push(vec![(i + 1) as f64, a, b]);
+        }
+        let residual_csv = Artefact {
+            name: "residuals.csv".into(),
+            media_type: "text/csv".into(),
+            content: res.to_csv().into_bytes(),
+        };
+        Ok(Output {
+            fields: f,
+            main_table: None,
+            artefacts: vec![model_file, residual_csv],
+        })
+    }
+}

@@ -1,0 +1,291 @@
+//! The serial-arm job kinds (`serial.fk`, `serial.identify`, `serial.design`,
+//! `serial.dispersion`) and what they share: loading a DH or URDF model, joint columns in
+//! the model's units with limit checks, ball plates and measurement tables.
+
+pub mod design;
+pub mod dispersion;
+pub mod fk;
+pub mod identify;
+
+use serde::Deserialize;
+use serde_json::{Value, json};
+
+use super::{Inputs, JobError, Table};
+use crate::measure::{BallPlate, PointMeasurement, Target};
+use crate::model::dh::DhFile;
+use crate::model::urdf::UrdfModel;
+use crate::model::{Chain, ParamId, Quantity};
+
+/// `"chain": {"root": .., "tip": ..}` for URDF models.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChainSpec {
+    /// Root link (the robot frame {0}).
+    pub root: String,
+    /// Tip link (the TCP frame).
+    pub tip: String,
+}
+
+/// Where a serial model came from, to write a calibrated file of the same kind.
+#[derive(Debug, Clone)]
+pub enum Source {
+    /// A DH model file.
+    Dh(DhFile),
+    /// A URDF and the chain used.
+    Urdf {
+        /// The URDF.
+        model: UrdfModel,
+        /// Root link.
+        root: String,
+        /// Tip link.
+        tip: String,
+    },
+}
+
+/// A loaded serial model.
+#[derive(Debug, Clone)]
+pub struct SerialModel {
+    /// The chain.
+    pub chain: Chain,
+    /// Its file.
+    pub source: Source,
+}
+
+/// Load `model` (DH JSON object or file, or URDF file/text with `chain`).
+pub fn load_model(
+    inputs: &Inputs<'_>,
+    model: &Value,
+    chain: Option<&ChainSpec>,
+) -> Result<SerialModel, JobError> {
+    let is_urdf = match model {
+        Value::String(s) => {
+            s.trim_start().starts_with('<') || s.to_ascii_lowercase().ends_with(".urdf")
+        }
+        _ => false,
+    };
+    if is_urdf {
+        let spec = chain.ok_or_else(|| {
+            JobError::invalid(
+                "chain",
+                "a URDF model needs \"chain\": {\"root\": .., \"tip\": ..}",
+            )
+        })?;
+        let text = inputs.text("model", model)?;
+        let urdf = UrdfModel::parse(&text)?;
+        let c = urdf.chain(&spec.root, &spec.tip)?;
+        Ok(SerialModel {
+            chain: c,
+            source: Source::Urdf {
+                model: urdf,
+                root: spec.root.clone(),
+                tip: spec.tip.clone(),
+            },
+        })
+    } else {
+        if chain.is_some() {
+            return Err(JobError::invalid("chain", "only URDF models take a chain"));
+        }
+        let file = DhFile::from_value(inputs.json("model", model)?)?;
+        Ok(SerialModel {
+            chain: file.to_chain()?,
+            source: Source::Dh(file),
+        })
+    }
+}
+
+impl SerialModel {
+    /// Default parameters to identify: the DH file's list; for URDF every placement error,
+    /// the offsets of the moving joints, and the base (rank detection prunes the rest).
+    pub fn default_identify(&self) -> Vec<ParamId> {
+        match &self.source {
+            Source::Dh(f) => f
+                .identify
+                .iter()
+                .filter_map(|n| self.chain.param_by_name(n).ok())
+                .collect(),
+            Source::Urdf { .. } => self
+                .chain
+                .param_ids()
+                .into_iter()
+                .filter(|id| {
+                    !matches!(
+                        id,
+                        ParamId::Tool(_) | ParamId::Joint(_, crate::model::JointField::Compliance)
+                    )
+                })
+                .collect(),
+        }
+    }
+
+    /// Parameters named in `names` (error names the unknown one).
+    pub fn params(&self, field: &str, names: &[String]) -> Result<Vec<ParamId>, JobError> {
+        names
+            .iter()
+            .map(|n| {
+                self.chain
+                    .param_by_name(n)
+                    .map_err(|_| JobError::invalid(field, format!("unknown parameter name `{n}`")))
+            })
+            .collect()
+    }
+
+    /// Names of the joint columns: q1..qN.
+    pub fn joint_columns(&self) -> Vec<String> {
+        (1..=self.chain.dof()).map(|k| format!("q{k}")).collect()
+    }
+
+    /// Angle unit of joint columns and file angles.
+    pub fn angle_unit(&self) -> &'static str {
+        self.chain.units.name(Quantity::Angle)
+    }
+
+    /// Length unit.
+    pub fn length_unit(&self) -> &'static str {
+        self.chain.units.name(Quantity::Length)
+    }
+
+    /// Joint values of every row of `t` (radians), checked against the limits.
+    pub fn joints(&self, field: &str, t: &Table) -> Result<Vec<Vec<f64>>, JobError> {
+        let cols = t.cols(field, &self.joint_columns())?;
+        let k = 1.0 / self.chain.units.to_file(Quantity::Angle);
+        let mut out = Vec::with_capacity(t.rows.len());
+        for (i, row) in t.rows.iter().enumerate() {
+            let q: Vec<f64> = cols.iter().map(|&c| row[c] * k).collect();
+            if let Some((j, v, l)) = self.chain.limit_violation(&q) {
+                let u = 1.0 / k;
+                return Err(JobError::row(
+                    field,
+                    i + 1,
+                    format!(
+                        "q{} = {} {} is outside the joint limits [{}, {}]",
+                        j + 1,
+                        v * u,
+                        self.angle_unit(),
+                        l[0] * u,
+                        l[1] * u
+                    ),
+                ));
+            }
+            out.push(q);
+        }
+        Ok(out)
+    }
+
+    /// Measurements from a table with joint columns and either `ball` (1-based) or x, y, z.
+    pub fn measurements(
+        &self,
+        field: &str,
+        t: &Table,
+        balls: usize,
+    ) -> Result<Vec<PointMeasurement>, JobError> {
+        let q = self.joints(field, t)?;
+        if t.has("ball") {
+            let c = t.col(field, "ball")?;
+            q.into_iter()
+                .zip(&t.rows)
+                .enumerate()
+                .map(|(i, (q, row))| {
+                    let b = row[c];
+                    if b.fract() != 0.0 || b < 1.0 || b > balls as f64 {
+                        return Err(JobError::row(
+                            field,
+                            i + 1,
+                            format!("ball = {b}: the ball plate has balls 1..={balls}"),
+                        ));
+                    }
+                    Ok(PointMeasurement {
+                        q,
+                        target: Target::Ball(b as usize - 1),
+                    })
+                })
+                .collect()
+        } else if t.has("x") {
+            let xyz = t.cols(field, &["x".into(), "y".into(), "z".into()])?;
+            Ok(q.into_iter()
+                .zip(&t.rows)
+                .map(|(q, row)| PointMeasurement {
+                    q,
+                    target: Target::Point([row[xyz[0]], row[xyz[1]], row[xyz[2]]].into()),
+                })
+                .collect())
+        } else {
+            Err(JobError::invalid(
+                field,
+                "needs a `ball` column (ball-centring) or `x`, `y`, `z` columns (Cartesian)",
+            ))
+        }
+    }
+
+    /// The calibrated model as a file of the same kind: the DH JSON object, or URDF text.
+    pub fn calibrated(
+        &self,
+        chain: &Chain,
+        provenance: Value,
+    ) -> Result<(Value, super::Artefact), JobError> {
+        match &self.source {
+            Source::Dh(f) => {
+                let mut out = f.with_chain(chain);
+                out.calibration = Some(provenance);
+                let v = serde_json::to_value(&out).map_err(|e| JobError::Failed(e.to_string()))?;
+                let bytes = serde_json::to_vec_pretty(&v).unwrap_or_default();
+                Ok((
+                    v,
+                    super::Artefact {
+                        name: "calibrated_model.json".into(),
+                        media_type: "application/json".into(),
+                        content: bytes,
+                    },
+                ))
+            }
+            Source::Urdf { model, .. } => {
+                let text = model.write_calibrated(chain)?;
+                let art = super::Artefact {
+                    name: "calibrated_model.urdf".into(),
+                    media_type: "application/xml".into(),
+                    content: text.clone().into_bytes(),
+                };
+                Ok((json!(text), art))
+            }
+        }
+    }
+}
+
+/// The `ball_plate` field: `{d12, d13, d23}`, `{positions}` or `{balls, distances}`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlateSpec {
+    d12: Option<f64>,
+    d13: Option<f64>,
+    d23: Option<f64>,
+    positions: Option<Vec<[f64; 3]>>,
+    balls: Option<usize>,
+    distances: Option<Vec<(usize, usize, f64)>>,
+}
+
+impl PlateSpec {
+    /// The plate this describes.
+    pub fn plate(&self) -> Result<BallPlate, JobError> {
+        let err = |m: String| JobError::invalid("ball_plate", m);
+        match (
+            self.d12,
+            self.d13,
+            self.d23,
+            &self.positions,
+            self.balls,
+            &self.distances,
+        ) {
+            (Some(a), Some(b), Some(c), None, None, None) => {
+                BallPlate::from_ballbar(a, b, c).map_err(|e| err(e.to_string()))
+            }
+            (None, None, None, Some(p), None, None) => {
+                BallPlate::from_positions(p).map_err(|e| err(e.to_string()))
+            }
+            (None, None, None, None, Some(n), Some(d)) => {
+                BallPlate::from_distances(n, d).map_err(|e| err(e.to_string()))
+            }
+            _ => Err(err(
+                "give exactly one of {d12, d13, d23}, {positions}, or {balls, distances}".into(),
+            )),
+        }
+    }
+}

@@ -1,0 +1,214 @@
+//! Tables of numbers with named columns: read from CSV text or from JSON row objects, checked
+//! column by column and row by row (missing columns, wrong width, non-numbers, NaN are
+//! refused with the row and value), and written back as CSV or JSON rows.
+
+use serde_json::{Map, Value};
+
+use super::JobError;
+
+/// A numeric table: column names and rows of finite numbers.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Table {
+    /// Column names, in order.
+    pub columns: Vec<String>,
+    /// Rows, each as wide as `columns`.
+    pub rows: Vec<Vec<f64>>,
+}
+
+impl Table {
+    /// An empty table with these columns.
+    pub fn new(columns: &[&str]) -> Self {
+        Self {
+            columns: columns.iter().map(|c| c.to_string()).collect(),
+            rows: vec![],
+        }
+    }
+
+    /// Parse CSV text with a header row; `field` names the input in errors.
+    pub fn from_csv(field: &str, text: &str) -> Result<Self, JobError> {
+        let mut rdr = csv::ReaderBuilder::new()
+            .has_headers(true)
+            .trim(csv::Trim::All)
+            .flexible(true)
+            .from_reader(text.as_bytes());
+        let columns: Vec<String> = rdr
+            .headers()
+            .map_err(|e| JobError::invalid(field, format!("CSV header: {e}")))?
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        if columns.iter().any(|c| c.is_empty()) {
+            return Err(JobError::invalid(
+                field,
+                "CSV header has an empty column name",
+            ));
+        }
+        let mut rows = Vec::new();
+        for (i, rec) in rdr.records().enumerate() {
+            let row = i + 1;
+            let rec = rec.map_err(|e| JobError::row(field, row, format!("CSV: {e}")))?;
+            if rec.len() != columns.len() {
+                return Err(JobError::row(
+                    field,
+                    row,
+                    format!("{} values for {} columns", rec.len(), columns.len()),
+                ));
+            }
+            let mut vals = Vec::with_capacity(rec.len());
+            for (c, cell) in rec.iter().enumerate() {
+                let v: f64 = cell.parse().map_err(|_| {
+                    JobError::row(
+                        field,
+                        row,
+                        format!("column `{}`: `{cell}` is not a number", columns[c]),
+                    )
+                })?;
+                if !v.is_finite() {
+                    return Err(JobError::row(
+                        field,
+                        row,
+                        format!("column `{}`: {cell} is not a finite number", columns[c]),
+                    ));
+                }
+                vals.push(v);
+            }
+            rows.push(vals);
+        }
+        Ok(Self { columns, rows })
+    }
+
+    /// Parse a JSON array of row objects keyed by column name (the form results use).
+    pub fn from_json_rows(field: &str, v: &Value) -> Result<Self, JobError> {
+        let arr = v.as_array().ok_or_else(|| {
+            JobError::invalid(field, "expected an array of row objects or a file name")
+        })?;
+        let mut columns: Vec<String> = Vec::new();
+        if let Some(first) = arr.first().and_then(Value::as_object) {
+            columns = first.keys().cloned().collect();
+        }
+        let mut rows = Vec::with_capacity(arr.len());
+        for (i, r) in arr.iter().enumerate() {
+            let row = i + 1;
+            let obj = r
+                .as_object()
+                .ok_or_else(|| JobError::row(field, row, "is not an object"))?;
+            if obj.len() != columns.len() || obj.keys().any(|k| !columns.contains(k)) {
+                return Err(JobError::row(
+                    field,
+                    row,
+                    format!(
+                        "has columns {:?}, the first row has {:?}",
+                        obj.keys().collect::<Vec<_>>(),
+                        columns
+                    ),
+                ));
+            }
+            let mut vals = Vec::with_capacity(columns.len());
+            for c in &columns {
+                let v = obj.get(c).and_then(Value::as_f64).ok_or_else(|| {
+                    JobError::row(
+                        field,
+                        row,
+                        format!("column `{c}`: {} is not a number", obj[c]),
+                    )
+                })?;
+                vals.push(v);
+            }
+            rows.push(vals);
+        }
+        Ok(Self { columns, rows })
+    }
+
+    /// Index of a column, or an error naming the missing column.
+    pub fn col(&self, field: &str, name: &str) -> Result<usize, JobError> {
+        self.columns.iter().position(|c| c == name).ok_or_else(|| {
+            JobError::invalid(
+                field,
+                format!("missing column `{name}` (columns are {:?})", self.columns),
+            )
+        })
+    }
+
+    /// Whether a column exists.
+    pub fn has(&self, name: &str) -> bool {
+        self.columns.iter().any(|c| c == name)
+    }
+
+    /// Indices of the given columns, erroring on the first missing one.
+    pub fn cols(&self, field: &str, names: &[String]) -> Result<Vec<usize>, JobError> {
+        names.iter().map(|n| self.col(field, n)).collect()
+    }
+
+    /// Append a row.
+    pub fn push(&mut self, row: Vec<f64>) {
+        debug_assert_eq!(row.len(), self.columns.len());
+        self.rows.push(row);
+    }
+
+    /// The table as JSON row objects.
+    pub fn to_json_rows(&self) -> Value {
+        Value::Array(
+            self.rows
+                .iter()
+                .map(|r| {
+                    let mut m = Map::new();
+                    for (c, v) in self.columns.iter().zip(r) {
+                        m.insert(
+                            c.clone(),
+                            serde_json::Number::from_f64(*v).map_or(Value::Null, Value::Number),
+                        );
+                    }
+                    Value::Object(m)
+                })
+                .collect(),
+        )
+    }
+
+    /// The table as CSV text with a header row.
+    pub fn to_csv(&self) -> String {
+        let mut s = self.columns.join(",");
+        s.push('\n');
+        for r in &self.rows {
+            let cells: Vec<String> = r.iter().map(|v| format!("{v}")).collect();
+            s.push_str(&cells.join(","));
+            s.push('\n');
+        }
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_round_trip_and_errors_name_row_and_value() {
+        let t = Table::from_csv("joints", "q1,q2\n1.5,2\n-3,4e-3\n").unwrap();
+        assert_eq!(t.rows, vec![vec![1.5, 2.0], vec![-3.0, 4e-3]]);
+        assert_eq!(Table::from_csv("joints", &t.to_csv()).unwrap(), t);
+        assert_eq!(
+            Table::from_json_rows("joints", &t.to_json_rows()).unwrap(),
+            t
+        );
+        let e = Table::from_csv("joints", "q1,q2\n1,2\n3,NaN\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("joints") && e.contains("row 2") && e.contains("q2") && e.contains("NaN"),
+            "{e}"
+        );
+        let e = Table::from_csv("joints", "q1,q2\n1,2,3\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("row 1") && e.contains("3 values for 2 columns"),
+            "{e}"
+        );
+        let e = Table::from_csv("joints", "q1,q2\n1,abc\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`abc` is not a number"), "{e}");
+        let e = t.col("joints", "q3").unwrap_err().to_string();
+        assert!(e.contains("missing column `q3`"), "{e}");
+    }
+}

@@ -1,0 +1,25 @@
+//! Measurement models: how a measurement constrains a model. Each turns data into an
+//! [`crate::identify::Problem`]; none does I/O.
+
+pub mod ballplate;
+pub mod point;
+
+pub use ballplate::BallPlate;
+pub use point::{PointMeasurement, PointProblem, Target};
+
+/// Errors in measurement data.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum MeasureError {
+    /// A ball plate definition cannot place the balls.
+    #[error("ball plate: {0}")]
+    Plate(String),
+    /// A measurement refers to something that does not exist or is out of range.
+    #[error("measurement row {row}: {reason}")]
+    Row {
+        /// 1-based data row.
+        row: usize,
+        /// What is wrong.
+        reason: String,
+    },
+}

@@ -1,0 +1,254 @@
+//! Point coincidence and Cartesian measurements of a serial chain: the TCP at joint values
+//! q must be at a ball centre (ball-centring, sockets) or at a measured point (laser
+//! tracker). Residual = model TCP position - target, three rows per measurement, plus one
+//! weighted row per known distance that involves an unknown ball centre.
+
+use nalgebra::{DMatrix, Vector3};
+
+use super::{BallPlate, MeasureError};
+use crate::identify::{IdentifyError, Problem, Unknown};
+use crate::model::{Chain, ParamId, Quantity};
+
+/// What the TCP coincided with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Target {
+    /// The centre of ball `k` (0-based) of the plate.
+    Ball(usize),
+    /// A point measured in {W} (model length unit).
+    Point(Vector3<f64>),
+}
+
+/// One measurement: joint values (rad) and what the TCP was at.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointMeasurement {
+    /// Joint values, rad.
+    pub q: Vec<f64>,
+    /// Target.
+    pub target: Target,
+}
+
+/// Plausible ranges used for effect sizes: 1 mm, 0.5 deg, 0.005 deg/(N*m).
+pub fn plausible_range(chain: &Chain, q: Quantity) -> f64 {
+    match q {
+        Quantity::Length => 1e-3 / chain.units.metre(),
+        Quantity::Angle => 0.5f64.to_radians(),
+        Quantity::Compliance => 0.005f64.to_radians(),
+        Quantity::Scalar => 1.0,
+    }
+}
+
+/// The identification problem: unknowns = the chosen chain parameters, then the centres of
+/// the plate's unknown balls (x, y, z each).
+#[derive(Debug, Clone)]
+pub struct PointProblem {
+    chain: Chain,
+    ids: Vec<ParamId>,
+    cols: Vec<usize>,
+    plate: BallPlate,
+    free_balls: Vec<usize>,
+    meas: Vec<PointMeasurement>,
+    tau: Vec<Vec<f64>>,
+    /// Weight of the distance rows (residual per unit of distance error).
+    pub distance_weight: f64,
+}
+
+impl PointProblem {
+    /// Build the problem. Static torques are evaluated once per configuration with the
+    /// starting model (compliance off), as the spec prescribes.
+    pub fn new(
+        chain: Chain,
+        ids: Vec<ParamId>,
+        plate: BallPlate,
+        meas: Vec<PointMeasurement>,
+    ) -> Result<Self, MeasureError> {
+        for (r, m) in meas.iter().enumerate() {
+            if let Target::Ball(k) = m.target {
+                if k >= plate.len() {
+                    return Err(MeasureError::Row {
+                        row: r + 1,
+                        reason: format!("ball {} but the plate has {} balls", k + 1, plate.len()),
+                    });
+                }
+            }
+        }
+        let free_balls = plate.unknown_balls();
+        for &b in &free_balls {
+            if !meas.iter().any(|m| m.target == Target::Ball(b)) {
+                return Err(MeasureError::Plate(format!(
+                    "ball {} has an unknown centre and no measurement",
+                    b + 1
+                )));
+            }
+        }
+        let cols = ids
+            .iter()
+            .map(|id| chain.param_index(*id).unwrap_or(usize::MAX))
+            .collect();
+        let tau = meas.iter().map(|m| chain.static_torques(&m.q)).collect();
+        Ok(Self {
+            chain,
+            ids,
+            cols,
+            plate,
+            free_balls,
+            meas,
+            tau,
+            distance_weight: 10.0,
+        })
+    }
+
+    /// The measurements.
+    pub fn measurements(&self) -> &[PointMeasurement] {
+        &self.meas
+    }
+
+    /// Static torques used for each measurement.
+    pub fn torques(&self) -> &[Vec<f64>] {
+        &self.tau
+    }
+
+    /// Starting unknowns: the chain's values, and each unknown ball at the mean of the
+    /// starting model's TCP positions measured on it.
+    pub fn initial(&self) -> Vec<f64> {
+        let mut x: Vec<f64> = self.ids.iter().map(|id| self.chain.param(*id)).collect();
+        for &b in &self.free_balls {
+            let pts: Vec<Vector3<f64>> = self
+                .meas
+                .iter()
+                .zip(&self.tau)
+                .filter(|(m, _)| m.target == Target::Ball(b))
+                .map(|(m, t)| self.chain.tcp(&m.q, Some(t)).p)
+                .collect();
+            let c = pts.iter().fold(Vector3::zeros(), |a, p| a + p) / pts.len() as f64;
+            x.extend([c.x, c.y, c.z]);
+        }
+        x
+    }
+
+    /// Names, units and ranges of the unknowns, in order.
+    pub fn unknowns(&self) -> Vec<Unknown> {
+        let c = &self.chain;
+        let mut out: Vec<Unknown> = self
+            .ids
+            .iter()
+            .map(|id| Unknown {
+                name: c.param_name(*id),
+                unit: c.units.name(id.quantity()).into(),
+                to_report: c.units.to_file(id.quantity()),
+                nominal: c.param(*id),
+                plausible_range: plausible_range(c, id.quantity()),
+                lower: None,
+                upper: None,
+            })
+            .collect();
+        let x0 = self.initial();
+        for (k, &b) in self.free_balls.iter().enumerate() {
+            for (a, axis) in ["x", "y", "z"].iter().enumerate() {
+                out.push(Unknown {
+                    name: format!("ball{}.{axis}", b + 1),
+                    unit: c.units.name(Quantity::Length).into(),
+                    to_report: 1.0,
+                    nominal: x0[self.ids.len() + 3 * k + a],
+                    plausible_range: plausible_range(c, Quantity::Length),
+                    lower: None,
+                    upper: None,
+                });
+            }
+        }
+        out
+    }
+
+    /// The chain with the chain part of `x` applied.
+    pub fn model(&self, x: &[f64]) -> Chain {
+        let mut c = self.chain.clone();
+        c.set_params(&self.ids, &x[..self.ids.len()]);
+        c
+    }
+
+    /// Ball centres for unknowns `x` (fixed ones from the plate).
+    pub fn centres(&self, x: &[f64]) -> Vec<Vector3<f64>> {
+        let mut out: Vec<Vector3<f64>> = self
+            .plate
+            .centres
+            .iter()
+            .map(|c| c.unwrap_or_else(Vector3::zeros))
+            .collect();
+        for (k, &b) in self.free_balls.iter().enumerate() {
+            let o = self.ids.len() + 3 * k;
+            out[b] = Vector3::new(x[o], x[o + 1], x[o + 2]);
+        }
+        out
+    }
+
+    fn free_slot(&self, ball: usize) -> Option<usize> {
+        self.free_balls
+            .iter()
+            .position(|&b| b == ball)
+            .map(|k| self.ids.len() + 3 * k)
+    }
+}
+
+impl Problem for PointProblem {
+    fn residual_count(&self) -> usize {
+        3 * self.meas.len() + self.plate.distances.len()
+    }
+
+    fn unknown_count(&self) -> usize {
+        self.ids.len() + 3 * self.free_balls.len()
+    }
+
+    fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError> {
+        let chain = self.model(x);
+        let centres = self.centres(x);
+        for (i, (m, tau)) in self.meas.iter().zip(&self.tau).enumerate() {
+            let target = match m.target {
+                Target::Ball(k) => centres[k],
+                Target::Point(p) => p,
+            };
+            let e = chain.tcp(&m.q, Some(tau)).p - target;
+            r[3 * i..3 * i + 3].copy_from_slice(e.as_slice());
+        }
+        let base = 3 * self.meas.len();
+        for (k, &(i, j, d)) in self.plate.distances.iter().enumerate() {
+            r[base + k] = self.distance_weight * ((centres[i] - centres[j]).norm() - d);
+        }
+        Ok(())
+    }
+
+    fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
+        let chain = self.model(x);
+        let centres = self.centres(x);
+        j.fill(0.0);
+        let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
+        for (i, (m, tau)) in self.meas.iter().zip(&self.tau).enumerate() {
+            chain.point_jacobian(&m.q, Some(tau), &Vector3::zeros(), &mut buf);
+            for (c, &col) in self.cols.iter().enumerate() {
+                if let Some(v) = buf.get(col) {
+                    for a in 0..3 {
+                        j[(3 * i + a, c)] = v[a];
+                    }
+                }
+            }
+            if let Target::Ball(b) = m.target {
+                if let Some(o) = self.free_slot(b) {
+                    for a in 0..3 {
+                        j[(3 * i + a, o + a)] = -1.0;
+                    }
+                }
+            }
+        }
+        let base = 3 * self.meas.len();
+        for (k, &(bi, bj, _)) in self.plate.distances.iter().enumerate() {
+            let diff = centres[bi] - centres[bj];
+            let u = diff / diff.norm().max(f64::MIN_POSITIVE);
+            for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
+                if let Some(o) = self.free_slot(ball) {
+                    for a in 0..3 {
+                        j[(base + k, o + a)] = self.distance_weight * sign * u[a];
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}

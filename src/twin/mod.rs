@@ -1,0 +1,6 @@
+//! Digital twins: a "true" robot (nominal perturbed by known errors) and simulated sensors
+//! with noise, used by tests, examples, benchmarks and the simulated lab. Seeded, no I/O.
+
+pub mod serial;
+
+pub use serial::SerialTwin;
