@@ -34,6 +34,8 @@ enum Command {
     },
     /// List the job kinds.
     Kinds,
+    /// Run a mock device server (QTM, ABB RWS, U-WAVE, SmarAct MCS/MCS2, CAN) until Ctrl-C.
+    Mock(calibd_drivers::mock::MockArgs),
 }
 
 /// Prints stage changes of a job to stderr.
@@ -105,6 +107,13 @@ fn main() -> Result<()> {
             };
             calibd::bench::print(&mut std::io::stdout(), &figs)?;
             Ok(())
+        }
+        Command::Mock(args) => {
+            let rt = tokio::runtime::Runtime::new()?;
+            let shutdown = async {
+                let _ = tokio::signal::ctrl_c().await;
+            };
+            Ok(rt.block_on(calibd_drivers::mock::run(args, shutdown))?)
         }
         Command::Kinds => {
             for (k, d) in calibd::jobs::KINDS {
