@@ -115,6 +115,44 @@ impl DriverError {
         )
     }
 
+    /// A copy for fanning one failure out to several waiters (an I/O source keeps its kind
+    /// and text; variants without a cheap copy become `Protocol` with their message).
+    pub fn duplicate(&self) -> DriverError {
+        match self {
+            DriverError::Closed { device } => DriverError::Closed { device },
+            DriverError::Timeout {
+                device,
+                what,
+                after_ms,
+            } => DriverError::Timeout {
+                device,
+                what: what.clone(),
+                after_ms: *after_ms,
+            },
+            DriverError::Transport { device, source } => DriverError::Transport {
+                device,
+                source: io::Error::new(source.kind(), source.to_string()),
+            },
+            DriverError::Protocol { device, detail } => DriverError::Protocol {
+                device,
+                detail: detail.clone(),
+            },
+            DriverError::Device {
+                device,
+                code,
+                message,
+            } => DriverError::Device {
+                device,
+                code: *code,
+                message: message.clone(),
+            },
+            other => DriverError::Protocol {
+                device: "driver",
+                detail: other.to_string(),
+            },
+        }
+    }
+
     /// Wraps a codec error for `device`.
     pub(crate) fn from_codec(device: &'static str, e: CodecError) -> Self {
         match e {

@@ -6,6 +6,7 @@ pub mod driver;
 pub mod mock;
 pub mod packet;
 pub mod params;
+pub mod state;
 
 pub use codec::QtmCodec;
 pub use driver::{QtmConfig, QtmHandle, QtmState, StreamTransport};

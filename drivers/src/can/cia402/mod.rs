@@ -1,6 +1,9 @@
 //! CiA 402 drive over CANopen SDO: an actor owning a [`FrameTransport`] (socketcand in tests,
 //! SocketCAN in the lab) that reads/writes objects, runs the power state machine and
-//! profile-position moves, and implements [`Stage`] (one channel, pm per count configurable).
+//! profile-position moves, and implements [`crate::smaract::Stage`] (one channel, pm per
+//! count configurable; in `stage`).
+
+mod stage;
 
 use std::time::Duration;
 
@@ -13,8 +16,7 @@ use super::canopen::{
 use super::frame::{CanConnect, CanFrame, FrameTransport};
 use crate::actor::{Reply, call};
 use crate::error::DriverError;
-use crate::link::{Backoff, BoxFuture};
-use crate::smaract::{Stage, StageStatus};
+use crate::link::Backoff;
 
 const DEVICE: &str = "can";
 
@@ -234,7 +236,7 @@ fn abort(index: u16, sub: u8, code: u32) -> DriverError {
 }
 
 /// Statusword bits.
-mod sw {
+pub(crate) mod sw {
     pub(super) const FAULT: u16 = 1 << 3;
     pub(super) const TARGET_REACHED: u16 = 1 << 10;
     pub(super) const SETPOINT_ACK: u16 = 1 << 12;
@@ -331,7 +333,11 @@ impl Cia402Handle {
 
     /// Sets a new set-point in `mode` (1 profile position, 6 homing) and waits for
     /// "target reached" (statusword bit 10).
-    async fn run_setpoint(&self, mode: i8, target: Option<i32>) -> Result<u16, DriverError> {
+    pub(crate) async fn run_setpoint(
+        &self,
+        mode: i8,
+        target: Option<i32>,
+    ) -> Result<u16, DriverError> {
         self.enable().await?;
         self.write(obj::MODES, 0, &mode.to_le_bytes()).await?;
         if let Some(t) = target {
@@ -384,53 +390,4 @@ fn short(index: u16, d: &[u8]) -> DriverError {
         device: DEVICE,
         detail: format!("object {index:#06x} returned {} bytes", d.len()),
     }
-}
-
-impl Stage for Cia402Handle {
-    fn move_absolute(&self, ch: u8, pos_pm: i64) -> BoxFuture<'_, Result<i64, DriverError>> {
-        Box::pin(async move {
-            check_channel(ch)?;
-            let counts = i32::try_from(pos_pm / self.cfg.pm_per_count).map_err(|_| {
-                DriverError::InvalidRequest {
-                    device: DEVICE,
-                    detail: format!("{pos_pm} pm does not fit in i32 counts"),
-                }
-            })?;
-            Ok(i64::from(self.move_to_counts(counts).await?) * self.cfg.pm_per_count)
-        })
-    }
-    fn position(&self, ch: u8) -> BoxFuture<'_, Result<i64, DriverError>> {
-        Box::pin(async move {
-            check_channel(ch)?;
-            Ok(i64::from(self.position_counts().await?) * self.cfg.pm_per_count)
-        })
-    }
-    fn status(&self, ch: u8) -> BoxFuture<'_, Result<StageStatus, DriverError>> {
-        Box::pin(async move {
-            check_channel(ch)?;
-            let s = self.statusword().await?;
-            Ok(StageStatus {
-                moving: s & 0x6F == 0x27 && s & sw::TARGET_REACHED == 0,
-                referenced: s & (1 << 15) != 0,
-                fault: s & sw::FAULT != 0,
-                raw: i64::from(s),
-            })
-        })
-    }
-    fn reference(&self, ch: u8) -> BoxFuture<'_, Result<(), DriverError>> {
-        Box::pin(async move {
-            check_channel(ch)?;
-            self.run_setpoint(6, None).await.map(|_| ())
-        })
-    }
-}
-
-fn check_channel(ch: u8) -> Result<(), DriverError> {
-    if ch != 0 {
-        return Err(DriverError::InvalidRequest {
-            device: DEVICE,
-            detail: format!("a CiA 402 drive has one channel (0), not {ch}"),
-        });
-    }
-    Ok(())
 }
