@@ -13,7 +13,7 @@ use calibd_drivers::{Backoff, DriverError};
 
 fn cfg() -> Cia402Config {
     Cia402Config {
-        timeout: Duration::from_millis(500),
+        timeout: Duration::from_millis(1500),
         move_timeout: Duration::from_secs(3),
         poll: Duration::from_millis(2),
         backoff: Backoff {

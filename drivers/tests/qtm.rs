@@ -5,11 +5,11 @@ use std::time::Duration;
 
 use calibd_drivers::mock::{self, FaultSpec, MockArgs, MockDevice};
 use calibd_drivers::qtm::{QtmConfig, QtmHandle, StreamTransport};
-use calibd_drivers::{Backoff, DriverError, TcpConnector};
+use calibd_drivers::{Backoff, DriverError, Recorder, TcpConnector};
 
 fn cfg() -> QtmConfig {
     QtmConfig {
-        timeout: Duration::from_millis(700),
+        timeout: Duration::from_millis(1500),
         backoff: Backoff {
             initial: Duration::from_millis(10),
             max: Duration::from_millis(50),
@@ -75,7 +75,13 @@ async fn state_parameters_and_tcp_stream() {
 
 #[tokio::test]
 async fn udp_stream_with_unlabelled_markers_and_occlusion() {
-    let (m, h) = start(&[]).await;
+    let mut args = MockArgs::new(MockDevice::Qtm);
+    args.rate_hz = 200.0;
+    let m = mock::start(args).await.unwrap();
+    let path = std::env::temp_dir().join(format!("qtm-udp-{}.jsonl", std::process::id()));
+    let mut c = cfg();
+    c.udp_recorder = Some(Recorder::create(&path, "qtm", "udp test").unwrap());
+    let h = QtmHandle::connect(TcpConnector::new(m.addr.clone()), c);
     let mut rx = h.frames();
     h.stream("3D 3DNoLabels", StreamTransport::Udp)
         .await
@@ -99,6 +105,11 @@ async fn udp_stream_with_unlabelled_markers_and_occlusion() {
     }
     assert!(occluded > 0);
     h.stop_stream().await.unwrap();
+    // Every datagram was recorded as one `udp` chunk that decodes to a data packet.
+    let t = calibd_drivers::Transcript::load(&path).unwrap();
+    assert!(t.chunks.len() >= 60 && t.chunks.iter().all(|c| c.udp));
+    let p = calibd_drivers::qtm::packet::decode_whole(&t.chunks[0].bytes().unwrap()).unwrap();
+    assert!(matches!(p, calibd_drivers::qtm::Packet::Data(_)));
     m.stop().await;
 }
 
@@ -135,7 +146,7 @@ async fn link_faults_give_typed_errors_then_reconnect() {
                 e,
                 DriverError::Closed { .. } | DriverError::Transport { .. }
             ),
-            _ => matches!(e, DriverError::Timeout { after_ms: 700, .. }),
+            _ => matches!(e, DriverError::Timeout { after_ms: 1500, .. }),
         };
         assert!(ok, "{fault}: {e:?}");
         assert_eq!(h.get_state().await.unwrap(), 1, "{fault}");

@@ -8,7 +8,7 @@ use calibd_drivers::{Backoff, DriverError, Recorder, TcpConnector};
 
 fn cfg() -> RwsConfig {
     RwsConfig {
-        timeout: Duration::from_millis(700),
+        timeout: Duration::from_millis(1500),
         poll: Duration::from_millis(10),
         move_timeout: Duration::from_secs(5),
         backoff: Backoff {

@@ -10,7 +10,7 @@ use calibd_drivers::{Backoff, DriverError, TcpConnector};
 
 fn cfg() -> StageConfig {
     StageConfig {
-        timeout: Duration::from_millis(600),
+        timeout: Duration::from_millis(1500),
         move_timeout: Duration::from_secs(3),
         poll: Duration::from_millis(5),
         backoff: Backoff {
@@ -127,7 +127,7 @@ async fn link_faults_give_typed_errors_then_reconnect() {
                     e,
                     DriverError::Closed { .. } | DriverError::Transport { .. }
                 ),
-                _ => matches!(e, DriverError::Timeout { after_ms: 600, .. }),
+                _ => matches!(e, DriverError::Timeout { after_ms: 1500, .. }),
             };
             assert!(ok, "{dev:?} {fault}: {e:?}");
             assert_eq!(s.position(0).await.unwrap(), 0, "{dev:?} {fault}");

@@ -174,6 +174,9 @@ impl<C: Connect> Actor<C> {
                 p = next_or_pending(self.link.current()) => self.on_packet(p),
                 n = recv_udp(self.udp.as_ref(), &mut buf) => {
                     if let Ok(n) = n {
+                        if let Some(r) = &self.cfg.udp_recorder {
+                            r.record(crate::transcript::Direction::FromDevice, &buf[..n], true);
+                        }
                         match packet::decode_whole(&buf[..n]) {
                             Ok(Packet::Data(f)) => self.on_frame(f),
                             Ok(_) => {}

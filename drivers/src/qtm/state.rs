@@ -3,9 +3,10 @@
 use std::time::Duration;
 
 use crate::link::Backoff;
+use crate::transcript::Recorder;
 
 /// Driver configuration.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct QtmConfig {
     /// Protocol version to ask for (1.25 is what calibd speaks).
     pub version: (u32, u32),
@@ -17,6 +18,8 @@ pub struct QtmConfig {
     pub udp_bind: String,
     /// Frames buffered per subscriber before a slow subscriber starts losing them.
     pub frame_buffer: usize,
+    /// Records UDP datagrams (`"udp":true` chunks); TCP traffic is recorded by the connector.
+    pub udp_recorder: Option<Recorder>,
 }
 
 impl Default for QtmConfig {
@@ -27,6 +30,7 @@ impl Default for QtmConfig {
             backoff: Backoff::default(),
             udp_bind: "0.0.0.0:0".into(),
             frame_buffer: 4096,
+            udp_recorder: None,
         }
     }
 }

@@ -62,6 +62,15 @@ impl<C: Connect> Actor<C> {
                 format!("controller state is {}, a move needs motoron", st.ctrlstate),
             ));
         }
+        if st.opmode != "AUTO" {
+            return Err(device(
+                -1,
+                format!(
+                    "operating mode is {}, calibration moves run in AUTO",
+                    st.opmode
+                ),
+            ));
+        }
         if st.execstate != "running" {
             return Err(device(
                 -1,
