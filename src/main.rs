@@ -29,7 +29,7 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial`.
+        /// Area: `serial`, `drivers`.
         area: String,
     },
     /// List the job kinds.
@@ -103,7 +103,10 @@ fn main() -> Result<()> {
         Command::Bench { area } => {
             let figs = match area.as_str() {
                 "serial" => calibd::bench::serial::run(),
-                other => bail!("unknown benchmark area `{other}` (known: serial)"),
+                "drivers" => {
+                    return Ok(calibd_drivers::bench::run_and_print(&mut std::io::stdout())?);
+                }
+                other => bail!("unknown benchmark area `{other}` (known: serial, drivers)"),
             };
             calibd::bench::print(&mut std::io::stdout(), &figs)?;
             Ok(())

@@ -136,3 +136,29 @@ pub async fn stream_through_mock(
         achieved_hz: frames as f64 / elapsed,
     })
 }
+
+/// Runs both benchmarks (2 s decoding, 5 s TCP and UDP streams at 1 kHz with 60 markers) and
+/// prints one line per figure: the body of `calibd bench drivers` and of the `qtm` bench.
+pub fn run_and_print(out: &mut dyn std::io::Write) -> std::io::Result<()> {
+    let d = decode_60_markers(2.0);
+    writeln!(
+        out,
+        "qtm decode: {} markers/frame, {} bytes/frame, {} frames in 2 s: {:.0} frames/s on one core",
+        d.markers, d.frame_bytes, d.frames, d.frames_per_s
+    )?;
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    for t in [StreamTransport::Tcp, StreamTransport::Udp] {
+        match rt.block_on(stream_through_mock(t, 1000.0, 60, 5.0)) {
+            Ok(s) => writeln!(
+                out,
+                "qtm stream {:?} at {} Hz, {} markers, 5 s: {} frames received ({:.1} Hz), {} missed by frame number, {} lost to lag",
+                s.transport, s.rate_hz, s.markers, s.frames, s.achieved_hz, s.missed, s.lagged
+            )?,
+            Err(e) => writeln!(out, "qtm stream {t:?}: failed: {e}")?,
+        }
+    }
+    Ok(())
+}
