@@ -152,7 +152,7 @@ fn dechunk(src: &[u8]) -> Result<Option<(Vec<u8>, usize)>, CodecError> {
         let size_hex = line.split(';').next().unwrap_or("").trim();
         let size = usize::from_str_radix(size_hex, 16)
             .map_err(|_| CodecError::malformed(format!("bad chunk size line {line:?}")))?;
-        if body.len() + size > MAX_BODY {
+        if size > MAX_BODY - body.len() {
             return Err(CodecError::malformed("chunked body too large"));
         }
         pos += eol + 2;
@@ -353,6 +353,12 @@ mod tests {
         assert_eq!(
             HttpClientCodec.decode(&mut b).unwrap().unwrap().body,
             b"Wikipedia"
+        );
+        let huge = b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\nffffffffffffffff\r\nx";
+        assert!(
+            HttpClientCodec
+                .decode(&mut BytesMut::from(&huge[..]))
+                .is_err()
         );
         assert!(b.is_empty());
     }
