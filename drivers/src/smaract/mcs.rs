@@ -190,7 +190,13 @@ impl Stage for McsHandle {
         })
     }
     fn position(&self, ch: u8) -> BoxFuture<'_, Result<i64, DriverError>> {
-        Box::pin(async move { Ok(self.value(&format!(":GP{ch}"), "P", ch).await?[0] * 1000) })
+        Box::pin(async move {
+            let nm = self.value(&format!(":GP{ch}"), "P", ch).await?[0];
+            nm.checked_mul(1000).ok_or_else(|| DriverError::Protocol {
+                device: DEVICE,
+                detail: format!("position {nm} nm out of range"),
+            })
+        })
     }
     fn status(&self, ch: u8) -> BoxFuture<'_, Result<StageStatus, DriverError>> {
         Box::pin(self.status_of(ch))

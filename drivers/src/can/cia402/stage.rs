@@ -11,19 +11,23 @@ impl Stage for Cia402Handle {
     fn move_absolute(&self, ch: u8, pos_pm: i64) -> BoxFuture<'_, Result<i64, DriverError>> {
         Box::pin(async move {
             check_channel(ch)?;
-            let counts = i32::try_from(pos_pm / self.cfg.pm_per_count).map_err(|_| {
-                DriverError::InvalidRequest {
+            let counts = pos_pm
+                .checked_div(self.cfg.pm_per_count)
+                .and_then(|c| i32::try_from(c).ok())
+                .ok_or_else(|| DriverError::InvalidRequest {
                     device: DEVICE,
-                    detail: format!("{pos_pm} pm does not fit in i32 counts"),
-                }
-            })?;
-            Ok(i64::from(self.move_to_counts(counts).await?) * self.cfg.pm_per_count)
+                    detail: format!(
+                        "{pos_pm} pm at {} pm/count does not fit in i32 counts",
+                        self.cfg.pm_per_count
+                    ),
+                })?;
+            Ok(i64::from(self.move_to_counts(counts).await?).saturating_mul(self.cfg.pm_per_count))
         })
     }
     fn position(&self, ch: u8) -> BoxFuture<'_, Result<i64, DriverError>> {
         Box::pin(async move {
             check_channel(ch)?;
-            Ok(i64::from(self.position_counts().await?) * self.cfg.pm_per_count)
+            Ok(i64::from(self.position_counts().await?).saturating_mul(self.cfg.pm_per_count))
         })
     }
     fn status(&self, ch: u8) -> BoxFuture<'_, Result<StageStatus, DriverError>> {

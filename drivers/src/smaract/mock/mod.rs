@@ -305,9 +305,9 @@ fn mcs_reply(s: &mut Sim, cmd: &str) -> String {
         ("GPPK", []) => format!(":PPK{ch},{}", u8::from(a.referenced)),
         ("MPA", [nm, _hold]) | ("MPR", [nm, _hold]) => {
             let target = if m == "MPA" {
-                nm * 1000
+                nm.saturating_mul(1000)
             } else {
-                a.pos + nm * 1000
+                a.pos.saturating_add(nm.saturating_mul(1000))
             };
             match s.start_move(ch, target) {
                 Ok(()) => format!(":E{ch},0"),
@@ -323,7 +323,7 @@ fn mcs_reply(s: &mut Sim, cmd: &str) -> String {
             format!(":E{ch},0")
         }
         ("SP", [nm]) => {
-            s.axes[ch].pos = nm * 1000;
+            s.axes[ch].pos = nm.saturating_mul(1000);
             format!(":E{ch},0")
         }
         ("GP" | "GS" | "GPPK" | "S", _) => format!(":E{ch},6"),
