@@ -22,5 +22,6 @@ pub mod uwave;
 
 pub use error::{CodecError, DriverError};
 pub use link::{Backoff, Connect, Once, TcpConnector};
+pub use smaract::{Stage, StageConfig, StageStatus};
 pub use tee::{Side, Tee};
 pub use transcript::{Recorder, Transcript};

@@ -120,8 +120,14 @@ async fn device_errors_are_typed() {
         Err(DriverError::Device { message, .. }) => assert_eq!(message, "Parse Error"),
         other => panic!("{other:?}"),
     }
+    // Asked for 1.28, the driver negotiates down to the mock's 1.25 ...
     let mut c = cfg();
     c.version = (1, 28);
+    let h1 = QtmHandle::connect(TcpConnector::new(m.addr.clone()), c.clone());
+    assert_eq!(h1.get_state().await.unwrap(), 1);
+    assert_eq!(h1.state().borrow().version, Some((1, 25)));
+    // ... but not below its configured minimum.
+    c.min_version = (1, 26);
     let h2 = QtmHandle::connect(TcpConnector::new(m.addr.clone()), c);
     match h2.get_state().await {
         Err(DriverError::Device { message, .. }) => assert_eq!(message, "Version NOT supported"),

@@ -249,19 +249,29 @@ impl<C: Connect> Actor<C> {
                 });
             }
         }
-        f.send(Packet::Command(format!("Version {maj}.{min}")))
-            .await
-            .map_err(|e| DriverError::from_codec(DEVICE, e))?;
-        match next_text(f).await? {
-            Ok(s) if s == format!("Version set to {maj}.{min}") => {}
-            Ok(s) => {
-                return Err(DriverError::Protocol {
-                    device: DEVICE,
-                    detail: format!("unexpected version reply {s:?}"),
-                });
+        // Negotiate down from the configured version to the oldest acceptable one.
+        let (min_maj, min_min) = self.cfg.min_version;
+        let mut minor = min;
+        loop {
+            f.send(Packet::Command(format!("Version {maj}.{minor}")))
+                .await
+                .map_err(|e| DriverError::from_codec(DEVICE, e))?;
+            match next_text(f).await? {
+                Ok(s) if s == format!("Version set to {maj}.{minor}") => break,
+                Ok(s) => {
+                    return Err(DriverError::Protocol {
+                        device: DEVICE,
+                        detail: format!("unexpected version reply {s:?}"),
+                    });
+                }
+                Err(s) if maj == min_maj && minor > min_min => {
+                    tracing::debug!(device = DEVICE, version = %format!("{maj}.{minor}"), reply = %s, "version refused, trying older");
+                    minor -= 1;
+                }
+                Err(s) => return Err(device_error(s)),
             }
-            Err(s) => return Err(device_error(s)),
         }
+        let min = minor;
         let connects = self.link.connects;
         self.state.send_modify(|s| {
             s.connected = true;

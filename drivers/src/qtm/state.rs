@@ -8,8 +8,11 @@ use crate::transcript::Recorder;
 /// Driver configuration.
 #[derive(Debug, Clone)]
 pub struct QtmConfig {
-    /// Protocol version to ask for (1.25 is what calibd speaks).
+    /// Protocol version to ask for first (1.25 is what calibd speaks).
     pub version: (u32, u32),
+    /// Oldest version accepted while negotiating down (same major; the 3D layout used here
+    /// needs at least 1.8).
+    pub min_version: (u32, u32),
     /// Reply timeout for commands and the handshake.
     pub timeout: Duration,
     /// Reconnection back-off.
@@ -26,6 +29,7 @@ impl Default for QtmConfig {
     fn default() -> Self {
         QtmConfig {
             version: (1, 25),
+            min_version: (1, 22),
             timeout: Duration::from_secs(5),
             backoff: Backoff::default(),
             udp_bind: "0.0.0.0:0".into(),
