@@ -34,6 +34,18 @@ enum Command {
     },
     /// List the job kinds.
     Kinds,
+    /// Write a digital twin's data set (CSV tables and the model file) into a folder, for
+    /// examples and experiments.
+    Twin {
+        /// Which twin: `serial` (IRB 120 ball-centring cell).
+        which: String,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Seed of the true parameters and of the data.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
 }
 
 /// Prints stage changes of a job to stderr.
@@ -90,6 +102,24 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
     Ok(())
 }
 
+fn write_twin(which: &str, out: &Path, seed: u64) -> Result<()> {
+    if which != "serial" {
+        bail!("unknown twin `{which}` (known: serial)");
+    }
+    let twin = calibd::twin::SerialTwin::irb120(seed);
+    std::fs::create_dir_all(out)?;
+    let dof = twin.nominal.dof();
+    let centring = calibd::jobs::serial::measurement_table(&twin.centring(120, seed + 1), dof);
+    let tracker = calibd::jobs::serial::measurement_table(&twin.tracker(200, seed + 2), dof);
+    std::fs::write(out.join("centring.csv"), centring.to_csv())?;
+    std::fs::write(out.join("tracker.csv"), tracker.to_csv())?;
+    std::fs::write(out.join("irb120.json"), serde_json::to_string_pretty(&twin.file)?)?;
+    let truth = twin.file.with_chain(&twin.truth);
+    std::fs::write(out.join("irb120_true.json"), serde_json::to_string_pretty(&truth)?)?;
+    eprintln!("wrote centring.csv (360 rows), tracker.csv (200 rows), irb120.json and irb120_true.json to {}", out.display());
+    Ok(())
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
@@ -106,6 +136,7 @@ fn main() -> Result<()> {
             calibd::bench::print(&mut std::io::stdout(), &figs)?;
             Ok(())
         }
+        Command::Twin { which, out, seed } => write_twin(&which, &out, seed),
         Command::Kinds => {
             for (k, d) in calibd::jobs::KINDS {
                 println!("{k:<20} {d}");
