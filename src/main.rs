@@ -113,10 +113,19 @@ fn write_twin(which: &str, out: &Path, seed: u64) -> Result<()> {
     let tracker = calibd::jobs::serial::measurement_table(&twin.tracker(200, seed + 2), dof);
     std::fs::write(out.join("centring.csv"), centring.to_csv())?;
     std::fs::write(out.join("tracker.csv"), tracker.to_csv())?;
-    std::fs::write(out.join("irb120.json"), serde_json::to_string_pretty(&twin.file)?)?;
+    std::fs::write(
+        out.join("irb120.json"),
+        serde_json::to_string_pretty(&twin.file)?,
+    )?;
     let truth = twin.file.with_chain(&twin.truth);
-    std::fs::write(out.join("irb120_true.json"), serde_json::to_string_pretty(&truth)?)?;
-    eprintln!("wrote centring.csv (360 rows), tracker.csv (200 rows), irb120.json and irb120_true.json to {}", out.display());
+    std::fs::write(
+        out.join("irb120_true.json"),
+        serde_json::to_string_pretty(&truth)?,
+    )?;
+    eprintln!(
+        "wrote centring.csv (360 rows), tracker.csv (200 rows), irb120.json and irb120_true.json to {}",
+        out.display()
+    );
     Ok(())
 }
 

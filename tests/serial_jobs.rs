@@ -14,12 +14,28 @@ use serde_json::{Value, json};
 fn identify_result_has_every_field_and_validation_is_at_noise_level() {
     let done = run_in_examples(&example("serial_identify.json")).unwrap();
     let r = &done.result;
-    for f in ["kind", "started_at", "finished_at", "calibd_version", "inputs_sha256", "parameters", "unidentifiable", "calibrated_model", "validation", "residuals", "convergence"] {
+    for f in [
+        "kind",
+        "started_at",
+        "finished_at",
+        "calibd_version",
+        "inputs_sha256",
+        "parameters",
+        "unidentifiable",
+        "calibrated_model",
+        "validation",
+        "residuals",
+        "convergence",
+    ] {
         assert!(r.get(f).is_some(), "missing field {f}");
     }
     assert_eq!(r["kind"], "serial.identify");
     for k in ["job", "model", "measurements", "validation"] {
-        assert_eq!(r["inputs_sha256"][k].as_str().map(str::len), Some(64), "hash of {k}");
+        assert_eq!(
+            r["inputs_sha256"][k].as_str().map(str::len),
+            Some(64),
+            "hash of {k}"
+        );
     }
     let params = r["parameters"].as_array().unwrap();
     assert_eq!(params.len(), 31);
@@ -30,27 +46,52 @@ fn identify_result_has_every_field_and_validation_is_at_noise_level() {
     }
     for side in ["before", "after"] {
         for f in ["mean", "median", "std", "max", "unit"] {
-            assert!(r["validation"][side].get(f).is_some(), "validation.{side}.{f}");
+            assert!(
+                r["validation"][side].get(f).is_some(),
+                "validation.{side}.{f}"
+            );
         }
     }
     let before = r["validation"]["before"]["mean"].as_f64().unwrap();
     let after = r["validation"]["after"]["mean"].as_f64().unwrap();
     // Tracker noise 0.010 mm per coordinate: |noise| averages 0.016 mm.
-    assert!(before > 1.0 && after < 0.025, "before {before} after {after}");
+    assert!(
+        before > 1.0 && after < 0.025,
+        "before {before} after {after}"
+    );
     assert_eq!(r["convergence"]["converged"], true);
     // Joint 6 carries almost no torque: its compliance is flagged, not trusted.
-    assert!(r["weakly_observable"].as_array().unwrap().contains(&json!("c6")));
+    assert!(
+        r["weakly_observable"]
+            .as_array()
+            .unwrap()
+            .contains(&json!("c6"))
+    );
 }
 
 #[test]
 fn calibrated_model_file_reloads_and_reproduces_the_identified_fk() {
     let doc = example("serial_identify.json");
     let done = run_in_examples(&doc).unwrap();
-    let reloaded = DhFile::from_value(done.result["calibrated_model"].clone()).unwrap().to_chain().unwrap();
+    let reloaded = DhFile::from_value(done.result["calibrated_model"].clone())
+        .unwrap()
+        .to_chain()
+        .unwrap();
     // The identified model, computed independently through the library.
     let resolver = DirResolver { dir: examples() };
     let inputs = Inputs::new(&resolver);
-    let inp = parse_inputs(&inputs, &doc["model"], None, &doc["measurements"], serde_json::from_value(doc["ball_plate"].clone()).ok().as_ref(), Some(&doc["validation"]), Default::default()).unwrap();
+    let inp = parse_inputs(
+        &inputs,
+        &doc["model"],
+        None,
+        &doc["measurements"],
+        serde_json::from_value(doc["ball_plate"].clone())
+            .ok()
+            .as_ref(),
+        Some(&doc["validation"]),
+        Default::default(),
+    )
+    .unwrap();
     let (problem, sol) = inp.identify(None, &NoMonitor).unwrap();
     let identified = problem.model(&sol.x);
     let mut worst_same_tau: f64 = 0.0;
@@ -73,8 +114,17 @@ fn fk_job_matches_the_library_and_writes_csv_columns() {
     let done = run_in_examples(&example("serial_fk.json")).unwrap();
     let t = done.main_table.unwrap();
     assert_eq!(t.columns, ["x", "y", "z", "a", "b", "c"]);
-    let joints = Table::from_csv("j", &std::fs::read_to_string(examples().join("data/irb120_twin/tracker.csv")).unwrap()).unwrap();
-    let mut chain = DhFile::parse(&std::fs::read_to_string(examples().join("data/irb120_twin/irb120.json")).unwrap()).unwrap().to_chain().unwrap();
+    let joints = Table::from_csv(
+        "j",
+        &std::fs::read_to_string(examples().join("data/irb120_twin/tracker.csv")).unwrap(),
+    )
+    .unwrap();
+    let mut chain = DhFile::parse(
+        &std::fs::read_to_string(examples().join("data/irb120_twin/irb120.json")).unwrap(),
+    )
+    .unwrap()
+    .to_chain()
+    .unwrap();
     let id = chain.param_by_name("a2").unwrap();
     chain.set_param(id, 270.1);
     let q: Vec<f64> = joints.rows[3][..6].iter().map(|v| v.to_radians()).collect();
@@ -98,7 +148,18 @@ fn design_selects_better_than_random_and_is_reproducible() {
     let mut rng = calibd::util::Rng::new(3);
     let resolver = DirResolver { dir: examples() };
     let inputs = Inputs::new(&resolver);
-    let inp = parse_inputs(&inputs, &doc["model"], None, &doc["pool"], serde_json::from_value(doc["ball_plate"].clone()).ok().as_ref(), None, Default::default()).unwrap();
+    let inp = parse_inputs(
+        &inputs,
+        &doc["model"],
+        None,
+        &doc["pool"],
+        serde_json::from_value(doc["ball_plate"].clone())
+            .ok()
+            .as_ref(),
+        None,
+        Default::default(),
+    )
+    .unwrap();
     let dp = calibd::jobs::serial::design::DesignPool::new(&inp).unwrap();
     for _ in 0..5 {
         let random = rng.sample_indices(360, 75);
@@ -120,8 +181,15 @@ fn dispersion_reports_quartiles_per_size_and_parameter_spread() {
     assert_eq!(sizes.len(), 2);
     let med = |i: usize| sizes[i]["mean_error"]["median"].as_f64().unwrap();
     // More configurations, smaller validation errors, all well under the 4 mm of nominal.
-    assert!(med(1) < med(0) * 1.2 && med(0) < 0.1, "{} {}", med(0), med(1));
-    let p = &r["parameters_at_largest_size"]["parameters"].as_array().unwrap()[0];
+    assert!(
+        med(1) < med(0) * 1.2 && med(0) < 0.1,
+        "{} {}",
+        med(0),
+        med(1)
+    );
+    let p = &r["parameters_at_largest_size"]["parameters"]
+        .as_array()
+        .unwrap()[0];
     for f in ["name", "unit", "mean", "std", "min", "max"] {
         assert!(p.get(f).is_some());
     }
@@ -150,29 +218,63 @@ fn bad_inputs_are_refused_with_field_row_and_value() {
     let mut doc = example("serial_identify.json");
     doc["options"]["identify"] = json!(["alpha1", "alpha9"]);
     let e = refusal(&doc);
-    assert!(e.contains("options.identify") && e.contains("alpha9"), "{e}");
+    assert!(
+        e.contains("options.identify") && e.contains("alpha9"),
+        "{e}"
+    );
 
     let e = refusal(&with_rows(|r| r[6]["ball"] = json!(4)));
-    assert!(e.contains("measurements") && e.contains("row 7") && e.contains("ball = 4") && e.contains("1..=3"), "{e}");
+    assert!(
+        e.contains("measurements")
+            && e.contains("row 7")
+            && e.contains("ball = 4")
+            && e.contains("1..=3"),
+        "{e}"
+    );
 
     let e = refusal(&with_rows(|r| r[2]["q3"] = json!(85.0)));
-    assert!(e.contains("row 3") && e.contains("q3 = 85") && e.contains("[-110, 70]"), "{e}");
+    assert!(
+        e.contains("row 3") && e.contains("q3 = 85") && e.contains("[-110, 70]"),
+        "{e}"
+    );
 
     let mut doc = example("serial_identify.json");
     doc["measurements"] = json!("data/bad_nan.csv");
     let dir = tempdir();
-    std::fs::write(dir.join("bad_nan.csv"), "q1,q2,q3,q4,q5,q6,ball\n1,2,3,4,5,6,1\n1,2,NaN,4,5,6,2\n").unwrap();
-    std::fs::write(dir.join("bad_width.csv"), "q1,q2,q3,q4,q5,q6,ball\n1,2,3,4,5,6,1\n1,2,3,4,5,6\n").unwrap();
-    std::fs::copy(examples().join("data/irb120_twin/irb120.json"), dir.join("irb120.json")).unwrap();
+    std::fs::write(
+        dir.join("bad_nan.csv"),
+        "q1,q2,q3,q4,q5,q6,ball\n1,2,3,4,5,6,1\n1,2,NaN,4,5,6,2\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("bad_width.csv"),
+        "q1,q2,q3,q4,q5,q6,ball\n1,2,3,4,5,6,1\n1,2,3,4,5,6\n",
+    )
+    .unwrap();
+    std::fs::copy(
+        examples().join("data/irb120_twin/irb120.json"),
+        dir.join("irb120.json"),
+    )
+    .unwrap();
     doc["model"] = json!("irb120.json");
     doc["validation"] = Value::Null;
     doc.as_object_mut().unwrap().remove("validation");
     doc["measurements"] = json!("bad_nan.csv");
-    let e = calibd::jobs::prepare(&doc, &DirResolver { dir: dir.clone() }).unwrap_err().to_string();
-    assert!(e.contains("measurements") && e.contains("row 2") && e.contains("q3") && e.contains("NaN"), "{e}");
+    let e = calibd::jobs::prepare(&doc, &DirResolver { dir: dir.clone() })
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("measurements") && e.contains("row 2") && e.contains("q3") && e.contains("NaN"),
+        "{e}"
+    );
     doc["measurements"] = json!("bad_width.csv");
-    let e = calibd::jobs::prepare(&doc, &DirResolver { dir }).unwrap_err().to_string();
-    assert!(e.contains("row 2") && e.contains("6 values for 7 columns"), "{e}");
+    let e = calibd::jobs::prepare(&doc, &DirResolver { dir })
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("row 2") && e.contains("6 values for 7 columns"),
+        "{e}"
+    );
 
     let mut doc = example("serial_identify.json");
     doc["optoins"] = json!({});
@@ -193,7 +295,11 @@ fn bad_inputs_are_refused_with_field_row_and_value() {
 }
 
 fn tempdir() -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("calibd-test-{}-{:?}", std::process::id(), std::thread::current().id()));
+    let d = std::env::temp_dir().join(format!(
+        "calibd-test-{}-{:?}",
+        std::process::id(),
+        std::thread::current().id()
+    ));
     std::fs::create_dir_all(&d).unwrap();
     d
 }

@@ -109,7 +109,10 @@ pub fn parse_inputs(
         Some(v) => {
             let t = inputs.table("validation", v)?;
             if !t.has("x") && !t.has("ball") {
-                return Err(JobError::invalid("validation", "needs columns x, y, z (TCP position in {W}) or `ball` (point coincidence)"));
+                return Err(JobError::invalid(
+                    "validation",
+                    "needs columns x, y, z (TCP position in {W}) or `ball` (point coincidence)",
+                ));
             }
             Some(model.measurements("validation", &t, plate.len())?)
         }
@@ -224,21 +227,42 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IdentifyJob, JobError
 }
 
 /// Known distance between balls i and j of a plate, if the plate fixes it.
-fn known_distance(plate: &BallPlate, centres: &[nalgebra::Vector3<f64>], i: usize, j: usize) -> Option<f64> {
+fn known_distance(
+    plate: &BallPlate,
+    centres: &[nalgebra::Vector3<f64>],
+    i: usize,
+    j: usize,
+) -> Option<f64> {
     match (plate.centres[i], plate.centres[j]) {
         (Some(a), Some(b)) => Some((a - b).norm()),
-        _ => plate.distances.iter().find(|d| (d.0, d.1) == (i, j) || (d.0, d.1) == (j, i)).map(|d| d.2).or_else(|| Some((centres[i] - centres[j]).norm())),
+        _ => plate
+            .distances
+            .iter()
+            .find(|d| (d.0, d.1) == (i, j) || (d.0, d.1) == (j, i))
+            .map(|d| d.2)
+            .or_else(|| Some((centres[i] - centres[j]).norm())),
     }
 }
 
 /// Point-coincidence statistics of two models on ball measurements: per ball the RMS
 /// distance of the model TCP positions from their mean (spread), and per pair of balls the
 /// distance between those means minus the known distance. Torques from the start model.
-pub fn coincidence_report(meas: &[PointMeasurement], start: &Chain, end: &Chain, plate: &BallPlate, centres: &[nalgebra::Vector3<f64>], unit: &str) -> Value {
+pub fn coincidence_report(
+    meas: &[PointMeasurement],
+    start: &Chain,
+    end: &Chain,
+    plate: &BallPlate,
+    centres: &[nalgebra::Vector3<f64>],
+    unit: &str,
+) -> Value {
     let mut balls = Vec::new();
     let mut means: Vec<Option<[nalgebra::Vector3<f64>; 2]>> = Vec::new();
     for b in 0..plate.len() {
-        let qs: Vec<&Vec<f64>> = meas.iter().filter(|m| m.target == Target::Ball(b)).map(|m| &m.q).collect();
+        let qs: Vec<&Vec<f64>> = meas
+            .iter()
+            .filter(|m| m.target == Target::Ball(b))
+            .map(|m| &m.q)
+            .collect();
         if qs.is_empty() {
             means.push(None);
             continue;
@@ -248,11 +272,19 @@ pub fn coincidence_report(meas: &[PointMeasurement], start: &Chain, end: &Chain,
         entry.insert("count".into(), json!(qs.len()));
         let mut m2 = [nalgebra::Vector3::zeros(); 2];
         for (slot, (label, chain)) in [("before", start), ("after", end)].into_iter().enumerate() {
-            let pts: Vec<_> = qs.iter().map(|q| chain.tcp(q, Some(&start.static_torques(q))).p).collect();
+            let pts: Vec<_> = qs
+                .iter()
+                .map(|q| chain.tcp(q, Some(&start.static_torques(q))).p)
+                .collect();
             let mean = pts.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p) / pts.len() as f64;
-            let spread = (pts.iter().map(|p| (p - mean).norm_squared()).sum::<f64>() / pts.len() as f64).sqrt();
+            let spread = (pts.iter().map(|p| (p - mean).norm_squared()).sum::<f64>()
+                / pts.len() as f64)
+                .sqrt();
             entry.insert(format!("spread_rms_{label}"), json!(spread));
-            entry.insert(format!("mean_position_{label}"), json!([mean.x, mean.y, mean.z]));
+            entry.insert(
+                format!("mean_position_{label}"),
+                json!([mean.x, mean.y, mean.z]),
+            );
             m2[slot] = mean;
         }
         entry.insert("unit".into(), json!(unit));
@@ -262,7 +294,11 @@ pub fn coincidence_report(meas: &[PointMeasurement], start: &Chain, end: &Chain,
     let mut dists = Vec::new();
     for i in 0..plate.len() {
         for j in i + 1..plate.len() {
-            let (Some(a), Some(b), Some(known)) = (means[i], means[j], known_distance(plate, centres, i, j)) else { continue };
+            let (Some(a), Some(b), Some(known)) =
+                (means[i], means[j], known_distance(plate, centres, i, j))
+            else {
+                continue;
+            };
             dists.push(json!({
                 "balls": [i + 1, j + 1],
                 "known": known,
@@ -320,21 +356,45 @@ impl Prepared for IdentifyJob {
         );
         let centres = problem.centres(&sol.x);
         if !inp.plate.is_empty() {
-            let r = coincidence_report(problem.measurements(), &inp.model.chain, &calibrated, &inp.plate, &centres, unit);
+            let r = coincidence_report(
+                problem.measurements(),
+                &inp.model.chain,
+                &calibrated,
+                &inp.plate,
+                &centres,
+                unit,
+            );
             if let Value::Object(m) = r {
                 f.extend(m);
             }
         }
         if let Some(v) = &inp.validation {
-            let cartesian: Vec<PointMeasurement> = v.iter().filter(|m| matches!(m.target, Target::Point(_))).cloned().collect();
+            let cartesian: Vec<PointMeasurement> = v
+                .iter()
+                .filter(|m| matches!(m.target, Target::Point(_)))
+                .cloned()
+                .collect();
             if !cartesian.is_empty() {
-                f.insert("validation".into(), json!({
-                    "before": stats(&position_errors(&inp.model.chain, &cartesian), unit),
-                    "after": stats(&position_errors(&calibrated, &cartesian), unit),
-                }));
+                f.insert(
+                    "validation".into(),
+                    json!({
+                        "before": stats(&position_errors(&inp.model.chain, &cartesian), unit),
+                        "after": stats(&position_errors(&calibrated, &cartesian), unit),
+                    }),
+                );
             }
             if v.iter().any(|m| matches!(m.target, Target::Ball(_))) {
-                f.insert("validation_coincidence".into(), coincidence_report(v, &inp.model.chain, &calibrated, &inp.plate, &centres, unit));
+                f.insert(
+                    "validation_coincidence".into(),
+                    coincidence_report(
+                        v,
+                        &inp.model.chain,
+                        &calibrated,
+                        &inp.plate,
+                        &centres,
+                        unit,
+                    ),
+                );
             }
         }
         let provenance = json!({"method": "serial.identify", "calibd_version": crate::jobs::envelope::VERSION, "measurements": problem.measurements().len()});

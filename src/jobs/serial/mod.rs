@@ -294,13 +294,18 @@ impl PlateSpec {
 /// `x, y, z` (mm).
 pub fn measurement_table(meas: &[PointMeasurement], dof: usize) -> Table {
     let mut cols: Vec<String> = (1..=dof).map(|k| format!("q{k}")).collect();
-    let ball = meas.first().is_some_and(|m| matches!(m.target, Target::Ball(_)));
+    let ball = meas
+        .first()
+        .is_some_and(|m| matches!(m.target, Target::Ball(_)));
     if ball {
         cols.push("ball".into());
     } else {
         cols.extend(["x".into(), "y".into(), "z".into()]);
     }
-    let mut t = Table { columns: cols, rows: vec![] };
+    let mut t = Table {
+        columns: cols,
+        rows: vec![],
+    };
     for m in meas {
         let mut row: Vec<f64> = m.q.iter().map(|v| v.to_degrees()).collect();
         match m.target {
