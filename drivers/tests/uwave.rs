@@ -200,3 +200,27 @@ async fn checked_in_transcript_of_real_lines() {
     assert_eq!(b.unwrap().value, -0.001);
     m.stop().await;
 }
+
+#[tokio::test]
+async fn transmitter_search_lists_the_three_indicators() {
+    let mut args = MockArgs::new(MockDevice::Uwave);
+    args.pty = true;
+    let m = mock::start(args).await.unwrap();
+    let conn = SerialConnector {
+        path: m.addr.clone(),
+        baud: 57600,
+        recorder: None,
+    };
+    let h = UwaveHandle::connect(conn, cfg());
+    let t = h.transmitters().await.unwrap();
+    let channels: Vec<u8> = t.iter().map(|t| t.channel).collect();
+    assert_eq!(channels, vec![0, 1, 2]);
+    assert_eq!(t[1].id, "0009233801");
+    assert!(
+        t.iter()
+            .all(|t| t.state == 2 && t.band == 15 && t.mode == 1)
+    );
+    // Readings keep flowing during and after the search.
+    assert!(h.fresh(2).await.is_ok());
+    m.stop().await;
+}

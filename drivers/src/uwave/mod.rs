@@ -5,4 +5,6 @@ pub mod driver;
 pub mod mock;
 
 pub use codec::{Unit, UwaveCodec, UwaveLine, parse_line};
-pub use driver::{AxisMap, Reading, SerialConnector, UwaveConfig, UwaveHandle, UwaveState};
+pub use driver::{
+    AxisMap, Reading, SerialConnector, Transmitter, UwaveConfig, UwaveHandle, UwaveState,
+};

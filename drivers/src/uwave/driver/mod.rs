@@ -1,6 +1,10 @@
 //! U-WAVE-R driver actor: parses every line into a per-channel latest-reading cache,
 //! answers "latest" (with a staleness limit) and "fresh" (wait for the next reading after an
-//! optional configurable request) and maps three indicators onto the tool axes.
+//! optional configurable request) and maps three indicators onto the tool axes. The
+//! transmitter search (`IR11ccgg1` → `TI1` lines until `ST1 … 51`) is in `search`.
+
+mod search;
+pub use search::Transmitter;
 
 use std::collections::HashMap;
 use std::time::Duration;
@@ -130,6 +134,7 @@ impl Connect for SerialConnector {
 enum Request {
     Latest(u8, Reply<Reading>),
     Fresh(u8, Reply<Reading>),
+    Search(Reply<Vec<Transmitter>>),
 }
 
 struct Waiter {
@@ -151,6 +156,7 @@ impl std::fmt::Debug for Request {
         match self {
             Request::Latest(c, _) => write!(f, "Latest({c})"),
             Request::Fresh(c, _) => write!(f, "Fresh({c})"),
+            Request::Search(_) => write!(f, "Search"),
         }
     }
 }
@@ -176,6 +182,8 @@ impl UwaveHandle {
             state: stx,
             cache: HashMap::new(),
             waiters: Vec::new(),
+            search: None,
+            to_send: None,
         };
         tokio::spawn(actor.run());
         UwaveHandle {
@@ -207,6 +215,11 @@ impl UwaveHandle {
         Ok([m(a, ra?), m(b, rb?), m(c, rc?)])
     }
 
+    /// Lists the registered transmitters (`IR11ccgg1` scan until end of search).
+    pub async fn transmitters(&self) -> Result<Vec<Transmitter>, DriverError> {
+        call(&self.tx, DEVICE, Request::Search).await
+    }
+
     /// Watch channel with the link state.
     pub fn state(&self) -> watch::Receiver<UwaveState> {
         self.state.clone()
@@ -220,6 +233,10 @@ struct Actor<C: Connect> {
     state: watch::Sender<UwaveState>,
     cache: HashMap<u8, Reading>,
     waiters: Vec<Waiter>,
+    /// A transmitter search in progress.
+    search: Option<search::Search>,
+    /// Request bytes to send after handling a line (next search step).
+    to_send: Option<Vec<u8>>,
 }
 
 impl<C: Connect> Actor<C> {
@@ -230,6 +247,7 @@ impl<C: Connect> Actor<C> {
                 .waiters
                 .iter()
                 .map(|w| w.deadline)
+                .chain(self.search.as_ref().map(|s| s.deadline))
                 .min()
                 .unwrap_or_else(|| Instant::now() + Duration::from_secs(3600));
             tokio::select! {
@@ -240,6 +258,7 @@ impl<C: Connect> Actor<C> {
                 line = next_or_pending(self.link.current()) => self.on_line(line),
                 _ = tokio::time::sleep_until(deadline) => self.expire(),
             }
+            self.flush().await;
         }
     }
 
@@ -259,6 +278,7 @@ impl<C: Connect> Actor<C> {
 
     async fn handle(&mut self, req: Request) {
         match req {
+            Request::Search(reply) => self.start_search(reply).await,
             Request::Latest(ch, reply) => {
                 let limit = self.cfg.staleness;
                 let r = match self.cache.get(&ch) {
@@ -319,6 +339,9 @@ impl<C: Connect> Actor<C> {
     }
 
     fn apply(&mut self, line: UwaveLine) {
+        if self.on_search_line(&line) {
+            return;
+        }
         match line {
             UwaveLine::Data {
                 channel,
@@ -373,6 +396,7 @@ impl<C: Connect> Actor<C> {
 
     fn drop_link(&mut self, e: &DriverError) {
         tracing::warn!(device = DEVICE, error = %e, "link dropped");
+        self.fail_search(e.duplicate());
         self.link.reset();
         self.state.send_modify(|s| {
             s.connected = false;
@@ -397,6 +421,7 @@ impl<C: Connect> Actor<C> {
 
     fn expire(&mut self) {
         let now = Instant::now();
+        self.expire_search(now);
         let after_ms = self.cfg.timeout.as_millis() as u64;
         self.fail_where(
             |w| w.deadline <= now,
