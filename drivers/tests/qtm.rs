@@ -249,3 +249,24 @@ async fn qualisys_crate_client_against_the_mock() {
     assert_eq!(r.2, 4);
     m.stop().await;
 }
+
+#[tokio::test]
+async fn a_lost_udp_datagram_is_counted_as_a_frame_gap() {
+    // Reply 1 = the version reply; then datagrams: the 5th reply (4th frame) is not sent.
+    let (m, h) = start(&["drop@5"]).await;
+    let mut rx = h.frames();
+    h.stream("3D", StreamTransport::Udp).await.unwrap();
+    let mut numbers = Vec::new();
+    while numbers.len() < 20 {
+        let f = tokio::time::timeout(Duration::from_secs(2), rx.recv())
+            .await
+            .unwrap()
+            .unwrap();
+        numbers.push(f.frame_number);
+    }
+    assert!(!numbers.contains(&4), "{numbers:?}");
+    let s = h.state().borrow().clone();
+    assert_eq!(s.missed_frames, 1);
+    assert_eq!(s.connects, 1);
+    m.stop().await;
+}
