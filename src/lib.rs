@@ -20,5 +20,6 @@ pub mod identify;
 pub mod jobs;
 pub mod measure;
 pub mod model;
+pub mod procedures;
 pub mod twin;
 pub mod util;

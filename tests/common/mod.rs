@@ -1,0 +1,34 @@
+//! Helpers shared by integration tests.
+#![allow(dead_code, unreachable_pub)]
+
+use std::path::PathBuf;
+
+use calibd::jobs::{Completed, DirResolver, Job, JobError, prepare};
+use calibd::util::NoMonitor;
+use serde_json::Value;
+
+/// The repository's examples folder.
+pub fn examples() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("examples")
+}
+
+/// The repository's test data folder.
+pub fn data() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data")
+}
+
+/// A job document read from an example file.
+pub fn example(name: &str) -> Value {
+    let text = std::fs::read_to_string(examples().join(name)).expect("example exists");
+    serde_json::from_str(&text).expect("example is JSON")
+}
+
+/// Prepare a document with paths relative to `examples/`.
+pub fn prepare_in_examples(doc: &Value) -> Result<Job, JobError> {
+    prepare(doc, &DirResolver { dir: examples() })
+}
+
+/// Prepare and run a document with paths relative to `examples/`.
+pub fn run_in_examples(doc: &Value) -> Result<Completed, JobError> {
+    prepare_in_examples(doc)?.run(&NoMonitor)
+}
