@@ -113,3 +113,55 @@ pub fn pose_table(poses: &[Pose2]) -> Table {
 pub fn si_units() -> Value {
     serde_json::json!({"length": "m", "angle": "rad"})
 }
+
+/// A measurements table (q1, q2, q3, x, y, theta).
+pub fn measurement_table(m: &[PcrMeasurement]) -> Table {
+    let mut t = Table::new(&["q1", "q2", "q3", "x", "y", "theta"]);
+    for r in m {
+        t.push(vec![r.q[0], r.q[1], r.q[2], r.z.x, r.z.y, r.z.theta]);
+    }
+    t
+}
+
+/// The files of the 3-PF twin's data set (`calibd twin pcr`): the nominal model, the true
+/// model (true robot parameters and extrinsics), 99 calibration and 56 validation
+/// measurements at Poisson-disc joint sets, 20 joint sets and 16 poses for the FK and IK
+/// examples. Deterministic in `seed`.
+pub fn twin_files(seed: u64) -> Result<Vec<(String, String)>, JobError> {
+    let twin = crate::twin::PcrTwin::nominal(seed).map_err(|e| JobError::Failed(e.to_string()))?;
+    let lim = twin.file.limits();
+    let (lo, hi) = (
+        [lim[0][0], lim[1][0], lim[2][0]],
+        [lim[0][1], lim[1][1], lim[2][1]],
+    );
+    let sample = |n: usize, s: u64| {
+        crate::design::poisson_disc_n(lo, hi, n, s)
+            .map(|(q, _)| q)
+            .map_err(|e| JobError::Failed(e.to_string()))
+    };
+    let fail = |e: crate::model::pcr::PcrError| JobError::Failed(e.to_string());
+    let cal = twin
+        .measure(&sample(99, seed + 1)?, seed + 3)
+        .map_err(fail)?;
+    let val = twin
+        .measure(&sample(56, seed + 2)?, seed + 4)
+        .map_err(fail)?;
+    let mut joints = Table::new(&["q1", "q2", "q3"]);
+    for q in sample(20, seed + 5)? {
+        joints.push(q.to_vec());
+    }
+    let square = crate::design::trajectory::square(&Pose2::default(), 0.002, 5);
+    let json =
+        |v: &PcrFile| serde_json::to_string_pretty(v).map_err(|e| JobError::Failed(e.to_string()));
+    let truth = twin
+        .file
+        .with_values(&twin.true_params, &twin.true_extrinsics);
+    Ok(vec![
+        ("pcr3pf.json".into(), json(&twin.file)?),
+        ("pcr3pf_true.json".into(), json(&truth)?),
+        ("calibration.csv".into(), measurement_table(&cal).to_csv()),
+        ("validation.csv".into(), measurement_table(&val).to_csv()),
+        ("joints.csv".into(), joints.to_csv()),
+        ("poses.csv".into(), pose_table(&square).to_csv()),
+    ])
+}
