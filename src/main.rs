@@ -29,7 +29,7 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial`, `drivers`.
+        /// Area: `serial`, `pcr`, `drivers`.
         area: String,
     },
     /// List the job kinds.
@@ -154,10 +154,11 @@ fn main() -> Result<()> {
         Command::Bench { area } => {
             let figs = match area.as_str() {
                 "serial" => calibd::bench::serial::run(),
+                "pcr" => calibd::bench::pcr::run(),
                 "drivers" => {
                     return Ok(calibd_drivers::bench::run_and_print(&mut std::io::stdout())?);
                 }
-                other => bail!("unknown benchmark area `{other}` (known: serial, drivers)"),
+                other => bail!("unknown benchmark area `{other}` (known: serial, pcr, drivers)"),
             };
             calibd::bench::print(&mut std::io::stdout(), &figs)?;
             Ok(())
