@@ -153,6 +153,23 @@ fn fk_and_ik_jobs_agree_with_each_other_and_the_library() {
         let eq = robot.fk(&[q[0], q[1], q[2]]).expect("cold fk");
         assert!((eq.pose.x - p[0]).abs() < 1e-11 && (eq.pose.theta - p[2]).abs() < 1e-10);
     }
+    // An external load moves the platform of the bent configurations.
+    let mut doc = example("pcr_fk.json");
+    doc["options"] = json!({"load": {"force": [0.003, -0.002], "moment": 1e-5}, "wrenches": true});
+    let loaded = run_in_examples(&doc).expect("loaded fk");
+    let moved = loaded
+        .main_table
+        .expect("poses")
+        .rows
+        .iter()
+        .zip(&poses.rows)
+        .map(|(a, b)| (a[0] - b[0]).hypot(a[1] - b[1]))
+        .fold(0.0, f64::max);
+    assert!(moved > 1e-7 && moved < 1e-3, "{moved:e}");
+    assert_eq!(
+        loaded.result["wrenches"]["rows"].as_array().map(Vec::len),
+        Some(20)
+    );
     // IK of the 2 mm square, then FK of the joints found: the square again.
     let ik = run_in_examples(&example("pcr_ik.json")).expect("ik");
     let q = ik.main_table.expect("joints table");

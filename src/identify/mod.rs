@@ -4,6 +4,7 @@
 //! rank -> LM -> covariance pipeline with its report ([`solve`]); gauge freedoms held at
 //! their nominal combination ([`gauge`]). No I/O.
 
+mod bounds;
 pub mod gauge;
 pub mod lm;
 pub mod problem;

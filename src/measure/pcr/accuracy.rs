@@ -54,9 +54,9 @@ pub struct AccuracySummary {
     /// Commanded poses.
     pub poses: usize,
     /// AP_P over the poses, um.
-    pub ap_p_um: super::steps::ErrorStats,
+    pub ap_p_um: super::report::ErrorStats,
     /// |AP_theta| over the poses, mrad.
-    pub ap_theta_mrad: super::steps::ErrorStats,
+    pub ap_theta_mrad: super::report::ErrorStats,
     /// Largest RP, um.
     pub rp_max_um: f64,
 }
@@ -67,8 +67,8 @@ pub fn summarise(acc: &[PoseAccuracy]) -> AccuracySummary {
     let t: Vec<f64> = acc.iter().map(|a| a.ap_theta.abs()).collect();
     AccuracySummary {
         poses: acc.len(),
-        ap_p_um: super::steps::ErrorStats::of(&p, 1e6),
-        ap_theta_mrad: super::steps::ErrorStats::of(&t, 1e3),
+        ap_p_um: super::report::ErrorStats::of(&p, 1e6),
+        ap_theta_mrad: super::report::ErrorStats::of(&t, 1e3),
         rp_max_um: acc.iter().map(|a| a.rp).fold(0.0, f64::max) * 1e6,
     }
 }

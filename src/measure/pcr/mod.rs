@@ -6,16 +6,18 @@
 //!
 //! - [`problem`]: the least-squares [`crate::identify::Problem`] over robot parameters and
 //!   extrinsics, with warm-started forward kinematics.
-//! - [`steps`]: the bounded three-step identification, gauge handling and the paper's
-//!   Table 3.
+//! - [`steps`]: the bounded three-step identification and its gauge handling.
+//! - [`report`]: model errors, the paper's Table 3, step reports.
 //! - [`accuracy`]: ISO 9283 pose accuracy and repeatability (the paper's Table 4).
 
 pub mod accuracy;
 pub mod problem;
+pub mod report;
 pub mod steps;
 
 pub use problem::PcrProblem;
-pub use steps::{Calibration, CalibrationOptions, Step, StepReport, Table3, identify_steps};
+pub use report::{ErrorStats, StepReport, Table3};
+pub use steps::{Calibration, CalibrationOptions, Step, identify_steps};
 
 use crate::geometry::{Pose2, wrap_angle};
 use crate::model::pcr::file::Extrinsics;

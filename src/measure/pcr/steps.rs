@@ -11,18 +11,18 @@
 //! [`crate::identify::gauge`]); the parameters rank detection drops are reported by name.
 
 use nalgebra::DMatrix;
-use serde::Serialize;
 
 use super::problem::{PcrProblem, extrinsics, robot_params, unknowns};
+use super::report::{ErrorStats, StepReport, Table3, Table3Row, Table3Set};
 use super::{PcrMeasurement, UNKNOWNS, measured_pose, pose_error, unknown_name, unknown_unit};
 use crate::identify::solve::Dependency;
 use crate::identify::{
-    Gauged, IdentifyError, LmOptions, ParamReport, Pivoting, Problem, Restricted, StopReason,
-    Uncertainty, levenberg_marquardt, null_directions, rank_revealing, uncertainty,
+    Gauged, IdentifyError, LmOptions, ParamReport, Pivoting, Problem, Restricted, Uncertainty,
+    levenberg_marquardt, null_directions, rank_revealing, uncertainty,
 };
 use crate::model::pcr::params::{E_INDEX, LIMB_FIELDS};
 use crate::model::pcr::{Pcr, PcrFile, ROBOT_PARAMS};
-use crate::util::{Monitor, SubMonitor, Summary};
+use crate::util::{Monitor, SubMonitor};
 
 /// One identification step: a name and the unknowns it frees (indices, robot parameters
 /// 0..28 then extrinsics 28..34).
@@ -116,86 +116,6 @@ impl Default for CalibrationOptions {
             refine_damping: 1e-9,
         }
     }
-}
-
-/// Max, mean and min of a set of errors.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct ErrorStats {
-    /// Largest.
-    pub max: f64,
-    /// Mean.
-    pub mean: f64,
-    /// Smallest.
-    pub min: f64,
-}
-
-impl ErrorStats {
-    /// Max, mean and min of `v` multiplied by `factor` (a unit change).
-    pub fn of(v: &[f64], factor: f64) -> Self {
-        let s = Summary::of(v, "");
-        Self {
-            max: s.max * factor,
-            mean: s.mean * factor,
-            min: s.min * factor,
-        }
-    }
-}
-
-/// A row of Table 3: one error kind, nominal and identified model.
-#[derive(Debug, Clone, Serialize)]
-pub struct Table3Row {
-    /// `um` or `mrad`.
-    pub unit: &'static str,
-    /// Nominal robot parameters (extrinsics identified alone).
-    pub nominal: ErrorStats,
-    /// Identified model.
-    pub identified: ErrorStats,
-}
-
-/// Table 3 for one set of measurements.
-#[derive(Debug, Clone, Serialize)]
-pub struct Table3Set {
-    /// Number of poses.
-    pub poses: usize,
-    /// Position error |p_model - p_measured|.
-    #[serde(rename = "e_P")]
-    pub e_p: Table3Row,
-    /// Orientation error |theta_model - theta_measured|.
-    pub e_theta: Table3Row,
-}
-
-/// The paper's Table 3: model errors before and after, calibration and validation sets.
-#[derive(Debug, Clone, Serialize)]
-pub struct Table3 {
-    /// On the calibration measurements.
-    pub calibration: Table3Set,
-    /// On the validation measurements, when given.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub validation: Option<Table3Set>,
-}
-
-/// What one step did.
-#[derive(Debug, Clone, Serialize)]
-pub struct StepReport {
-    /// Step name.
-    pub name: String,
-    /// Unknowns freed.
-    pub free: Vec<String>,
-    /// Unknowns rank detection dropped: each one's column is a combination of kept columns
-    /// (a gauge freedom), and that combination of parameter changes is held at nominal.
-    pub unidentifiable: Vec<String>,
-    /// What each unidentifiable unknown duplicates (column = sum coefficient * column).
-    pub dependencies: Vec<Dependency>,
-    /// Why Levenberg-Marquardt stopped.
-    pub stop_reason: StopReason,
-    /// Its iterations.
-    pub iterations: usize,
-    /// Weighted sum of squares before and after (m^2).
-    pub cost_before: f64,
-    /// After.
-    pub cost_after: f64,
-    /// Mean position model error on the calibration set after the step (um).
-    pub mean_e_p_um: f64,
 }
 
 /// Outcome of the identification.

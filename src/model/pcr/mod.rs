@@ -4,7 +4,10 @@
 //! - [`file`]: the JSON model file (`pcr3pf.json`), checked field by field.
 //! - [`params`]: the 28 robot parameters, names and units.
 //! - `rod`: RK4 integration of one rod with its variational equations.
-//! - `shooting`: residuals and Jacobians of the 12 x 12 shooting system, Newton.
+//! - `setup`: the dimensionless robot and the inputs of a solve.
+//! - `shooting`: residuals and Jacobians of the 12 x 12 shooting system.
+//! - `newton`: the guarded chord-Newton solve.
+//! - `track`: continuation between solved configurations, warm-start data.
 //! - [`sensitivity`]: the paper's Table 2 (finite differences per parameter type).
 //! - `solve`: [`Pcr`]: forward and inverse kinematics with continuation and warm starts,
 //!   pose Jacobians with respect to the parameters.
@@ -13,13 +16,16 @@
 
 pub mod file;
 mod lu;
+mod newton;
 pub mod params;
 mod rod;
+mod setup;
 pub mod sensitivity;
 mod shooting;
 mod solve;
 #[cfg(test)]
 mod tests;
+mod track;
 
 pub use file::PcrFile;
 pub use params::{LimbParams, PcrParams, ROBOT_PARAMS, param_index, param_name, param_unit};
@@ -169,5 +175,5 @@ pub struct Equilibrium {
     /// Scaled proximal wrenches (n_x, n_y, m per limb), kept for warm starts.
     scaled: [f64; 9],
     /// The last factorised shooting Jacobian, reused by warm starts of the same kind.
-    warm: Option<std::sync::Arc<solve::Warm>>,
+    warm: Option<std::sync::Arc<track::Warm>>,
 }

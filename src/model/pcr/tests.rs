@@ -1,7 +1,7 @@
 //! Tests that need the solver's internals: the integration accuracy at the rod tip.
 
 use super::rod::{self, Rod};
-use super::shooting::Setup;
+use super::setup::Setup;
 use super::{Load, PcrFile};
 
 /// Richardson step halving on the rods of solved configurations across the joint box: the
