@@ -57,11 +57,16 @@ fn model_err(e: impl std::fmt::Display) -> IdentifyError {
     IdentifyError::Model(e.to_string())
 }
 
-/// `f` over `0..n` on up to `threads` scoped threads (contiguous chunks), in order.
-fn parallel_map<R: Send>(n: usize, threads: usize, f: impl Fn(usize) -> R + Sync) -> Vec<R> {
+/// `f` over `0..n` on up to `threads` scoped threads (contiguous chunks), in order; `None`
+/// if a worker panicked.
+fn parallel_map<R: Send>(
+    n: usize,
+    threads: usize,
+    f: impl Fn(usize) -> R + Sync,
+) -> Option<Vec<R>> {
     let threads = threads.clamp(1, n.max(1));
     if threads == 1 {
-        return (0..n).map(f).collect();
+        return Some((0..n).map(f).collect());
     }
     let chunk = n.div_ceil(threads);
     let f = &f;
@@ -75,10 +80,11 @@ fn parallel_map<R: Send>(n: usize, threads: usize, f: impl Fn(usize) -> R + Sync
                 })
             })
             .collect();
-        handles
-            .into_iter()
-            .flat_map(|h| h.join().unwrap_or_default())
-            .collect()
+        let mut out = Vec::with_capacity(n);
+        for h in handles {
+            out.extend(h.join().ok()?);
+        }
+        Some(out)
     })
 }
 
@@ -144,7 +150,8 @@ impl PcrProblem {
                     .fk(q)
                     .map_err(|e| model_err(format!("measurement {}: {e}", j + 1))),
             }
-        });
+        })
+        .ok_or_else(|| model_err("a forward-kinematics worker thread panicked"))?;
         let out: Vec<Equilibrium> = solved.into_iter().collect::<Result<_, _>>()?;
         cache.key = Some(key);
         cache.robot = Some(robot.clone());
@@ -176,7 +183,8 @@ impl PcrProblem {
         let (robot, sols) = self.solve(x)?;
         let ext = extrinsics(x);
         let w = self.weight;
-        let rows = parallel_map(sols.len(), self.threads, |i| robot.pose_jacobian(&sols[i]));
+        let rows = parallel_map(sols.len(), self.threads, |i| robot.pose_jacobian(&sols[i]))
+            .ok_or_else(|| model_err("a Jacobian worker thread panicked"))?;
         for (i, ((m, eq), pj)) in self.measurements.iter().zip(&sols).zip(rows).enumerate() {
             let pj = pj.map_err(model_err)?;
             let z: Pose2 = if consistent {

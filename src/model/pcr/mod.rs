@@ -19,8 +19,8 @@ mod lu;
 mod newton;
 pub mod params;
 mod rod;
-mod setup;
 pub mod sensitivity;
+mod setup;
 mod shooting;
 mod solve;
 #[cfg(test)]
