@@ -104,3 +104,37 @@ fn three_step_identification_reaches_the_noise_level() {
     // No bound was hit.
     assert!(res.params.iter().all(|p| p.at_bound.is_none()));
 }
+
+#[test]
+fn hold_mode_keeps_the_dropped_parameters_at_nominal() {
+    let twin = PcrTwin::nominal(1).expect("twin");
+    let lim = twin.file.limits();
+    let (lo, hi) = (
+        [lim[0][0], lim[1][0], lim[2][0]],
+        [lim[0][1], lim[1][1], lim[2][1]],
+    );
+    let (cal_q, _) = poisson_disc_n(lo, hi, 99, 1).expect("calibration joints");
+    let (val_q, _) = poisson_disc_n(lo, hi, 56, 101).expect("validation joints");
+    let cal = twin.measure(&cal_q, 10).expect("readings");
+    let val = twin.measure(&val_q, 11).expect("readings");
+    let base = twin.file.robot().expect("nominal robot");
+    let opts = CalibrationOptions {
+        hold_unidentifiable: true,
+        ..Default::default()
+    };
+    let res = identify_steps(&base, &twin.file, &cal, Some(&val), &opts, &NoMonitor)
+        .expect("identification");
+    assert_eq!(res.unidentifiable.len(), 8);
+    for name in &res.unidentifiable {
+        let p = res
+            .params
+            .iter()
+            .find(|p| &p.name == name)
+            .expect("parameter");
+        assert_eq!(p.value, p.nominal, "{name} held");
+        assert!(p.std.is_none() && !p.identifiable);
+    }
+    // This twin's errors happen to fit inside the bounds in that gauge too.
+    let v = res.table3.validation.as_ref().expect("validation");
+    assert!(v.e_p.identified.max < 0.1, "{}", v.e_p.identified.max);
+}

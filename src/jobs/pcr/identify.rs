@@ -41,6 +41,10 @@ pub struct IdentifyOptions {
     /// Bounds are nominal +/- this many standard uncertainties (default 3).
     #[serde(default)]
     pub bound_sigmas: Option<f64>,
+    /// `min_norm` (default): each unidentifiable combination is held at nominal; `hold`: the
+    /// unknowns rank detection drops are held at nominal themselves.
+    #[serde(default)]
+    pub gauge: Option<String>,
 }
 
 /// A validated `pcr.identify` job.
@@ -91,6 +95,16 @@ pub fn calibration_options(o: &IdentifyOptions) -> Result<CalibrationOptions, Jo
     }
     if let Some(b) = o.bound_sigmas {
         c.bound_sigmas = b;
+    }
+    match o.gauge.as_deref() {
+        None | Some("min_norm") => {}
+        Some("hold") => c.hold_unidentifiable = true,
+        Some(other) => {
+            return Err(JobError::invalid(
+                "options.gauge",
+                format!("`{other}`: expected \"min_norm\" or \"hold\""),
+            ));
+        }
     }
     if let Some(n) = o.max_iterations {
         if n == 0 {
@@ -181,10 +195,12 @@ impl Prepared for IdentifyJob {
             "dependencies".into(),
             serde_json::to_value(&cal.dependencies).unwrap_or(Value::Null),
         );
-        f.insert(
-            "gauge".into(),
-            json!("each unidentifiable combination of parameters (a column of the uncertainty-scaled Jacobian that duplicates others: a rigid motion of the clamps with the sensor or pattern frame, E without load, a common scale of the diameters) is held at nominal: the identified change has no component along the null space, measured in standard uncertainties"),
-        );
+        let gauge = if self.options.hold_unidentifiable {
+            "hold: the unidentifiable parameters (columns of the uncertainty-scaled Jacobian that duplicate others) are held at nominal themselves"
+        } else {
+            "min_norm: each unidentifiable combination of parameters (a column of the uncertainty-scaled Jacobian that duplicates others: a rigid motion of the clamps with the sensor or pattern frame, E without load, a common scale of the diameters) is held at nominal: the identified change has no component along the null space, measured in standard uncertainties"
+        };
+        f.insert("gauge".into(), json!(gauge));
         f.insert(
             "steps".into(),
             serde_json::to_value(&cal.steps).unwrap_or(Value::Null),

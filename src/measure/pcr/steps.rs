@@ -104,6 +104,11 @@ pub struct CalibrationOptions {
     /// Initial damping (Nielsen's tau) of the steps after the first, which start at the
     /// previous step's optimum: small, so the damping need not decay over many iterations.
     pub refine_damping: f64,
+    /// Hold the unknowns rank detection drops at nominal themselves, instead of holding each
+    /// unidentifiable combination at nominal (the default, minimum-norm gauge). Holding
+    /// single parameters makes the others absorb their errors: with the file's 3-sigma bounds
+    /// a lever (the 54 mm between clamps times an angle error) can push them onto a bound.
+    pub hold_unidentifiable: bool,
 }
 
 impl Default for CalibrationOptions {
@@ -114,6 +119,7 @@ impl Default for CalibrationOptions {
             bound_sigmas: 3.0,
             max_iterations: 100,
             refine_damping: 1e-9,
+            hold_unidentifiable: false,
         }
     }
 }
@@ -216,26 +222,39 @@ fn run_step(
         .collect();
     let rank = rank_revealing(&jf, &Pivoting::Priority(order), ctx.opts.rank_tolerance);
     let scale: Vec<f64> = free.iter().map(|&k| ctx.scale[k]).collect();
-    let gauges = null_directions(&jf, &scale, rank.dropped.len())?;
+    let mut dropped: Vec<usize> = rank.dropped.iter().map(|&c| free[c]).collect();
+    dropped.sort_unstable();
     let weight = (0..free.len())
         .map(|c| jf.column(c).norm() * scale[c])
         .fold(0.0, f64::max);
-    let restricted = Restricted::new(problem, x.to_vec(), free.clone());
-    let x_ref: Vec<f64> = free.iter().map(|&k| ctx.x_nom[k]).collect();
-    let gauged = Gauged::new(
-        &restricted,
-        gauges.clone(),
-        x_ref,
-        weight.max(f64::MIN_POSITIVE),
-    );
+    // Either hold each unidentifiable combination at nominal (minimum-norm gauge), or the
+    // dropped unknowns themselves.
+    let (solved, gauges, start) = if ctx.opts.hold_unidentifiable {
+        let keep: Vec<usize> = free
+            .iter()
+            .copied()
+            .filter(|k| !dropped.contains(k))
+            .collect();
+        let mut start = x.to_vec();
+        for &k in &dropped {
+            start[k] = ctx.x_nom[k];
+        }
+        (keep, Vec::new(), start)
+    } else {
+        let g = null_directions(&jf, &scale, rank.dropped.len())?;
+        (free.clone(), g, x.to_vec())
+    };
+    let restricted = Restricted::new(problem, start.clone(), solved.clone());
+    let x_ref: Vec<f64> = solved.iter().map(|&k| ctx.x_nom[k]).collect();
+    let gauged = Gauged::new(&restricted, gauges, x_ref, weight.max(f64::MIN_POSITIVE));
     let lm = LmOptions {
         max_iterations: ctx.opts.max_iterations,
         initial_damping: if first { 1e-3 } else { ctx.opts.refine_damping },
-        lower: Some(free.iter().map(|&k| ctx.lower[k]).collect()),
-        upper: Some(free.iter().map(|&k| ctx.upper[k]).collect()),
+        lower: Some(solved.iter().map(|&k| ctx.lower[k]).collect()),
+        upper: Some(solved.iter().map(|&k| ctx.upper[k]).collect()),
         ..LmOptions::default()
     };
-    let xs: Vec<f64> = free.iter().map(|&k| x[k]).collect();
+    let xs: Vec<f64> = solved.iter().map(|&k| start[k]).collect();
     let rep = levenberg_marquardt(&gauged, &xs, &lm, monitor)?;
     let x_new = restricted.expand(&rep.x);
     let m = problem.measurements().len();
@@ -243,8 +262,6 @@ fn run_step(
         .map(|j| rep.residuals[3 * j + 1].hypot(rep.residuals[3 * j + 2]))
         .sum::<f64>()
         / m.max(1) as f64;
-    let mut dropped: Vec<usize> = rank.dropped.iter().map(|&c| free[c]).collect();
-    dropped.sort_unstable();
     let report = StepReport {
         name: step.name.clone(),
         free: free.iter().map(|&k| unknown_name(k)).collect(),
@@ -275,7 +292,7 @@ fn run_step(
         at_bound: rep.at_bound.clone(),
         uncertainty: uncertainty(&rep.jacobian, &rep.residuals),
         consistent_jacobian: jc,
-        free,
+        free: solved,
     })
 }
 
