@@ -65,3 +65,12 @@ fn rod_tip_integration_error_is_under_a_nanometre() {
         worst.0, worst.1
     );
 }
+
+/// Models are shared across threads (identification workers, the daemon's pool).
+#[test]
+fn robots_and_solutions_are_send_and_sync() {
+    fn check<T: Send + Sync>() {}
+    check::<super::Pcr>();
+    check::<super::Equilibrium>();
+    check::<super::PcrFile>();
+}
