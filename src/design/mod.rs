@@ -2,6 +2,7 @@
 //! selection of configurations by DETMAX, Poisson-disc sampling of joint boxes, commanded
 //! trajectories for accuracy tests. No I/O.
 
+pub mod balls;
 pub mod detmax;
 pub mod observability;
 pub mod poisson;

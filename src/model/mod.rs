@@ -2,6 +2,7 @@
 
 pub mod chain;
 pub mod dh;
+pub mod ik;
 pub mod params;
 pub mod pcr;
 pub mod urdf;
