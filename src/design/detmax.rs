@@ -344,6 +344,8 @@ impl<'a> Design<'a> {
 
     /// Change of log det if candidate i were added (sign +1) or removed (sign -1):
     /// log det(I + sign D_i), by an in-place Cholesky on the stack for small blocks.
+    /// (Ranking by the determinant itself would skip the logarithm, but the logarithm keeps
+    /// large blocks from overflowing; it costs little next to the updates.)
     fn change(&self, i: usize, sign: f64) -> f64 {
         let r = self.pool.blocks[i].0;
         let di = &self.d[self.off[i]..self.off[i] + r * r];
@@ -353,8 +355,20 @@ impl<'a> Design<'a> {
                 .collect();
             return small_inverse(&s, r).map_or(f64::NEG_INFINITY, |v| v.0);
         }
+        let g = |a: usize, b: usize| sign * di[a * r + b] + if a == b { 1.0 } else { 0.0 };
+        if r == 3 {
+            // Positive definite by Sylvester's criterion; closed-form determinant.
+            let (a, b, c, d, e, f) = (g(0, 0), g(0, 1), g(0, 2), g(1, 1), g(1, 2), g(2, 2));
+            let m2 = a * d - b * b;
+            let det = a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c);
+            return if a > 0.0 && m2 > 0.0 && det > 0.0 {
+                det.ln()
+            } else {
+                f64::NEG_INFINITY
+            };
+        }
         let mut l = [0.0f64; 64];
-        let mut ld = 0.0;
+        let mut det = 1.0;
         for a in 0..r {
             for b in 0..=a {
                 let mut v = sign * di[a * r + b] + if a == b { 1.0 } else { 0.0 };
@@ -366,13 +380,13 @@ impl<'a> Design<'a> {
                         return f64::NEG_INFINITY;
                     }
                     l[a * 8 + a] = v.sqrt();
-                    ld += v.ln();
+                    det *= v;
                 } else {
                     l[a * 8 + b] = v / l[b * 8 + b];
                 }
             }
         }
-        ld
+        det.ln()
     }
 
     /// Add (sign +1) or remove (sign -1) candidate `a`, updating P and every D_i (Woodbury),
@@ -393,25 +407,80 @@ impl<'a> Design<'a> {
         let us = &u * &sinv;
         self.p.gemm(-sign, &us, &u.transpose(), 1.0);
         // D_i' = D_i - sign E_i S^-1 E_i^T.
-        let es = mul(&e, &sinv);
+        // Row-major copy of E so each candidate's rows are contiguous.
         let rows = e.nrows();
-        let (es, e) = (es.as_slice(), e.as_slice());
-        for (i, (ri, _)) in self.pool.blocks.iter().enumerate() {
-            let (ri, r0, o) = (*ri, self.pool.row0[i], self.off[i]);
-            for x in 0..ri {
-                for y in 0..ri {
-                    let mut v = 0.0;
-                    for c in 0..r {
-                        v += es[c * rows + r0 + x] * e[c * rows + r0 + y];
-                    }
-                    self.d[o + x * ri + y] -= sign * v;
-                }
+        let mut erow = vec![0.0; rows * r];
+        for c in 0..r {
+            for (row, v) in e.column(c).iter().enumerate() {
+                erow[row * r + c] = *v;
             }
+        }
+        let sinv = sinv.as_slice(); // symmetric: row- and column-major agree
+        let uniform = self.pool.blocks.iter().all(|b| b.0 == r);
+        match (uniform, r) {
+            (true, 2) => self.update_blocks::<2>(&erow, sinv, sign),
+            (true, 3) => self.update_blocks::<3>(&erow, sinv, sign),
+            (true, 6) => self.update_blocks::<6>(&erow, sinv, sign),
+            _ => self.update_blocks_any(&erow, sinv, r, sign),
         }
         self.member[a] = sign > 0.0;
         self.log_det += ld;
         self.updates += 1;
         Some(())
+    }
+
+    /// D_i -= sign * E_i S^-1 E_i^T for blocks that all have R rows (unrolled).
+    fn update_blocks<const R: usize>(&mut self, erow: &[f64], sinv: &[f64], sign: f64) {
+        let mut s = [[0.0f64; R]; R];
+        for k in 0..R {
+            for c in 0..R {
+                s[k][c] = sinv[k * R + c];
+            }
+        }
+        for (i, di) in self.d.chunks_exact_mut(R * R).enumerate() {
+            let mut e = [[0.0f64; R]; R];
+            for x in 0..R {
+                e[x].copy_from_slice(&erow[(i * R + x) * R..(i * R + x + 1) * R]);
+            }
+            let mut es = [[0.0f64; R]; R];
+            for x in 0..R {
+                for k in 0..R {
+                    for c in 0..R {
+                        es[x][c] += e[x][k] * s[k][c];
+                    }
+                }
+            }
+            for x in 0..R {
+                for y in 0..R {
+                    let mut v = 0.0;
+                    for c in 0..R {
+                        v += es[x][c] * e[y][c];
+                    }
+                    di[x * R + y] -= sign * v;
+                }
+            }
+        }
+    }
+
+    /// D_i -= sign * E_i S^-1 E_i^T for blocks of any sizes.
+    fn update_blocks_any(&mut self, erow: &[f64], sinv: &[f64], r: usize, sign: f64) {
+        for (i, (ri, _)) in self.pool.blocks.iter().enumerate() {
+            let (ri, r0, o) = (*ri, self.pool.row0[i], self.off[i]);
+            let ei = &erow[r0 * r..(r0 + ri) * r];
+            let es: Vec<f64> = (0..ri * r)
+                .map(|xc| {
+                    (0..r)
+                        .map(|k| ei[(xc / r) * r + k] * sinv[k * r + xc % r])
+                        .sum()
+                })
+                .collect();
+            for x in 0..ri {
+                for y in 0..ri {
+                    let v: f64 = (0..r).map(|c| es[x * r + c] * ei[y * r + c]).sum();
+                    self.d[o + x * ri + y] -= sign * v;
+                }
+            }
+        }
     }
 
     /// Greedy step: add the outside candidate raising log det most, or remove the inside one
