@@ -27,17 +27,19 @@ pub fn ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
         return vec![lo];
     }
     let raw = (hi - lo) / n.max(1) as f64;
-    let mag = 10f64.powf(raw.log10().floor());
-    let step = [1.0, 2.0, 2.5, 5.0, 10.0]
-        .iter()
-        .map(|m| m * mag)
-        .find(|s| *s >= raw)
-        .unwrap_or(10.0 * mag);
-    let first = (lo / step).ceil() * step;
+    let e = raw.log10().floor() as i32;
+    // Scale by dividing for negative exponents: 6 / 10 is 0.6 exactly, 6 * 0.1 is not.
+    let scale = |v: f64| if e < 0 { v / 10f64.powi(-e) } else { v * 10f64.powi(e) };
+    let m = [1.0, 2.0, 2.5, 5.0, 10.0]
+        .into_iter()
+        .find(|m| scale(*m) >= raw)
+        .unwrap_or(10.0);
+    let step = scale(m);
+    let first = (lo / step).ceil();
     let mut out = Vec::new();
     let mut k = 0;
-    while first + k as f64 * step <= hi + step * 1e-9 && k < 100 {
-        out.push(first + k as f64 * step);
+    while scale((first + k as f64) * m) <= hi + step * 1e-9 && k < 100 {
+        out.push(scale((first + k as f64) * m));
         k += 1;
     }
     out

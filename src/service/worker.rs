@@ -40,9 +40,17 @@ pub(super) fn start(svc: Service, progress: mpsc::UnboundedReceiver<Event>, n: u
             let stop = svc.shared.shutdown.clone();
             loop {
                 let entry = tokio::select! {
+                    biased;
                     _ = stop.cancelled() => break,
                     e = next(&svc) => e,
                 };
+                if stop.is_cancelled() {
+                    // Taken just as the daemon stops: leave it queued for the next start.
+                    let mut q = lock(&svc.shared.queue);
+                    q.release(&entry.devices);
+                    q.push(entry);
+                    break;
+                }
                 run_one(&svc, entry).await;
             }
         }));
