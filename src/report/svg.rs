@@ -29,7 +29,13 @@ pub fn ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     let raw = (hi - lo) / n.max(1) as f64;
     let e = raw.log10().floor() as i32;
     // Scale by dividing for negative exponents: 6 / 10 is 0.6 exactly, 6 * 0.1 is not.
-    let scale = |v: f64| if e < 0 { v / 10f64.powi(-e) } else { v * 10f64.powi(e) };
+    let scale = |v: f64| {
+        if e < 0 {
+            v / 10f64.powi(-e)
+        } else {
+            v * 10f64.powi(e)
+        }
+    };
     let m = [1.0, 2.0, 2.5, 5.0, 10.0]
         .into_iter()
         .find(|m| scale(*m) >= raw)
