@@ -131,7 +131,7 @@ async function showJob(id) {
   const j = await api("/v1/jobs/" + id);
   const parts = [el("h2", {}, `Job ${j.id}: ${j.kind}`),
     el("p", {}, el("span", { class: "state state-" + j.state, id: "detail-state" }, j.state),
-      j.stage ? ` — ${j.stage} (${Math.round(100 * j.progress)} %)` : "",
+      j.state === "running" && j.stage ? ` — ${j.stage} (${Math.round(100 * j.progress)} %)` : "",
       j.error ? el("div", { class: "msg err" }, j.error) : ""),
     el("p", { class: "hint" }, `submitted ${time(j.submitted_at)} by ${j.submitted_by || "?"}` +
       (j.finished_at ? `, finished ${time(j.finished_at)}` : "")),
