@@ -31,6 +31,7 @@ pub mod identify;
 pub mod jobs;
 pub mod measure;
 pub mod model;
+pub mod procedures;
 pub mod report;
 pub mod schedule;
 pub mod server;

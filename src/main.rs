@@ -29,7 +29,7 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial` or `api` (the daemon under many concurrent clients).
+        /// Area: `serial`, `drivers` or `api` (the daemon under many concurrent clients).
         area: String,
     },
     /// List the job kinds.
@@ -110,6 +110,20 @@ enum Command {
         /// viewer, submitter or operator.
         #[arg(long, default_value = "viewer")]
         role: String,
+    },
+    /// Run a mock device server (QTM, ABB RWS, U-WAVE, SmarAct MCS/MCS2, CAN) until Ctrl-C.
+    Mock(calibd_drivers::mock::MockArgs),
+    /// Write a digital twin's data set (CSV tables and the model file) into a folder, for
+    /// examples and experiments.
+    Twin {
+        /// Which twin: `serial` (IRB 120 ball-centring cell).
+        which: String,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Seed of the true parameters and of the data.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
     },
 }
 
@@ -263,6 +277,33 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
     Ok(())
 }
 
+fn write_twin(which: &str, out: &Path, seed: u64) -> Result<()> {
+    if which != "serial" {
+        bail!("unknown twin `{which}` (known: serial)");
+    }
+    let twin = calibd::twin::SerialTwin::irb120(seed);
+    std::fs::create_dir_all(out)?;
+    let dof = twin.nominal.dof();
+    let centring = calibd::jobs::serial::measurement_table(&twin.centring(120, seed + 1), dof);
+    let tracker = calibd::jobs::serial::measurement_table(&twin.tracker(200, seed + 2), dof);
+    std::fs::write(out.join("centring.csv"), centring.to_csv())?;
+    std::fs::write(out.join("tracker.csv"), tracker.to_csv())?;
+    std::fs::write(
+        out.join("irb120.json"),
+        serde_json::to_string_pretty(&twin.file)?,
+    )?;
+    let truth = twin.file.with_chain(&twin.truth);
+    std::fs::write(
+        out.join("irb120_true.json"),
+        serde_json::to_string_pretty(&truth)?,
+    )?;
+    eprintln!(
+        "wrote centring.csv (360 rows), tracker.csv (200 rows), irb120.json and irb120_true.json to {}",
+        out.display()
+    );
+    Ok(())
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
@@ -280,11 +321,22 @@ fn main() -> Result<()> {
                     println!("{report}");
                     return Ok(());
                 }
-                other => bail!("unknown benchmark area `{other}` (known: serial, api)"),
+                "drivers" => {
+                    return Ok(calibd_drivers::bench::run_and_print(&mut std::io::stdout())?);
+                }
+                other => bail!("unknown benchmark area `{other}` (known: serial, drivers, api)"),
             };
             calibd::bench::print(&mut std::io::stdout(), &figs)?;
             Ok(())
         }
+        Command::Mock(args) => {
+            let rt = tokio::runtime::Runtime::new()?;
+            let shutdown = async {
+                let _ = tokio::signal::ctrl_c().await;
+            };
+            Ok(rt.block_on(calibd_drivers::mock::run(args, shutdown))?)
+        }
+        Command::Twin { which, out, seed } => write_twin(&which, &out, seed),
         Command::Kinds => {
             for (k, d) in calibd::jobs::KINDS {
                 println!("{k:<20} {d}");

@@ -3,16 +3,16 @@
 //! identification end to end with its artefacts, dataset references, and the sample
 //! configs of deploy/.
 
-mod common;
+mod server;
 
 use std::collections::BTreeSet;
 use std::time::Duration;
 
-use common::schema::{assert_response, contract};
-use common::{OPERATOR, SUBMITTER, VIEWER, start};
 use futures_util::StreamExt;
 use reqwest::Method;
 use serde_json::{Value, json};
+use server::schema::{assert_response, contract};
+use server::{OPERATOR, SUBMITTER, VIEWER, start};
 
 /// (method, path template) of every `.route(...)` in src/api, with the `/v1` prefix for
 /// routers nested under it (all but `root_router` and the web page).
@@ -141,7 +141,7 @@ async fn every_route_is_documented_and_every_documented_route_is_served() {
 }
 
 async fn call(
-    s: &common::TestServer,
+    s: &server::TestServer,
     c: &Value,
     m: Method,
     template: &str,

@@ -94,7 +94,11 @@ async fn sigkill_at_random_moments_loses_no_result() {
         }
         // Wait until a job is running, then a random extra delay.
         for _ in 0..500 {
-            if all_jobs(&http, &d).await.iter().any(|j| j["state"] == "running") {
+            if all_jobs(&http, &d)
+                .await
+                .iter()
+                .any(|j| j["state"] == "running")
+            {
                 break;
             }
             tokio::time::sleep(Duration::from_millis(10)).await;
@@ -109,16 +113,28 @@ async fn sigkill_at_random_moments_loses_no_result() {
         for j in &jobs {
             let id = j["id"].as_i64().unwrap();
             let state = j["state"].as_str().unwrap();
-            let res = http.get(format!("{}/v1/jobs/{id}/result", d2.url)).send().await.unwrap();
+            let res = http
+                .get(format!("{}/v1/jobs/{id}/result", d2.url))
+                .send()
+                .await
+                .unwrap();
             if state == "succeeded" {
-                assert_eq!(res.status().as_u16(), 200, "job {id} succeeded without a result");
+                assert_eq!(
+                    res.status().as_u16(),
+                    200,
+                    "job {id} succeeded without a result"
+                );
                 let r: Value = res.json().await.unwrap();
                 assert_eq!(r["kind"], j["kind"]);
                 if !kept.iter().any(|(k, _)| *k == id) {
                     kept.push((id, r));
                 }
             } else {
-                assert_eq!(res.status().as_u16(), 409, "job {id} ({state}) has a result");
+                assert_eq!(
+                    res.status().as_u16(),
+                    409,
+                    "job {id} ({state}) has a result"
+                );
             }
             if state == "interrupted" {
                 assert!(j["error"].as_str().unwrap().contains("daemon stopped"));
@@ -132,7 +148,10 @@ async fn sigkill_at_random_moments_loses_no_result() {
         // Let the restarted daemon finish the queue before the next round.
         for _ in 0..3000 {
             let js = all_jobs(&http, &d2).await;
-            if js.iter().all(|j| j["state"] != "queued" && j["state"] != "running") {
+            if js
+                .iter()
+                .all(|j| j["state"] != "queued" && j["state"] != "running")
+            {
                 break;
             }
             tokio::time::sleep(Duration::from_millis(20)).await;

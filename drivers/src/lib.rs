@@ -1,2 +1,27 @@
-//! Device drivers for calibd: one async actor per device, transport-generic, with mock
-//! servers that speak the same protocols.
+//! Device drivers for calibd: one async actor per device, generic over its transport, plus
+//! mock servers that speak the same protocols (replay and simulate modes, fault injection).
+//!
+//! Modules: [`uwave`] (Mitutoyo U-WAVE-R), [`rws`] (ABB IRC5 Robot Web Services 1.0),
+//! [`smaract`] (MCS / MCS2 / CiA 402 piezo stages), [`can`] (socketcand, SocketCAN, CANopen),
+//! [`qtm`] (Qualisys RT), [`mock`] (`calibd mock`), [`transcript`] (recording format),
+//! [`link`] (connectors and back-off), [`error`].
+#![warn(missing_docs)]
+
+pub mod actor;
+pub mod bench;
+pub mod can;
+pub mod error;
+pub mod link;
+pub mod mock;
+pub mod qtm;
+pub mod rws;
+pub mod smaract;
+pub mod tee;
+pub mod transcript;
+pub mod uwave;
+
+pub use error::{CodecError, DriverError};
+pub use link::{Backoff, Connect, Once, TcpConnector};
+pub use smaract::{Stage, StageConfig, StageStatus};
+pub use tee::{Side, Tee};
+pub use transcript::{Recorder, Transcript};

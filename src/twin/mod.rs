@@ -1,6 +1,7 @@
 //! Digital twins: a "true" robot (nominal perturbed by known errors) and simulated sensors
 //! with noise, used by tests, examples, benchmarks and the simulated lab. Seeded, no I/O.
 
+pub mod cell;
 pub mod serial;
 
 pub use serial::SerialTwin;

@@ -108,13 +108,13 @@ pub fn parse_inputs(
     let validation = match validation {
         Some(v) => {
             let t = inputs.table("validation", v)?;
-            if !t.has("x") {
+            if !t.has("x") && !t.has("ball") {
                 return Err(JobError::invalid(
                     "validation",
-                    "needs columns x, y, z (TCP position in {W})",
+                    "needs columns x, y, z (TCP position in {W}) or `ball` (point coincidence)",
                 ));
             }
-            Some(model.measurements("validation", &t, 0)?)
+            Some(model.measurements("validation", &t, plate.len())?)
         }
         None => None,
     };
@@ -226,37 +226,55 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IdentifyJob, JobError
     })
 }
 
-/// Per-ball scatter of the model TCP and distances between the balls' mean positions.
-fn ball_report(
-    problem: &PointProblem,
+/// Known distance between balls i and j of a plate, if the plate fixes it.
+fn known_distance(
+    plate: &BallPlate,
+    centres: &[nalgebra::Vector3<f64>],
+    i: usize,
+    j: usize,
+) -> Option<f64> {
+    match (plate.centres[i], plate.centres[j]) {
+        (Some(a), Some(b)) => Some((a - b).norm()),
+        _ => plate
+            .distances
+            .iter()
+            .find(|d| (d.0, d.1) == (i, j) || (d.0, d.1) == (j, i))
+            .map(|d| d.2)
+            .or_else(|| Some((centres[i] - centres[j]).norm())),
+    }
+}
+
+/// Point-coincidence statistics of two models on ball measurements: per ball the RMS
+/// distance of the model TCP positions from their mean (spread), and per pair of balls the
+/// distance between those means minus the known distance. Torques from the start model.
+pub fn coincidence_report(
+    meas: &[PointMeasurement],
     start: &Chain,
     end: &Chain,
-    centres: &[nalgebra::Vector3<f64>],
     plate: &BallPlate,
+    centres: &[nalgebra::Vector3<f64>],
     unit: &str,
 ) -> Value {
     let mut balls = Vec::new();
-    let mut means: Vec<[Option<nalgebra::Vector3<f64>>; 2]> = Vec::new();
+    let mut means: Vec<Option<[nalgebra::Vector3<f64>; 2]>> = Vec::new();
     for b in 0..plate.len() {
-        let idx: Vec<usize> = (0..problem.measurements().len())
-            .filter(|&i| problem.measurements()[i].target == Target::Ball(b))
+        let qs: Vec<&Vec<f64>> = meas
+            .iter()
+            .filter(|m| m.target == Target::Ball(b))
+            .map(|m| &m.q)
             .collect();
-        if idx.is_empty() {
-            means.push([None, None]);
+        if qs.is_empty() {
+            means.push(None);
             continue;
         }
         let mut entry = Map::new();
         entry.insert("ball".into(), json!(b + 1));
-        entry.insert("count".into(), json!(idx.len()));
-        let mut m2 = [None, None];
+        entry.insert("count".into(), json!(qs.len()));
+        let mut m2 = [nalgebra::Vector3::zeros(); 2];
         for (slot, (label, chain)) in [("before", start), ("after", end)].into_iter().enumerate() {
-            let pts: Vec<_> = idx
+            let pts: Vec<_> = qs
                 .iter()
-                .map(|&i| {
-                    chain
-                        .tcp(&problem.measurements()[i].q, Some(&problem.torques()[i]))
-                        .p
-                })
+                .map(|q| chain.tcp(q, Some(&start.static_torques(q))).p)
                 .collect();
             let mean = pts.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p) / pts.len() as f64;
             let spread = (pts.iter().map(|p| (p - mean).norm_squared()).sum::<f64>()
@@ -267,30 +285,25 @@ fn ball_report(
                 format!("mean_position_{label}"),
                 json!([mean.x, mean.y, mean.z]),
             );
-            m2[slot] = Some(mean);
+            m2[slot] = mean;
         }
-        entry.insert(
-            "centre".into(),
-            json!([centres[b].x, centres[b].y, centres[b].z]),
-        );
         entry.insert("unit".into(), json!(unit));
         balls.push(Value::Object(entry));
-        means.push(m2);
+        means.push(Some(m2));
     }
     let mut dists = Vec::new();
     for i in 0..plate.len() {
         for j in i + 1..plate.len() {
-            let (Some(a0), Some(b0), Some(a1), Some(b1)) =
-                (means[i][0], means[j][0], means[i][1], means[j][1])
+            let (Some(a), Some(b), Some(known)) =
+                (means[i], means[j], known_distance(plate, centres, i, j))
             else {
                 continue;
             };
-            let known = (centres[i] - centres[j]).norm();
             dists.push(json!({
                 "balls": [i + 1, j + 1],
                 "known": known,
-                "error_before": (a0 - b0).norm() - known,
-                "error_after": (a1 - b1).norm() - known,
+                "error_before": (a[0] - b[0]).norm() - known,
+                "error_after": (a[1] - b[1]).norm() - known,
                 "unit": unit,
             }));
         }
@@ -343,12 +356,12 @@ impl Prepared for IdentifyJob {
         );
         let centres = problem.centres(&sol.x);
         if !inp.plate.is_empty() {
-            let r = ball_report(
-                &problem,
+            let r = coincidence_report(
+                problem.measurements(),
                 &inp.model.chain,
                 &calibrated,
-                &centres,
                 &inp.plate,
+                &centres,
                 unit,
             );
             if let Value::Object(m) = r {
@@ -356,13 +369,33 @@ impl Prepared for IdentifyJob {
             }
         }
         if let Some(v) = &inp.validation {
-            f.insert(
-                "validation".into(),
-                json!({
-                    "before": stats(&position_errors(&inp.model.chain, v), unit),
-                    "after": stats(&position_errors(&calibrated, v), unit),
-                }),
-            );
+            let cartesian: Vec<PointMeasurement> = v
+                .iter()
+                .filter(|m| matches!(m.target, Target::Point(_)))
+                .cloned()
+                .collect();
+            if !cartesian.is_empty() {
+                f.insert(
+                    "validation".into(),
+                    json!({
+                        "before": stats(&position_errors(&inp.model.chain, &cartesian), unit),
+                        "after": stats(&position_errors(&calibrated, &cartesian), unit),
+                    }),
+                );
+            }
+            if v.iter().any(|m| matches!(m.target, Target::Ball(_))) {
+                f.insert(
+                    "validation_coincidence".into(),
+                    coincidence_report(
+                        v,
+                        &inp.model.chain,
+                        &calibrated,
+                        &inp.plate,
+                        &centres,
+                        unit,
+                    ),
+                );
+            }
         }
         let provenance = json!({"method": "serial.identify", "calibd_version": crate::jobs::envelope::VERSION, "measurements": problem.measurements().len()});
         let (model_value, model_file) = inp.model.calibrated(&calibrated, provenance)?;

@@ -289,3 +289,30 @@ impl PlateSpec {
         }
     }
 }
+
+/// Tables of twin data in the job-file format: joints in degrees and `ball` (1-based) or
+/// `x, y, z` (mm).
+pub fn measurement_table(meas: &[PointMeasurement], dof: usize) -> Table {
+    let mut cols: Vec<String> = (1..=dof).map(|k| format!("q{k}")).collect();
+    let ball = meas
+        .first()
+        .is_some_and(|m| matches!(m.target, Target::Ball(_)));
+    if ball {
+        cols.push("ball".into());
+    } else {
+        cols.extend(["x".into(), "y".into(), "z".into()]);
+    }
+    let mut t = Table {
+        columns: cols,
+        rows: vec![],
+    };
+    for m in meas {
+        let mut row: Vec<f64> = m.q.iter().map(|v| v.to_degrees()).collect();
+        match m.target {
+            Target::Ball(b) => row.push((b + 1) as f64),
+            Target::Point(p) => row.extend([p.x, p.y, p.z]),
+        }
+        t.push(row);
+    }
+    t
+}

@@ -1,0 +1,187 @@
+//! CANopen (CiA 301) expedited SDO frames and the CiA 402 object/state constants
+//! (devices.md §5; constants as in canopen 2.4.1 `profiles/p402.py`).
+
+use crate::error::CodecError;
+
+/// SDO request COB-ID base (0x600 + node).
+pub const SDO_RX: u16 = 0x600;
+/// SDO response COB-ID base (0x580 + node).
+pub const SDO_TX: u16 = 0x580;
+
+/// CiA 402 objects used by calibd.
+pub mod obj {
+    /// Controlword (u16).
+    pub const CONTROLWORD: u16 = 0x6040;
+    /// Statusword (u16).
+    pub const STATUSWORD: u16 = 0x6041;
+    /// Modes of operation (i8): 1 profile position, 6 homing.
+    pub const MODES: u16 = 0x6060;
+    /// Modes of operation display (i8).
+    pub const MODES_DISPLAY: u16 = 0x6061;
+    /// Target position (i32).
+    pub const TARGET_POSITION: u16 = 0x607A;
+    /// Position actual value (i32).
+    pub const POSITION_ACTUAL: u16 = 0x6064;
+    /// Profile velocity (u32).
+    pub const PROFILE_VELOCITY: u16 = 0x6081;
+    /// Error code (u16).
+    pub const ERROR_CODE: u16 = 0x603F;
+}
+
+/// A parsed SDO response.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SdoResponse {
+    /// Expedited upload: the data (1-4 bytes).
+    Upload {
+        /// Object index.
+        index: u16,
+        /// Sub-index.
+        sub: u8,
+        /// Data bytes, little endian.
+        data: Vec<u8>,
+    },
+    /// Download acknowledge.
+    DownloadAck {
+        /// Object index.
+        index: u16,
+        /// Sub-index.
+        sub: u8,
+    },
+    /// Abort with a CiA 301 abort code.
+    Abort {
+        /// Object index.
+        index: u16,
+        /// Sub-index.
+        sub: u8,
+        /// Abort code.
+        code: u32,
+    },
+}
+
+/// Upload (read) request `40 ii ii ss 00 00 00 00`.
+pub fn upload_request(index: u16, sub: u8) -> [u8; 8] {
+    let i = index.to_le_bytes();
+    [0x40, i[0], i[1], sub, 0, 0, 0, 0]
+}
+
+/// Expedited download (write) request of 1-4 bytes.
+pub fn download_request(index: u16, sub: u8, data: &[u8]) -> Option<[u8; 8]> {
+    if data.is_empty() || data.len() > 4 {
+        return None;
+    }
+    let i = index.to_le_bytes();
+    let cmd = 0x23 | (((4 - data.len()) as u8) << 2);
+    let mut f = [cmd, i[0], i[1], sub, 0, 0, 0, 0];
+    f[4..4 + data.len()].copy_from_slice(data);
+    Some(f)
+}
+
+/// An SDO response frame.
+pub fn response(r: &SdoResponse) -> [u8; 8] {
+    match r {
+        SdoResponse::Upload { index, sub, data } => {
+            let i = index.to_le_bytes();
+            let n = data.len().clamp(1, 4);
+            let mut f = [0x43 | (((4 - n) as u8) << 2), i[0], i[1], *sub, 0, 0, 0, 0];
+            f[4..4 + n].copy_from_slice(&data[..n]);
+            f
+        }
+        SdoResponse::DownloadAck { index, sub } => {
+            let i = index.to_le_bytes();
+            [0x60, i[0], i[1], *sub, 0, 0, 0, 0]
+        }
+        SdoResponse::Abort { index, sub, code } => {
+            let i = index.to_le_bytes();
+            let c = code.to_le_bytes();
+            [0x80, i[0], i[1], *sub, c[0], c[1], c[2], c[3]]
+        }
+    }
+}
+
+/// Parses an SDO response (server → client) frame's 8 data bytes.
+pub fn parse_response(d: &[u8]) -> Result<SdoResponse, CodecError> {
+    if d.len() != 8 {
+        return Err(CodecError::malformed(format!(
+            "SDO response has {} bytes, not 8",
+            d.len()
+        )));
+    }
+    let index = u16::from_le_bytes([d[1], d[2]]);
+    let sub = d[3];
+    match d[0] {
+        0x60 => Ok(SdoResponse::DownloadAck { index, sub }),
+        0x80 => Ok(SdoResponse::Abort {
+            index,
+            sub,
+            code: u32::from_le_bytes([d[4], d[5], d[6], d[7]]),
+        }),
+        c if c & 0xE3 == 0x43 => {
+            let n = 4 - ((c >> 2) & 3) as usize;
+            Ok(SdoResponse::Upload {
+                index,
+                sub,
+                data: d[4..4 + n].to_vec(),
+            })
+        }
+        c => Err(CodecError::malformed(format!(
+            "unsupported SDO response command byte {c:#04x} (segmented transfer?)"
+        ))),
+    }
+}
+
+/// Text of a CiA 301 SDO abort code.
+pub fn abort_text(code: u32) -> &'static str {
+    match code {
+        0x0503_0000 => "toggle bit not alternated",
+        0x0504_0000 => "SDO protocol timed out",
+        0x0504_0001 => "command specifier not valid",
+        0x0601_0001 => "attempt to read a write-only object",
+        0x0601_0002 => "attempt to write a read-only object",
+        0x0602_0000 => "object does not exist in the object dictionary",
+        0x0607_0010 => "data type does not match, length of service parameter does not match",
+        0x0609_0011 => "sub-index does not exist",
+        0x0609_0030 => "invalid value for parameter",
+        0x0800_0000 => "general error",
+        0x0800_0022 => "data cannot be transferred because of the present device state",
+        _ => "unknown abort code",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn documented_frames() {
+        assert_eq!(upload_request(0x6041, 0), [0x40, 0x41, 0x60, 0, 0, 0, 0, 0]);
+        // devices.md: 601 23 7A 60 00 A0 86 01 00 writes 100000 to 0x607A.
+        assert_eq!(
+            download_request(0x607A, 0, &100_000i32.to_le_bytes()),
+            Some([0x23, 0x7A, 0x60, 0x00, 0xA0, 0x86, 0x01, 0x00])
+        );
+        assert_eq!(
+            download_request(0x6040, 0, &[0x0f, 0]).map(|f| f[0]),
+            Some(0x2B)
+        );
+        assert_eq!(download_request(0x6060, 0, &[1]).map(|f| f[0]), Some(0x2F));
+        // 581 4B 41 60 00 37 02 00 00: statusword 0x0237.
+        let r = parse_response(&[0x4B, 0x41, 0x60, 0, 0x37, 0x02, 0, 0]).unwrap();
+        assert_eq!(
+            r,
+            SdoResponse::Upload {
+                index: 0x6041,
+                sub: 0,
+                data: vec![0x37, 0x02]
+            }
+        );
+        assert_eq!(response(&r), [0x4B, 0x41, 0x60, 0, 0x37, 0x02, 0, 0]);
+        let a = SdoResponse::Abort {
+            index: 0x1234,
+            sub: 1,
+            code: 0x0602_0000,
+        };
+        assert_eq!(parse_response(&response(&a)).unwrap(), a);
+        assert!(parse_response(&[0x41, 0, 0, 0, 0, 0, 0, 0]).is_err());
+        assert!(parse_response(&[0x60, 0, 0]).is_err());
+    }
+}

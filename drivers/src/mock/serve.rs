@@ -1,0 +1,67 @@
+//! Accept loops for the mocks: TCP listeners and pseudo-terminals, one task per connection,
+//! all stopped by one cancellation token.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::pin::Pin;
+use std::sync::Arc;
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite};
+use tokio::net::TcpListener;
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
+/// A byte stream a mock can serve on (TCP socket or pty master).
+pub trait MockIo: AsyncRead + AsyncWrite + Unpin + Send {}
+impl<T: AsyncRead + AsyncWrite + Unpin + Send> MockIo for T {}
+
+/// Boxed connection handed to a device handler.
+pub type BoxIo = Box<dyn MockIo>;
+
+/// Per-connection context.
+#[derive(Debug, Clone)]
+pub struct Conn {
+    /// Client address (None on a pty).
+    pub peer: Option<SocketAddr>,
+    /// Cancelled when the mock shuts down.
+    pub token: CancellationToken,
+}
+
+/// A device's connection handler.
+pub type Handler =
+    Arc<dyn Fn(BoxIo, Conn) -> Pin<Box<dyn Future<Output = ()> + Send>> + Send + Sync>;
+
+/// Accepts connections until `token` is cancelled; waits for the handlers to finish.
+pub(crate) async fn serve_tcp(listener: TcpListener, token: CancellationToken, handler: Handler) {
+    let tracker = TaskTracker::new();
+    loop {
+        tokio::select! {
+            r = listener.accept() => match r {
+                Ok((sock, peer)) => {
+                    let _ = sock.set_nodelay(true);
+                    let h = handler.clone();
+                    let conn = Conn { peer: Some(peer), token: token.child_token() };
+                    tracker.spawn(h(Box::new(sock), conn));
+                }
+                Err(e) => {
+                    tracing::warn!(error = %e, "accept failed");
+                    tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+                }
+            },
+            _ = token.cancelled() => break,
+        }
+    }
+    tracker.close();
+    tracker.wait().await;
+}
+
+/// Keeps reading and discarding until the client leaves or shutdown: the `stall` fault.
+pub(crate) async fn stall(io: &mut BoxIo, token: &CancellationToken) {
+    let mut buf = [0u8; 1024];
+    loop {
+        tokio::select! {
+            r = io.read(&mut buf) => if !matches!(r, Ok(n) if n > 0) { return },
+            _ = token.cancelled() => return,
+        }
+    }
+}

@@ -1,0 +1,131 @@
+//! SmarAct MCS2 SCPI-like protocol over TCP 55551: queries end with `?` and get one CRLF
+//! line; set commands and actions are silent and checked with `:SYST:ERR:COUN?` /
+//! `:SYST:ERR?`; positions in pm (devices.md §3b).
+
+use super::line::{LineClient, LineState};
+use super::stage::{Stage, StageConfig, StageStatus, wait_until};
+use crate::error::DriverError;
+use crate::link::{BoxFuture, Connect};
+
+const DEVICE: &str = "mcs2";
+
+/// Channel state bits that mean a fault: movement failed, overload, over temperature,
+/// positioner fault.
+pub const FAULT_BITS: i64 = (1 << 11) | (1 << 13) | (1 << 14) | (1 << 17);
+
+/// Cheap, cloneable handle to an MCS2 controller.
+#[derive(Debug, Clone)]
+pub struct Mcs2Handle {
+    line: LineClient,
+    cfg: StageConfig,
+}
+
+fn int(s: &str, what: &str) -> Result<i64, DriverError> {
+    s.trim().parse().map_err(|_| DriverError::Protocol {
+        device: DEVICE,
+        detail: format!("{what}: {s:?} is not an integer"),
+    })
+}
+
+impl Mcs2Handle {
+    /// Starts the actor.
+    pub fn connect<C: Connect>(connector: C, cfg: StageConfig) -> Self {
+        let line = LineClient::start(DEVICE, connector, cfg.timeout, cfg.backoff, Vec::new());
+        Mcs2Handle { line, cfg }
+    }
+
+    /// A query (`...?`): the reply line.
+    pub async fn query(&self, q: &str) -> Result<String, DriverError> {
+        self.line.query(q.to_string()).await
+    }
+
+    /// A set command or action, then the error queue is checked (device error if not empty).
+    pub async fn set(&self, cmd: &str) -> Result<(), DriverError> {
+        self.line.exchange(cmd.to_string(), false).await?;
+        self.check_errors(cmd).await
+    }
+
+    async fn check_errors(&self, after: &str) -> Result<(), DriverError> {
+        let n = int(&self.query(":SYST:ERR:COUN?").await?, ":SYST:ERR:COUN?")?;
+        if n == 0 {
+            return Ok(());
+        }
+        let e = self.query(":SYST:ERR?").await?;
+        let (code, text) = e.split_once(',').unwrap_or((e.as_str(), ""));
+        Err(DriverError::Device {
+            device: DEVICE,
+            code: int(code, ":SYST:ERR?")?,
+            message: format!("{} (after {after:?})", text.trim().trim_matches('"')),
+        })
+    }
+
+    async fn status_of(&self, ch: u8) -> Result<StageStatus, DriverError> {
+        let bits = int(
+            &self.query(&format!(":CHAN{ch}:STAT?")).await?,
+            "channel state",
+        )?;
+        Ok(StageStatus {
+            moving: bits & 1 != 0 || bits & (1 << 3) != 0,
+            referenced: bits & (1 << 7) != 0,
+            fault: bits & FAULT_BITS != 0,
+            raw: bits,
+        })
+    }
+
+    /// Link state.
+    pub fn state(&self) -> tokio::sync::watch::Receiver<LineState> {
+        self.line.state()
+    }
+}
+
+impl Stage for Mcs2Handle {
+    fn move_absolute(&self, ch: u8, pos_pm: i64) -> BoxFuture<'_, Result<i64, DriverError>> {
+        Box::pin(async move {
+            self.set(&format!(":CHAN{ch}:MMOD 0")).await?;
+            self.set(&format!(":MOVE{ch} {pos_pm}")).await?;
+            wait_until(
+                DEVICE,
+                &self.cfg,
+                "the move to finish",
+                || self.status_of(ch),
+                |s| !s.moving,
+            )
+            .await?;
+            self.position(ch).await
+        })
+    }
+    fn position(&self, ch: u8) -> BoxFuture<'_, Result<i64, DriverError>> {
+        Box::pin(async move {
+            let q = format!(":CHAN{ch}:POS?");
+            let v = self.query(&q).await?;
+            // An invalid channel still gets a reply line; the error queue says why.
+            self.check_errors(&q).await?;
+            int(&v, "position")
+        })
+    }
+    fn status(&self, ch: u8) -> BoxFuture<'_, Result<StageStatus, DriverError>> {
+        Box::pin(self.status_of(ch))
+    }
+    fn reference(&self, ch: u8) -> BoxFuture<'_, Result<(), DriverError>> {
+        Box::pin(async move {
+            self.set(&format!(":CHAN{ch}:REF:OPT 4")).await?;
+            self.set(&format!(":REF{ch}")).await?;
+            let s = wait_until(
+                DEVICE,
+                &self.cfg,
+                "the reference search",
+                || self.status_of(ch),
+                |s| !s.moving,
+            )
+            .await?;
+            if !s.referenced {
+                return Err(DriverError::Device {
+                    device: DEVICE,
+                    code: s.raw,
+                    message: "reference mark not found".into(),
+                });
+            }
+            Ok(())
+        })
+    }
+}

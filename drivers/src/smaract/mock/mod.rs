@@ -1,0 +1,333 @@
+//! SmarAct MCS and MCS2 mocks over one simulated set of positioners ([`StageModel`]):
+//! closed-loop moves take time, reference searches zero the position, range limits and
+//! unknown commands give the controllers' own errors. The MCS2 command set is in `mcs2`.
+
+mod mcs2;
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use futures_util::{SinkExt, StreamExt};
+use tokio::io::AsyncWriteExt;
+use tokio::time::Instant;
+use tokio_util::codec::Framed;
+
+use super::line::LineCodec;
+use crate::mock::fault::GARBAGE;
+use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, serve};
+use mcs2::mcs2_reply;
+
+/// The positioners behind a controller: the hook for piezo-stage twins.
+pub trait StageModel: Send + 'static {
+    /// Number of channels.
+    fn channels(&self) -> u8;
+    /// Travel range of `ch` (pm).
+    fn range_pm(&self, ch: u8) -> (i64, i64);
+    /// Closed-loop speed (pm/s).
+    fn speed_pm_s(&self, ch: u8) -> f64;
+    /// Position reached when commanded to `target_pm` (the closed-loop residual).
+    fn settle(&self, ch: u8, target_pm: i64) -> i64;
+}
+
+/// Default: three SLC-1730 stages, ±10.5 mm, 20 mm/s, settling 2 nm short of the target.
+#[derive(Debug, Clone, Default)]
+pub struct Slc1730x3;
+
+impl StageModel for Slc1730x3 {
+    fn channels(&self) -> u8 {
+        3
+    }
+    fn range_pm(&self, _: u8) -> (i64, i64) {
+        (-10_500_000_000, 10_500_000_000)
+    }
+    fn speed_pm_s(&self, _: u8) -> f64 {
+        20e9
+    }
+    fn settle(&self, _: u8, t: i64) -> i64 {
+        t - 2000
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Activity {
+    Idle,
+    Moving {
+        from: i64,
+        to: i64,
+        start: Instant,
+        dur: Duration,
+    },
+    Referencing {
+        until: Instant,
+    },
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Axis {
+    pos: i64,
+    activity: Activity,
+    referenced: bool,
+    fault: bool,
+}
+
+/// Simulated controller state shared by all connections.
+pub(crate) struct Sim {
+    model: Box<dyn StageModel>,
+    axes: Vec<Axis>,
+    errors: Vec<(i64, String)>,
+}
+
+impl Sim {
+    fn new(model: Box<dyn StageModel>) -> Self {
+        let n = model.channels() as usize;
+        let axis = Axis {
+            pos: 0,
+            activity: Activity::Idle,
+            referenced: false,
+            fault: false,
+        };
+        Sim {
+            model,
+            axes: vec![axis; n],
+            errors: Vec::new(),
+        }
+    }
+
+    fn update(&mut self, now: Instant) {
+        for a in &mut self.axes {
+            match a.activity {
+                Activity::Moving {
+                    from,
+                    to,
+                    start,
+                    dur,
+                } => {
+                    let s = if dur.is_zero() {
+                        1.0
+                    } else {
+                        ((now - start).as_secs_f64() / dur.as_secs_f64()).min(1.0)
+                    };
+                    a.pos = from + ((to - from) as f64 * s) as i64;
+                    if s >= 1.0 {
+                        a.pos = to;
+                        a.activity = Activity::Idle;
+                    }
+                }
+                Activity::Referencing { until } if now >= until => {
+                    a.pos = 0;
+                    a.referenced = true;
+                    a.activity = Activity::Idle;
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Starts a move; Err(()) when the target is outside the range.
+    fn start_move(&mut self, ch: usize, target: i64) -> Result<(), ()> {
+        let (lo, hi) = self.model.range_pm(ch as u8);
+        if target < lo || target > hi {
+            return Err(());
+        }
+        let to = self.model.settle(ch as u8, target);
+        let speed = self.model.speed_pm_s(ch as u8).max(1.0);
+        let a = &mut self.axes[ch];
+        let dur = Duration::from_secs_f64((to - a.pos).abs() as f64 / speed);
+        a.activity = Activity::Moving {
+            from: a.pos,
+            to,
+            start: Instant::now(),
+            dur,
+        };
+        Ok(())
+    }
+
+    fn start_reference(&mut self, ch: usize) {
+        self.axes[ch].activity = Activity::Referencing {
+            until: Instant::now() + Duration::from_millis(100),
+        };
+    }
+
+    fn stop(&mut self, ch: usize) {
+        self.axes[ch].activity = Activity::Idle;
+    }
+
+    fn channel(&self, s: &str) -> Option<usize> {
+        s.parse::<usize>().ok().filter(|c| *c < self.axes.len())
+    }
+}
+
+fn sim(args: &MockArgs) -> Arc<Mutex<Sim>> {
+    let _ = args;
+    Arc::new(Mutex::new(Sim::new(Box::new(Slc1730x3))))
+}
+
+/// Simulate-mode handler for the MCS (ASCII) controller.
+pub(crate) fn mcs_handler(args: &MockArgs, faults: Faults) -> Handler {
+    mcs_handler_with(sim(args), faults)
+}
+
+/// Simulate-mode handler for the MCS2 (SCPI) controller.
+pub(crate) fn mcs2_handler(args: &MockArgs, faults: Faults) -> Handler {
+    mcs2_handler_with(sim(args), faults)
+}
+
+/// MCS handler around any stage model.
+pub fn mcs_handler_with_model(model: Box<dyn StageModel>, faults: Faults) -> Handler {
+    mcs_handler_with(Arc::new(Mutex::new(Sim::new(model))), faults)
+}
+
+/// MCS2 handler around any stage model.
+pub fn mcs2_handler_with_model(model: Box<dyn StageModel>, faults: Faults) -> Handler {
+    mcs2_handler_with(Arc::new(Mutex::new(Sim::new(model))), faults)
+}
+
+fn mcs_handler_with(sim: Arc<Mutex<Sim>>, faults: Faults) -> Handler {
+    Arc::new(move |io, conn| Box::pin(session(io, conn, sim.clone(), faults.clone(), Dialect::Mcs)))
+}
+
+fn mcs2_handler_with(sim: Arc<Mutex<Sim>>, faults: Faults) -> Handler {
+    Arc::new(move |io, conn| {
+        Box::pin(session(
+            io,
+            conn,
+            sim.clone(),
+            faults.clone(),
+            Dialect::Mcs2,
+        ))
+    })
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Dialect {
+    Mcs,
+    Mcs2,
+}
+
+async fn session(io: BoxIo, conn: Conn, sim: Arc<Mutex<Sim>>, faults: Faults, d: Dialect) {
+    let mut f = Framed::new(io, LineCodec::default());
+    loop {
+        let line = tokio::select! {
+            _ = conn.token.cancelled() => return,
+            l = f.next() => match l { Some(Ok(l)) => l, _ => return },
+        };
+        let replies = match sim.lock() {
+            Ok(mut s) => {
+                s.update(Instant::now());
+                match d {
+                    Dialect::Mcs => vec![mcs_reply(&mut s, line.trim())],
+                    Dialect::Mcs2 => line
+                        .split(';')
+                        .filter_map(|c| mcs2_reply(&mut s, c.trim()))
+                        .collect(),
+                }
+            }
+            Err(_) => return,
+        };
+        let eol = if d == Dialect::Mcs { "" } else { "\r" };
+        for r in replies {
+            let fault = faults.next();
+            let text = match fault {
+                None => format!("{r}{eol}"),
+                Some(FaultKind::Drop) => return,
+                Some(FaultKind::Stall) => {
+                    let mut io = f.into_inner();
+                    serve::stall(&mut io, &conn.token).await;
+                    return;
+                }
+                Some(FaultKind::Garbage) => {
+                    let _ = f.get_mut().write_all(GARBAGE).await;
+                    continue;
+                }
+                Some(FaultKind::Truncate) => {
+                    let _ = f.get_mut().write_all(&r.as_bytes()[..r.len() / 2]).await;
+                    return;
+                }
+                Some(FaultKind::DeviceError) => match d {
+                    Dialect::Mcs => ":E0,129".to_string(),
+                    Dialect::Mcs2 => {
+                        if let Ok(mut s) = sim.lock() {
+                            s.axes[0].fault = true;
+                            s.errors
+                                .push((-300, "Device-specific error: positioner fault".into()));
+                        }
+                        format!("{r}{eol}")
+                    }
+                },
+            };
+            if f.send(text).await.is_err() {
+                return;
+            }
+        }
+    }
+}
+
+fn mcs_reply(s: &mut Sim, cmd: &str) -> String {
+    let Some(body) = cmd.strip_prefix(':') else {
+        return ":E-1,1".into();
+    };
+    let split = body
+        .find(|c: char| !c.is_ascii_uppercase())
+        .unwrap_or(body.len());
+    let (m, rest) = body.split_at(split);
+    let args: Vec<&str> = if rest.is_empty() {
+        Vec::new()
+    } else {
+        rest.split(',').collect()
+    };
+    let ch_txt = args.first().copied().unwrap_or("-1");
+    let nums: Option<Vec<i64>> = args.iter().skip(1).map(|a| a.trim().parse().ok()).collect();
+    let Some(nums) = nums else {
+        return format!(":E{ch_txt},4");
+    };
+    if m == "SCM" {
+        return ":E-1,0".into();
+    }
+    let Some(ch) = s.channel(ch_txt) else {
+        return if matches!(
+            m,
+            "GP" | "GS" | "GPPK" | "MPA" | "MPR" | "FRM" | "S" | "SP" | "CS"
+        ) {
+            format!(":E{ch_txt},7")
+        } else {
+            ":E-1,2".into()
+        };
+    };
+    let a = s.axes[ch];
+    let status = match a.activity {
+        Activity::Idle => 3,
+        Activity::Moving { .. } => 4,
+        Activity::Referencing { .. } => 7,
+    };
+    match (m, nums.as_slice()) {
+        ("GP", []) => format!(":P{ch},{}", a.pos / 1000),
+        ("GS", []) => format!(":S{ch},{}", if a.fault { 8 } else { status }),
+        ("GPPK", []) => format!(":PPK{ch},{}", u8::from(a.referenced)),
+        ("MPA", [nm, _hold]) | ("MPR", [nm, _hold]) => {
+            let target = if m == "MPA" {
+                nm.saturating_mul(1000)
+            } else {
+                a.pos.saturating_add(nm.saturating_mul(1000))
+            };
+            match s.start_move(ch, target) {
+                Ok(()) => format!(":E{ch},0"),
+                Err(()) => format!(":E{ch},147"),
+            }
+        }
+        ("FRM", [_dir, _hold, _autozero]) => {
+            s.start_reference(ch);
+            format!(":E{ch},0")
+        }
+        ("S", []) => {
+            s.stop(ch);
+            format!(":E{ch},0")
+        }
+        ("SP", [nm]) => {
+            s.axes[ch].pos = nm.saturating_mul(1000);
+            format!(":E{ch},0")
+        }
+        ("GP" | "GS" | "GPPK" | "S", _) => format!(":E{ch},6"),
+        ("MPA" | "MPR" | "SP" | "FRM", _) => format!(":E{ch},5"),
+        _ => ":E-1,2".into(),
+    }
+}

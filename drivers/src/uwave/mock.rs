@@ -1,0 +1,250 @@
+//! U-WAVE-R mock: streams `DT1` lines for each indicator from an [`IndicatorModel`] (event
+//! mode), answers the documented info requests (`IR1000gg0`, `IR11ccgg1`) and an optional
+//! configured data request; serves on a pseudo-terminal or TCP.
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
+use super::codec::{Unit, UwaveLine};
+use crate::mock::fault::GARBAGE;
+use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, MockError, serve};
+
+/// What the indicators read: the hook for a digital twin of the centring fixture.
+pub trait IndicatorModel: Send + 'static {
+    /// Channels of the registered transmitters.
+    fn channels(&self) -> Vec<u8>;
+    /// Reading of `channel` in mm at time `t_s` since start (None = no data).
+    fn read_mm(&mut self, channel: u8, t_s: f64) -> Option<f64>;
+}
+
+/// Default model: three ID-C112XB indicators near mid-range with a slow µm-level drift.
+#[derive(Debug, Clone, Default)]
+pub struct DriftingIndicators;
+
+impl IndicatorModel for DriftingIndicators {
+    fn channels(&self) -> Vec<u8> {
+        vec![0, 1, 2]
+    }
+    fn read_mm(&mut self, channel: u8, t_s: f64) -> Option<f64> {
+        let c = f64::from(channel);
+        Some(6.35 + 0.1 * c + 0.002 * (0.5 * t_s + c).sin())
+    }
+}
+
+/// Builds the simulate-mode handler with the default model.
+pub(crate) fn handler(args: &MockArgs, faults: Faults) -> Handler {
+    let model: Arc<Mutex<dyn IndicatorModel>> = Arc::new(Mutex::new(DriftingIndicators));
+    handler_with(model, args, faults)
+}
+
+/// Builds a simulate-mode handler around any indicator model.
+pub fn handler_with(
+    model: Arc<Mutex<dyn IndicatorModel>>,
+    args: &MockArgs,
+    faults: Faults,
+) -> Handler {
+    let period = Duration::from_secs_f64(1.0 / args.rate_hz.clamp(0.1, 1000.0));
+    let request = args.uwave_request.clone();
+    let start = tokio::time::Instant::now();
+    Arc::new(move |io, conn| {
+        let s = Session {
+            model: model.clone(),
+            faults: faults.clone(),
+            period,
+            request: request.clone(),
+            start,
+        };
+        Box::pin(s.run(io, conn))
+    })
+}
+
+struct Session {
+    model: Arc<Mutex<dyn IndicatorModel>>,
+    faults: Faults,
+    period: Duration,
+    request: String,
+    start: tokio::time::Instant,
+}
+
+enum Next {
+    Go,
+    Stop,
+}
+
+impl Session {
+    async fn run(self, mut io: BoxIo, conn: Conn) {
+        let mut tick = tokio::time::interval(self.period);
+        let mut inbuf: Vec<u8> = Vec::new();
+        loop {
+            let mut buf = [0u8; 256];
+            let next = tokio::select! {
+                _ = conn.token.cancelled() => return,
+                _ = tick.tick() => {
+                    let channels = self.model.lock().map(|m| m.channels()).unwrap_or_default();
+                    let mut n = Next::Go;
+                    for c in channels {
+                        n = self.emit(&mut io, c, &conn).await;
+                        if matches!(n, Next::Stop) { break; }
+                    }
+                    n
+                }
+                r = io.read(&mut buf) => match r {
+                    Ok(0) | Err(_) => return,
+                    Ok(k) => {
+                        inbuf.extend_from_slice(&buf[..k]);
+                        let mut n = Next::Go;
+                        while let Some(p) = inbuf.iter().position(|b| *b == b'\r') {
+                            let line: Vec<u8> = inbuf.drain(..=p).collect();
+                            let text = String::from_utf8_lossy(&line[..p]).trim().to_string();
+                            n = self.answer(&mut io, &text, &conn).await;
+                            if matches!(n, Next::Stop) { break; }
+                        }
+                        n
+                    }
+                },
+            };
+            if matches!(next, Next::Stop) {
+                return;
+            }
+        }
+    }
+
+    fn data_line(&self, channel: u8) -> Option<String> {
+        let t = self.start.elapsed().as_secs_f64();
+        let v = self.model.lock().ok()?.read_mm(channel, t)?;
+        let line = UwaveLine::Data {
+            group: 0,
+            channel,
+            value: (v * 1000.0).round() / 1000.0,
+            unit: Unit::Millimetre,
+            decimals: 3,
+        };
+        Some(line.render() + "\r")
+    }
+
+    /// Sends one reading of `channel`, applying a planned fault.
+    async fn emit(&self, io: &mut BoxIo, channel: u8, conn: &Conn) -> Next {
+        let Some(line) = self.data_line(channel) else {
+            return Next::Go;
+        };
+        let bytes = match self.faults.next() {
+            None => line.into_bytes(),
+            Some(FaultKind::Drop) => return Next::Stop,
+            Some(FaultKind::Stall) => {
+                serve::stall(io, &conn.token).await;
+                return Next::Stop;
+            }
+            Some(FaultKind::Garbage) => GARBAGE.to_vec(),
+            Some(FaultKind::Truncate) => {
+                let _ = io.write_all(&line.as_bytes()[..line.len() / 2]).await;
+                return Next::Stop;
+            }
+            Some(FaultKind::DeviceError) => UwaveLine::Status {
+                group: Some(0),
+                channel: Some(channel),
+                transmitter: Some(format!("{:010}", 9_233_800 + u32::from(channel))),
+                code: 1,
+            }
+            .render()
+            .into_bytes()
+            .into_iter()
+            .chain([b'\r'])
+            .collect(),
+        };
+        if io.write_all(&bytes).await.is_err() {
+            return Next::Stop;
+        }
+        Next::Go
+    }
+
+    /// Answers one request line.
+    async fn answer(&self, io: &mut BoxIo, text: &str, conn: &Conn) -> Next {
+        let channels = self.model.lock().map(|m| m.channels()).unwrap_or_default();
+        let reply = if text.len() == 9 && text.starts_with("IR1000") {
+            Some(UwaveLine::ReceiverInfo {
+                raw: format!("{}0000123456150{}", &text[6..8], "000".repeat(16)),
+            })
+        } else if text.len() == 9 && text.starts_with("IR11") {
+            let from: u8 = text[4..6].parse().unwrap_or(0);
+            Some(match channels.iter().find(|c| **c >= from) {
+                Some(c) => UwaveLine::TransmitterInfo {
+                    state: 2,
+                    channel: *c,
+                    group: 0,
+                    transmitter: format!("{:010}", 9_233_800 + u32::from(*c)),
+                    band: 15,
+                    mode: 1,
+                },
+                None => end_of_search(51),
+            })
+        } else if !self.request.is_empty() {
+            let hit = channels.iter().find(|c| {
+                self.request
+                    .replace("{cc}", &format!("{c:02}"))
+                    .replace("{gg}", "00")
+                    == text
+            });
+            match hit {
+                Some(c) => return self.emit(io, *c, conn).await,
+                None => Some(end_of_search(50)),
+            }
+        } else {
+            Some(end_of_search(50))
+        };
+        if let Some(r) = reply {
+            if io.write_all((r.render() + "\r").as_bytes()).await.is_err() {
+                return Next::Stop;
+            }
+        }
+        Next::Go
+    }
+}
+
+fn end_of_search(code: u8) -> UwaveLine {
+    UwaveLine::Status {
+        group: None,
+        channel: None,
+        transmitter: None,
+        code,
+    }
+}
+
+/// Serves `handler` on a new pseudo-terminal; returns the slave path (or `link` if given, a
+/// symlink to it).
+pub(crate) fn serve_pty(
+    handler: Handler,
+    link: Option<PathBuf>,
+    tracker: &TaskTracker,
+    token: &CancellationToken,
+) -> Result<String, MockError> {
+    use tokio_serial::SerialPort;
+    let (master, slave) =
+        tokio_serial::SerialStream::pair().map_err(|e| MockError::Pty(e.to_string()))?;
+    let slave_path = slave
+        .name()
+        .ok_or_else(|| MockError::Pty("pty slave has no name".into()))?;
+    let addr = match link {
+        Some(p) => {
+            let _ = std::fs::remove_file(&p);
+            std::os::unix::fs::symlink(&slave_path, &p)
+                .map_err(|e| MockError::Pty(format!("symlink {}: {e}", p.display())))?;
+            p.display().to_string()
+        }
+        None => slave_path,
+    };
+    let conn = Conn {
+        peer: None,
+        token: token.child_token(),
+    };
+    tracker.spawn(async move {
+        // Keep the slave open so the master does not see EIO between client opens.
+        let _slave = slave;
+        handler(Box::new(master), conn).await;
+    });
+    Ok(addr)
+}

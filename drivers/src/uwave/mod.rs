@@ -1,0 +1,10 @@
+//! Mitutoyo U-WAVE-R receiver (serial, 57600 8N1, CR lines): codec, driver and mock.
+
+pub mod codec;
+pub mod driver;
+pub mod mock;
+
+pub use codec::{Unit, UwaveCodec, UwaveLine, parse_line};
+pub use driver::{
+    AxisMap, Reading, SerialConnector, Transmitter, UwaveConfig, UwaveHandle, UwaveState,
+};

@@ -1,0 +1,211 @@
+//! RWS driver against the RWS mock (IRB 120) over loopback HTTP with Digest auth.
+
+use std::time::Duration;
+
+use calibd_drivers::mock::{self, FaultSpec, MockArgs, MockDevice};
+use calibd_drivers::rws::{RwsConfig, RwsHandle, irb120};
+use calibd_drivers::{Backoff, DriverError, Recorder, TcpConnector};
+
+fn cfg() -> RwsConfig {
+    RwsConfig {
+        timeout: Duration::from_millis(1500),
+        poll: Duration::from_millis(10),
+        move_timeout: Duration::from_secs(5),
+        backoff: Backoff {
+            initial: Duration::from_millis(10),
+            max: Duration::from_millis(50),
+            attempts: 3,
+        },
+        ..RwsConfig::default()
+    }
+}
+
+async fn start(faults: &[&str]) -> (mock::RunningMock, RwsHandle) {
+    let mut args = MockArgs::new(MockDevice::Abb);
+    args.faults = faults
+        .iter()
+        .map(|f| f.parse::<FaultSpec>().unwrap())
+        .collect();
+    let m = mock::start(args).await.unwrap();
+    let h = RwsHandle::connect(TcpConnector::new(m.addr.clone()), cfg());
+    (m, h)
+}
+
+fn close(a: &[f64; 6], b: &[f64; 6], tol: f64) -> bool {
+    a.iter().zip(b).all(|(x, y)| (x - y).abs() < tol)
+}
+
+#[tokio::test]
+async fn reads_state_joints_and_rapid_variables() {
+    let (m, h) = start(&[]).await;
+    assert_eq!(
+        h.joints_deg().await.unwrap(),
+        [0.0, 0.0, 0.0, 0.0, 30.0, 0.0]
+    );
+    let s = h.controller_state().await.unwrap();
+    assert_eq!(
+        (
+            s.ctrlstate.as_str(),
+            s.opmode.as_str(),
+            s.execstate.as_str()
+        ),
+        ("motoron", "AUTO", "running")
+    );
+    h.write_rapid("calib_dp", "[1.5,-2,0]").await.unwrap();
+    assert_eq!(h.read_rapid("calib_dp").await.unwrap(), "[1.5,-2,0]");
+    match h.read_rapid("no_such_var").await {
+        Err(DriverError::Device {
+            code: -1073445865, ..
+        }) => {}
+        other => panic!("{other:?}"),
+    }
+    assert!(
+        h.write_rapid("calib_q", "[[1,2,3]]")
+            .await
+            .unwrap_err()
+            .is_device_error()
+    );
+    assert!(matches!(
+        h.read_rapid("a/b").await,
+        Err(DriverError::InvalidRequest { .. })
+    ));
+    // Digest once, then the session cookie: one connection for everything.
+    assert_eq!(h.state().borrow().connects, 1);
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn moves_through_the_calib_server_module() {
+    let (m, h) = start(&[]).await;
+    let target = [10.0, -5.0, 8.0, 0.0, 35.0, 0.0];
+    let q = h.move_abs_j(target).await.unwrap();
+    assert!(close(&q, &target, 1e-3), "{q:?}");
+    let q2 = h.move_rel_tool([1.0, 0.0, -2.0]).await.unwrap();
+    // The flange moved 1 mm along its x axis and -2 mm along its z axis, orientation kept.
+    let (t0, t1) = (irb120::fk(&q), irb120::fk(&q2));
+    for i in 0..3 {
+        let want = t0[i][3] + t0[i][0] - 2.0 * t0[i][2];
+        assert!(
+            (t1[i][3] - want).abs() < 1e-3,
+            "axis {i}: {} vs {want}",
+            t1[i][3]
+        );
+    }
+    assert_eq!(h.read_rapid("calib_ack").await.unwrap(), "2");
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn safety_limits_refuse_before_sending() {
+    let (m, h) = start(&[]).await;
+    let home = h.joints_deg().await.unwrap();
+    let r = h.move_abs_j([0.0, 0.0, 75.0, 0.0, 30.0, 0.0]).await;
+    assert!(
+        matches!(&r, Err(DriverError::Safety { reason, .. }) if reason.contains("joint 3")),
+        "{r:?}"
+    );
+    let r = h.move_abs_j([20.0, 0.0, 0.0, 0.0, 30.0, 0.0]).await;
+    assert!(
+        matches!(&r, Err(DriverError::Safety { reason, .. }) if reason.contains("step")),
+        "{r:?}"
+    );
+    let r = h.move_rel_tool([8.0, 8.0, 0.0]).await;
+    assert!(matches!(r, Err(DriverError::Safety { .. })), "{r:?}");
+    assert_eq!(h.read_rapid("calib_seq").await.unwrap(), "0");
+    assert_eq!(h.joints_deg().await.unwrap(), home);
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn wrong_password_is_a_device_error() {
+    let m = mock::start(MockArgs::new(MockDevice::Abb)).await.unwrap();
+    let mut c = cfg();
+    c.password = "wrong".into();
+    let h = RwsHandle::connect(TcpConnector::new(m.addr.clone()), c);
+    match h.joints_deg().await {
+        Err(DriverError::Device { message, .. }) => assert!(message.contains("401"), "{message}"),
+        other => panic!("{other:?}"),
+    }
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn faults_give_typed_errors_or_reconnect() {
+    // Replies counted after the Digest challenge: 1 = first joints reading.
+    let (m, h) = start(&["device-error@1"]).await;
+    match h.joints_deg().await {
+        Err(DriverError::Device {
+            code: -1073414144, ..
+        }) => {}
+        other => panic!("{other:?}"),
+    }
+    assert!(h.joints_deg().await.is_ok());
+    m.stop().await;
+    for fault in ["garbage@2", "truncate@2", "stall@2"] {
+        let (m, h) = start(&[fault]).await;
+        h.joints_deg().await.unwrap();
+        let e = h.joints_deg().await.unwrap_err();
+        let ok = match fault {
+            "garbage@2" => matches!(e, DriverError::Protocol { .. }),
+            "truncate@2" => matches!(
+                e,
+                DriverError::Transport { .. } | DriverError::Closed { .. }
+            ),
+            _ => matches!(e, DriverError::Timeout { .. }),
+        };
+        assert!(ok, "{fault}: {e:?}");
+        assert!(h.joints_deg().await.is_ok(), "{fault}");
+        assert_eq!(h.state().borrow().connects, 2, "{fault}");
+        m.stop().await;
+    }
+    // A dropped keep-alive connection is retried once on a new one: no error at all.
+    let (m, h) = start(&["drop@2"]).await;
+    h.joints_deg().await.unwrap();
+    h.joints_deg().await.unwrap();
+    assert_eq!(h.state().borrow().connects, 2);
+    m.stop().await;
+}
+
+const FIXTURE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../tests/data/transcripts/abb.jsonl"
+);
+
+async fn fixture_session(h: &RwsHandle) -> (String, [f64; 6], [f64; 6]) {
+    let seq = h.read_rapid("calib_seq").await.unwrap();
+    let q = h.move_abs_j([5.0, 0.0, 0.0, 0.0, 30.0, 0.0]).await.unwrap();
+    let j = h.joints_deg().await.unwrap();
+    (seq, q, j)
+}
+
+/// Re-records the checked-in transcript: `CALIBD_WRITE_TRANSCRIPTS=1 cargo test ...`.
+#[tokio::test]
+async fn record_fixture_when_asked() {
+    if std::env::var("CALIBD_WRITE_TRANSCRIPTS").is_err() {
+        return;
+    }
+    let m = mock::start(MockArgs::new(MockDevice::Abb)).await.unwrap();
+    let rec = Recorder::create(FIXTURE.as_ref(), "abb", "RWS 1.0 session against calibd's IRC5 mock: Digest auth, read calib_seq, MoveAbsJ via the calib server, read joints").unwrap();
+    let h = RwsHandle::connect(
+        TcpConnector {
+            addr: m.addr.clone(),
+            recorder: Some(rec),
+        },
+        cfg(),
+    );
+    fixture_session(&h).await;
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn checked_in_transcript_replays() {
+    let mut args = MockArgs::new(MockDevice::Abb);
+    args.replay = Some(FIXTURE.into());
+    let m = mock::start(args).await.unwrap();
+    let h = RwsHandle::connect(TcpConnector::new(m.addr.clone()), cfg());
+    let (seq, q, j) = fixture_session(&h).await;
+    assert_eq!(seq, "0");
+    assert!(close(&q, &[5.0, 0.0, 0.0, 0.0, 30.0, 0.0], 1e-3));
+    assert_eq!(q, j);
+    m.stop().await;
+}

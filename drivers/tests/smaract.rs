@@ -1,0 +1,169 @@
+//! SmarAct MCS and MCS2 drivers against their mocks over loopback TCP, via the common
+//! `Stage` trait, with faults and the documented exchanges as transcripts.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use calibd_drivers::mock::{self, FaultSpec, MockArgs, MockDevice};
+use calibd_drivers::smaract::{Mcs2Handle, McsHandle, Stage, StageConfig};
+use calibd_drivers::{Backoff, DriverError, TcpConnector};
+
+fn cfg() -> StageConfig {
+    StageConfig {
+        timeout: Duration::from_millis(1500),
+        move_timeout: Duration::from_secs(3),
+        poll: Duration::from_millis(5),
+        backoff: Backoff {
+            initial: Duration::from_millis(10),
+            max: Duration::from_millis(50),
+            attempts: 3,
+        },
+    }
+}
+
+async fn start(
+    dev: MockDevice,
+    faults: &[&str],
+    replay: Option<&str>,
+) -> (mock::RunningMock, Arc<dyn Stage>, String) {
+    let mut args = MockArgs::new(dev);
+    args.faults = faults
+        .iter()
+        .map(|f| f.parse::<FaultSpec>().unwrap())
+        .collect();
+    args.replay = replay.map(|r| {
+        format!(
+            "{}/../tests/data/transcripts/{r}",
+            env!("CARGO_MANIFEST_DIR")
+        )
+        .into()
+    });
+    let m = mock::start(args).await.unwrap();
+    let c = TcpConnector::new(m.addr.clone());
+    let s: Arc<dyn Stage> = match dev {
+        MockDevice::Mcs => Arc::new(McsHandle::connect(c, cfg())),
+        _ => Arc::new(Mcs2Handle::connect(c, cfg())),
+    };
+    let addr = m.addr.clone();
+    (m, s, addr)
+}
+
+/// The same scenario for both controllers through `dyn Stage`.
+async fn scenario(dev: MockDevice) {
+    let (m, s, _) = start(dev, &[], None).await;
+    let st = s.status(1).await.unwrap();
+    assert!(!st.referenced && !st.moving && !st.fault, "{st:?}");
+    s.reference(1).await.unwrap();
+    assert!(s.status(1).await.unwrap().referenced);
+    assert_eq!(s.position(1).await.unwrap(), 0);
+    // 1.5 mm; the simulated closed loop stops 2 nm short (as in the documented MCS log).
+    assert_eq!(
+        s.move_absolute(1, 1_500_000_000).await.unwrap(),
+        1_499_998_000
+    );
+    assert_eq!(
+        s.move_absolute(1, -250_000_000).await.unwrap(),
+        -250_002_000
+    );
+    match s.move_absolute(1, 99_000_000_000_000).await {
+        Err(DriverError::Device { code, .. }) => {
+            assert_eq!(code, if dev == MockDevice::Mcs { 147 } else { -222 })
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(s.position(7).await.unwrap_err().is_device_error());
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn mcs_moves_references_and_reports_errors() {
+    scenario(MockDevice::Mcs).await;
+}
+
+#[tokio::test]
+async fn mcs2_moves_references_and_reports_errors() {
+    scenario(MockDevice::Mcs2).await;
+}
+
+#[tokio::test]
+async fn mcs_raw_command_errors_are_device_errors() {
+    let (m, _, addr) = start(MockDevice::Mcs, &[], None).await;
+    let h = McsHandle::connect(TcpConnector::new(addr), cfg());
+    match h.command(":XYZ0").await {
+        Err(DriverError::Device {
+            code: 2, message, ..
+        }) => assert!(message.contains("invalid command")),
+        other => panic!("{other:?}"),
+    }
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn mcs2_positioner_fault_is_a_device_error() {
+    // Reply 1 = the first status query; the mock then latches a positioner fault on ch 0.
+    let (m, s, _) = start(MockDevice::Mcs2, &["device-error@1"], None).await;
+    s.status(0).await.unwrap();
+    assert!(s.status(0).await.unwrap().fault);
+    assert!(
+        s.move_absolute(0, 1_000_000)
+            .await
+            .unwrap_err()
+            .is_device_error()
+    );
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn link_faults_give_typed_errors_then_reconnect() {
+    for dev in [MockDevice::Mcs, MockDevice::Mcs2] {
+        for fault in ["garbage@3", "drop@3", "truncate@3", "stall@3"] {
+            let (m, s, _) = start(dev, &[fault], None).await;
+            s.position(0).await.unwrap();
+            let e = s.position(0).await.unwrap_err();
+            let ok = match fault {
+                "garbage@3" => matches!(e, DriverError::Protocol { .. }),
+                "drop@3" => matches!(e, DriverError::Closed { .. }),
+                "truncate@3" => matches!(
+                    e,
+                    DriverError::Closed { .. } | DriverError::Transport { .. }
+                ),
+                _ => matches!(e, DriverError::Timeout { after_ms: 1500, .. }),
+            };
+            assert!(ok, "{dev:?} {fault}: {e:?}");
+            assert_eq!(s.position(0).await.unwrap(), 0, "{dev:?} {fault}");
+            m.stop().await;
+        }
+    }
+}
+
+#[tokio::test]
+async fn documented_exchanges_replay() {
+    for (dev, file) in [
+        (MockDevice::Mcs, "mcs.jsonl"),
+        (MockDevice::Mcs2, "mcs2.jsonl"),
+    ] {
+        let (m, s, _) = start(dev, &[], Some(file)).await;
+        if dev == MockDevice::Mcs2 {
+            assert_eq!(s.status(0).await.unwrap().raw, 96);
+        }
+        s.reference(0).await.unwrap();
+        let want = if dev == MockDevice::Mcs {
+            1_499_998_000
+        } else {
+            1_499_999_871
+        };
+        assert_eq!(s.move_absolute(0, 1_500_000_000).await.unwrap(), want);
+        let far = if dev == MockDevice::Mcs {
+            99_999_999_000
+        } else {
+            99_000_000_000_000
+        };
+        match s.move_absolute(0, far).await {
+            Err(DriverError::Device { code, .. }) => {
+                assert_eq!(code, if dev == MockDevice::Mcs { 147 } else { -222 })
+            }
+            other => panic!("{dev:?}: {other:?}"),
+        }
+        m.stop().await;
+    }
+}

@@ -1,0 +1,151 @@
+//! The centring loop (Algorithm 1 of the TriCal paper): drive the TCP onto a ball centre with
+//! the indicator readings, bounded in iterations, step size and reading time; every abort
+//! says why.
+
+use std::time::Duration;
+
+use serde::Serialize;
+
+use super::devices::{DeviceError, Indicators, Robot};
+use crate::util::Monitor;
+
+/// Bounds of the loop.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CentringOptions {
+    /// Stop when |r| is below this (mm).
+    pub epsilon_mm: f64,
+    /// Give up after this many corrective moves.
+    pub max_iterations: usize,
+    /// A reading asking for a larger move means the ball was lost (mm).
+    pub max_step_mm: f64,
+    /// Wait after each move before reading.
+    pub settle: Duration,
+    /// Longest wait for one reading.
+    pub reading_timeout: Duration,
+}
+
+impl Default for CentringOptions {
+    fn default() -> Self {
+        Self {
+            epsilon_mm: 0.010,
+            max_iterations: 20,
+            max_step_mm: 3.0,
+            settle: Duration::from_millis(200),
+            reading_timeout: Duration::from_secs(2),
+        }
+    }
+}
+
+/// A successful centring.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Centred {
+    /// Joint values recorded at the end (rad).
+    pub q: Vec<f64>,
+    /// Corrective moves made.
+    pub iterations: usize,
+    /// |r| of the last reading (mm).
+    pub residual_mm: f64,
+    /// Every reading (mm), first to last.
+    pub readings: Vec<[f64; 3]>,
+}
+
+/// Why a centring stopped without success.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum CentringError {
+    /// A device call failed.
+    #[error("device: {0}")]
+    Device(#[from] DeviceError),
+    /// The reading asks for a move larger than allowed: the ball is not under the device.
+    #[error(
+        "ball lost: the reading asks for a {step_mm:.3} mm move, above the {limit_mm} mm limit"
+    )]
+    BallLost {
+        /// Requested move.
+        step_mm: f64,
+        /// The limit.
+        limit_mm: f64,
+    },
+    /// No reading within the timeout.
+    #[error("no indicator reading within {timeout_ms} ms")]
+    ReadingTimeout {
+        /// The limit.
+        timeout_ms: u64,
+    },
+    /// Still not centred after the allowed iterations.
+    #[error(
+        "not centred after {iterations} moves: |r| = {residual_mm:.4} mm (epsilon {epsilon_mm} mm)"
+    )]
+    NotConverged {
+        /// Moves made.
+        iterations: usize,
+        /// Last |r|.
+        residual_mm: f64,
+        /// Tolerance.
+        epsilon_mm: f64,
+    },
+    /// Cancelled by the operator.
+    #[error("cancelled")]
+    Cancelled,
+}
+
+async fn read(ind: &dyn Indicators, opts: &CentringOptions) -> Result<[f64; 3], CentringError> {
+    match tokio::time::timeout(opts.reading_timeout, ind.read()).await {
+        Ok(r) => Ok(r?),
+        Err(_) => Err(CentringError::ReadingTimeout {
+            timeout_ms: opts.reading_timeout.as_millis() as u64,
+        }),
+    }
+}
+
+fn norm(r: &[f64; 3]) -> f64 {
+    (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt()
+}
+
+/// Move to `q_d` (rad) and centre the TCP on the ball under the device.
+pub async fn centre(
+    robot: &dyn Robot,
+    indicators: &dyn Indicators,
+    q_d: &[f64],
+    opts: &CentringOptions,
+    monitor: &dyn Monitor,
+) -> Result<Centred, CentringError> {
+    if monitor.is_cancelled() {
+        return Err(CentringError::Cancelled);
+    }
+    robot.move_joints(q_d).await?;
+    tokio::time::sleep(opts.settle).await;
+    let mut r = read(indicators, opts).await?;
+    let mut readings = vec![r];
+    let mut iterations = 0;
+    while norm(&r) >= opts.epsilon_mm {
+        if monitor.is_cancelled() {
+            return Err(CentringError::Cancelled);
+        }
+        if iterations >= opts.max_iterations {
+            return Err(CentringError::NotConverged {
+                iterations,
+                residual_mm: norm(&r),
+                epsilon_mm: opts.epsilon_mm,
+            });
+        }
+        if norm(&r) > opts.max_step_mm {
+            return Err(CentringError::BallLost {
+                step_mm: norm(&r),
+                limit_mm: opts.max_step_mm,
+            });
+        }
+        robot.move_tool(r).await?;
+        iterations += 1;
+        tokio::time::sleep(opts.settle).await;
+        r = read(indicators, opts).await?;
+        readings.push(r);
+    }
+    let q = robot.joints().await?;
+    Ok(Centred {
+        q,
+        iterations,
+        residual_mm: norm(&r),
+        readings,
+    })
+}

@@ -1,0 +1,68 @@
+//! Device capabilities as small object-safe async traits (`Arc<dyn Robot>`), and the error
+//! every device reports through them.
+
+use std::future::Future;
+use std::pin::Pin;
+
+/// The future a device call returns.
+pub type DeviceFuture<'a, T> = Pin<Box<dyn Future<Output = Result<T, DeviceError>> + Send + 'a>>;
+
+/// A device call that failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DeviceError {
+    /// No reply within the allowed time.
+    #[error("{device}: no reply within {timeout_ms} ms")]
+    Timeout {
+        /// Device name.
+        device: String,
+        /// The limit.
+        timeout_ms: u64,
+    },
+    /// The connection is down (the driver is reconnecting).
+    #[error("{device}: disconnected")]
+    Disconnected {
+        /// Device name.
+        device: String,
+    },
+    /// The device answered with an error of its own.
+    #[error("{device} reported: {message}")]
+    Fault {
+        /// Device name.
+        device: String,
+        /// The device's message.
+        message: String,
+    },
+    /// A request refused before it reached the device (limits, envelope, state).
+    #[error("{device}: refused: {reason}")]
+    Refused {
+        /// Device name.
+        device: String,
+        /// Why.
+        reason: String,
+    },
+    /// The reply could not be understood.
+    #[error("{device}: protocol error: {message}")]
+    Protocol {
+        /// Device name.
+        device: String,
+        /// What was wrong.
+        message: String,
+    },
+}
+
+/// A robot arm driven in joint space and by small tool-frame offsets.
+pub trait Robot: Send + Sync {
+    /// Current joint values (rad).
+    fn joints(&self) -> DeviceFuture<'_, Vec<f64>>;
+    /// Move to joint values (rad) and return once the motion has finished.
+    fn move_joints<'a>(&'a self, q: &'a [f64]) -> DeviceFuture<'a, ()>;
+    /// Move the TCP by an offset along the tool axes (mm), orientation unchanged.
+    fn move_tool(&self, offset_mm: [f64; 3]) -> DeviceFuture<'_, ()>;
+}
+
+/// Three indicators reading the offset of the ball centre from the TCP along the tool axes.
+pub trait Indicators: Send + Sync {
+    /// A fresh reading (mm), with per-indicator sign and zero already applied.
+    fn read(&self) -> DeviceFuture<'_, [f64; 3]>;
+}

@@ -1,0 +1,10 @@
+//! Procedures that drive devices: the centring loop and, later, whole campaigns. They see
+//! devices only through the small traits of [`devices`], implemented by the driver actors and
+//! by the in-memory fakes of [`fakes`].
+
+pub mod centring;
+pub mod devices;
+pub mod fakes;
+
+pub use centring::{Centred, CentringError, CentringOptions, centre};
+pub use devices::{DeviceError, DeviceFuture, Indicators, Robot};
