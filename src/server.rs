@@ -51,6 +51,8 @@ pub async fn start(
     clock: Clock,
     shutdown: CancellationToken,
 ) -> Result<(AppState, crate::service::Workers, Startup), ServeError> {
+    // The recorder first, so the service's gauges are recorded from the start.
+    let metrics = api::metrics_handle();
     let store = Store::open(&config.data)?;
     let mut auth = Auth::new(&config.auth.tokens, config.auth.anonymous_read)?;
     let mut startup = Startup {
@@ -79,7 +81,7 @@ pub async fn start(
         auth: Arc::new(auth),
         max_body_bytes: config.max_body_bytes,
         request_timeout: Duration::from_secs(config.request_timeout_s.max(1)),
-        metrics: api::metrics_handle(),
+        metrics,
         shutdown,
     };
     Ok((state, workers, startup))

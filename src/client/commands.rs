@@ -134,7 +134,7 @@ pub async fn jobs(
     for j in v["jobs"].as_array().into_iter().flatten() {
         println!(
             "{:>6}  {:<20} {:<12} {:>6.1}  {}",
-            j["id"],
+            j["id"].as_i64().unwrap_or(0),
             j["kind"].as_str().unwrap_or(""),
             j["state"].as_str().unwrap_or(""),
             100.0 * j["progress"].as_f64().unwrap_or(0.0),
