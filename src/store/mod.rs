@@ -9,6 +9,7 @@
 mod datasets;
 mod jobs;
 mod migrate;
+mod records;
 mod results;
 mod schedules;
 
