@@ -3,11 +3,14 @@
 //! Module map (pure maths apart from device procedures, apart from jobs and storage):
 //! - [`util`]: seeded random numbers, descriptive statistics.
 //! - [`geometry`]: rigid transforms and elementary motions (no I/O).
-//! - [`model`]: robot models (serial chains from DH files or URDF), FK, Jacobians, torques.
+//! - [`model`]: robot models (serial chains from DH files or URDF, the 3-PF parallel
+//!   continuum robot), FK, IK, Jacobians, torques.
 //! - [`identify`]: least squares shared by every method: Levenberg-Marquardt, rank detection
-//!   by pivoted QR, covariance and reports.
-//! - [`measure`]: measurement models (ball coincidence, Cartesian points).
-//! - [`design`]: observability indices and configuration selection (DETMAX).
+//!   by pivoted QR, gauge freedoms, covariance and reports.
+//! - [`measure`]: measurement models (ball coincidence, Cartesian points, the 3-PF
+//!   microscope), the 3-PF three-step identification, ISO 9283 accuracy.
+//! - [`design`]: observability indices, configuration selection (DETMAX), Poisson-disc
+//!   sampling, trajectories.
 //! - [`twin`]: digital twins (true parameters and noise) for tests and simulation.
 //! - [`jobs`]: job specifications, inputs, dispatch to the job kinds, results.
 //! - [`store`]: SQLite storage of jobs, datasets, progress, results, logs, schedules.

@@ -29,7 +29,7 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial`, `drivers` or `api` (the daemon under many concurrent clients).
+        /// Area: `serial`, `pcr`, `drivers` or `api` (the daemon under many concurrent clients).
         area: String,
     },
     /// List the job kinds.
@@ -116,7 +116,8 @@ enum Command {
     /// Write a digital twin's data set (CSV tables and the model file) into a folder, for
     /// examples and experiments.
     Twin {
-        /// Which twin: `serial` (IRB 120 ball-centring cell).
+        /// Which twin: `serial` (IRB 120 ball-centring cell), `pcr` (3-PF robot under its
+        /// microscope).
         which: String,
         /// Output folder.
         #[arg(long)]
@@ -278,8 +279,19 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
 }
 
 fn write_twin(which: &str, out: &Path, seed: u64) -> Result<()> {
+    if which == "pcr" {
+        std::fs::create_dir_all(out)?;
+        for (name, text) in calibd::jobs::pcr::twin_files(seed)? {
+            std::fs::write(out.join(&name), text).with_context(|| format!("writing {name}"))?;
+        }
+        eprintln!(
+            "wrote pcr3pf.json, pcr3pf_true.json, calibration.csv (99 rows), validation.csv (56 rows), joints.csv (20 rows) and poses.csv (16 rows) to {}",
+            out.display()
+        );
+        return Ok(());
+    }
     if which != "serial" {
-        bail!("unknown twin `{which}` (known: serial)");
+        bail!("unknown twin `{which}` (known: serial, pcr)");
     }
     let twin = calibd::twin::SerialTwin::irb120(seed);
     std::fs::create_dir_all(out)?;
@@ -315,6 +327,7 @@ fn main() -> Result<()> {
         Command::Bench { area } => {
             let figs = match area.as_str() {
                 "serial" => calibd::bench::serial::run(),
+                "pcr" => calibd::bench::pcr::run(),
                 "api" => {
                     let report =
                         runtime()?.block_on(calibd::bench::api::run(Default::default()))?;
@@ -324,7 +337,9 @@ fn main() -> Result<()> {
                 "drivers" => {
                     return Ok(calibd_drivers::bench::run_and_print(&mut std::io::stdout())?);
                 }
-                other => bail!("unknown benchmark area `{other}` (known: serial, drivers, api)"),
+                other => {
+                    bail!("unknown benchmark area `{other}` (known: serial, pcr, drivers, api)")
+                }
             };
             calibd::bench::print(&mut std::io::stdout(), &figs)?;
             Ok(())

@@ -55,7 +55,11 @@ async fn all_jobs(c: &reqwest::Client, d: &Daemon) -> Vec<Value> {
 }
 
 async fn result(c: &reqwest::Client, d: &Daemon, id: i64) -> (u16, Value) {
-    let r = c.get(format!("{}/v1/jobs/{id}/result", d.url)).send().await.unwrap();
+    let r = c
+        .get(format!("{}/v1/jobs/{id}/result", d.url))
+        .send()
+        .await
+        .unwrap();
     let s = r.status().as_u16();
     (s, r.json().await.unwrap_or(Value::Null))
 }
@@ -85,7 +89,11 @@ async fn sigkill_at_random_moments_loses_no_result() {
             assert_eq!(r.status().as_u16(), 201);
         }
         for _ in 0..500 {
-            if all_jobs(&http, &d).await.iter().any(|j| j["state"] == "running") {
+            if all_jobs(&http, &d)
+                .await
+                .iter()
+                .any(|j| j["state"] == "running")
+            {
                 break;
             }
             tokio::time::sleep(Duration::from_millis(10)).await;
@@ -109,17 +117,27 @@ async fn sigkill_at_random_moments_loses_no_result() {
         for (id, r) in &kept {
             let j = get(&http, &format!("{}/v1/jobs/{id}", d.url)).await;
             assert_eq!(j["state"], "succeeded", "round {round}: job {id}");
-            assert_eq!(&result(&http, &d, *id).await.1, r, "round {round}: result of job {id} changed");
+            assert_eq!(
+                &result(&http, &d, *id).await.1,
+                r,
+                "round {round}: result of job {id} changed"
+            );
         }
         let after = all_jobs(&http, &d).await;
         let mut interrupted = 0;
         for j in &after {
             let id = j["id"].as_i64().unwrap();
             let state = j["state"].as_str().unwrap();
-            let was = before.iter().find(|b| b["id"] == j["id"]).map(|b| b["state"].clone());
+            let was = before
+                .iter()
+                .find(|b| b["id"] == j["id"])
+                .map(|b| b["state"].clone());
             if was == Some(Value::from("running")) {
                 // It either finished in the instant before the kill or is interrupted.
-                assert!(state == "interrupted" || state == "succeeded", "job {id} was running, now {state}");
+                assert!(
+                    state == "interrupted" || state == "succeeded",
+                    "job {id} was running, now {state}"
+                );
             }
             if state == "interrupted" {
                 interrupted += 1;
@@ -132,13 +150,20 @@ async fn sigkill_at_random_moments_loses_no_result() {
             if status == 200 {
                 assert_eq!(r["kind"], j["kind"]);
                 let now = get(&http, &format!("{}/v1/jobs/{id}", d.url)).await;
-                assert_eq!(now["state"], "succeeded", "job {id} has a result but is {}", now["state"]);
+                assert_eq!(
+                    now["state"], "succeeded",
+                    "job {id} has a result but is {}",
+                    now["state"]
+                );
             } else {
                 assert_eq!(status, 409);
                 assert_ne!(state, "succeeded", "job {id} succeeded without a result");
             }
         }
-        assert!(interrupted >= 1, "round {round}: the kill interrupted no job: {after:?}");
+        assert!(
+            interrupted >= 1,
+            "round {round}: the kill interrupted no job: {after:?}"
+        );
         // Cancel what the restarted daemon picked up, before the next round.
         for j in &after {
             if j["state"] == "queued" || j["state"] == "running" {
@@ -151,11 +176,18 @@ async fn sigkill_at_random_moments_loses_no_result() {
         }
         for _ in 0..3000 {
             let js = all_jobs(&http, &d).await;
-            if js.iter().all(|j| j["state"] != "queued" && j["state"] != "running") {
+            if js
+                .iter()
+                .all(|j| j["state"] != "queued" && j["state"] != "running")
+            {
                 break;
             }
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
     }
-    assert!(kept.len() >= 3, "only {} results were seen before the kills", kept.len());
+    assert!(
+        kept.len() >= 3,
+        "only {} results were seen before the kills",
+        kept.len()
+    );
 }

@@ -22,6 +22,11 @@ pub struct LmOptions {
     pub lower: Option<Vec<f64>>,
     /// Upper bounds, if any.
     pub upper: Option<Vec<f64>>,
+    /// Initial damping relative to the largest diagonal of the scaled normal matrix (Nielsen's
+    /// tau): 1e-3 for a start far from the solution; a start known to be close (a previous
+    /// identification step) can take a much smaller value and skip the damping's slow decay
+    /// (at most a factor 3 per iteration) on ill-conditioned problems.
+    pub initial_damping: f64,
 }
 
 impl Default for LmOptions {
@@ -33,6 +38,7 @@ impl Default for LmOptions {
             gtol: 1e-10,
             lower: None,
             upper: None,
+            initial_damping: 1e-3,
         }
     }
 }
@@ -179,7 +185,7 @@ pub fn levenberg_marquardt(
         let a = js.tr_mul(&js);
         let gs = js.tr_mul(&r);
         if mu == 0.0 {
-            mu = 1e-3 * (0..mf).map(|k| a[(k, k)]).fold(0.0, f64::max);
+            mu = opts.initial_damping * (0..mf).map(|k| a[(k, k)]).fold(0.0, f64::max);
         }
         let xnorm = free
             .iter()
@@ -188,11 +194,7 @@ pub fn levenberg_marquardt(
             .sqrt();
         // Inner loop: raise the damping until a step is accepted.
         loop {
-            let mut damped = a.clone();
-            for k in 0..mf {
-                damped[(k, k)] += mu;
-            }
-            let Some(ch) = damped.cholesky() else {
+            let Some(step) = super::bounds::bounded_step(&a, &gs, &x, &free, &d, mu, opts) else {
                 mu *= nu;
                 nu *= 2.0;
                 if !mu.is_finite() || mu > 1e300 {
@@ -201,11 +203,7 @@ pub fn levenberg_marquardt(
                 }
                 continue;
             };
-            let ds = ch.solve(&(-&gs));
-            let mut xn = x.clone();
-            for (c, &k) in free.iter().enumerate() {
-                xn[k] += ds[c] / d[k];
-            }
+            let mut xn: Vec<f64> = (0..m).map(|k| x[k] + step[k]).collect();
             project(&mut xn, opts);
             let step: Vec<f64> = (0..m).map(|k| xn[k] - x[k]).collect();
             let step_norm = free
@@ -213,15 +211,22 @@ pub fn levenberg_marquardt(
                 .map(|&k| (d[k] * step[k]).powi(2))
                 .sum::<f64>()
                 .sqrt();
-            let eval = problem.residuals(&xn, r_new.as_mut_slice());
-            let cost_new = if eval.is_ok() && r_new.iter().all(|v| v.is_finite()) {
+            // Predicted cost from the linear model with the (bounded) step.
+            let lin = &r + &j * DVector::from_vec(step.clone());
+            let predicted = cost - lin.norm_squared();
+            // A step the linear model does not even predict to help is not worth a model
+            // evaluation.
+            let eval = if predicted > 0.0 {
+                problem.residuals(&xn, r_new.as_mut_slice())
+            } else {
+                Ok(())
+            };
+            let cost_new = if predicted > 0.0 && eval.is_ok() && r_new.iter().all(|v| v.is_finite())
+            {
                 r_new.norm_squared()
             } else {
                 f64::INFINITY
             };
-            // Predicted cost from the linear model with the (projected) step.
-            let lin = &r + &j * DVector::from_vec(step.clone());
-            let predicted = cost - lin.norm_squared();
             let rho = if predicted > 0.0 {
                 (cost - cost_new) / predicted
             } else {

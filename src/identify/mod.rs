@@ -1,14 +1,18 @@
 //! Least squares shared by every calibration method: the [`Problem`] trait, bounded
 //! Levenberg-Marquardt with column scaling ([`lm`]), rank detection by pivoted QR
 //! ([`rank`]), standard deviations and conditioning ([`uncertainty`]), and the
-//! rank -> LM -> covariance pipeline with its report ([`solve`]). No I/O.
+//! rank -> LM -> covariance pipeline with its report ([`solve`]); gauge freedoms held at
+//! their nominal combination ([`gauge`]). No I/O.
 
+mod bounds;
+pub mod gauge;
 pub mod lm;
 pub mod problem;
 pub mod rank;
 pub mod solve;
 pub mod uncertainty;
 
+pub use gauge::{Gauge, Gauged, null_directions};
 pub use lm::{LmOptions, LmReport, StopReason, levenberg_marquardt};
 pub use problem::{Problem, Restricted};
 pub use rank::{Pivoting, RankReport, rank_revealing};

@@ -8,6 +8,7 @@ pub mod envelope;
 pub mod error;
 pub mod examples;
 pub mod input;
+pub mod pcr;
 pub mod serial;
 pub mod table;
 
@@ -38,6 +39,26 @@ pub const KINDS: &[(&str, &str)] = &[
     (
         "serial.dispersion",
         "dispersion of identification results over DETMAX-selected set sizes",
+    ),
+    (
+        "pcr.fk",
+        "forward kinematics of a 3-PF continuum robot over a joints table",
+    ),
+    (
+        "pcr.ik",
+        "inverse kinematics of a 3-PF continuum robot over a poses table",
+    ),
+    (
+        "pcr.sensitivity",
+        "sensitivity of the 3-PF platform pose to each parameter type (Table 2)",
+    ),
+    (
+        "pcr.identify",
+        "three-step identification of a 3-PF robot and its microscope extrinsics (Table 3)",
+    ),
+    (
+        "pcr.accuracy",
+        "ISO 9283 pose accuracy of a 3-PF robot on a square, a circle or poses (Table 4)",
     ),
 ];
 
@@ -113,6 +134,11 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         "serial.identify" => Box::new(serial::identify::prepare(doc, &inputs)?),
         "serial.design" => Box::new(serial::design::prepare(doc, &inputs)?),
         "serial.dispersion" => Box::new(serial::dispersion::prepare(doc, &inputs)?),
+        "pcr.fk" => Box::new(pcr::fk::prepare(doc, &inputs)?),
+        "pcr.ik" => Box::new(pcr::ik::prepare(doc, &inputs)?),
+        "pcr.sensitivity" => Box::new(pcr::sensitivity::prepare(doc, &inputs)?),
+        "pcr.identify" => Box::new(pcr::identify::prepare(doc, &inputs)?),
+        "pcr.accuracy" => Box::new(pcr::accuracy::prepare(doc, &inputs)?),
         other => return Err(JobError::UnknownKind(other.to_string())),
     };
     let mut inputs_sha256 = inputs.into_hashes();

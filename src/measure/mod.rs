@@ -1,7 +1,9 @@
-//! Measurement models: how a measurement constrains a model. Each turns data into an
+//! Measurement models: how a measurement constrains a model (ball plates and points for
+//! serial arms, the microscope of the 3-PF robot in [`pcr`]). Each turns data into an
 //! [`crate::identify::Problem`]; none does I/O.
 
 pub mod ballplate;
+pub mod pcr;
 pub mod point;
 
 pub use ballplate::BallPlate;

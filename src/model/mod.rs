@@ -2,7 +2,9 @@
 
 pub mod chain;
 pub mod dh;
+pub mod ik;
 pub mod params;
+pub mod pcr;
 pub mod urdf;
 
 pub use chain::{Chain, Geometry, Joint, PointMass};

@@ -16,7 +16,8 @@ pub struct CentringOptions {
     pub epsilon_mm: f64,
     /// Give up after this many corrective moves.
     pub max_iterations: usize,
-    /// A reading asking for a larger move means the ball was lost (mm).
+    /// A reading asking for a larger move means the ball was lost (mm); the indicators'
+    /// half-travel is 6.35 mm.
     pub max_step_mm: f64,
     /// Wait after each move before reading.
     pub settle: Duration,
@@ -29,7 +30,7 @@ impl Default for CentringOptions {
         Self {
             epsilon_mm: 0.010,
             max_iterations: 20,
-            max_step_mm: 3.0,
+            max_step_mm: 6.0,
             settle: Duration::from_millis(200),
             reading_timeout: Duration::from_secs(2),
         }

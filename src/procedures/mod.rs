@@ -4,7 +4,10 @@
 
 pub mod centring;
 pub mod devices;
+pub mod envelope;
 pub mod fakes;
+pub mod trical;
 
 pub use centring::{Centred, CentringError, CentringOptions, centre};
 pub use devices::{DeviceError, DeviceFuture, Indicators, Robot};
+pub use envelope::{Envelope, MotionLimiter};

@@ -3,7 +3,7 @@
 //! three dial indicators on the flange device. Pure state in memory, driven step by step by
 //! the device mocks and fakes.
 
-use nalgebra::{Matrix6, Vector3, Vector6};
+use nalgebra::Vector3;
 
 use super::SerialTwin;
 use crate::geometry::Frame;
@@ -43,7 +43,7 @@ pub struct SimulatedCell {
     /// The twin (nominal and true models, plate).
     pub twin: SerialTwin,
     q: Vec<f64>,
-    rng: Rng,
+    seed: u64,
     /// Standard deviation of the indicator noise (mm).
     pub indicator_noise_mm: f64,
 }
@@ -58,7 +58,7 @@ impl SimulatedCell {
         Self {
             twin,
             q,
-            rng: Rng::new(seed),
+            seed,
             indicator_noise_mm: 0.0005,
         }
     }
@@ -94,7 +94,8 @@ impl SimulatedCell {
     }
 
     /// The three indicator readings (mm): the ball centre relative to the true TCP along the
-    /// true tool axes, for the ball nearest the device.
+    /// true tool axes, for the ball nearest the device, saturated at the end of travel. No
+    /// ball within reach of the stems gives a [`CellError::OutOfRange`].
     pub fn read_indicators(&mut self) -> Result<[f64; 3], CellError> {
         let tcp = {
             let tau = self.twin.truth.static_torques(&self.q);
@@ -110,9 +111,21 @@ impl SimulatedCell {
             .copied()
             .unwrap_or_else(Vector3::zeros);
         let r = tcp.r.transpose() * (nearest - tcp.p);
+        if r.norm() > 3.0 * INDICATOR_HALF_RANGE_MM {
+            return Err(CellError::OutOfRange {
+                indicator: 1,
+                value_mm: r.norm(),
+            });
+        }
+        // Noise is a function of the arm's state, so the same pose always reads the same:
+        // a resumed campaign measures exactly what an uninterrupted one would.
+        let key = self.q.iter().fold(self.seed, |h, v| {
+            (h ^ v.to_bits()).wrapping_mul(0x100_0000_01B3)
+        });
+        let mut rng = Rng::new(key);
         let mut out = [0.0; 3];
         for k in 0..3 {
-            let v = r[k] + self.indicator_noise_mm * self.rng.normal();
+            let v = r[k] + self.indicator_noise_mm * rng.normal();
             if v.abs() > INDICATOR_HALF_RANGE_MM {
                 return Err(CellError::OutOfRange {
                     indicator: k + 1,
@@ -125,44 +138,7 @@ impl SimulatedCell {
     }
 }
 
-/// Joint values near `q0` that put the TCP of `chain` (compliance off) at `target`
-/// (position and orientation), by damped least squares; `None` if it does not converge.
-pub fn pose_ik(chain: &crate::model::Chain, q0: &[f64], target: &Frame) -> Option<Vec<f64>> {
-    let mut q = q0.to_vec();
-    let err = |q: &[f64]| -> Vector6<f64> {
-        let f = chain.tcp(q, None);
-        let dp = target.p - f.p;
-        // Rotation error as the axis-angle of target * f^-1 (small angles), in {W}.
-        let rel = target.r * f.r.transpose();
-        let w = Vector3::new(
-            rel[(2, 1)] - rel[(1, 2)],
-            rel[(0, 2)] - rel[(2, 0)],
-            rel[(1, 0)] - rel[(0, 1)],
-        ) * 0.5;
-        Vector6::new(dp.x, dp.y, dp.z, w.x * 100.0, w.y * 100.0, w.z * 100.0)
-    };
-    for _ in 0..50 {
-        let e = err(&q);
-        if e.norm() < 1e-9 {
-            return Some(q);
-        }
-        let mut j = Matrix6::zeros();
-        for k in 0..6 {
-            let h = 1e-7;
-            let mut qp = q.clone();
-            qp[k] += h;
-            let mut qm = q.clone();
-            qm[k] -= h;
-            j.set_column(k, &(-(err(&qp) - err(&qm)) / (2.0 * h)));
-        }
-        let a = j.transpose() * j + Matrix6::identity() * 1e-9;
-        let dq = a.cholesky()?.solve(&(j.transpose() * e));
-        for k in 0..6 {
-            q[k] += dq[k];
-        }
-    }
-    None
-}
+pub use crate::model::ik::reach_pose as pose_ik;
 
 #[cfg(test)]
 mod tests {

@@ -2,6 +2,8 @@
 //! with noise, used by tests, examples, benchmarks and the simulated lab. Seeded, no I/O.
 
 pub mod cell;
+pub mod pcr;
 pub mod serial;
 
+pub use pcr::PcrTwin;
 pub use serial::SerialTwin;

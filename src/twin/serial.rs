@@ -2,7 +2,7 @@
 //! configurations found on the true robot (TCP within epsilon of a ball centre), and a
 //! laser tracker for validation.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 
 use crate::measure::{BallPlate, PointMeasurement, Target};
 use crate::model::dh::DhFile;
@@ -86,31 +86,9 @@ impl SerialTwin {
     /// squares), or `None` if it does not converge within the limits away from the wrist
     /// singularity.
     pub fn reach(&self, q0: &[f64], target: &Vector3<f64>) -> Option<Vec<f64>> {
-        let mut q = q0.to_vec();
-        for _ in 0..100 {
-            let e = target - self.true_tcp(&q);
-            if e.norm() < 1e-9 {
-                let lim = self.truth.limit_violation(&q).is_none();
-                return (lim && q[4].abs() > 10f64.to_radians()).then_some(q);
-            }
-            let mut jac = nalgebra::Matrix3x6::zeros();
-            for k in 0..6 {
-                let h = 1e-7;
-                let mut qp = q.clone();
-                qp[k] += h;
-                let mut qm = q.clone();
-                qm[k] -= h;
-                jac.set_column(k, &((self.true_tcp(&qp) - self.true_tcp(&qm)) / (2.0 * h)));
-            }
-            let a = jac * jac.transpose() + Matrix3::identity() * 1e-2;
-            let dq = jac.transpose() * a.try_inverse()? * e;
-            let step = dq.amax();
-            let scale = if step > 0.2 { 0.2 / step } else { 1.0 };
-            for k in 0..6 {
-                q[k] += dq[k] * scale;
-            }
-        }
-        None
+        let q = crate::model::ik::reach_point(q0, target, |q| self.true_tcp(q))?;
+        let lim = self.truth.limit_violation(&q).is_none();
+        (lim && q[4].abs() > 10f64.to_radians()).then_some(q)
     }
 
     /// A random joint vector in the central part of the workspace (rad).

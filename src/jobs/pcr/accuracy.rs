@@ -1,0 +1,257 @@
+//! `pcr.accuracy`: ISO 9283 pose accuracy of a (calibrated) 3-PF model used for control:
+//! inverse kinematics gives the joints of each commanded pose of a trajectory (a square, a
+//! circle or a poses table), the robot reaches each pose `repetitions` times, the microscope
+//! readings (converted to {W} with the model's extrinsics) give AP_P, AP_theta and RP per
+//! pose and their max, mean and min (the paper's Table 4). The reached poses come from a
+//! measurements table, or from a digital twin of the robot for simulation.
+
+use serde::Deserialize;
+use serde_json::{Map, Value, json};
+
+use super::{PcrModel, load_model, poses};
+use crate::design::trajectory::{circle, square};
+use crate::geometry::Pose2;
+use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::measure::pcr::accuracy::{pose_accuracy, summarise};
+use crate::measure::pcr::{PcrMeasurement, measured_pose};
+use crate::model::pcr::PcrFile;
+use crate::twin::PcrTwin;
+use crate::util::{Monitor, Rng};
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Spec {
+    #[allow(dead_code)]
+    kind: String,
+    model: Value,
+    trajectory: Value,
+    #[serde(default = "default_repetitions")]
+    repetitions: usize,
+    #[serde(default)]
+    reached: Option<Value>,
+    #[serde(default)]
+    twin: Option<TwinSpec>,
+    #[serde(default)]
+    #[allow(dead_code)]
+    options: Option<Map<String, Value>>,
+}
+
+fn default_repetitions() -> usize {
+    30
+}
+
+/// `{"square": side}` or `{"circle": diameter}` (m), with the number of poses and centre.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TrajectorySpec {
+    #[serde(default)]
+    square: Option<f64>,
+    #[serde(default)]
+    circle: Option<f64>,
+    /// Square: poses per side including both corners (default 5: 16 poses).
+    #[serde(default)]
+    points_per_side: Option<usize>,
+    /// Circle: number of poses (default 16).
+    #[serde(default)]
+    points: Option<usize>,
+    /// Centre (x, y) in {W} (m), default the origin.
+    #[serde(default)]
+    centre: Option<[f64; 2]>,
+    /// Platform angle of every pose (rad), default 0.
+    #[serde(default)]
+    theta: Option<f64>,
+}
+
+/// A digital twin as the source of reached poses: the true robot is the nominal `model`
+/// perturbed by its uncertainties with `seed`; the microscope adds its repeatability noise.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TwinSpec {
+    model: Value,
+    seed: u64,
+    #[serde(default)]
+    noise_seed: Option<u64>,
+}
+
+#[derive(Debug)]
+enum Source {
+    Reached(Vec<PcrMeasurement>),
+    Twin(Box<PcrTwin>, u64),
+}
+
+/// A validated `pcr.accuracy` job.
+#[derive(Debug)]
+pub struct AccuracyJob {
+    model: PcrModel,
+    name: String,
+    commanded: Vec<Pose2>,
+    repetitions: usize,
+    source: Source,
+}
+
+fn trajectory(inputs: &Inputs<'_>, v: &Value) -> Result<(String, Vec<Pose2>), JobError> {
+    let field = "trajectory";
+    if !v.is_object() {
+        let t = inputs.table(field, v)?;
+        return Ok(("poses".into(), poses(field, &t)?));
+    }
+    let s: TrajectorySpec =
+        crate::jobs::parse_spec(v).map_err(|e| JobError::invalid(field, e.to_string()))?;
+    let c = s.centre.unwrap_or([0.0, 0.0]);
+    let centre = Pose2::new(c[0], c[1], s.theta.unwrap_or(0.0));
+    if ![centre.x, centre.y, centre.theta]
+        .iter()
+        .all(|v| v.is_finite())
+    {
+        return Err(JobError::invalid(field, "centre and theta must be finite"));
+    }
+    let size_ok = |v: f64| v.is_finite() && v > 0.0;
+    match (s.square, s.circle) {
+        (Some(side), None) if size_ok(side) => {
+            let n = s.points_per_side.unwrap_or(5);
+            if n < 2 {
+                return Err(JobError::invalid(
+                    "trajectory.points_per_side",
+                    "must be at least 2",
+                ));
+            }
+            Ok((format!("square {side} m"), square(&centre, side, n)))
+        }
+        (None, Some(d)) if size_ok(d) => {
+            let n = s.points.unwrap_or(16);
+            if n < 1 {
+                return Err(JobError::invalid("trajectory.points", "must be at least 1"));
+            }
+            Ok((format!("circle {d} m"), circle(&centre, d, n)))
+        }
+        (Some(v), None) | (None, Some(v)) => Err(JobError::invalid(
+            field,
+            format!("size {v} must be a positive number of metres"),
+        )),
+        _ => Err(JobError::invalid(
+            field,
+            "give exactly one of {\"square\": side} or {\"circle\": diameter} (m), or a poses table",
+        )),
+    }
+}
+
+/// Validate a `pcr.accuracy` job.
+pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<AccuracyJob, JobError> {
+    let spec: Spec = parse_spec(doc)?;
+    let model = load_model(inputs, &spec.model)?;
+    let (name, commanded) = trajectory(inputs, &spec.trajectory)?;
+    if commanded.is_empty() {
+        return Err(JobError::invalid("trajectory", "has no pose"));
+    }
+    if spec.repetitions == 0 {
+        return Err(JobError::invalid("repetitions", "must be at least 1"));
+    }
+    let source = match (spec.reached, spec.twin) {
+        (Some(r), None) => {
+            let t = inputs.table("reached", &r)?;
+            let m = model.measurements("reached", &t)?;
+            let want = commanded.len() * spec.repetitions;
+            if m.len() != want {
+                return Err(JobError::invalid(
+                    "reached",
+                    format!(
+                        "has {} rows; {} poses x {} repetitions need {want}, grouped by pose",
+                        m.len(),
+                        commanded.len(),
+                        spec.repetitions
+                    ),
+                ));
+            }
+            Source::Reached(m)
+        }
+        (None, Some(tw)) => {
+            let file = PcrFile::from_value(inputs.json("twin.model", &tw.model)?)?;
+            let twin = PcrTwin::new(&file, tw.seed)
+                .map_err(|e| JobError::invalid("twin.model", e.to_string()))?;
+            Source::Twin(Box::new(twin), tw.noise_seed.unwrap_or(tw.seed ^ 0xACC))
+        }
+        _ => {
+            return Err(JobError::invalid(
+                "reached",
+                "give the reached poses as a `reached` measurements table (q1, q2, q3, x, y, theta; repetitions rows per pose, in order) or a `twin` {model, seed} to simulate them",
+            ));
+        }
+    };
+    Ok(AccuracyJob {
+        model,
+        name,
+        commanded,
+        repetitions: spec.repetitions,
+        source,
+    })
+}
+
+impl Prepared for AccuracyJob {
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        let robot = &self.model.robot;
+        let control = super::ik::solve_rows(robot, &self.commanded, "trajectory", monitor)?;
+        let ext = self.model.file.extrinsics;
+        let r = self.repetitions;
+        let reached: Vec<Vec<Pose2>> = match &self.source {
+            Source::Reached(m) => m
+                .chunks(r)
+                .map(|c| c.iter().map(|m| measured_pose(&ext, &m.z)).collect())
+                .collect(),
+            Source::Twin(twin, seed) => {
+                let q: Vec<[f64; 3]> = control.iter().map(|e| e.q).collect();
+                let truth = twin
+                    .true_poses(&q)
+                    .map_err(|e| JobError::Failed(format!("twin: {e}")))?;
+                let mut rng = Rng::new(*seed);
+                truth
+                    .iter()
+                    .map(|eq| {
+                        (0..r)
+                            .map(|_| measured_pose(&ext, &twin.read(&eq.pose, &mut rng)))
+                            .collect()
+                    })
+                    .collect()
+            }
+        };
+        if monitor.is_cancelled() {
+            return Err(JobError::Cancelled);
+        }
+        let acc: Vec<_> = self
+            .commanded
+            .iter()
+            .zip(&reached)
+            .map(|(c, p)| pose_accuracy(c, p))
+            .collect();
+        let mut t = Table::new(&[
+            "x", "y", "theta", "q1", "q2", "q3", "ap_p", "ap_theta", "rp",
+        ]);
+        for ((c, e), a) in self.commanded.iter().zip(&control).zip(&acc) {
+            t.push(vec![
+                c.x, c.y, c.theta, e.q[0], e.q[1], e.q[2], a.ap_p, a.ap_theta, a.rp,
+            ]);
+        }
+        let mut f = Map::new();
+        f.insert(
+            "trajectory".into(),
+            json!({"name": self.name, "poses": self.commanded.len(), "repetitions": r}),
+        );
+        f.insert(
+            "source".into(),
+            json!(match self.source {
+                Source::Reached(_) => "reached table",
+                Source::Twin(..) => "digital twin",
+            }),
+        );
+        f.insert("units".into(), json!({"x": "m", "y": "m", "theta": "rad", "q": "m", "ap_p": "m", "ap_theta": "rad", "rp": "m"}));
+        f.insert("per_pose".into(), t.to_json_rows());
+        f.insert(
+            "summary".into(),
+            serde_json::to_value(summarise(&acc)).unwrap_or(Value::Null),
+        );
+        Ok(Output {
+            fields: f,
+            main_table: Some(t),
+            artefacts: vec![],
+        })
+    }
+}

@@ -1,0 +1,97 @@
+//! `pcr.ik`: joint values (q1, q2, q3 in m) that bring the platform of the 3-PF model to
+//! each pose of a table, solved row after row with warm starts.
+
+use serde::Deserialize;
+use serde_json::{Map, Value};
+
+use super::{LoadSpec, PcrModel, load_model, poses, si_units};
+use crate::geometry::Pose2;
+use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::model::pcr::{Equilibrium, Pcr};
+use crate::util::Monitor;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Spec {
+    #[allow(dead_code)]
+    kind: String,
+    model: Value,
+    poses: Value,
+    #[serde(default)]
+    options: IkOptions,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct IkOptions {
+    /// External load on the platform.
+    #[serde(default)]
+    load: Option<LoadSpec>,
+}
+
+/// A validated `pcr.ik` job.
+#[derive(Debug)]
+pub struct IkJob {
+    robot: Pcr,
+    poses: Vec<Pose2>,
+}
+
+/// Validate a `pcr.ik` job.
+pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IkJob, JobError> {
+    let spec: Spec = parse_spec(doc)?;
+    let model: PcrModel = load_model(inputs, &spec.model)?;
+    let table = inputs.table("poses", &spec.poses)?;
+    let poses = poses("poses", &table)?;
+    let robot = model.loaded("options.load", spec.options.load.as_ref())?;
+    Ok(IkJob { robot, poses })
+}
+
+/// Inverse kinematics of every pose, warm-started along the list; `field` names the table
+/// in errors.
+pub fn solve_rows(
+    robot: &Pcr,
+    poses: &[Pose2],
+    field: &str,
+    monitor: &dyn Monitor,
+) -> Result<Vec<Equilibrium>, JobError> {
+    let mut out: Vec<Equilibrium> = Vec::with_capacity(poses.len());
+    for (i, p) in poses.iter().enumerate() {
+        if i % 64 == 0 {
+            if monitor.is_cancelled() {
+                return Err(JobError::Cancelled);
+            }
+            monitor.progress(i as f64 / poses.len().max(1) as f64, "inverse kinematics");
+        }
+        let eq = match out.last() {
+            Some(prev) => robot.ik_from(prev, p).or_else(|_| robot.ik(p)),
+            None => robot.ik(p),
+        }
+        .map_err(|e| JobError::row(field, i + 1, e.to_string()))?;
+        out.push(eq);
+    }
+    Ok(out)
+}
+
+/// A joints table (q1, q2, q3).
+pub fn joint_table(sols: &[Equilibrium]) -> Table {
+    let mut t = Table::new(&["q1", "q2", "q3"]);
+    for e in sols {
+        t.push(e.q.to_vec());
+    }
+    t
+}
+
+impl Prepared for IkJob {
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        let sols = solve_rows(&self.robot, &self.poses, "poses", monitor)?;
+        let table = joint_table(&sols);
+        let mut fields = Map::new();
+        fields.insert("units".into(), si_units());
+        fields.insert("joints".into(), table.to_json_rows());
+        Ok(Output {
+            fields,
+            main_table: Some(table),
+            artefacts: vec![],
+        })
+    }
+}

@@ -1,0 +1,187 @@
+//! Continuation between solved configurations of the 3-PF robot, and what a solve leaves
+//! behind for the next one (warm starts).
+//!
+//! A continuation follows straight blends of the setup and the inputs in steps; a step whose
+//! Newton iteration starts too far away, stops contracting or meets a Jacobian of the wrong
+//! sign is shortened; below `min_fraction` of the path the equilibrium is changing suddenly
+//! (a fold, a bifurcation, a snap to another branch) and a [`PcrError::BranchJump`] is
+//! returned instead of a pose.
+
+use std::sync::Arc;
+
+use super::newton::{self, Failure, Solved, Start};
+use super::params::PcrParams;
+use super::setup::{Mode, Setup};
+use super::shooting::{Mat12, N, Tips, Vec12};
+use super::{Equilibrium, PcrError, SolverOptions};
+use crate::geometry::Pose2;
+
+/// What a solve leaves for the next one: an approximate inverse Jacobian and the distal
+/// states of the rods.
+#[derive(Debug)]
+pub(crate) struct Warm {
+    /// True for a forward-kinematics solve (pose unknowns), false for inverse (joints).
+    pub(crate) fk: bool,
+    /// Fingerprint of the rods (parameters, scaling, steps) the tips were integrated with.
+    pub(crate) key: u64,
+    /// Approximate inverse Jacobian at the solution.
+    pub(crate) inverse: Mat12,
+    /// Relative distal states at the solution.
+    pub(crate) tips: Tips,
+}
+
+/// Scaled unknowns of a solved configuration for a given mode.
+pub(crate) fn unknowns(eq: &Equilibrium, mode: &Mode, lr: f64) -> Vec12 {
+    let mut z = [0.0; N];
+    z[..9].copy_from_slice(&eq.scaled);
+    let tail = match mode {
+        Mode::Fk(_) => [eq.pose.x / lr, eq.pose.y / lr, eq.pose.theta],
+        Mode::Ik(_) => eq.q.map(|v| v / lr),
+    };
+    z[9..].copy_from_slice(&tail);
+    z
+}
+
+/// Fingerprint of what the rods' integration depends on.
+pub(crate) fn fingerprint(p: &PcrParams, l_ref: f64, opts: &SolverOptions) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for v in p.to_array() {
+        v.to_bits().hash(&mut h);
+    }
+    l_ref.to_bits().hash(&mut h);
+    opts.steps.hash(&mut h);
+    h.finish()
+}
+
+/// The equilibrium described by a converged solve.
+pub(crate) fn equilibrium(setup: &Setup, key: u64, mode: &Mode, solved: Solved) -> Equilibrium {
+    let Solved {
+        z,
+        iterations,
+        inverse,
+        tips,
+    } = solved;
+    let lr = setup.l_ref;
+    let (q, pose) = match mode {
+        Mode::Fk(q) => (q.map(|v| v * lr), Pose2::new(z[9] * lr, z[10] * lr, z[11])),
+        Mode::Ik(x) => (
+            [z[9] * lr, z[10] * lr, z[11] * lr],
+            Pose2::new(x[0] * lr, x[1] * lr, x[2]),
+        ),
+    };
+    let (fs, ms) = (setup.ei / (lr * lr), setup.ei / lr);
+    let wrenches = std::array::from_fn(|i| [z[3 * i] * fs, z[3 * i + 1] * fs, z[3 * i + 2] * ms]);
+    let mut scaled = [0.0; 9];
+    scaled.copy_from_slice(&z[..9]);
+    let warm = Some(Arc::new(Warm {
+        fk: matches!(mode, Mode::Fk(_)),
+        key,
+        inverse,
+        tips,
+    }));
+    Equilibrium {
+        q,
+        pose,
+        wrenches,
+        iterations,
+        scaled,
+        warm,
+    }
+}
+
+/// Continuation from a solved `(setup0, mode0, z0)` to `(setup1, mode1)` along straight
+/// blends; returns the solution and the Newton iterations spent.
+pub(crate) fn track(
+    setup0: &Setup,
+    mode0: &Mode,
+    start: Start<'_>,
+    setup1: &Setup,
+    mode1: &Mode,
+    opts: &SolverOptions,
+) -> Result<Solved, PcrError> {
+    let (mut t, mut dt) = (0.0_f64, 1.0_f64);
+    let mut z = start.z;
+    let mut tips = start.tips.copied();
+    let mut inverse = start.inverse.copied();
+    let mut iterations = 0;
+    let mut last = String::new();
+    let mut branch_signal: Option<String> = None;
+    for _ in 0..opts.max_substeps {
+        let t1 = (t + dt).min(1.0);
+        let setup = setup0.blend(setup1, t1);
+        let mode = mode0.blend(mode1, t1);
+        let guess = Start {
+            z,
+            tips: tips.as_ref(),
+            inverse: inverse.as_ref(),
+        };
+        match newton::newton(&setup, &mode, &guess, opts) {
+            Ok(s) => {
+                iterations += s.iterations;
+                t = t1;
+                if t >= 1.0 {
+                    return Ok(Solved { iterations, ..s });
+                }
+                z = s.z;
+                tips = Some(s.tips);
+                inverse = Some(s.inverse);
+                dt = (2.0 * dt).min(1.0);
+            }
+            Err((failure, it)) => {
+                iterations += it;
+                let shrink = match failure {
+                    Failure::TooFar(step) => (0.8 * opts.max_step / step).clamp(0.05, 0.5),
+                    _ => 0.5,
+                };
+                if !matches!(failure, Failure::MaxIterations(_) | Failure::NotFinite) {
+                    branch_signal = Some(describe(&failure));
+                }
+                last = describe(&failure);
+                dt *= shrink;
+                if dt < opts.min_fraction {
+                    // The path cannot be followed past this point: a fold, a bifurcation or a
+                    // jump of the solution if the Jacobian said so on the way, else plain
+                    // non-convergence.
+                    return Err(match (branch_signal, failure) {
+                        (Some(reason), _) => PcrError::BranchJump {
+                            fraction: t,
+                            reason,
+                        },
+                        (None, Failure::MaxIterations(r)) => PcrError::NotConverged {
+                            reason: "iteration budget spent".into(),
+                            iterations,
+                            residual: r,
+                        },
+                        (None, _) => PcrError::NotConverged {
+                            reason: last,
+                            iterations,
+                            residual: f64::INFINITY,
+                        },
+                    });
+                }
+            }
+        }
+    }
+    Err(PcrError::NotConverged {
+        reason: format!(
+            "{} continuation steps did not reach the target ({last})",
+            opts.max_substeps
+        ),
+        iterations,
+        residual: f64::NAN,
+    })
+}
+
+fn describe(f: &Failure) -> String {
+    match f {
+        Failure::Singular => "singular shooting Jacobian".into(),
+        Failure::SignChange => {
+            "the shooting Jacobian changed sign: a fold or bifurcation (buckling) lies between the start and the target".into()
+        }
+        Failure::TooFar(s) => format!("Newton step {s:.3e} larger than allowed"),
+        Failure::NotContracting => "Newton steps not contracting".into(),
+        Failure::MaxIterations(r) => format!("residual {r:.3e} x tolerance after the iteration budget"),
+        Failure::NotFinite => "residual not finite".into(),
+    }
+}
