@@ -13,10 +13,21 @@
 //!   sampling, trajectories.
 //! - [`twin`]: digital twins (true parameters and noise) for tests and simulation.
 //! - [`jobs`]: job specifications, inputs, dispatch to the job kinds, results.
+//! - [`store`]: SQLite storage of jobs, datasets, progress, results, logs, schedules.
+//! - [`service`]: the job queue, the worker pool, progress events, cancellation.
+//! - [`schedule`]: cron schedules that submit jobs.
+//! - [`report`]: SVG plots from results.
+//! - [`api`]: the HTTP API, the web page, authentication, SSE.
+//! - [`config`]: daemon settings (TOML file + environment).
+//! - [`server`]: `calibd serve` wiring.
+//! - [`client`]: the HTTP client behind `calibd submit`, `watch`, `jobs`, `cancel`, `result`.
 //! - [`bench`]: benchmarks printed by `calibd bench`.
 #![warn(missing_docs)]
 
+pub mod api;
 pub mod bench;
+pub mod client;
+pub mod config;
 pub mod design;
 pub mod geometry;
 pub mod identify;
@@ -24,5 +35,10 @@ pub mod jobs;
 pub mod measure;
 pub mod model;
 pub mod procedures;
+pub mod report;
+pub mod schedule;
+pub mod server;
+pub mod service;
+pub mod store;
 pub mod twin;
 pub mod util;

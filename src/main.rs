@@ -29,11 +29,88 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial`, `pcr`, `drivers`.
+        /// Area: `serial`, `pcr`, `drivers` or `api` (the daemon under many concurrent clients).
         area: String,
     },
     /// List the job kinds.
     Kinds,
+    /// Print an example job (IRB 120 twin data, inline) to stdout; without NAME, list them.
+    Example {
+        /// Example name.
+        name: Option<String>,
+    },
+    /// Run the daemon: job queue, workers, REST API, web page, schedules.
+    Serve {
+        /// Address to listen on (default 127.0.0.1:8750).
+        #[arg(long)]
+        listen: Option<String>,
+        /// Data folder: database and generated operator token (default ./calibd-data).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// Settings file (TOML); every setting can also come from a CALIBD_* variable.
+        #[arg(long, env = "CALIBD_CONFIG")]
+        config: Option<PathBuf>,
+    },
+    /// Submit a job file to a daemon (files it names are uploaded as datasets).
+    Submit {
+        /// The job file.
+        job: PathBuf,
+        /// Follow the job with a progress bar and print the result summary.
+        #[arg(long)]
+        watch: bool,
+        /// Priority (higher runs first).
+        #[arg(long, default_value_t = 0)]
+        priority: i64,
+        #[command(flatten)]
+        remote: Remote,
+    },
+    /// Follow a job until it ends.
+    Watch {
+        /// Job id.
+        id: i64,
+        #[command(flatten)]
+        remote: Remote,
+    },
+    /// List jobs, newest first.
+    Jobs {
+        /// Only jobs in this state.
+        #[arg(long)]
+        state: Option<String>,
+        /// Only jobs of this kind.
+        #[arg(long)]
+        kind: Option<String>,
+        /// How many.
+        #[arg(long, default_value_t = 20)]
+        limit: usize,
+        #[command(flatten)]
+        remote: Remote,
+    },
+    /// Cancel a job.
+    Cancel {
+        /// Job id.
+        id: i64,
+        #[command(flatten)]
+        remote: Remote,
+    },
+    /// Print a job's result, or write it with its artefacts into a folder.
+    Result {
+        /// Job id.
+        id: i64,
+        /// Folder for result.json, the artefacts and the main table.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        #[command(flatten)]
+        remote: Remote,
+    },
+    /// Make a new API token and print it with the config line that grants it.
+    Token {
+        /// Name recorded with what the token does.
+        #[arg(long, default_value = "user")]
+        name: String,
+        /// viewer, submitter or operator.
+        #[arg(long, default_value = "viewer")]
+        role: String,
+    },
     /// Run a mock device server (QTM, ABB RWS, U-WAVE, SmarAct MCS/MCS2, CAN) until Ctrl-C.
     Mock(calibd_drivers::mock::MockArgs),
     /// Write a digital twin's data set (CSV tables and the model file) into a folder, for
@@ -49,6 +126,102 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+}
+
+/// Where the daemon is and how to authenticate.
+#[derive(Debug, clap::Args)]
+struct Remote {
+    /// The daemon's URL.
+    #[arg(long, env = "CALIBD_URL", default_value = "http://127.0.0.1:8750")]
+    server: String,
+    /// Bearer token (default: DATA/operator.token).
+    #[arg(long, env = "CALIBD_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// The daemon's data folder, to find operator.token.
+    #[arg(long, env = "CALIBD_DATA", default_value = "calibd-data")]
+    data: PathBuf,
+}
+
+impl Remote {
+    fn client(&self) -> calibd::client::Client {
+        let token = calibd::client::Client::find_token(self.token.clone(), &self.data);
+        calibd::client::Client::new(&self.server, token)
+    }
+}
+
+fn init_tracing(json: bool) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,tower_http=info"));
+    let b = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    if json {
+        b.json().init();
+    } else {
+        b.init();
+    }
+}
+
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?)
+}
+
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
+    tracing::info!("shutting down");
+}
+
+fn serve(listen: Option<String>, data: Option<PathBuf>, config: Option<PathBuf>) -> Result<()> {
+    let mut cfg = calibd::config::Config::load(config.as_deref(), &|k| std::env::var(k).ok())?;
+    if let Some(l) = listen {
+        cfg.listen = l;
+    }
+    if let Some(d) = data {
+        cfg.data = d;
+    }
+    init_tracing(cfg.log_format == calibd::config::LogFormat::Json);
+    runtime()?.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(&cfg.listen)
+            .await
+            .with_context(|| format!("binding {}", cfg.listen))?;
+        let addr = listener.local_addr()?;
+        calibd::server::run(listener, &cfg, shutdown_signal(), |s| {
+            if let Some(p) = &s.operator_token_file {
+                tracing::info!(file = %p.display(), "no token configured: the operator token is in this file");
+            }
+            tracing::info!(data = %cfg.data.display(), workers = cfg.worker_count(), "calibd {} ready", env!("CARGO_PKG_VERSION"));
+            // One plain line on stdout that scripts can wait for.
+            println!("calibd listening on http://{addr}");
+        })
+        .await?;
+        Ok(())
+    })
+}
+
+fn remote<F, Fut>(r: &Remote, f: F) -> Result<()>
+where
+    F: FnOnce(calibd::client::Client) -> Fut,
+    Fut: std::future::Future<Output = Result<(), calibd::client::ClientError>>,
+{
+    let c = r.client();
+    runtime()?.block_on(f(c))?;
+    Ok(())
 }
 
 /// Prints stage changes of a job to stderr.
@@ -155,10 +328,18 @@ fn main() -> Result<()> {
             let figs = match area.as_str() {
                 "serial" => calibd::bench::serial::run(),
                 "pcr" => calibd::bench::pcr::run(),
+                "api" => {
+                    let report =
+                        runtime()?.block_on(calibd::bench::api::run(Default::default()))?;
+                    println!("{report}");
+                    return Ok(());
+                }
                 "drivers" => {
                     return Ok(calibd_drivers::bench::run_and_print(&mut std::io::stdout())?);
                 }
-                other => bail!("unknown benchmark area `{other}` (known: serial, pcr, drivers)"),
+                other => {
+                    bail!("unknown benchmark area `{other}` (known: serial, pcr, drivers, api)")
+                }
             };
             calibd::bench::print(&mut std::io::stdout(), &figs)?;
             Ok(())
@@ -175,6 +356,63 @@ fn main() -> Result<()> {
             for (k, d) in calibd::jobs::KINDS {
                 println!("{k:<20} {d}");
             }
+            Ok(())
+        }
+        Command::Example { name: None } => {
+            for (n, d) in calibd::jobs::examples::EXAMPLES {
+                println!("{n:<20} {d}");
+            }
+            Ok(())
+        }
+        Command::Example { name: Some(n) } => {
+            let doc = calibd::jobs::examples::example(&n)
+                .with_context(|| format!("no example named `{n}` (see `calibd example`)"))?;
+            println!("{}", serde_json::to_string_pretty(&doc)?);
+            Ok(())
+        }
+        Command::Serve {
+            listen,
+            data,
+            config,
+        } => serve(listen, data, config),
+        Command::Submit {
+            job,
+            watch,
+            priority,
+            remote: r,
+        } => remote(&r, |c| async move {
+            calibd::client::commands::submit(&c, &job, priority, watch)
+                .await
+                .map(|_| ())
+        }),
+        Command::Watch { id, remote: r } => remote(&r, |c| async move {
+            calibd::client::commands::watch(&c, id).await.map(|_| ())
+        }),
+        Command::Jobs {
+            state,
+            kind,
+            limit,
+            remote: r,
+        } => remote(&r, |c| async move {
+            calibd::client::commands::jobs(&c, state.as_deref(), kind.as_deref(), limit).await
+        }),
+        Command::Cancel { id, remote: r } => remote(&r, |c| async move {
+            calibd::client::commands::cancel(&c, id).await
+        }),
+        Command::Result { id, out, remote: r } => remote(&r, |c| async move {
+            calibd::client::commands::result(&c, id, out.as_deref()).await
+        }),
+        Command::Token { name, role } => {
+            let role = calibd::api::Role::parse(&role)
+                .with_context(|| format!("unknown role `{role}` (viewer, submitter, operator)"))?;
+            let token = calibd::api::auth::new_token()?;
+            println!("token (give it to the user; it is not stored): {token}");
+            println!("config (add to the daemon's TOML file):");
+            println!(
+                "[[auth.tokens]]\nname = \"{name}\"\nrole = \"{}\"\nsha256 = \"{}\"",
+                role.as_str(),
+                calibd::api::auth::hash_token(&token)
+            );
             Ok(())
         }
     }

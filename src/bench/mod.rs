@@ -1,6 +1,7 @@
 //! Benchmarks printed by `calibd bench <area>`: wall-clock figures of the hot paths, measured
 //! as the median of repeated runs (speed targets are checked here, never by timed tests).
 
+pub mod api;
 pub mod pcr;
 pub mod serial;
 

@@ -15,40 +15,7 @@ use crate::util::{NoMonitor, Rng};
 
 /// A dispersion job over twin data as inline JSON.
 pub fn dispersion_job(sizes: &[usize], repetitions: usize) -> serde_json::Value {
-    let twin = SerialTwin::irb120(1);
-    let deg = |q: &[f64]| -> Vec<f64> { q.iter().map(|v| v.to_degrees()).collect() };
-    let rows = |ms: &[crate::measure::PointMeasurement]| -> Vec<serde_json::Value> {
-        ms.iter()
-            .map(|m| {
-                let q = deg(&m.q);
-                let mut o = serde_json::Map::new();
-                for (k, v) in q.iter().enumerate() {
-                    o.insert(format!("q{}", k + 1), serde_json::json!(v));
-                }
-                match m.target {
-                    crate::measure::Target::Ball(b) => {
-                        o.insert("ball".into(), serde_json::json!(b + 1));
-                    }
-                    crate::measure::Target::Point(p) => {
-                        for (n, v) in ["x", "y", "z"].iter().zip(p.iter()) {
-                            o.insert(n.to_string(), serde_json::json!(v));
-                        }
-                    }
-                }
-                serde_json::Value::Object(o)
-            })
-            .collect()
-    };
-    serde_json::json!({
-        "kind": "serial.dispersion",
-        "model": serde_json::to_value(&twin.file).unwrap_or_default(),
-        "measurements": rows(&twin.centring(120, 2)),
-        "ball_plate": {"d12": twin.ballbar[0], "d13": twin.ballbar[1], "d23": twin.ballbar[2]},
-        "validation": rows(&twin.tracker(100, 3)),
-        "sizes": sizes,
-        "repetitions": repetitions,
-        "options": {"seed": 7}
-    })
+    crate::jobs::examples::twin_dispersion(sizes, repetitions)
 }
 
 /// Run the serial benchmarks.

@@ -6,6 +6,7 @@
 
 pub mod envelope;
 pub mod error;
+pub mod examples;
 pub mod input;
 pub mod pcr;
 pub mod serial;
@@ -87,6 +88,13 @@ pub struct Output {
 pub trait Prepared: Send + Sync + std::fmt::Debug {
     /// Execute it; long loops poll `monitor` for cancellation.
     fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError>;
+
+    /// Names of the devices the job drives while it runs (none for numerical kinds). The
+    /// daemon's queue never runs two jobs that share a device, and only operators may
+    /// submit a job that drives one.
+    fn devices(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// A validated job.
@@ -146,6 +154,11 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
 }
 
 impl Job {
+    /// Devices the job drives (see [`Prepared::devices`]).
+    pub fn devices(&self) -> Vec<String> {
+        self.prepared.devices()
+    }
+
     /// Run the job and wrap its output in the result envelope.
     pub fn run(&self, monitor: &dyn Monitor) -> Result<Completed, JobError> {
         let started = chrono::Utc::now();

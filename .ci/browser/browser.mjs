@@ -1,0 +1,52 @@
+// Drives the calibd web page in headless Chromium: load the page, enter the token, load the
+// IRB 120 identification example, submit it, watch it finish through the live job list,
+// check the result tables and plots, download the calibrated model, save a screenshot.
+// Usage: node browser.mjs URL TOKEN SCREENSHOT.png
+import { chromium } from "playwright-core";
+import { readFileSync } from "node:fs";
+
+const [url, token, shot] = process.argv.slice(2);
+const fail = (msg) => { console.error("browser test FAILED: " + msg); process.exit(1); };
+const browser = await chromium.launch({
+  executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
+  args: ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+    "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"],
+});
+try {
+  const page = await browser.newPage({ viewport: { width: 1400, height: 1100 }, acceptDownloads: true });
+  const errors = [];
+  page.on("pageerror", (e) => errors.push(e.message));
+  page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
+  await page.goto(url, { waitUntil: "load" });
+  await page.fill("#token", token);
+  await page.dispatchEvent("#token", "change");
+  await page.waitForSelector('#example-select option[value="irb120-identify"]', { state: "attached" });
+  await page.selectOption("#example-select", "irb120-identify");
+  await page.click("#load-example");
+  await page.waitForFunction(() => document.querySelector("#job-text").value.includes("serial.identify"));
+  await page.click("#submit");
+  await page.waitForFunction(() => /job \d+ queued/.test(document.querySelector("#submit-msg").textContent), null, { timeout: 20000 });
+  const id = (await page.textContent("#submit-msg")).match(/job (\d+)/)[1];
+  console.log(`submitted job ${id}`);
+  // The live list (SSE) shows the job finishing.
+  await page.waitForSelector(`#jobs tr[data-id="${id}"] td.state-succeeded`, { timeout: 120000 });
+  console.log(`job ${id} succeeded in the job list`);
+  await page.waitForSelector("#detail-state.state-succeeded", { timeout: 20000 });
+  await page.waitForSelector("#detail table", { timeout: 20000 });
+  const rows = await page.$$eval("#detail table:first-of-type tbody tr", (r) => r.length);
+  if (rows < 20) fail(`parameters table has ${rows} rows`);
+  await page.waitForFunction(() => document.querySelectorAll("#detail .plots img").length >= 2, null, { timeout: 20000 });
+  await page.waitForFunction(() => [...document.querySelectorAll("#detail .plots img")].every((i) => i.complete && i.naturalWidth > 0));
+  const link = `#artefacts a[data-name="calibrated_model.json"]`;
+  await page.waitForSelector(link);
+  const [download] = await Promise.all([page.waitForEvent("download"), page.click(link)]);
+  const model = JSON.parse(readFileSync(await download.path(), "utf8"));
+  if (!model || typeof model !== "object" || Object.keys(model).length === 0) fail("calibrated model download is empty");
+  console.log(`downloaded ${download.suggestedFilename()} (${Object.keys(model).length} top-level fields)`);
+  await page.screenshot({ path: shot, fullPage: true });
+  console.log(`screenshot: ${shot}`);
+  if (errors.length) fail("page errors: " + errors.join("; "));
+  console.log("browser test passed");
+} finally {
+  await browser.close();
+}

@@ -1,0 +1,231 @@
+//! `/v1/jobs`: submit, list, get, cancel, re-run, result, main table, artefacts, logs.
+
+use axum::body::Bytes;
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{Path, Query, State};
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use serde::Deserialize;
+use serde_json::{Value, json};
+
+use super::{ApiError, AppState, Caller, Role, blocking, json_body};
+use crate::service::{Origin, Submitter};
+use crate::store::{JobFilter, JobState};
+
+pub(super) fn router() -> Router<AppState> {
+    Router::new()
+        .route("/jobs", post(submit).get(list))
+        .route("/jobs/{id}", get(one))
+        .route("/jobs/{id}/cancel", post(cancel))
+        .route("/jobs/{id}/rerun", post(rerun))
+        .route("/jobs/{id}/result", get(result))
+        .route("/jobs/{id}/table", get(table))
+        .route("/jobs/{id}/artefacts", get(artefacts))
+        .route("/jobs/{id}/artefacts/{name}", get(artefact))
+        .route("/jobs/{id}/logs", get(logs))
+}
+
+fn submitter(c: &Caller, role: Role) -> Submitter {
+    Submitter {
+        name: c.name.clone(),
+        may_drive_devices: role >= Role::Operator,
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SubmitQuery {
+    #[serde(default)]
+    priority: i64,
+}
+
+async fn submit(
+    State(s): State<AppState>,
+    caller: Caller,
+    q: Result<Query<SubmitQuery>, axum::extract::rejection::QueryRejection>,
+    b: Result<Bytes, BytesRejection>,
+) -> Result<Response, ApiError> {
+    let role = caller.require(Role::Submitter)?;
+    let Query(q) = q?;
+    let doc = json_body(&s, b)?;
+    let id = s
+        .service
+        .submit(doc, q.priority, submitter(&caller, role), Origin::default())
+        .await?;
+    Ok(created(id))
+}
+
+fn created(id: i64) -> Response {
+    (
+        StatusCode::CREATED,
+        [(header::LOCATION, format!("/v1/jobs/{id}"))],
+        Json(json!({"id": id, "state": "queued"})),
+    )
+        .into_response()
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ListQuery {
+    state: Option<String>,
+    kind: Option<String>,
+    before: Option<i64>,
+    limit: Option<usize>,
+}
+
+async fn list(
+    State(s): State<AppState>,
+    caller: Caller,
+    q: Result<Query<ListQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let Query(q) = q?;
+    let state = match q.state.as_deref() {
+        None | Some("") => None,
+        Some(x) => Some(JobState::parse(x).ok_or_else(|| {
+            ApiError::BadRequest(format!(
+                "state `{x}` is not one of queued, running, succeeded, failed, cancelled, interrupted"
+            ))
+        })?),
+    };
+    let limit = q.limit.unwrap_or(50).clamp(1, 500);
+    let jobs = s
+        .service
+        .jobs(JobFilter {
+            state,
+            kind: q.kind.filter(|k| !k.is_empty()),
+            before: q.before,
+            limit,
+        })
+        .await?;
+    let next = (jobs.len() == limit)
+        .then(|| jobs.last().map(|j| j.id))
+        .flatten();
+    Ok(Json(json!({"jobs": jobs, "next_before": next})))
+}
+
+async fn one(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let j = s.service.job(id).await?;
+    Ok(Json(
+        serde_json::to_value(j).map_err(|e| ApiError::Internal(e.to_string()))?,
+    ))
+}
+
+async fn cancel(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require(Role::Submitter)?;
+    let state = s.service.cancel(id).await?;
+    Ok(Json(json!({"id": id, "state": state})))
+}
+
+async fn rerun(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Response, ApiError> {
+    let role = caller.require(Role::Submitter)?;
+    let new = s.service.rerun(id, submitter(&caller, role)).await?;
+    Ok(created(new))
+}
+
+/// 404 for no job, 409 for a job without a result.
+async fn no_result(s: &AppState, id: i64) -> ApiError {
+    match s.service.job(id).await {
+        Ok(j) => ApiError::Conflict(format!(
+            "job {id} is {} and has no result{}",
+            j.state.as_str(),
+            j.error.map(|e| format!(": {e}")).unwrap_or_default()
+        )),
+        Err(e) => e.into(),
+    }
+}
+
+async fn result(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let st = s.service.store().clone();
+    match blocking(move || st.result(id)).await? {
+        Some(r) => Ok(Json(r)),
+        None => Err(no_result(&s, id).await),
+    }
+}
+
+async fn table(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Response, ApiError> {
+    caller.require_read()?;
+    let st = s.service.store().clone();
+    match blocking(move || st.main_table_csv(id)).await? {
+        Some(csv) => Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], csv).into_response()),
+        None => Err(match s.service.job(id).await {
+            Ok(j) if j.state == JobState::Succeeded => {
+                ApiError::NotFound(format!("job {id} ({}) has no main table", j.kind))
+            }
+            _ => no_result(&s, id).await,
+        }),
+    }
+}
+
+async fn artefacts(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    s.service.job(id).await?;
+    let st = s.service.store().clone();
+    let list = blocking(move || st.artefacts(id)).await?;
+    Ok(Json(json!({"artefacts": list})))
+}
+
+async fn artefact(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path((id, name)): Path<(i64, String)>,
+) -> Result<Response, ApiError> {
+    caller.require_read()?;
+    let st = s.service.store().clone();
+    let n = name.clone();
+    let a = blocking(move || st.artefact(id, &n))
+        .await?
+        .ok_or_else(|| ApiError::NotFound(format!("job {id} has no artefact `{name}`")))?;
+    let disposition = format!(
+        "attachment; filename=\"{}\"",
+        a.name.replace(['"', '\\', '\r', '\n'], "_")
+    );
+    Ok((
+        [
+            (header::CONTENT_TYPE, a.media_type),
+            (header::CONTENT_DISPOSITION, disposition),
+        ],
+        a.content,
+    )
+        .into_response())
+}
+
+async fn logs(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    s.service.job(id).await?;
+    let st = s.service.store().clone();
+    let (logs, progress) = blocking(move || Ok((st.logs(id)?, st.progress_history(id)?))).await?;
+    Ok(Json(json!({"logs": logs, "progress": progress})))
+}

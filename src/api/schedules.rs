@@ -1,0 +1,138 @@
+//! `/v1/schedules`: cron schedules that submit a job (operators create and change them;
+//! anyone who may read sees them and the record of their occurrences).
+
+use axum::body::Bytes;
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{Path, State};
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::{Json, Router};
+use serde_json::{Value, json};
+
+use super::{ApiError, AppState, Caller, Role, blocking, json_body};
+use crate::schedule::Rule;
+use crate::store::{NewSchedule, ScheduleRecord, format_time};
+
+pub(super) fn router() -> Router<AppState> {
+    Router::new()
+        .route("/schedules", get(list).post(create))
+        .route("/schedules/{id}", get(one).put(replace).delete(remove))
+        .route("/schedules/{id}/runs", get(runs))
+}
+
+/// A schedule as the API shows it: the record plus its next occurrence.
+fn view(s: &AppState, r: ScheduleRecord) -> Value {
+    let next = Rule::parse(&r.spec)
+        .ok()
+        .filter(|_| r.spec.enabled)
+        .and_then(|rule| rule.next_after(s.scheduler.now()))
+        .map(format_time);
+    let mut v = serde_json::to_value(&r).unwrap_or(Value::Null);
+    if let Value::Object(m) = &mut v {
+        m.insert("next_run_at".into(), json!(next));
+    }
+    v
+}
+
+async fn parse(s: &AppState, b: Result<Bytes, BytesRejection>) -> Result<NewSchedule, ApiError> {
+    let v = json_body(s, b)?;
+    let spec: NewSchedule = serde_path_to_error::deserialize(&v)
+        .map_err(|e| ApiError::Invalid(format!("`{}`: {}", e.path(), e.inner())))?;
+    if spec.name.trim().is_empty() {
+        return Err(ApiError::Invalid("`name`: must not be empty".into()));
+    }
+    Rule::parse(&spec).map_err(|e| ApiError::Invalid(e.to_string()))?;
+    s.service
+        .validate(spec.job.clone())
+        .await
+        .map_err(|e| ApiError::Invalid(format!("`job`: {e}")))?;
+    Ok(spec)
+}
+
+async fn create(
+    State(s): State<AppState>,
+    caller: Caller,
+    b: Result<Bytes, BytesRejection>,
+) -> Result<Response, ApiError> {
+    caller.require(Role::Operator)?;
+    let spec = parse(&s, b).await?;
+    let st = s.service.store().clone();
+    let now = format_time(s.scheduler.now());
+    let by = caller.name.clone();
+    let id = blocking(move || st.insert_schedule(&spec, by.as_deref(), &now)).await?;
+    s.scheduler.reload();
+    let st = s.service.store().clone();
+    let rec = blocking(move || st.schedule(id)).await?;
+    let rec = rec.ok_or_else(|| ApiError::Internal("schedule vanished".into()))?;
+    Ok((StatusCode::CREATED, Json(view(&s, rec))).into_response())
+}
+
+async fn list(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let st = s.service.store().clone();
+    let all = blocking(move || st.schedules()).await?;
+    let v: Vec<Value> = all.into_iter().map(|r| view(&s, r)).collect();
+    Ok(Json(json!({"schedules": v})))
+}
+
+async fn get_one(s: &AppState, id: i64) -> Result<ScheduleRecord, ApiError> {
+    let st = s.service.store().clone();
+    blocking(move || st.schedule(id))
+        .await?
+        .ok_or_else(|| ApiError::NotFound(format!("no schedule with id {id}")))
+}
+
+async fn one(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let r = get_one(&s, id).await?;
+    Ok(Json(view(&s, r)))
+}
+
+async fn replace(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+    b: Result<Bytes, BytesRejection>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require(Role::Operator)?;
+    let spec = parse(&s, b).await?;
+    let st = s.service.store().clone();
+    let now = format_time(s.scheduler.now());
+    if !blocking(move || st.update_schedule(id, &spec, &now)).await? {
+        return Err(ApiError::NotFound(format!("no schedule with id {id}")));
+    }
+    s.scheduler.reload();
+    let r = get_one(&s, id).await?;
+    Ok(Json(view(&s, r)))
+}
+
+async fn remove(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<StatusCode, ApiError> {
+    caller.require(Role::Operator)?;
+    let st = s.service.store().clone();
+    if !blocking(move || st.delete_schedule(id)).await? {
+        return Err(ApiError::NotFound(format!("no schedule with id {id}")));
+    }
+    s.scheduler.reload();
+    Ok(StatusCode::NO_CONTENT)
+}
+
+async fn runs(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    get_one(&s, id).await?;
+    let st = s.service.store().clone();
+    let r = blocking(move || st.schedule_runs(id, 100)).await?;
+    Ok(Json(json!({"runs": r})))
+}

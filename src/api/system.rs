@@ -1,0 +1,90 @@
+//! Health, version, job kinds, example jobs, device status, `/metrics` and `/openapi.yaml`.
+
+use axum::extract::{Path, State};
+use axum::http::header;
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::{Json, Router};
+use serde_json::{Value, json};
+
+use super::{ApiError, AppState, Caller, OPENAPI_YAML};
+use crate::jobs::{KINDS, envelope::VERSION, examples};
+
+pub(super) fn router() -> Router<AppState> {
+    Router::new()
+        .route("/health", get(health))
+        .route("/version", get(version))
+        .route("/kinds", get(kinds))
+        .route("/examples", get(example_list))
+        .route("/examples/{name}", get(example))
+        .route("/devices", get(devices))
+}
+
+pub(super) fn root_router() -> Router<AppState> {
+    Router::new()
+        .route("/openapi.yaml", get(openapi))
+        .route("/metrics", get(metrics))
+}
+
+async fn health(State(s): State<AppState>) -> Json<Value> {
+    Json(json!({
+        "status": "ok",
+        "queue_depth": s.service.queue_depth(),
+        "running": s.service.running_count(),
+    }))
+}
+
+async fn version() -> Json<Value> {
+    Json(json!({
+        "calibd_version": VERSION,
+        "api": "v1",
+        "schema_version": crate::store::SCHEMA_VERSION,
+    }))
+}
+
+async fn kinds(caller: Caller) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let k: Vec<Value> = KINDS
+        .iter()
+        .map(|(name, d)| json!({"kind": name, "description": d}))
+        .collect();
+    Ok(Json(json!({"kinds": k})))
+}
+
+async fn example_list(caller: Caller) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let e: Vec<Value> = examples::EXAMPLES
+        .iter()
+        .map(|(name, d)| json!({"name": name, "description": d}))
+        .collect();
+    Ok(Json(json!({"examples": e})))
+}
+
+async fn example(caller: Caller, Path(name): Path<String>) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let doc = tokio::task::spawn_blocking(move || examples::example(&name).ok_or(name))
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))?
+        .map_err(|name| ApiError::NotFound(format!("no example named `{name}`")))?;
+    Ok(Json(doc))
+}
+
+async fn devices(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    Ok(Json(json!({"devices": s.service.devices()})))
+}
+
+async fn openapi() -> Response {
+    ([(header::CONTENT_TYPE, "application/yaml")], OPENAPI_YAML).into_response()
+}
+
+async fn metrics(State(s): State<AppState>, caller: Caller) -> Result<Response, ApiError> {
+    caller.require_read()?;
+    // Refresh the device gauges.
+    s.service.devices();
+    let text =
+        s.metrics.as_ref().map(|h| h.render()).ok_or_else(|| {
+            ApiError::Unavailable("metrics are not enabled in this process".into())
+        })?;
+    Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text).into_response())
+}

@@ -1,0 +1,237 @@
+// calibd web page: talks to /v1 with the bearer token kept in localStorage.
+"use strict";
+const $ = (s) => document.querySelector(s);
+const el = (tag, attrs = {}, ...kids) => {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "class") e.className = v; else if (k.startsWith("on")) e.addEventListener(k.slice(2), v); else e.setAttribute(k, v);
+  }
+  for (const k of kids) e.append(k instanceof Node ? k : document.createTextNode(k ?? ""));
+  return e;
+};
+const jobs = new Map();
+let selected = null, oldest = null;
+
+function headers(extra = {}) {
+  const t = $("#token").value.trim();
+  return t ? { ...extra, Authorization: "Bearer " + t } : extra;
+}
+async function api(path, opts = {}) {
+  const res = await fetch(path, { ...opts, headers: headers(opts.headers || {}) });
+  const text = await res.text();
+  let body = null;
+  try { body = text ? JSON.parse(text) : null; } catch { body = text; }
+  if (!res.ok) throw new Error((body && body.error && body.error.message) || res.status + " " + res.statusText);
+  return body;
+}
+const fmt = (x, d = 4) => (typeof x === "number" ? (Math.abs(x) >= 1e5 || (x !== 0 && Math.abs(x) < 1e-3) ? x.toExponential(3) : x.toFixed(d)) : x ?? "");
+const time = (s) => (s ? new Date(s).toLocaleString() : "");
+
+function row(j) {
+  let tr = document.querySelector(`#jobs tr[data-id="${j.id}"]`);
+  const bar = el("div", { class: "bar" }, el("div", { style: `width:${Math.round(100 * (j.progress || 0))}%` }));
+  const cancel = (j.state === "queued" || j.state === "running")
+    ? el("button", { type: "button", class: "cancel", onclick: (e) => { e.stopPropagation(); cancelJob(j.id); } }, "cancel") : "";
+  const cells = [el("td", {}, String(j.id)), el("td", {}, j.kind), el("td", { class: "state state-" + j.state }, j.state),
+    el("td", { title: j.stage || "" }, bar), el("td", {}, time(j.submitted_at)), el("td", {}, cancel)];
+  const fresh = el("tr", { "data-id": j.id, onclick: () => showJob(j.id) }, ...cells);
+  if (selected === j.id) fresh.classList.add("sel");
+  if (tr) tr.replaceWith(fresh);
+  else {
+    const body = $("#jobs tbody");
+    const after = [...body.children].find((r) => Number(r.dataset.id) < j.id);
+    body.insertBefore(fresh, after || null);
+  }
+}
+
+async function loadJobs(more = false) {
+  const st = $("#state-filter").value;
+  const q = new URLSearchParams({ limit: "50" });
+  if (st) q.set("state", st);
+  if (more && oldest) q.set("before", oldest);
+  const r = await api("/v1/jobs?" + q);
+  if (!more) { $("#jobs tbody").replaceChildren(); jobs.clear(); }
+  for (const j of r.jobs) { jobs.set(j.id, j); row(j); }
+  oldest = r.next_before;
+  $("#more").hidden = !r.next_before;
+}
+
+async function refreshJob(id) {
+  const j = await api("/v1/jobs/" + id);
+  jobs.set(id, j);
+  const st = $("#state-filter").value;
+  if (!st || st === j.state) row(j);
+  if (selected === id) showJob(id);
+}
+
+function handleEvent(name, data) {
+  if (name === "progress") {
+    const j = jobs.get(data.id);
+    if (j) { j.progress = data.fraction; j.stage = data.stage; j.state = "running"; row(j); }
+  } else if (name === "state") {
+    refreshJob(data.id).catch(() => {});
+  } else if (name === "lagged") {
+    loadJobs().catch(() => {});
+  }
+}
+
+// Server-Sent Events over fetch (EventSource cannot send the Authorization header).
+async function stream() {
+  try {
+    const res = await fetch("/v1/events", { headers: headers() });
+    if (!res.ok) throw new Error(res.status);
+    $("#live").textContent = "live"; $("#live").classList.add("on");
+    const reader = res.body.getReader(), dec = new TextDecoder();
+    let buf = "";
+    for (;;) {
+      const { value, done } = await reader.read();
+      if (done) break;
+      buf += dec.decode(value, { stream: true });
+      let i;
+      while ((i = buf.indexOf("\n\n")) >= 0) {
+        const chunk = buf.slice(0, i); buf = buf.slice(i + 2);
+        let name = "message", data = "";
+        for (const line of chunk.split("\n")) {
+          if (line.startsWith("event:")) name = line.slice(6).trim();
+          else if (line.startsWith("data:")) data += line.slice(5).trim();
+        }
+        if (data) { try { handleEvent(name, JSON.parse(data)); } catch { /* ignore */ } }
+      }
+    }
+  } catch { /* reconnect below */ }
+  $("#live").textContent = "offline"; $("#live").classList.remove("on");
+  setTimeout(stream, 2000);
+}
+
+async function blobUrl(path) {
+  const res = await fetch(path, { headers: headers() });
+  if (!res.ok) throw new Error(res.status);
+  return URL.createObjectURL(await res.blob());
+}
+
+function table(cols, rows) {
+  return el("table", {}, el("thead", {}, el("tr", {}, ...cols.map((c) => el("th", {}, c)))),
+    el("tbody", {}, ...rows.map((r) => el("tr", {}, ...r.map((c) => el("td", {}, typeof c === "number" ? fmt(c) : String(c ?? "")))))));
+}
+
+function statsTable(title, obj) {
+  if (!obj || !obj.before || !obj.after) return null;
+  const keys = ["mean", "median", "std", "max"];
+  return [el("h3", {}, title + (obj.after.unit ? ` (${obj.after.unit})` : "")),
+    table(["", ...keys], [["before", ...keys.map((k) => obj.before[k])], ["after", ...keys.map((k) => obj.after[k])]])];
+}
+
+async function showJob(id) {
+  selected = id;
+  document.querySelectorAll("#jobs tr.sel").forEach((r) => r.classList.remove("sel"));
+  const tr = document.querySelector(`#jobs tr[data-id="${id}"]`);
+  if (tr) tr.classList.add("sel");
+  const d = $("#detail");
+  d.hidden = false;
+  const j = await api("/v1/jobs/" + id);
+  const parts = [el("h2", {}, `Job ${j.id}: ${j.kind}`),
+    el("p", {}, el("span", { class: "state state-" + j.state, id: "detail-state" }, j.state),
+      j.state === "running" && j.stage ? ` — ${j.stage} (${Math.round(100 * j.progress)} %)` : "",
+      j.error ? el("div", { class: "msg err" }, j.error) : ""),
+    el("p", { class: "hint" }, `submitted ${time(j.submitted_at)} by ${j.submitted_by || "?"}` +
+      (j.finished_at ? `, finished ${time(j.finished_at)}` : "")),
+    el("button", { type: "button", onclick: () => rerun(j.id) }, "re-run")];
+  if (j.state === "succeeded") {
+    const r = await api(`/v1/jobs/${id}/result`);
+    const a = await api(`/v1/jobs/${id}/artefacts`);
+    if (Array.isArray(r.parameters)) {
+      parts.push(el("h3", {}, "Parameters"),
+        table(["name", "unit", "nominal", "value", "std"], r.parameters.map((p) => [p.name, p.unit, p.nominal, p.value, p.std])));
+      if (r.unidentifiable && r.unidentifiable.length) parts.push(el("p", {}, "Unidentifiable: " + r.unidentifiable.join(", ")));
+    }
+    for (const [t, k] of [["Validation errors", "validation"], ["Residuals", "residuals"]]) {
+      const s = statsTable(t, r[k]);
+      if (s) parts.push(...s);
+    }
+    if (Array.isArray(r.sizes)) {
+      parts.push(el("h3", {}, "Dispersion (mean validation error)"),
+        table(["n", "min", "q1", "median", "q3", "max"], r.sizes.map((s) => [s.n, s.mean_error.min, s.mean_error.q1, s.mean_error.median, s.mean_error.q3, s.mean_error.max])));
+    }
+    const plots = el("div", { class: "plots" });
+    parts.push(plots);
+    for (const f of a.artefacts.filter((f) => f.media_type === "image/svg+xml")) {
+      blobUrl(`/v1/jobs/${id}/artefacts/${encodeURIComponent(f.name)}`).then((u) => plots.append(el("img", { src: u, alt: f.name }))).catch(() => {});
+    }
+    const links = el("ul", { id: "artefacts" });
+    for (const f of a.artefacts) {
+      links.append(el("li", {}, el("a", { href: "#", "data-name": f.name, onclick: (e) => { e.preventDefault(); download(`/v1/jobs/${id}/artefacts/${encodeURIComponent(f.name)}`, f.name); } }, f.name), ` (${f.media_type}, ${f.size} bytes)`));
+    }
+    links.append(el("li", {}, el("a", { href: "#", onclick: (e) => { e.preventDefault(); download(`/v1/jobs/${id}/result`, `job-${id}-result.json`); } }, "result.json")));
+    parts.push(el("h3", {}, "Downloads"), links, el("details", {}, el("summary", {}, "result JSON"), el("pre", {}, JSON.stringify(r, null, 2))));
+  }
+  if (selected === id) d.replaceChildren(...parts);
+}
+
+async function download(path, name) {
+  const u = await blobUrl(path);
+  const a = el("a", { href: u, download: name });
+  document.body.append(a); a.click(); a.remove();
+  setTimeout(() => URL.revokeObjectURL(u), 10000);
+}
+
+async function cancelJob(id) {
+  try { await api(`/v1/jobs/${id}/cancel`, { method: "POST" }); } catch (e) { alert(e.message); }
+}
+async function rerun(id) {
+  try { const r = await api(`/v1/jobs/${id}/rerun`, { method: "POST" }); await refreshJob(r.id); showJob(r.id); } catch (e) { alert(e.message); }
+}
+
+async function submit() {
+  const msg = $("#submit-msg");
+  msg.className = "msg"; msg.textContent = "submitting…";
+  try {
+    const prio = parseInt($("#priority").value || "0", 10);
+    const r = await api("/v1/jobs?priority=" + prio, { method: "POST", headers: { "Content-Type": "application/json" }, body: $("#job-text").value });
+    msg.textContent = `job ${r.id} queued`;
+    await refreshJob(r.id);
+    showJob(r.id);
+  } catch (e) { msg.className = "msg err"; msg.textContent = e.message; }
+}
+
+async function upload() {
+  const f = $("#dataset-file").files[0], msg = $("#upload-msg");
+  if (!f) return;
+  msg.className = "msg";
+  try {
+    const r = await api("/v1/datasets?name=" + encodeURIComponent(f.name), { method: "POST", headers: { "Content-Type": f.type || "application/octet-stream" }, body: f });
+    msg.textContent = `dataset id: ${r.id}`;
+  } catch (e) { msg.className = "msg err"; msg.textContent = e.message; }
+}
+
+async function loadDevices() {
+  try {
+    const r = await api("/v1/devices");
+    $("#devices tbody").replaceChildren(...(r.devices.length ? r.devices.map((d) => el("tr", {}, el("td", {}, d.name), el("td", {}, d.state), el("td", {}, d.job ?? ""), el("td", {}, String(d.waiting))))
+      : [el("tr", {}, el("td", { colspan: "4", class: "hint" }, "no devices configured"))]));
+  } catch { /* shown as offline */ }
+}
+
+async function init() {
+  $("#token").value = localStorage.getItem("calibd-token") || "";
+  $("#token").addEventListener("change", () => { localStorage.setItem("calibd-token", $("#token").value.trim()); loadJobs().catch(() => {}); });
+  $("#submit").addEventListener("click", submit);
+  $("#upload").addEventListener("click", upload);
+  $("#more").addEventListener("click", () => loadJobs(true));
+  $("#state-filter").addEventListener("change", () => loadJobs());
+  $("#job-file").addEventListener("change", async () => { const f = $("#job-file").files[0]; if (f) $("#job-text").value = await f.text(); });
+  $("#load-example").addEventListener("click", async () => {
+    const name = $("#example-select").value;
+    const doc = await api("/v1/examples/" + encodeURIComponent(name));
+    $("#job-text").value = JSON.stringify(doc, null, 1);
+  });
+  try {
+    const v = await api("/v1/version");
+    $("#version").textContent = "v" + v.calibd_version;
+    const ex = await api("/v1/examples");
+    $("#example-select").replaceChildren(...ex.examples.map((e) => el("option", { value: e.name, title: e.description }, e.name)));
+    await loadJobs();
+  } catch (e) { $("#submit-msg").className = "msg err"; $("#submit-msg").textContent = e.message; }
+  loadDevices(); setInterval(loadDevices, 5000);
+  stream();
+}
+init();

@@ -1,0 +1,217 @@
+//! `calibd bench api`: the daemon under many concurrent HTTP clients, in one process on
+//! loopback. Phase 1 sends status reads (`GET /v1/jobs/{id}`) at a fixed rate (open loop,
+//! the target: p99 under 5 ms at 1,000 requests per second); phase 2 runs closed
+//! loop clients that mix small job submissions (`serial.fk`, 1 configuration) with status
+//! reads, for throughput. Clients and server share the machine's cores.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use serde_json::{Value, json};
+use tokio_util::sync::CancellationToken;
+
+use crate::client::{Client, ClientError};
+use crate::config::Config;
+
+/// Benchmark settings.
+#[derive(Debug, Clone)]
+pub struct ApiBenchOptions {
+    /// Status reads per second in phase 1.
+    pub rate: u32,
+    /// Duration of each phase.
+    pub seconds: u64,
+    /// Concurrent clients in phase 2.
+    pub clients: usize,
+    /// Fraction of phase-2 requests that are submissions.
+    pub submit_fraction: f64,
+}
+
+impl Default for ApiBenchOptions {
+    fn default() -> Self {
+        Self {
+            rate: 1000,
+            seconds: 5,
+            clients: 32,
+            submit_fraction: 0.1,
+        }
+    }
+}
+
+/// Why the benchmark could not run.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ApiBenchError {
+    /// The daemon did not start.
+    #[error("bench api: {0}")]
+    Serve(#[from] crate::server::ServeError),
+    /// A request failed.
+    #[error("bench api: {0}")]
+    Client(#[from] ClientError),
+    /// Socket setup.
+    #[error("bench api: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+fn percentile(sorted: &[Duration], p: f64) -> Duration {
+    if sorted.is_empty() {
+        return Duration::ZERO;
+    }
+    let k = ((sorted.len() - 1) as f64 * p).round() as usize;
+    sorted[k]
+}
+
+fn line(name: &str, mut lat: Vec<Duration>, errors: usize, wall: Duration) -> String {
+    lat.sort();
+    format!(
+        "{name:<44} {:>7} req {:>8.0} req/s   p50 {:>7.3} ms   p99 {:>7.3} ms   max {:>7.3} ms   errors {errors}",
+        lat.len(),
+        lat.len() as f64 / wall.as_secs_f64(),
+        percentile(&lat, 0.5).as_secs_f64() * 1e3,
+        percentile(&lat, 0.99).as_secs_f64() * 1e3,
+        lat.last().copied().unwrap_or_default().as_secs_f64() * 1e3,
+    )
+}
+
+/// A small FK job (one configuration of the IRB 120).
+fn small_job() -> Value {
+    let mut doc = crate::jobs::examples::twin_fk(1);
+    doc["options"] = json!({});
+    doc
+}
+
+/// Run the benchmark against a fresh daemon in a temporary folder; returns the report.
+pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
+    let dir = std::env::temp_dir().join(format!("calibd-bench-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let config = Config {
+        data: dir.clone(),
+        ..Config::default()
+    };
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let addr = listener.local_addr()?;
+    let stop = CancellationToken::new();
+    let (state, workers, _) =
+        crate::server::start(&config, crate::schedule::Clock::system(), stop.clone()).await?;
+    let t = stop.clone();
+    let server = tokio::spawn(crate::api::run(
+        listener,
+        crate::api::app(state),
+        async move { t.cancelled().await },
+    ));
+    let token = Client::find_token(None, &dir);
+    let client = Client::new(&format!("http://{addr}"), token);
+    let job = small_job();
+    let first = client.submit(&job, 0).await?;
+    let mut report = vec![format!(
+        "calibd bench api: in-process daemon on {addr}, {} workers, {} cores shared by clients and server",
+        config.worker_count(),
+        std::thread::available_parallelism().map_or(0, |n| n.get())
+    )];
+
+    // Phase 1: open loop, fixed rate of status reads.
+    let n = o.rate as u64 * o.seconds;
+    let period = Duration::from_secs_f64(1.0 / o.rate.max(1) as f64);
+    let lat = Arc::new(Mutex::new(Vec::with_capacity(n as usize)));
+    let errors = Arc::new(Mutex::new(0usize));
+    let t0 = Instant::now();
+    let mut tasks = Vec::new();
+    let mut tick = tokio::time::interval(period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
+    for _ in 0..n {
+        tick.tick().await;
+        let (c, lat, errors) = (client.clone(), lat.clone(), errors.clone());
+        tasks.push(tokio::spawn(async move {
+            let t = Instant::now();
+            let ok = c.get(&format!("/v1/jobs/{first}")).await.is_ok();
+            let d = t.elapsed();
+            if ok {
+                lat.lock().map(|mut v| v.push(d)).ok();
+            } else {
+                errors.lock().map(|mut e| *e += 1).ok();
+            }
+        }));
+    }
+    for t in tasks {
+        let _ = t.await;
+    }
+    let wall = t0.elapsed();
+    let l = lat.lock().map(|v| v.clone()).unwrap_or_default();
+    let e = errors.lock().map(|e| *e).unwrap_or(0);
+    report.push(line(
+        &format!("phase 1: status reads at {} req/s (open loop)", o.rate),
+        l,
+        e,
+        wall,
+    ));
+
+    // Phase 2: closed loop, mixed submissions and reads.
+    let reads = Arc::new(Mutex::new(Vec::new()));
+    let subs = Arc::new(Mutex::new(Vec::new()));
+    let errs = Arc::new(Mutex::new(0usize));
+    let deadline = Instant::now() + Duration::from_secs(o.seconds);
+    let t0 = Instant::now();
+    let mut tasks = Vec::new();
+    for k in 0..o.clients {
+        let (c, reads, subs, errs, job) = (
+            client.clone(),
+            reads.clone(),
+            subs.clone(),
+            errs.clone(),
+            job.clone(),
+        );
+        let frac = o.submit_fraction;
+        tasks.push(tokio::spawn(async move {
+            let mut rng = crate::util::Rng::new(k as u64 + 1);
+            let mut last = first;
+            while Instant::now() < deadline {
+                let t = Instant::now();
+                if rng.uniform() < frac {
+                    match c.submit(&job, 0).await {
+                        Ok(id) => {
+                            last = id;
+                            subs.lock().map(|mut v| v.push(t.elapsed())).ok();
+                        }
+                        Err(_) => {
+                            errs.lock().map(|mut e| *e += 1).ok();
+                        }
+                    }
+                } else if c.get(&format!("/v1/jobs/{last}")).await.is_ok() {
+                    reads.lock().map(|mut v| v.push(t.elapsed())).ok();
+                } else {
+                    errs.lock().map(|mut e| *e += 1).ok();
+                }
+            }
+        }));
+    }
+    for t in tasks {
+        let _ = t.await;
+    }
+    let wall = t0.elapsed();
+    let r = reads.lock().map(|v| v.clone()).unwrap_or_default();
+    let s = subs.lock().map(|v| v.clone()).unwrap_or_default();
+    let e = errs.lock().map(|e| *e).unwrap_or(0);
+    let total = r.len() + s.len();
+    report.push(format!(
+        "phase 2: {} closed-loop clients, {:.0} % submissions: {total} requests, {:.0} req/s",
+        o.clients,
+        100.0 * o.submit_fraction,
+        total as f64 / wall.as_secs_f64()
+    ));
+    report.push(line("  status reads", r, e, wall));
+    report.push(line(
+        "  submissions (serial.fk, 1 configuration)",
+        s,
+        0,
+        wall,
+    ));
+    let v = client.get("/v1/health").await?;
+    report.push(format!(
+        "queue after phase 2: {} waiting, {} running",
+        v["queue_depth"], v["running"]
+    ));
+    stop.cancel();
+    let _ = server.await;
+    workers.join().await;
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(report.join("\n"))
+}

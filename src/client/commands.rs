@@ -1,0 +1,198 @@
+//! The CLI client commands (`calibd submit`, `watch`, `jobs`, `cancel`, `result`): each
+//! prints what a person wants to see and returns an error for the binary to report.
+
+use std::io::Write;
+use std::path::Path;
+
+use serde_json::Value;
+
+use super::{Client, ClientError, progress_line};
+
+/// Submit a job file; with `watch`, follow it and print the result summary.
+pub async fn submit(
+    c: &Client,
+    job: &Path,
+    priority: i64,
+    watch: bool,
+) -> Result<i64, ClientError> {
+    let doc = c.load_job_file(job).await?;
+    let id = c.submit(&doc, priority).await?;
+    println!("job {id} submitted");
+    if watch {
+        self::watch(c, id).await?;
+    }
+    Ok(id)
+}
+
+/// Follow a job with a progress bar on stderr until it ends; print its summary.
+pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
+    let mut err = std::io::stderr();
+    let tty = std::io::IsTerminal::is_terminal(&err);
+    let mut last_stage = String::new();
+    let job = c
+        .watch(id, |m| {
+            let Ok(v) = serde_json::from_str::<Value>(&m.data) else {
+                return;
+            };
+            match m.event.as_str() {
+                "progress" => {
+                    let f = v["fraction"].as_f64().unwrap_or(0.0);
+                    let stage = v["stage"].as_str().unwrap_or("");
+                    if tty {
+                        let _ = write!(err, "\r{:<70}", progress_line(f, stage));
+                    } else if stage != last_stage {
+                        let _ = writeln!(err, "{}", progress_line(f, stage));
+                    }
+                    last_stage = stage.to_string();
+                }
+                "state" => {
+                    if tty {
+                        let _ = writeln!(err);
+                    }
+                    let _ = writeln!(err, "job {id}: {}", v["state"].as_str().unwrap_or("?"));
+                }
+                _ => {}
+            }
+        })
+        .await?;
+    let state = job["state"].as_str().unwrap_or("?");
+    if state == "succeeded" {
+        let r = c.get(&format!("/v1/jobs/{id}/result")).await?;
+        print_summary(&r);
+    } else if let Some(e) = job["error"].as_str() {
+        println!("job {id} {state}: {e}");
+    }
+    Ok(job)
+}
+
+fn stats_line(name: &str, v: &Value) -> Option<String> {
+    let b = v.get("before")?;
+    let a = v.get("after")?;
+    let unit = a.get("unit").and_then(Value::as_str).unwrap_or("");
+    let f = |x: &Value, k: &str| {
+        x.get(k)
+            .and_then(Value::as_f64)
+            .map_or("-".into(), |v| format!("{v:.4}"))
+    };
+    Some(format!(
+        "{name:<11} mean {} -> {} {unit}, max {} -> {} {unit}",
+        f(b, "mean"),
+        f(a, "mean"),
+        f(b, "max"),
+        f(a, "max")
+    ))
+}
+
+/// Print the headline figures of a result.
+pub fn print_summary(r: &Value) {
+    println!(
+        "{} finished in {:.2} s",
+        r["kind"].as_str().unwrap_or("?"),
+        r["duration_s"].as_f64().unwrap_or(0.0)
+    );
+    if let Some(p) = r["parameters"].as_array() {
+        println!("{} parameters identified", p.len());
+    }
+    if let Some(u) = r["unidentifiable"].as_array().filter(|u| !u.is_empty()) {
+        println!(
+            "unidentifiable: {}",
+            u.iter()
+                .filter_map(Value::as_str)
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    for key in ["residuals", "validation"] {
+        if let Some(l) = stats_line(key, &r[key]) {
+            println!("{l}");
+        }
+    }
+    if let Some(rows) = r["poses"].as_array() {
+        println!("{} poses", rows.len());
+    }
+}
+
+/// Print the job list.
+pub async fn jobs(
+    c: &Client,
+    state: Option<&str>,
+    kind: Option<&str>,
+    limit: usize,
+) -> Result<(), ClientError> {
+    let mut q = format!("/v1/jobs?limit={limit}");
+    if let Some(s) = state {
+        q.push_str(&format!("&state={s}"));
+    }
+    if let Some(k) = kind {
+        q.push_str(&format!("&kind={k}"));
+    }
+    let v = c.get(&q).await?;
+    println!(
+        "{:>6}  {:<20} {:<12} {:>6}  {}",
+        "id", "kind", "state", "%", "submitted"
+    );
+    for j in v["jobs"].as_array().into_iter().flatten() {
+        println!(
+            "{:>6}  {:<20} {:<12} {:>6.1}  {}",
+            j["id"].as_i64().unwrap_or(0),
+            j["kind"].as_str().unwrap_or(""),
+            j["state"].as_str().unwrap_or(""),
+            100.0 * j["progress"].as_f64().unwrap_or(0.0),
+            j["submitted_at"].as_str().unwrap_or("")
+        );
+    }
+    Ok(())
+}
+
+/// Cancel a job.
+pub async fn cancel(c: &Client, id: i64) -> Result<(), ClientError> {
+    let r = c
+        .send(c.req(reqwest::Method::POST, &format!("/v1/jobs/{id}/cancel")))
+        .await?;
+    let v: Value = r
+        .json()
+        .await
+        .map_err(|e| ClientError::Protocol(e.to_string()))?;
+    println!("job {id}: {}", v["state"].as_str().unwrap_or("?"));
+    Ok(())
+}
+
+/// Print a job's result, or write it and its artefacts into `out`.
+pub async fn result(c: &Client, id: i64, out: Option<&Path>) -> Result<(), ClientError> {
+    let r = c.get(&format!("/v1/jobs/{id}/result")).await?;
+    let Some(dir) = out else {
+        println!("{}", serde_json::to_string_pretty(&r).unwrap_or_default());
+        return Ok(());
+    };
+    let file_err = |p: &Path, e: std::io::Error| ClientError::File {
+        path: p.to_path_buf(),
+        message: e.to_string(),
+    };
+    std::fs::create_dir_all(dir).map_err(|e| file_err(dir, e))?;
+    let p = dir.join("result.json");
+    std::fs::write(&p, serde_json::to_string_pretty(&r).unwrap_or_default())
+        .map_err(|e| file_err(&p, e))?;
+    println!("{}", p.display());
+    let list = c.get(&format!("/v1/jobs/{id}/artefacts")).await?;
+    for a in list["artefacts"].as_array().into_iter().flatten() {
+        let Some(name) = a["name"].as_str() else {
+            continue;
+        };
+        // Artefact names come from the server: keep only the file name.
+        let Some(file) = Path::new(name).file_name() else {
+            continue;
+        };
+        let bytes = c
+            .get_bytes(&format!("/v1/jobs/{id}/artefacts/{name}"))
+            .await?;
+        let p = dir.join(file);
+        std::fs::write(&p, bytes).map_err(|e| file_err(&p, e))?;
+        println!("{}", p.display());
+    }
+    if let Ok(csv) = c.get_bytes(&format!("/v1/jobs/{id}/table")).await {
+        let p = dir.join("table.csv");
+        std::fs::write(&p, csv).map_err(|e| file_err(&p, e))?;
+        println!("{}", p.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,270 @@
+//! The HTTP client behind `calibd submit`, `watch`, `jobs`, `cancel` and `result`, also
+//! used by the integration tests and the load benchmark. Job files are sent as they are,
+//! except that a top-level string naming a file next to the job file is uploaded as a
+//! dataset and replaced by the dataset's id (over HTTP inputs are inline or dataset ids).
+
+pub mod commands;
+pub mod sse;
+
+use std::path::{Path, PathBuf};
+
+use futures_util::StreamExt;
+use serde_json::Value;
+
+pub use sse::{SseMessage, SseParser};
+
+/// Why a client call failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ClientError {
+    /// The daemon could not be reached.
+    #[error("client: cannot reach {url}: {message}")]
+    Connect {
+        /// The URL.
+        url: String,
+        /// Why.
+        message: String,
+    },
+    /// The daemon answered with an error.
+    #[error("client: {status}: {message}")]
+    Api {
+        /// HTTP status.
+        status: u16,
+        /// The error message of the body.
+        message: String,
+    },
+    /// A local file could not be read or written.
+    #[error("client: {path}: {message}")]
+    File {
+        /// The path.
+        path: PathBuf,
+        /// Why.
+        message: String,
+    },
+    /// The answer was not what the API promises.
+    #[error("client: unexpected answer: {0}")]
+    Protocol(String),
+}
+
+/// A connection to a daemon.
+#[derive(Debug, Clone)]
+pub struct Client {
+    base: String,
+    token: Option<String>,
+    http: reqwest::Client,
+}
+
+impl Client {
+    /// A client for the daemon at `base` (e.g. `http://127.0.0.1:8750`).
+    pub fn new(base: &str, token: Option<String>) -> Client {
+        Client {
+            base: base.trim_end_matches('/').to_string(),
+            token,
+            http: reqwest::Client::new(),
+        }
+    }
+
+    /// The token from `CALIBD_TOKEN`-style value or the daemon's `DATA/operator.token`.
+    pub fn find_token(explicit: Option<String>, data_dir: &Path) -> Option<String> {
+        explicit.filter(|t| !t.trim().is_empty()).or_else(|| {
+            std::fs::read_to_string(data_dir.join("operator.token"))
+                .ok()
+                .map(|t| t.trim().to_string())
+                .filter(|t| !t.is_empty())
+        })
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("{}{}", self.base, path)
+    }
+
+    pub(crate) fn req(&self, m: reqwest::Method, path: &str) -> reqwest::RequestBuilder {
+        let r = self.http.request(m, self.url(path));
+        match &self.token {
+            Some(t) => r.bearer_auth(t),
+            None => r,
+        }
+    }
+
+    pub(crate) async fn send(
+        &self,
+        r: reqwest::RequestBuilder,
+    ) -> Result<reqwest::Response, ClientError> {
+        let res = r.send().await.map_err(|e| ClientError::Connect {
+            url: self.base.clone(),
+            message: e.to_string(),
+        })?;
+        if res.status().is_success() {
+            return Ok(res);
+        }
+        let status = res.status().as_u16();
+        let text = res.text().await.unwrap_or_default();
+        let message = serde_json::from_str::<Value>(&text)
+            .ok()
+            .and_then(|v| {
+                v.pointer("/error/message")
+                    .and_then(Value::as_str)
+                    .map(String::from)
+            })
+            .unwrap_or(text);
+        Err(ClientError::Api { status, message })
+    }
+
+    async fn json(&self, r: reqwest::RequestBuilder) -> Result<Value, ClientError> {
+        self.send(r)
+            .await?
+            .json()
+            .await
+            .map_err(|e| ClientError::Protocol(e.to_string()))
+    }
+
+    /// GET a JSON document.
+    pub async fn get(&self, path: &str) -> Result<Value, ClientError> {
+        self.json(self.req(reqwest::Method::GET, path)).await
+    }
+
+    /// GET raw bytes.
+    pub async fn get_bytes(&self, path: &str) -> Result<Vec<u8>, ClientError> {
+        let res = self.send(self.req(reqwest::Method::GET, path)).await?;
+        Ok(res
+            .bytes()
+            .await
+            .map_err(|e| ClientError::Protocol(e.to_string()))?
+            .to_vec())
+    }
+
+    /// Submit a job document; returns the job id.
+    pub async fn submit(&self, doc: &Value, priority: i64) -> Result<i64, ClientError> {
+        let v = self
+            .json(
+                self.req(
+                    reqwest::Method::POST,
+                    &format!("/v1/jobs?priority={priority}"),
+                )
+                .json(doc),
+            )
+            .await?;
+        v["id"]
+            .as_i64()
+            .ok_or_else(|| ClientError::Protocol(format!("no id in {v}")))
+    }
+
+    /// Upload a dataset; returns its id.
+    pub async fn upload(
+        &self,
+        name: &str,
+        media_type: &str,
+        content: Vec<u8>,
+    ) -> Result<String, ClientError> {
+        let q: String = name
+            .bytes()
+            .map(|b| {
+                if b.is_ascii_alphanumeric() || b"-._~".contains(&b) {
+                    (b as char).to_string()
+                } else {
+                    format!("%{b:02X}")
+                }
+            })
+            .collect();
+        let v = self
+            .json(
+                self.req(reqwest::Method::POST, &format!("/v1/datasets?name={q}"))
+                    .header(reqwest::header::CONTENT_TYPE, media_type)
+                    .body(content),
+            )
+            .await?;
+        v["id"]
+            .as_str()
+            .map(String::from)
+            .ok_or_else(|| ClientError::Protocol(format!("no id in {v}")))
+    }
+
+    /// Read a job file, upload the files it names, and return the document to submit.
+    pub async fn load_job_file(&self, path: &Path) -> Result<Value, ClientError> {
+        let file_err = |p: &Path, m: String| ClientError::File {
+            path: p.to_path_buf(),
+            message: m,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| file_err(path, e.to_string()))?;
+        let mut doc: Value = serde_json::from_str(&text)
+            .map_err(|e| file_err(path, format!("not valid JSON: {e}")))?;
+        let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        if let Value::Object(m) = &mut doc {
+            for (k, v) in m.iter_mut() {
+                let Value::String(s) = v else { continue };
+                if k == "kind" || s.trim_start().starts_with('<') {
+                    continue;
+                }
+                let p = dir.join(&*s);
+                if !p.is_file() {
+                    continue;
+                }
+                let content = std::fs::read(&p).map_err(|e| file_err(&p, e.to_string()))?;
+                let media = match p.extension().and_then(|e| e.to_str()) {
+                    Some("csv") => "text/csv",
+                    Some("json") => "application/json",
+                    Some("urdf") | Some("xml") => "application/xml",
+                    _ => "application/octet-stream",
+                };
+                let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("input");
+                *v = Value::String(self.upload(name, media, content).await?);
+            }
+        }
+        Ok(doc)
+    }
+
+    /// Follow a job's events until it reaches a final state; `on_event` sees each one.
+    /// Returns the final job record.
+    pub async fn watch(
+        &self,
+        id: i64,
+        mut on_event: impl FnMut(&SseMessage),
+    ) -> Result<Value, ClientError> {
+        let res = self
+            .send(self.req(reqwest::Method::GET, &format!("/v1/jobs/{id}/events")))
+            .await?;
+        let mut stream = res.bytes_stream();
+        let mut parser = SseParser::default();
+        while let Some(chunk) = stream.next().await {
+            let chunk = chunk.map_err(|e| ClientError::Connect {
+                url: self.base.clone(),
+                message: e.to_string(),
+            })?;
+            for m in parser.push(&chunk) {
+                on_event(&m);
+            }
+        }
+        self.get(&format!("/v1/jobs/{id}")).await
+    }
+}
+
+/// A text progress bar line: `[#####.....]  50.0 % stage`.
+pub fn progress_line(fraction: f64, stage: &str) -> String {
+    let f = if fraction.is_finite() {
+        fraction.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let n = (f * 30.0).round() as usize;
+    format!(
+        "[{}{}] {:5.1} % {}",
+        "#".repeat(n),
+        ".".repeat(30 - n),
+        100.0 * f,
+        stage
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn progress_line_fills_in_proportion() {
+        assert_eq!(
+            progress_line(0.5, "lm"),
+            format!("[{}{}]  50.0 % lm", "#".repeat(15), ".".repeat(15))
+        );
+        assert!(progress_line(f64::NAN, "x").contains("  0.0 %"));
+    }
+}

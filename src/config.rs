@@ -1,0 +1,309 @@
+//! Daemon settings: a TOML file (`deny_unknown_fields`) under environment variables (each
+//! setting has one), under the command line's `--listen` / `--data`. With no file and no
+//! variables the embedded defaults need nothing installed: loopback, a data folder in the
+//! working directory, one worker per core, an operator token created on first start.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::api::auth::Role;
+
+/// Why the settings could not be loaded.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("config: cannot read {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file is not valid.
+    #[error("config: {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, with line and column.
+        message: String,
+    },
+    /// An environment variable has an invalid value.
+    #[error("config: environment variable {name}={value:?}: {message}")]
+    Env {
+        /// Variable.
+        name: &'static str,
+        /// Its value.
+        value: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// Log line format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    /// Human-readable lines.
+    #[default]
+    Text,
+    /// One JSON object per line (for log collectors).
+    Json,
+}
+
+/// A bearer token allowed to use the API: only its SHA-256 is stored.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TokenConfig {
+    /// Name recorded with what the token does (never the token itself).
+    pub name: String,
+    /// What the token may do.
+    pub role: Role,
+    /// Hex SHA-256 of the token (`calibd token` prints both).
+    pub sha256: String,
+}
+
+/// Authentication settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AuthConfig {
+    /// Allow reads (GET) without a token.
+    pub anonymous_read: bool,
+    /// Tokens. Empty: an operator token is created in `DATA/operator.token`.
+    pub tokens: Vec<TokenConfig>,
+}
+
+impl Default for AuthConfig {
+    fn default() -> Self {
+        Self {
+            anonymous_read: true,
+            tokens: Vec::new(),
+        }
+    }
+}
+
+/// Every daemon setting.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Address to listen on.
+    pub listen: String,
+    /// Data folder (database, operator token).
+    pub data: PathBuf,
+    /// Jobs run at once; 0 means one per core.
+    pub workers: usize,
+    /// Most jobs waiting in the queue.
+    pub max_queued: usize,
+    /// Largest request body in bytes (job documents with inline tables, dataset uploads).
+    pub max_body_bytes: usize,
+    /// Time limit for producing a response, in seconds (event streams are not limited).
+    pub request_timeout_s: u64,
+    /// Log line format.
+    pub log_format: LogFormat,
+    /// Devices of the lab, shown by the device panel.
+    pub devices: Vec<String>,
+    /// Authentication.
+    pub auth: AuthConfig,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            listen: "127.0.0.1:8750".into(),
+            data: PathBuf::from("calibd-data"),
+            workers: 0,
+            max_queued: 10_000,
+            max_body_bytes: 16 * 1024 * 1024,
+            request_timeout_s: 30,
+            log_format: LogFormat::Text,
+            devices: Vec::new(),
+            auth: AuthConfig::default(),
+        }
+    }
+}
+
+/// The environment variable of each setting, and its form.
+pub const ENV_VARS: &[(&str, &str)] = &[
+    ("CALIBD_LISTEN", "listen: address, e.g. 127.0.0.1:8750"),
+    ("CALIBD_DATA", "data: folder"),
+    ("CALIBD_WORKERS", "workers: integer, 0 = one per core"),
+    ("CALIBD_MAX_QUEUED", "max_queued: integer"),
+    ("CALIBD_MAX_BODY_BYTES", "max_body_bytes: integer"),
+    ("CALIBD_REQUEST_TIMEOUT_S", "request_timeout_s: integer"),
+    ("CALIBD_LOG_FORMAT", "log_format: text or json"),
+    ("CALIBD_DEVICES", "devices: comma-separated names"),
+    (
+        "CALIBD_ANONYMOUS_READ",
+        "auth.anonymous_read: true or false",
+    ),
+    (
+        "CALIBD_TOKENS",
+        "auth.tokens: comma-separated name:role:sha256 (replaces the file's tokens)",
+    ),
+];
+
+fn parse<T: std::str::FromStr>(name: &'static str, value: &str) -> Result<T, ConfigError>
+where
+    T::Err: std::fmt::Display,
+{
+    value.trim().parse().map_err(|e: T::Err| ConfigError::Env {
+        name,
+        value: value.into(),
+        message: e.to_string(),
+    })
+}
+
+impl Config {
+    /// Parse a TOML document.
+    pub fn from_toml(path: &Path, text: &str) -> Result<Config, ConfigError> {
+        toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.into(),
+            message: e.to_string(),
+        })
+    }
+
+    /// Defaults, then the file (if any), then environment variables read through `env`.
+    pub fn load(
+        file: Option<&Path>,
+        env: &dyn Fn(&str) -> Option<String>,
+    ) -> Result<Config, ConfigError> {
+        let mut c = match file {
+            Some(p) => {
+                let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Read {
+                    path: p.into(),
+                    source,
+                })?;
+                Config::from_toml(p, &text)?
+            }
+            None => Config::default(),
+        };
+        c.apply_env(env)?;
+        Ok(c)
+    }
+
+    /// Override settings from environment variables.
+    pub fn apply_env(&mut self, env: &dyn Fn(&str) -> Option<String>) -> Result<(), ConfigError> {
+        for (name, _) in ENV_VARS {
+            let Some(v) = env(name) else { continue };
+            match *name {
+                "CALIBD_LISTEN" => self.listen = v,
+                "CALIBD_DATA" => self.data = PathBuf::from(v),
+                "CALIBD_WORKERS" => self.workers = parse(name, &v)?,
+                "CALIBD_MAX_QUEUED" => self.max_queued = parse(name, &v)?,
+                "CALIBD_MAX_BODY_BYTES" => self.max_body_bytes = parse(name, &v)?,
+                "CALIBD_REQUEST_TIMEOUT_S" => self.request_timeout_s = parse(name, &v)?,
+                "CALIBD_LOG_FORMAT" => {
+                    self.log_format = match v.trim() {
+                        "text" => LogFormat::Text,
+                        "json" => LogFormat::Json,
+                        _ => {
+                            return Err(ConfigError::Env {
+                                name,
+                                value: v,
+                                message: "expected text or json".into(),
+                            });
+                        }
+                    }
+                }
+                "CALIBD_DEVICES" => {
+                    self.devices = v
+                        .split(',')
+                        .map(str::trim)
+                        .filter(|s| !s.is_empty())
+                        .map(String::from)
+                        .collect()
+                }
+                "CALIBD_ANONYMOUS_READ" => self.auth.anonymous_read = parse(name, &v)?,
+                "CALIBD_TOKENS" => {
+                    let mut tokens = Vec::new();
+                    for item in v.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+                        let parts: Vec<&str> = item.split(':').collect();
+                        let [n, r, h] = parts[..] else {
+                            return Err(ConfigError::Env {
+                                name,
+                                value: v.clone(),
+                                message: format!("`{item}` is not name:role:sha256"),
+                            });
+                        };
+                        let role = Role::parse(r).ok_or_else(|| ConfigError::Env {
+                            name,
+                            value: v.clone(),
+                            message: format!("unknown role `{r}` (viewer, submitter, operator)"),
+                        })?;
+                        tokens.push(TokenConfig {
+                            name: n.into(),
+                            role,
+                            sha256: h.into(),
+                        });
+                    }
+                    self.auth.tokens = tokens;
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// Workers to start (resolving 0 to the number of cores).
+    pub fn worker_count(&self) -> usize {
+        if self.workers == 0 {
+            std::thread::available_parallelism().map_or(2, |n| n.get())
+        } else {
+            self.workers
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn environment_overrides_the_file() {
+        let c = Config::from_toml(
+            Path::new("t.toml"),
+            "workers = 3\n[auth]\nanonymous_read = false\n",
+        )
+        .unwrap();
+        assert_eq!((c.workers, c.auth.anonymous_read), (3, false));
+        let mut c2 = c.clone();
+        let env = |k: &str| match k {
+            "CALIBD_WORKERS" => Some("5".to_string()),
+            "CALIBD_TOKENS" => Some("ci:viewer:abcd, op:operator:ef01".to_string()),
+            "CALIBD_DEVICES" => Some("irb120, uwave".to_string()),
+            _ => None,
+        };
+        c2.apply_env(&env).unwrap();
+        assert_eq!(c2.workers, 5);
+        assert_eq!(c2.devices, ["irb120", "uwave"]);
+        assert_eq!(c2.auth.tokens[1].role, Role::Operator);
+        let bad = |k: &str| (k == "CALIBD_WORKERS").then(|| "many".to_string());
+        let e = c.clone().apply_env(&bad).unwrap_err().to_string();
+        assert!(e.contains("CALIBD_WORKERS") && e.contains("many"), "{e}");
+    }
+
+    #[test]
+    fn unknown_settings_are_refused_with_their_name() {
+        let e = Config::from_toml(Path::new("x.toml"), "listen = \"a\"\nworkrs = 2\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("workrs"), "{e}");
+    }
+
+    #[test]
+    fn every_setting_has_an_environment_variable() {
+        // The serialised default names every top-level and auth setting once.
+        let v = toml::Value::try_from(Config::default()).unwrap();
+        let mut keys: Vec<String> = v.as_table().unwrap().keys().cloned().collect();
+        keys.retain(|k| k != "auth");
+        keys.extend(["anonymous_read".to_string(), "tokens".to_string()]);
+        for k in keys {
+            assert!(
+                ENV_VARS.iter().any(|(_, d)| d.starts_with(&format!("{k}:"))
+                    || d.starts_with(&format!("auth.{k}:"))),
+                "setting {k} has no environment variable"
+            );
+        }
+    }
+}

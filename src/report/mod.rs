@@ -1,0 +1,215 @@
+//! Reports: SVG plots drawn from a finished job's result JSON and artefacts, in the style
+//! of the papers' figures: position error per configuration before and after calibration,
+//! histograms of those errors, and box plots of a dispersion study. Reports read results,
+//! never models; a result without the data a plot needs simply gets no plot.
+
+pub mod svg;
+
+use serde_json::Value;
+
+use crate::jobs::{Artefact, Table};
+use svg::{COLOURS, Chart};
+
+/// The plots for a result, as `image/svg+xml` artefacts.
+pub fn plots(result: &Value, artefacts: &[Artefact]) -> Vec<Artefact> {
+    let mut out = Vec::new();
+    let unit = result
+        .pointer("/residuals/after/unit")
+        .and_then(Value::as_str)
+        .unwrap_or("mm");
+    if let Some(t) = artefacts
+        .iter()
+        .find(|a| a.name == "residuals.csv")
+        .and_then(|a| std::str::from_utf8(&a.content).ok())
+        .and_then(|s| Table::from_csv("residuals.csv", s).ok())
+    {
+        if let (Ok(b), Ok(a)) = (t.col("", "before"), t.col("", "after")) {
+            let before: Vec<f64> = t.rows.iter().map(|r| r[b]).collect();
+            let after: Vec<f64> = t.rows.iter().map(|r| r[a]).collect();
+            out.push(svg_artefact(
+                "errors_per_configuration.svg",
+                per_configuration(&before, &after, unit),
+            ));
+            out.push(svg_artefact(
+                "error_histogram.svg",
+                histogram(&before, &after, unit, 20),
+            ));
+        }
+    }
+    if let Some(sizes) = result.get("sizes").and_then(Value::as_array) {
+        let unit = sizes
+            .first()
+            .and_then(|s| s.get("unit"))
+            .and_then(Value::as_str)
+            .unwrap_or("mm");
+        for (field, name, title) in [
+            (
+                "mean_error",
+                "dispersion_mean_error.svg",
+                "Mean validation error",
+            ),
+            (
+                "std_error",
+                "dispersion_std_error.svg",
+                "Std of validation error",
+            ),
+        ] {
+            let boxes: Vec<(f64, [f64; 5])> = sizes
+                .iter()
+                .filter_map(|s| Some((s.get("n")?.as_f64()?, quartiles(s.get(field)?)?)))
+                .collect();
+            if !boxes.is_empty() {
+                out.push(svg_artefact(name, boxplots(&boxes, title, unit)));
+            }
+        }
+    }
+    out
+}
+
+fn svg_artefact(name: &str, svg: String) -> Artefact {
+    Artefact {
+        name: name.into(),
+        media_type: "image/svg+xml".into(),
+        content: svg.into_bytes(),
+    }
+}
+
+fn quartiles(v: &Value) -> Option<[f64; 5]> {
+    Some([
+        v.get("min")?.as_f64()?,
+        v.get("q1")?.as_f64()?,
+        v.get("median")?.as_f64()?,
+        v.get("q3")?.as_f64()?,
+        v.get("max")?.as_f64()?,
+    ])
+}
+
+fn max_of(v: &[f64]) -> f64 {
+    v.iter()
+        .copied()
+        .filter(|x| x.is_finite())
+        .fold(0.0, f64::max)
+}
+
+/// Bars of the error of every configuration, before (behind) and after calibration.
+pub fn per_configuration(before: &[f64], after: &[f64], unit: &str) -> String {
+    let n = before.len().max(after.len());
+    let top = max_of(before).max(max_of(after)) * 1.05;
+    let mut c = Chart::new(
+        "Position error per configuration",
+        "configuration",
+        &format!("error ({unit})"),
+        (0.5, n as f64 + 0.5),
+        (0.0, top),
+    );
+    for (k, v) in before.iter().enumerate() {
+        c.bar(k as f64 + 0.6, k as f64 + 1.4, *v, COLOURS[0], 0.8);
+    }
+    for (k, v) in after.iter().enumerate() {
+        c.bar(k as f64 + 0.75, k as f64 + 1.25, *v, COLOURS[1], 1.0);
+    }
+    c.x_ticks();
+    c.legend("before calibration", COLOURS[0]);
+    c.legend("after calibration", COLOURS[1]);
+    c.finish()
+}
+
+/// Counts of `values` in `bins` equal bins over [0, hi).
+pub fn bin_counts(values: &[f64], hi: f64, bins: usize) -> Vec<usize> {
+    let mut counts = vec![0; bins];
+    for v in values.iter().filter(|v| v.is_finite()) {
+        let k = ((v / hi) * bins as f64)
+            .floor()
+            .clamp(0.0, (bins - 1) as f64) as usize;
+        counts[k] += 1;
+    }
+    counts
+}
+
+/// Histograms of the errors before and after, on the same bins.
+pub fn histogram(before: &[f64], after: &[f64], unit: &str, bins: usize) -> String {
+    let hi = max_of(before).max(max_of(after)).max(f64::MIN_POSITIVE);
+    let (cb, ca) = (bin_counts(before, hi, bins), bin_counts(after, hi, bins));
+    let top = cb.iter().chain(ca.iter()).copied().max().unwrap_or(1) as f64 * 1.1;
+    let mut c = Chart::new(
+        "Histogram of position errors",
+        &format!("error ({unit})"),
+        "configurations",
+        (0.0, hi),
+        (0.0, top),
+    );
+    let w = hi / bins as f64;
+    for (k, n) in cb.iter().enumerate() {
+        c.bar(k as f64 * w, (k + 1) as f64 * w, *n as f64, COLOURS[0], 0.6);
+    }
+    for (k, n) in ca.iter().enumerate() {
+        c.bar(k as f64 * w, (k + 1) as f64 * w, *n as f64, COLOURS[1], 0.6);
+    }
+    c.x_ticks();
+    c.legend("before calibration", COLOURS[0]);
+    c.legend("after calibration", COLOURS[1]);
+    c.finish()
+}
+
+/// Box plots (min, q1, median, q3, max) per set size.
+pub fn boxplots(boxes: &[(f64, [f64; 5])], title: &str, unit: &str) -> String {
+    let top = boxes.iter().map(|b| b.1[4]).fold(0.0, f64::max) * 1.05;
+    let k = boxes.len() as f64;
+    let mut c = Chart::new(
+        &format!("{title} per number of configurations"),
+        "configurations in the calibration set",
+        &format!("{title} ({unit})"),
+        (0.5, k + 0.5),
+        (0.0, top),
+    );
+    for (i, (n, q)) in boxes.iter().enumerate() {
+        let x = i as f64 + 1.0;
+        c.boxplot(x, 0.5, *q, COLOURS[2]);
+        let p = c.px(x);
+        c.x_label_at(p, &format!("{n}"));
+    }
+    c.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn histogram_counts_every_value_once() {
+        let v = [0.0, 0.1, 0.24, 0.25, 0.99, 1.0];
+        // Bins of 0.25 over [0, 1): the maximum falls in the last bin.
+        assert_eq!(bin_counts(&v, 1.0, 4), vec![3, 1, 0, 2]);
+        assert_eq!(bin_counts(&v, 1.0, 4).iter().sum::<usize>(), v.len());
+    }
+
+    #[test]
+    fn plots_come_from_residuals_and_dispersion_results() {
+        let csv = "measurement,before,after\n1,1.5,0.05\n2,2.0,0.04\n";
+        let arts = [Artefact {
+            name: "residuals.csv".into(),
+            media_type: "text/csv".into(),
+            content: csv.as_bytes().to_vec(),
+        }];
+        let p = plots(&json!({"kind": "serial.identify"}), &arts);
+        let names: Vec<&str> = p.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(
+            names,
+            ["errors_per_configuration.svg", "error_histogram.svg"]
+        );
+        let svg = String::from_utf8(p[0].content.clone()).unwrap();
+        // Two before bars and two after bars.
+        assert_eq!(svg.matches("<rect x=").count(), 4 + 2, "{svg}");
+        let q = json!({"min": 1.0, "q1": 2.0, "median": 3.0, "q3": 4.0, "max": 5.0});
+        let r = json!({"sizes": [{"n": 20, "mean_error": q, "std_error": q, "unit": "mm"}]});
+        let p = plots(&r, &[]);
+        assert_eq!(p.len(), 2);
+        assert!(
+            String::from_utf8(p[0].content.clone())
+                .unwrap()
+                .contains(">20</text>")
+        );
+        assert!(plots(&json!({"kind": "serial.fk"}), &[]).is_empty());
+    }
+}

@@ -1,0 +1,123 @@
+//! `calibd serve`: wires the store, the job service, the scheduler and the HTTP API
+//! together and runs them until shutdown (mini-redis shape: `run(listener, shutdown)`
+//! takes an already-bound listener, so tests bind port 0).
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::net::TcpListener;
+use tokio_util::sync::CancellationToken;
+
+use crate::api::{self, AppState, Auth, Role, auth::AuthError};
+use crate::config::Config;
+use crate::schedule::{Clock, Scheduler};
+use crate::service::{Service, ServiceConfig, ServiceError};
+use crate::store::{Store, StoreError};
+
+/// Why the daemon could not start or stopped with an error.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ServeError {
+    /// Storage.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// Tokens.
+    #[error(transparent)]
+    Auth(#[from] AuthError),
+    /// The job service.
+    #[error(transparent)]
+    Service(#[from] ServiceError),
+    /// The listener.
+    #[error("serve: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// What the daemon set up, for logging by the binary.
+#[derive(Debug, Clone)]
+pub struct Startup {
+    /// The generated operator token's file, when no token is configured.
+    pub operator_token_file: Option<PathBuf>,
+}
+
+/// How long running jobs get to stop at shutdown before the process exits anyway.
+const STOP_GRACE: Duration = Duration::from_secs(20);
+
+/// Build the application state and start the service and the scheduler. Returns the
+/// router state plus what must be awaited at shutdown.
+pub async fn start(
+    config: &Config,
+    clock: Clock,
+    shutdown: CancellationToken,
+) -> Result<(AppState, crate::service::Workers, Startup), ServeError> {
+    // The recorder first, so the service's gauges are recorded from the start.
+    let metrics = api::metrics_handle();
+    let store = Store::open(&config.data)?;
+    let mut auth = Auth::new(&config.auth.tokens, config.auth.anonymous_read)?;
+    let mut startup = Startup {
+        operator_token_file: None,
+    };
+    if auth.is_empty() {
+        let (path, token) = api::auth::operator_token_file(&config.data)?;
+        auth.add_token("operator", Role::Operator, &token);
+        startup.operator_token_file = Some(path);
+    }
+    let (service, workers) = Service::start(
+        store,
+        ServiceConfig {
+            workers: config.worker_count(),
+            max_queued: config.max_queued,
+            devices: config.devices.clone(),
+        },
+        shutdown.clone(),
+    )
+    .await?;
+    let scheduler = Scheduler::new(clock);
+    tokio::spawn(scheduler.clone().run(service.clone(), shutdown.clone()));
+    let state = AppState {
+        service,
+        scheduler,
+        auth: Arc::new(auth),
+        max_body_bytes: config.max_body_bytes,
+        request_timeout: Duration::from_secs(config.request_timeout_s.max(1)),
+        metrics,
+        shutdown,
+    };
+    Ok((state, workers, startup))
+}
+
+/// Run the daemon on `listener` until `signal` completes, then stop: event streams close,
+/// running jobs are asked to stop (and recorded as `interrupted`), the server drains.
+pub async fn run(
+    listener: TcpListener,
+    config: &Config,
+    signal: impl Future<Output = ()> + Send + 'static,
+    on_start: impl FnOnce(&Startup),
+) -> Result<(), ServeError> {
+    let token = CancellationToken::new();
+    let (state, workers, startup) = start(config, Clock::system(), token.clone()).await?;
+    on_start(&startup);
+    let stop = token.clone();
+    tokio::spawn(async move {
+        signal.await;
+        stop.cancel();
+    });
+    let t = token.clone();
+    api::run(
+        listener,
+        api::app(state),
+        async move { t.cancelled().await },
+    )
+    .await?;
+    token.cancel();
+    if tokio::time::timeout(STOP_GRACE, workers.join())
+        .await
+        .is_err()
+    {
+        tracing::warn!(
+            "jobs did not stop within {STOP_GRACE:?}; they will be marked interrupted at the next start"
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,366 @@
+//! The job service: validates and persists submissions, keeps the run queue, runs jobs on
+//! a bounded pool of blocking workers, and publishes state and progress events. The HTTP
+//! API, the scheduler and tests talk to it through [`Service`]; it knows jobs and the
+//! store, not models.
+
+mod events;
+mod queue;
+mod types;
+mod worker;
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+
+use serde_json::Value;
+use tokio::sync::{Notify, broadcast, mpsc};
+use tokio_util::sync::CancellationToken;
+
+pub use events::Event;
+pub use queue::{Entry, Queue};
+pub use types::{
+    DeviceStatus, Origin, ScheduleOrigin, ServiceConfig, ServiceError, StoreResolver, Submitter,
+};
+pub use worker::Workers;
+
+use crate::jobs;
+use crate::store::{JobFilter, JobRecord, JobState, NewJob, Store};
+
+/// Live state of a running job.
+#[derive(Debug)]
+struct Running {
+    kind: String,
+    cancel: Arc<AtomicBool>,
+    user_cancelled: bool,
+    devices: Vec<String>,
+    progress: Option<(f64, String)>,
+}
+
+#[derive(Debug)]
+struct Shared {
+    store: Store,
+    config: ServiceConfig,
+    queue: Mutex<Queue>,
+    wake: Notify,
+    running: Mutex<HashMap<i64, Running>>,
+    events: broadcast::Sender<Event>,
+    progress_tx: mpsc::UnboundedSender<Event>,
+    shutdown: CancellationToken,
+}
+
+/// Handle to the job service; cheap to clone.
+#[derive(Debug, Clone)]
+pub struct Service {
+    shared: Arc<Shared>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> Result<T, ServiceError> + Send + 'static,
+) -> Result<T, ServiceError> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| ServiceError::Internal(e.to_string()))?
+}
+
+impl Service {
+    /// Start the service over `store`: recover from the last run (running jobs become
+    /// `interrupted`, queued ones are queued again), then start the workers. Everything
+    /// stops when `shutdown` is cancelled; [`Service::stopped`] waits for that.
+    pub async fn start(
+        store: Store,
+        config: ServiceConfig,
+        shutdown: CancellationToken,
+    ) -> Result<(Service, worker::Workers), ServiceError> {
+        let (events, _) = broadcast::channel(4096);
+        let (progress_tx, progress_rx) = mpsc::unbounded_channel();
+        let svc = Service {
+            shared: Arc::new(Shared {
+                store: store.clone(),
+                config: config.clone(),
+                queue: Mutex::new(Queue::default()),
+                wake: Notify::new(),
+                running: Mutex::new(HashMap::new()),
+                events,
+                progress_tx,
+                shutdown,
+            }),
+        };
+        let st = store.clone();
+        let recovered = blocking(move || Ok(st.recover()?)).await?;
+        for id in &recovered.interrupted {
+            tracing::warn!(
+                job = id,
+                "job was running when the daemon stopped: marked interrupted"
+            );
+        }
+        for (id, priority, _doc) in recovered.queued {
+            let devices = doc_devices(&store, id);
+            lock(&svc.shared.queue).push(Entry {
+                id,
+                priority,
+                devices,
+                job: None,
+            });
+        }
+        svc.update_gauges();
+        let workers = worker::start(svc.clone(), progress_rx, config.workers.max(1));
+        Ok((svc, workers))
+    }
+
+    /// The store.
+    pub fn store(&self) -> &Store {
+        &self.shared.store
+    }
+
+    /// The service's settings.
+    pub fn config(&self) -> &ServiceConfig {
+        &self.shared.config
+    }
+
+    /// Subscribe to every event.
+    pub fn subscribe(&self) -> broadcast::Receiver<Event> {
+        self.shared.events.subscribe()
+    }
+
+    fn publish(&self, e: Event) {
+        // No subscriber is fine.
+        let _ = self.shared.events.send(e);
+    }
+
+    /// Validate, persist and queue a job; returns its id.
+    pub async fn submit(
+        &self,
+        doc: Value,
+        priority: i64,
+        who: Submitter,
+        origin: Origin,
+    ) -> Result<i64, ServiceError> {
+        let waiting = lock(&self.shared.queue).len();
+        if waiting >= self.shared.config.max_queued {
+            return Err(ServiceError::QueueFull(waiting));
+        }
+        let store = self.shared.store.clone();
+        let (id, job) = blocking(move || {
+            let job = jobs::prepare(&doc, &StoreResolver(store.clone())).map_err(|e| {
+                if e.is_invalid_input() {
+                    ServiceError::Invalid(e)
+                } else {
+                    ServiceError::Internal(e.to_string())
+                }
+            })?;
+            let devices = job.devices();
+            if !devices.is_empty() && !who.may_drive_devices {
+                return Err(ServiceError::Forbidden(format!(
+                    "a `{}` job drives devices ({}): it needs the operator role",
+                    job.kind,
+                    devices.join(", ")
+                )));
+            }
+            let new = NewJob {
+                kind: job.kind.clone(),
+                doc,
+                priority,
+                devices,
+                inputs_sha256: serde_json::to_value(&job.inputs_sha256).unwrap_or(Value::Null),
+                submitted_by: who.name,
+                schedule_id: origin.schedule.as_ref().map(|s| s.id),
+                rerun_of: origin.rerun_of,
+                schedule_run: origin.schedule.map(|s| (s.due, s.outcome, s.message)),
+            };
+            let id = store.insert_job(&new)?;
+            Ok((id, job))
+        })
+        .await?;
+        let kind = job.kind.clone();
+        lock(&self.shared.queue).push(Entry {
+            id,
+            priority,
+            devices: job.devices(),
+            job: Some(Arc::new(job)),
+        });
+        metrics::counter!("calibd_jobs_submitted_total", "kind" => kind.clone()).increment(1);
+        self.update_gauges();
+        self.publish(Event::State {
+            id,
+            kind,
+            state: JobState::Queued,
+            error: None,
+        });
+        self.shared.wake.notify_one();
+        Ok(id)
+    }
+
+    /// Validate a job document without submitting it (for schedules); returns its kind.
+    pub async fn validate(&self, doc: Value) -> Result<String, ServiceError> {
+        let store = self.shared.store.clone();
+        blocking(move || {
+            jobs::prepare(&doc, &StoreResolver(store))
+                .map(|j| j.kind)
+                .map_err(ServiceError::Invalid)
+        })
+        .await
+    }
+
+    /// Submit the same document as job `id` again.
+    pub async fn rerun(&self, id: i64, who: Submitter) -> Result<i64, ServiceError> {
+        let store = self.shared.store.clone();
+        let (doc, rec) = blocking(move || Ok((store.job_doc(id)?, store.job(id)?))).await?;
+        let (Some(doc), Some(rec)) = (doc, rec) else {
+            return Err(ServiceError::NotFound(id));
+        };
+        self.submit(
+            doc,
+            rec.priority,
+            who,
+            Origin {
+                rerun_of: Some(id),
+                ..Default::default()
+            },
+        )
+        .await
+    }
+
+    /// Cancel a job: a queued job ends at once, a running one at its next cancellation
+    /// check. Returns the state after the request (`cancelled`, or `running` while the job
+    /// winds down). A final job is a conflict.
+    pub async fn cancel(&self, id: i64) -> Result<JobState, ServiceError> {
+        if let Some(r) = lock(&self.shared.running).get_mut(&id) {
+            r.user_cancelled = true;
+            r.cancel.store(true, Ordering::Relaxed);
+            return Ok(JobState::Running);
+        }
+        let was_queued = lock(&self.shared.queue).remove(id);
+        let store = self.shared.store.clone();
+        let (ended, rec) = blocking(move || {
+            let ended = store.end_job(id, JobState::Cancelled, None)?;
+            Ok((ended, store.job(id)?))
+        })
+        .await?;
+        let Some(rec) = rec else {
+            return Err(ServiceError::NotFound(id));
+        };
+        if ended {
+            self.update_gauges();
+            self.publish(Event::State {
+                id,
+                kind: rec.kind,
+                state: JobState::Cancelled,
+                error: None,
+            });
+            return Ok(JobState::Cancelled);
+        }
+        if was_queued {
+            return Ok(rec.state);
+        }
+        // It may have just started: try the running map once more.
+        if let Some(r) = lock(&self.shared.running).get_mut(&id) {
+            r.user_cancelled = true;
+            r.cancel.store(true, Ordering::Relaxed);
+            return Ok(JobState::Running);
+        }
+        Err(ServiceError::Conflict(format!(
+            "job {id} is already {}",
+            rec.state.as_str()
+        )))
+    }
+
+    /// One job, with the live progress of a running job.
+    pub async fn job(&self, id: i64) -> Result<JobRecord, ServiceError> {
+        let store = self.shared.store.clone();
+        let rec = blocking(move || Ok(store.job(id)?)).await?;
+        let mut rec = rec.ok_or(ServiceError::NotFound(id))?;
+        self.overlay(&mut rec);
+        Ok(rec)
+    }
+
+    /// Jobs matching `filter`, newest first, with live progress.
+    pub async fn jobs(&self, filter: JobFilter) -> Result<Vec<JobRecord>, ServiceError> {
+        let store = self.shared.store.clone();
+        let mut recs = blocking(move || Ok(store.jobs(&filter)?)).await?;
+        for r in &mut recs {
+            self.overlay(r);
+        }
+        Ok(recs)
+    }
+
+    fn overlay(&self, rec: &mut JobRecord) {
+        if rec.state != JobState::Running {
+            return;
+        }
+        if let Some(Running {
+            progress: Some((f, s)),
+            ..
+        }) = lock(&self.shared.running).get(&rec.id)
+        {
+            rec.progress = *f;
+            rec.stage = Some(s.clone());
+        }
+    }
+
+    /// Jobs waiting in the queue.
+    pub fn queue_depth(&self) -> usize {
+        lock(&self.shared.queue).len()
+    }
+
+    /// Jobs running now.
+    pub fn running_count(&self) -> usize {
+        lock(&self.shared.running).len()
+    }
+
+    /// The lab's devices and who holds them.
+    pub fn devices(&self) -> Vec<DeviceStatus> {
+        let q = lock(&self.shared.queue);
+        let running = lock(&self.shared.running);
+        let mut names: Vec<String> = self.shared.config.devices.clone();
+        for r in running.values() {
+            for d in &r.devices {
+                if !names.contains(d) {
+                    names.push(d.clone());
+                }
+            }
+        }
+        names
+            .into_iter()
+            .map(|name| {
+                let job = running
+                    .iter()
+                    .find(|(_, r)| r.devices.contains(&name))
+                    .map(|(id, _)| *id);
+                let busy = q.is_held(&name);
+                metrics::gauge!("calibd_device_busy", "device" => name.clone()).set(if busy {
+                    1.0
+                } else {
+                    0.0
+                });
+                DeviceStatus {
+                    state: if busy { "busy" } else { "idle" },
+                    job,
+                    waiting: q.waiting_for(&name),
+                    name,
+                }
+            })
+            .collect()
+    }
+
+    fn update_gauges(&self) {
+        metrics::gauge!("calibd_queue_depth").set(self.queue_depth() as f64);
+        metrics::gauge!("calibd_jobs_running").set(self.running_count() as f64);
+    }
+}
+
+/// Devices of a stored job (for jobs queued before a restart).
+fn doc_devices(store: &Store, id: i64) -> Vec<String> {
+    store
+        .job(id)
+        .ok()
+        .flatten()
+        .map(|r| r.devices)
+        .unwrap_or_default()
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,112 @@
+//! Schema migrations: an ordered list of SQL steps and `PRAGMA user_version`, applied in
+//! one transaction at start-up (a database newer than this binary is refused).
+
+use rusqlite::Connection;
+
+use super::StoreError;
+
+/// The schema steps, oldest first. Never edit a released step: append a new one.
+const STEPS: &[&str] = &[
+    // 1: jobs, their inputs (datasets), progress history, results, artefacts, logs, schedules.
+    "CREATE TABLE jobs (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        kind TEXT NOT NULL,
+        state TEXT NOT NULL,
+        priority INTEGER NOT NULL DEFAULT 0,
+        devices TEXT NOT NULL DEFAULT '[]',
+        doc TEXT NOT NULL,
+        inputs_sha256 TEXT NOT NULL DEFAULT '{}',
+        submitted_at TEXT NOT NULL,
+        started_at TEXT,
+        finished_at TEXT,
+        progress REAL NOT NULL DEFAULT 0,
+        stage TEXT,
+        message TEXT,
+        error TEXT,
+        submitted_by TEXT,
+        schedule_id INTEGER,
+        rerun_of INTEGER
+    );
+    CREATE INDEX jobs_state ON jobs(state, id);
+    CREATE INDEX jobs_kind ON jobs(kind, id);
+    CREATE TABLE datasets (
+        id TEXT PRIMARY KEY,
+        name TEXT NOT NULL,
+        media_type TEXT NOT NULL,
+        size INTEGER NOT NULL,
+        created_at TEXT NOT NULL,
+        content BLOB NOT NULL
+    );
+    CREATE TABLE progress (
+        job_id INTEGER NOT NULL REFERENCES jobs(id),
+        at TEXT NOT NULL,
+        fraction REAL NOT NULL,
+        stage TEXT NOT NULL,
+        message TEXT
+    );
+    CREATE INDEX progress_job ON progress(job_id);
+    CREATE TABLE results (
+        job_id INTEGER PRIMARY KEY REFERENCES jobs(id),
+        result TEXT NOT NULL,
+        main_table_csv TEXT
+    );
+    CREATE TABLE artefacts (
+        job_id INTEGER NOT NULL REFERENCES jobs(id),
+        name TEXT NOT NULL,
+        media_type TEXT NOT NULL,
+        content BLOB NOT NULL,
+        PRIMARY KEY (job_id, name)
+    );
+    CREATE TABLE logs (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        job_id INTEGER,
+        at TEXT NOT NULL,
+        level TEXT NOT NULL,
+        message TEXT NOT NULL
+    );
+    CREATE INDEX logs_job ON logs(job_id, id);
+    CREATE TABLE schedules (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        name TEXT NOT NULL UNIQUE,
+        cron TEXT NOT NULL,
+        timezone TEXT NOT NULL,
+        job TEXT NOT NULL,
+        priority INTEGER NOT NULL DEFAULT 0,
+        missed TEXT NOT NULL,
+        enabled INTEGER NOT NULL DEFAULT 1,
+        created_at TEXT NOT NULL,
+        created_by TEXT,
+        checked_until TEXT NOT NULL
+    );
+    CREATE TABLE schedule_runs (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        schedule_id INTEGER NOT NULL,
+        due_at TEXT NOT NULL,
+        at TEXT NOT NULL,
+        outcome TEXT NOT NULL,
+        job_id INTEGER,
+        message TEXT
+    );
+    CREATE INDEX schedule_runs_schedule ON schedule_runs(schedule_id, id);",
+];
+
+/// The schema version this binary writes.
+pub const SCHEMA_VERSION: i64 = STEPS.len() as i64;
+
+/// Bring the schema to [`SCHEMA_VERSION`]; returns the version found before.
+pub(crate) fn migrate(conn: &mut Connection) -> Result<i64, StoreError> {
+    let tx = conn.transaction()?;
+    let found: i64 = tx.query_row("PRAGMA user_version", [], |r| r.get(0))?;
+    if found > SCHEMA_VERSION {
+        return Err(StoreError::SchemaTooNew {
+            found,
+            known: SCHEMA_VERSION,
+        });
+    }
+    for step in &STEPS[found as usize..] {
+        tx.execute_batch(step)?;
+    }
+    tx.pragma_update(None, "user_version", SCHEMA_VERSION)?;
+    tx.commit()?;
+    Ok(found)
+}

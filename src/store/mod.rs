@@ -1,0 +1,168 @@
+//! Storage: one SQLite file (bundled SQLite, WAL mode, `synchronous = FULL`) holding jobs,
+//! their input datasets (content-hashed), progress history, results and artefacts, logs and
+//! schedules. Writes go through one connection; reads use a small pool of connections that
+//! WAL lets run beside the writer. Every call is blocking: async callers wrap it in
+//! `spawn_blocking`. A result is written in the same transaction that makes its job final,
+//! so a crash either keeps the whole result or leaves the job `running`, which
+//! [`Store::recover`] turns into `interrupted` on the next start.
+
+mod datasets;
+mod jobs;
+mod migrate;
+mod records;
+mod results;
+mod schedules;
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use rusqlite::{Connection, OpenFlags};
+
+pub use datasets::DatasetInfo;
+pub use jobs::{JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered};
+pub use migrate::SCHEMA_VERSION;
+pub use results::{ArtefactInfo, StoredArtefact};
+pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};
+
+/// Why a storage operation failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum StoreError {
+    /// SQLite refused or failed.
+    #[error("store: database: {0}")]
+    Sqlite(#[from] rusqlite::Error),
+    /// A stored JSON document could not be read or written.
+    #[error("store: JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    /// The data folder could not be created.
+    #[error("store: {path}: {source}")]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// The database was written by a newer calibd.
+    #[error("store: database schema version {found} is newer than this calibd knows ({known})")]
+    SchemaTooNew {
+        /// Version found in the file.
+        found: i64,
+        /// Newest version this binary knows.
+        known: i64,
+    },
+    /// A stored value is not one calibd writes (corrupted or edited by hand).
+    #[error("store: unexpected stored value `{value}` in {column}")]
+    Corrupt {
+        /// Which column.
+        column: &'static str,
+        /// The value.
+        value: String,
+    },
+    /// A record with this name or id already exists.
+    #[error("store: {0} already exists")]
+    Conflict(String),
+}
+
+/// Handle to the database; cheap to clone.
+#[derive(Debug, Clone)]
+pub struct Store {
+    inner: Arc<Inner>,
+}
+
+#[derive(Debug)]
+struct Inner {
+    /// The only connection that writes: SQLite serialises writers anyway, and one
+    /// connection keeps "busy" errors impossible.
+    writer: Mutex<Connection>,
+    /// Read-only connections; WAL lets them read while the writer commits.
+    readers: Vec<Mutex<Connection>>,
+    next_reader: AtomicUsize,
+    path: PathBuf,
+}
+
+/// Number of read connections.
+const READERS: usize = 3;
+
+/// The one timestamp format of the store (RFC 3339, UTC, milliseconds): strings in this
+/// format sort like the instants they name.
+pub fn format_time(t: chrono::DateTime<chrono::Utc>) -> String {
+    t.to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
+}
+
+fn now() -> String {
+    format_time(chrono::Utc::now())
+}
+
+fn lock(m: &Mutex<Connection>) -> MutexGuard<'_, Connection> {
+    // A panic while holding the lock cannot leave a half-done transaction behind (rusqlite
+    // rolls back on drop), so the connection stays usable.
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl Store {
+    /// Open (or create) the database `calibd.sqlite3` in folder `dir` and migrate it.
+    pub fn open(dir: &Path) -> Result<Store, StoreError> {
+        std::fs::create_dir_all(dir).map_err(|source| StoreError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let path = dir.join("calibd.sqlite3");
+        let mut writer = Connection::open(&path)?;
+        writer.pragma_update(None, "journal_mode", "WAL")?;
+        writer.pragma_update(None, "synchronous", "FULL")?;
+        writer.pragma_update(None, "foreign_keys", "ON")?;
+        writer.busy_timeout(std::time::Duration::from_secs(5))?;
+        migrate::migrate(&mut writer)?;
+        let mut readers = Vec::new();
+        for _ in 0..READERS {
+            let r = Connection::open_with_flags(
+                &path,
+                OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+            )?;
+            r.busy_timeout(std::time::Duration::from_secs(5))?;
+            readers.push(Mutex::new(r));
+        }
+        Ok(Store {
+            inner: Arc::new(Inner {
+                writer: Mutex::new(writer),
+                readers,
+                next_reader: AtomicUsize::new(0),
+                path,
+            }),
+        })
+    }
+
+    /// The database file.
+    pub fn path(&self) -> &Path {
+        &self.inner.path
+    }
+
+    /// Run `f` on the writer connection.
+    fn write<T>(
+        &self,
+        f: impl FnOnce(&mut Connection) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
+        let mut c = lock(&self.inner.writer);
+        f(&mut c)
+    }
+
+    /// Run `f` on a read connection (a free one if any).
+    fn read<T>(
+        &self,
+        f: impl FnOnce(&Connection) -> Result<T, StoreError>,
+    ) -> Result<T, StoreError> {
+        let n = self.inner.readers.len();
+        let start = self.inner.next_reader.fetch_add(1, Ordering::Relaxed);
+        for k in 0..n {
+            if let Ok(c) = self.inner.readers[(start + k) % n].try_lock() {
+                return f(&c);
+            }
+        }
+        let c = lock(&self.inner.readers[start % n]);
+        f(&c)
+    }
+}
+
+#[cfg(test)]
+mod tests;

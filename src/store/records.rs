@@ -1,0 +1,164 @@
+//! The job records the store reads and writes: states, stored jobs, filters, history.
+
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+/// Where a job is in its life.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JobState {
+    /// Accepted and waiting for a worker (or a device).
+    Queued,
+    /// Executing.
+    Running,
+    /// Finished with a result.
+    Succeeded,
+    /// Finished without a result.
+    Failed,
+    /// Stopped on request.
+    Cancelled,
+    /// Was running when the daemon stopped without finishing it.
+    Interrupted,
+}
+
+impl JobState {
+    /// Every state, in life order.
+    pub const ALL: [JobState; 6] = [
+        JobState::Queued,
+        JobState::Running,
+        JobState::Succeeded,
+        JobState::Failed,
+        JobState::Cancelled,
+        JobState::Interrupted,
+    ];
+
+    /// The name used in the API and the database.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Succeeded => "succeeded",
+            JobState::Failed => "failed",
+            JobState::Cancelled => "cancelled",
+            JobState::Interrupted => "interrupted",
+        }
+    }
+
+    /// Parse a state name.
+    pub fn parse(s: &str) -> Option<JobState> {
+        JobState::ALL.into_iter().find(|x| x.as_str() == s)
+    }
+
+    /// True once the job will not change any more.
+    pub fn is_final(self) -> bool {
+        !matches!(self, JobState::Queued | JobState::Running)
+    }
+}
+
+/// A job as stored (without its document and result).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct JobRecord {
+    /// Job id.
+    pub id: i64,
+    /// Job kind.
+    pub kind: String,
+    /// State.
+    pub state: JobState,
+    /// Higher runs first.
+    pub priority: i64,
+    /// Devices the job holds while it runs.
+    pub devices: Vec<String>,
+    /// SHA-256 of the job document and of each input.
+    pub inputs_sha256: Value,
+    /// When it was accepted (RFC 3339, UTC).
+    pub submitted_at: String,
+    /// When it started.
+    pub started_at: Option<String>,
+    /// When it reached a final state.
+    pub finished_at: Option<String>,
+    /// Progress in [0, 1].
+    pub progress: f64,
+    /// Current stage name.
+    pub stage: Option<String>,
+    /// Last progress message.
+    pub message: Option<String>,
+    /// Why it failed.
+    pub error: Option<String>,
+    /// Name of the token that submitted it.
+    pub submitted_by: Option<String>,
+    /// The schedule that submitted it.
+    pub schedule_id: Option<i64>,
+    /// The job this one re-runs.
+    pub rerun_of: Option<i64>,
+}
+
+/// A job to insert.
+#[derive(Debug, Clone)]
+pub struct NewJob {
+    /// Kind.
+    pub kind: String,
+    /// The job document as submitted.
+    pub doc: Value,
+    /// Priority (higher first).
+    pub priority: i64,
+    /// Devices it needs.
+    pub devices: Vec<String>,
+    /// Input hashes.
+    pub inputs_sha256: Value,
+    /// Token name.
+    pub submitted_by: Option<String>,
+    /// Submitting schedule.
+    pub schedule_id: Option<i64>,
+    /// Re-run of.
+    pub rerun_of: Option<i64>,
+    /// For a scheduled job: the occurrence it stands for (RFC 3339), the outcome
+    /// (`submitted`, `missed_run_once`) and a message. The schedule's run record and its
+    /// `checked_until` are written in the same transaction as the job.
+    pub schedule_run: Option<(String, String, Option<String>)>,
+}
+
+/// Filter and page for listing jobs (newest first).
+#[derive(Debug, Clone, Default)]
+pub struct JobFilter {
+    /// Only this state.
+    pub state: Option<JobState>,
+    /// Only this kind.
+    pub kind: Option<String>,
+    /// Only ids below this (the cursor of the next page).
+    pub before: Option<i64>,
+    /// Page size.
+    pub limit: usize,
+}
+
+/// One entry of a job's progress history.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ProgressPoint {
+    /// When.
+    pub at: String,
+    /// Fraction in [0, 1].
+    pub fraction: f64,
+    /// Stage.
+    pub stage: String,
+    /// Message.
+    pub message: Option<String>,
+}
+
+/// One log line.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LogLine {
+    /// When.
+    pub at: String,
+    /// `info`, `warn` or `error`.
+    pub level: String,
+    /// Text.
+    pub message: String,
+}
+
+/// What [`Store::recover`] found at start-up.
+#[derive(Debug, Clone, Default)]
+pub struct Recovered {
+    /// Jobs that were running and are now `interrupted`.
+    pub interrupted: Vec<i64>,
+    /// Jobs still queued, oldest first: (id, priority, document).
+    pub queued: Vec<(i64, i64, Value)>,
+}

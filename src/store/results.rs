@@ -1,0 +1,130 @@
+//! Results and artefacts: written together with the job's final state in one transaction.
+
+use rusqlite::{OptionalExtension, params};
+use serde::Serialize;
+use serde_json::Value;
+
+use super::{Store, StoreError, jobs::JobState, now};
+
+/// An artefact to store.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredArtefact {
+    /// File name.
+    pub name: String,
+    /// Media type.
+    pub media_type: String,
+    /// Content.
+    pub content: Vec<u8>,
+}
+
+/// An artefact's description (no content).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ArtefactInfo {
+    /// File name.
+    pub name: String,
+    /// Media type.
+    pub media_type: String,
+    /// Size in bytes.
+    pub size: i64,
+}
+
+impl Store {
+    /// Store a running job's result and artefacts and mark it `succeeded`, all in one
+    /// transaction. False (and nothing written) if the job was not running.
+    pub fn finish_job(
+        &self,
+        id: i64,
+        result: &Value,
+        main_table_csv: Option<&str>,
+        artefacts: &[StoredArtefact],
+    ) -> Result<bool, StoreError> {
+        let text = serde_json::to_string(result)?;
+        self.write(|c| {
+            let tx = c.transaction()?;
+            let n = tx.execute(
+                "UPDATE jobs SET state = ?2, finished_at = ?3, progress = 1, error = NULL \
+                 WHERE id = ?1 AND state = 'running'",
+                params![id, JobState::Succeeded.as_str(), now()],
+            )?;
+            if n != 1 {
+                return Ok(false);
+            }
+            tx.execute(
+                "INSERT INTO results (job_id, result, main_table_csv) VALUES (?1, ?2, ?3)",
+                params![id, text, main_table_csv],
+            )?;
+            for a in artefacts {
+                tx.execute(
+                    "INSERT INTO artefacts (job_id, name, media_type, content) VALUES (?1, ?2, ?3, ?4)",
+                    params![id, a.name, a.media_type, a.content],
+                )?;
+            }
+            tx.execute(
+                "INSERT INTO logs (job_id, at, level, message) VALUES (?1, ?2, 'info', 'succeeded')",
+                params![id, now()],
+            )?;
+            tx.commit()?;
+            Ok(true)
+        })
+    }
+
+    /// A job's result document.
+    pub fn result(&self, id: i64) -> Result<Option<Value>, StoreError> {
+        self.read(|c| {
+            let s: Option<String> = c
+                .query_row("SELECT result FROM results WHERE job_id = ?1", [id], |r| {
+                    r.get(0)
+                })
+                .optional()?;
+            Ok(s.map(|s| serde_json::from_str(&s)).transpose()?)
+        })
+    }
+
+    /// A job's main table as CSV.
+    pub fn main_table_csv(&self, id: i64) -> Result<Option<String>, StoreError> {
+        self.read(|c| {
+            Ok(c.query_row(
+                "SELECT main_table_csv FROM results WHERE job_id = ?1",
+                [id],
+                |r| r.get::<_, Option<String>>(0),
+            )
+            .optional()?
+            .flatten())
+        })
+    }
+
+    /// A job's artefacts, by name.
+    pub fn artefacts(&self, id: i64) -> Result<Vec<ArtefactInfo>, StoreError> {
+        self.read(|c| {
+            let mut st = c.prepare_cached(
+                "SELECT name, media_type, length(content) FROM artefacts WHERE job_id = ?1 ORDER BY name",
+            )?;
+            let rows = st.query_map([id], |r| {
+                Ok(ArtefactInfo {
+                    name: r.get(0)?,
+                    media_type: r.get(1)?,
+                    size: r.get(2)?,
+                })
+            })?;
+            Ok(rows.collect::<Result<_, _>>()?)
+        })
+    }
+
+    /// One artefact with its content.
+    pub fn artefact(&self, id: i64, name: &str) -> Result<Option<StoredArtefact>, StoreError> {
+        self.read(|c| {
+            Ok(c.query_row(
+                "SELECT name, media_type, content FROM artefacts WHERE job_id = ?1 AND name = ?2",
+                params![id, name],
+                |r| {
+                    Ok(StoredArtefact {
+                        name: r.get(0)?,
+                        media_type: r.get(1)?,
+                        content: r.get(2)?,
+                    })
+                },
+            )
+            .optional()?)
+        })
+    }
+}
