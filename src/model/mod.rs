@@ -2,6 +2,7 @@
 
 pub mod chain;
 pub mod dh;
+pub mod humanoid;
 pub mod params;
 pub mod urdf;
 
