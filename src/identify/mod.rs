@@ -1,17 +1,20 @@
 //! Least squares shared by every calibration method: the [`Problem`] trait, bounded
 //! Levenberg-Marquardt with column scaling ([`lm`]), rank detection by pivoted QR
-//! ([`rank`]), standard deviations and conditioning ([`uncertainty`]), and the
-//! rank -> LM -> covariance pipeline with its report ([`solve`]). No I/O.
+//! ([`rank`]), standard deviations and conditioning ([`uncertainty`]), the
+//! rank -> LM -> covariance pipeline with its report ([`solve`]) and robust losses by IRLS
+//! ([`robust`]). No I/O.
 
 pub mod lm;
 pub mod problem;
 pub mod rank;
+pub mod robust;
 pub mod solve;
 pub mod uncertainty;
 
 pub use lm::{LmOptions, LmReport, StopReason, levenberg_marquardt};
 pub use problem::{Problem, Restricted};
 pub use rank::{Pivoting, RankReport, rank_revealing};
+pub use robust::{Robust, RobustKind, RobustReport, solve_robust};
 pub use solve::{ParamReport, Solution, SolveOptions, Unknown, solve};
 pub use uncertainty::{Uncertainty, uncertainty};
 
