@@ -3,7 +3,7 @@
 //! frames-only fit (the paper's non-calibrated model), the full fit, and the base-parameter
 //! study of a marker layout over many configurations.
 
-use nalgebra::{DMatrix, Vector3};
+use nalgebra::DMatrix;
 
 use super::markers::{MarkerProblem, MarkerSample, initial_base, marker_rmse};
 use crate::identify::{
@@ -187,7 +187,7 @@ pub fn base_parameters(
     let m = free.len();
     let nm = model.markers.len();
     let mut r = DMatrix::<f64>::zeros(0, m);
-    let mut buf = vec![Vector3::zeros(); model.params.len()];
+    let all: Vec<usize> = (0..nm).collect();
     let batch = (4 * m / (3 * nm).max(1)).max(1);
     for (b, chunk) in states.chunks(batch).enumerate() {
         if monitor.is_cancelled() {
@@ -202,15 +202,14 @@ pub fn base_parameters(
         a.rows_mut(0, r.nrows()).copy_from(&r);
         let mut row = r.nrows();
         for s in chunk {
-            for mk in 0..nm {
-                model.marker_jacobian(mk, s, &mut buf);
+            model.marker_jacobians(s, &all, |_, _, buf| {
                 for (c, &g) in free.iter().enumerate() {
                     for k in 0..3 {
                         a[(row + k, c)] = buf[g][k];
                     }
                 }
                 row += 3;
-            }
+            });
         }
         r = if a.nrows() > m { a.qr().r() } else { a };
     }

@@ -152,14 +152,23 @@ impl Problem for MarkerProblem {
 
     fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
         let model = self.model(x);
-        let mut buf = vec![Vector3::zeros(); model.params.len()];
-        for (k, &(i, m)) in self.rows.iter().enumerate() {
-            model.marker_jacobian(m, &self.samples[i].state, &mut buf);
-            for (c, &g) in self.free.iter().enumerate() {
-                for a in 0..3 {
-                    j[(3 * k + a, c)] = buf[g][a];
-                }
+        let mut k = 0;
+        let mut visible = Vec::new();
+        for (i, s) in self.samples.iter().enumerate() {
+            visible.clear();
+            while k + visible.len() < self.rows.len() && self.rows[k + visible.len()].0 == i {
+                visible.push(self.rows[k + visible.len()].1);
             }
+            let mut row = 3 * k;
+            model.marker_jacobians(&s.state, &visible, |_, _, buf| {
+                for (c, &g) in self.free.iter().enumerate() {
+                    for a in 0..3 {
+                        j[(row + a, c)] = buf[g][a];
+                    }
+                }
+                row += 3;
+            });
+            k += visible.len();
         }
         Ok(())
     }

@@ -4,6 +4,7 @@ pub mod chain;
 pub mod dh;
 pub mod humanoid;
 pub mod params;
+pub mod srdf;
 pub mod urdf;
 
 pub use chain::{Chain, Geometry, Joint, PointMass};

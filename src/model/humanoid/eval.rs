@@ -9,7 +9,7 @@
 
 use nalgebra::Vector3;
 
-use super::{BaseMode, HParam, Humanoid, TreeChain};
+use super::{BaseMode, Humanoid, TreeChain};
 use crate::geometry::{Frame, urdf_errors_point_derivatives, xyzabc_point_derivatives};
 
 /// The robot state of one sample.
@@ -164,78 +164,98 @@ impl Humanoid {
     /// Position of marker `m` in the measurement frame and its derivative with respect to
     /// every parameter (written to `jac`, one entry per [`Humanoid::params`]).
     pub fn marker_jacobian(&self, m: usize, s: &State, jac: &mut [Vector3<f64>]) -> Vector3<f64> {
-        for v in jac.iter_mut() {
-            *v = Vector3::zeros();
-        }
+        let mut out = Vector3::zeros();
+        self.marker_jacobians(s, &[m], |_, p, j| {
+            out = *p;
+            jac.copy_from_slice(j);
+        });
+        out
+    }
+
+    /// [`Humanoid::marker_jacobian`] for several markers of one sample, sharing the root
+    /// pose and chain kinematics: `f(marker, position, jacobian over every parameter)`.
+    pub fn marker_jacobians(
+        &self,
+        s: &State,
+        markers: &[usize],
+        mut f: impl FnMut(usize, &Vector3<f64>, &[Vector3<f64>]),
+    ) {
         let root = self.root(s);
         let t = root.pre.mul(&root.ef);
-        let local = self.marker_pos[m];
-        // Point in the root frame, its chain derivatives and the body rotation.
-        let (p_r, r_body) = match self.marker_at[m] {
-            None => (local, nalgebra::Matrix3::identity()),
-            Some((c, body)) => {
-                let tc = &self.chains[c];
+        let chain_state: Vec<(Vec<f64>, Vec<f64>, Vec<Frame>)> = self
+            .chains
+            .iter()
+            .map(|tc| {
                 let (q, tau) = (tc.q(s), tc.tau(s));
-                let mut buf = vec![Vector3::zeros(); tc.chain.param_ids().len()];
-                let p = tc
-                    .chain
-                    .body_point_jacobian(&q, Some(&tau), body, &local, &mut buf);
-                for &(g, col) in &tc.cols {
-                    jac[g] += t.r * buf[col];
-                }
                 let mut frames = Vec::new();
                 tc.chain.joint_frames(&q, Some(&tau), &mut frames);
-                (p, frames[body].r)
-            }
-        };
-        let u = root.ef.apply(&p_r);
-        let p = root.pre.apply(&u);
-        let mut base_first = 0;
-        let mut comp_first = None;
-        for (g, prm) in self.params.iter().enumerate() {
-            match prm {
-                HParam::Base(0) => base_first = g,
-                HParam::BaseCompliance(0) => comp_first = Some(g),
-                HParam::Marker(mm, a) if *mm == m => {
-                    jac[g] = t.r * r_body.column(*a as usize);
+                (q, tau, frames)
+            })
+            .collect();
+        let support_state = self.support.as_ref().map(|tc| (tc.q(s), tc.tau(s)));
+        let (base_first, comp_first) = (self.layout.base, self.layout.compliance);
+        let mut jac = vec![Vector3::zeros(); self.params.len()];
+        let mut buf = Vec::new();
+        for &m in markers {
+            jac.fill(Vector3::zeros());
+            let local = self.marker_pos[m];
+            // Point in the root frame, its chain derivatives and the body rotation.
+            let (p_r, r_body) = match self.marker_at[m] {
+                None => (local, nalgebra::Matrix3::identity()),
+                Some((c, body)) => {
+                    let tc = &self.chains[c];
+                    let (q, tau, frames) = &chain_state[c];
+                    buf.resize(tc.params, Vector3::zeros());
+                    let p = tc
+                        .chain
+                        .body_point_jacobian(q, Some(tau), body, &local, &mut buf);
+                    for &(g, col) in &tc.cols {
+                        jac[g] += t.r * buf[col];
+                    }
+                    (p, frames[body].r)
                 }
-                _ => {}
+            };
+            let u = root.ef.apply(&p_r);
+            let p = root.pre.apply(&u);
+            for a in 0..3 {
+                jac[self.layout.markers[m] + a] = t.r * r_body.column(a);
             }
-        }
-        // Base (or foot) pose.
-        let (outer, inner) = match (&self.base_mode, root.g) {
-            (BaseMode::SupportFoot { .. }, Some(g)) => (Frame::identity(), g.inverse().apply(&u)),
-            (BaseMode::Cluster, _) => (s.cluster.unwrap_or_else(Frame::identity), u),
-            _ => (Frame::identity(), u),
-        };
-        let d = xyzabc_point_derivatives(&self.base, &inner);
-        for k in 0..6 {
-            jac[base_first + k] = outer.r * d[k];
-        }
-        if let Some(c0) = comp_first {
-            let d = urdf_errors_point_derivatives(&root.e, &p_r);
+            // Base (or foot) pose.
+            let (outer, inner) = match (&self.base_mode, root.g) {
+                (BaseMode::SupportFoot { .. }, Some(g)) => {
+                    (Frame::identity(), g.inverse().apply(&u))
+                }
+                (BaseMode::Cluster, _) => (s.cluster.unwrap_or_else(Frame::identity), u),
+                _ => (Frame::identity(), u),
+            };
+            let d = xyzabc_point_derivatives(&self.base, &inner);
             for k in 0..6 {
-                jac[c0 + k] = root.pre.r * d[k] * root.w[k];
+                jac[base_first + k] = outer.r * d[k];
             }
-        }
-        // Support leg: p = F * G^-1 * u, dp = -F.R G.R^T dG(G^-1 u).
-        if let (Some(tc), Some(g)) = (&self.support, root.g) {
-            let (q, tau) = (tc.q(s), tc.tau(s));
-            let p_foot = g.inverse().apply(&u);
-            let mut buf = vec![Vector3::zeros(); tc.chain.param_ids().len()];
-            tc.chain.body_point_jacobian(
-                &q,
-                Some(&tau),
-                tc.chain.joints.len() - 1,
-                &p_foot,
-                &mut buf,
-            );
-            let f = Frame::from_xyzabc(&self.base);
-            let rot = -(f.r * g.r.transpose());
-            for &(gi, col) in &tc.cols {
-                jac[gi] += rot * buf[col];
+            if let Some(c0) = comp_first {
+                let d = urdf_errors_point_derivatives(&root.e, &p_r);
+                for k in 0..6 {
+                    jac[c0 + k] = root.pre.r * d[k] * root.w[k];
+                }
             }
+            // Support leg: p = F * G^-1 * u, dp = -F.R G.R^T dG(G^-1 u).
+            if let (Some(tc), Some(g), Some((q, tau))) = (&self.support, root.g, &support_state) {
+                let p_foot = g.inverse().apply(&u);
+                buf.resize(tc.params, Vector3::zeros());
+                tc.chain.body_point_jacobian(
+                    q,
+                    Some(tau),
+                    tc.chain.joints.len() - 1,
+                    &p_foot,
+                    &mut buf,
+                );
+                let fr = Frame::from_xyzabc(&self.base);
+                let rot = -(fr.r * g.r.transpose());
+                for &(gi, col) in &tc.cols {
+                    jac[gi] += rot * buf[col];
+                }
+            }
+            f(m, &p, &jac);
         }
-        p
     }
 }

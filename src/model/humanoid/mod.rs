@@ -102,6 +102,19 @@ pub(crate) struct TreeChain {
     pub(crate) vars: Vec<usize>,
     /// (global parameter index, chain parameter column) of the joint parameters.
     pub(crate) cols: Vec<(usize, usize)>,
+    /// Number of chain parameter columns (`chain.param_ids().len()`).
+    pub(crate) params: usize,
+}
+
+/// Where the non-joint parameters start in [`Humanoid::params`].
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Layout {
+    /// First of the six base (or foot) pose parameters.
+    pub(crate) base: usize,
+    /// First of the six base compliances, if identified.
+    pub(crate) compliance: Option<usize>,
+    /// First of the three coordinates of each marker.
+    pub(crate) markers: Vec<usize>,
 }
 
 /// The humanoid calibration model.
@@ -132,6 +145,7 @@ pub struct Humanoid {
     pub(crate) support: Option<TreeChain>,
     /// Whether the base compliance is a parameter.
     pub base_elastic: bool,
+    pub(crate) layout: Layout,
 }
 
 /// Options of [`Humanoid::new`] besides the geometry.
@@ -221,6 +235,7 @@ impl Humanoid {
             marker_at: Vec::new(),
             support: None,
             base_elastic: elastic.base,
+            layout: Layout::default(),
         };
         let mut chain_paths = Vec::new();
         for &i in &leaves {
@@ -312,11 +327,13 @@ impl Humanoid {
             }
             joints.push(idx);
         }
+        let params = chain.param_ids().len();
         Ok(TreeChain {
             chain,
             joints,
             vars,
             cols: Vec::new(),
+            params,
         })
     }
 
@@ -358,6 +375,14 @@ impl Humanoid {
         if let Some(tc) = &mut self.support {
             map(tc);
         }
+        let find = |want: HParam| params.iter().position(|p| *p == want);
+        self.layout = Layout {
+            base: find(HParam::Base(0)).unwrap_or(0),
+            compliance: find(HParam::BaseCompliance(0)),
+            markers: (0..self.markers.len())
+                .map(|m| find(HParam::Marker(m, 0)).unwrap_or(0))
+                .collect(),
+        };
         self.params = params;
     }
 

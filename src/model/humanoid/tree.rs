@@ -131,6 +131,21 @@ impl MassTree {
         self.links.iter().map(|l| l.name.as_str()).collect()
     }
 
+    /// Index of a link in [`MassTree::link_names`].
+    pub fn link_index(&self, name: &str) -> Option<usize> {
+        self.links.iter().position(|l| l.name == name)
+    }
+
+    /// URDF joint indices from the root to link `i`.
+    pub fn link_path(&self, i: usize) -> &[usize] {
+        &self.links[i].path
+    }
+
+    /// Mass (kg) and centre of mass (link frame, m) of link `i`.
+    pub fn link_mass(&self, i: usize) -> (f64, Vector3<f64>) {
+        (self.links[i].mass, self.links[i].com)
+    }
+
     /// Joint frames of every leaf chain at `q` (variables in the constructor's order).
     fn chain_frames(&self, q: &[f64]) -> Vec<Vec<Frame>> {
         self.chains
@@ -146,7 +161,10 @@ impl MassTree {
 
     /// Pose of every link in the root frame at `q`.
     pub fn link_frames(&self, q: &[f64]) -> Vec<Frame> {
-        let cf = self.chain_frames(q);
+        self.frames_of(&self.chain_frames(q))
+    }
+
+    fn frames_of(&self, cf: &[Vec<Frame>]) -> Vec<Frame> {
         self.links
             .iter()
             .map(|l| l.at.map_or_else(Frame::identity, |(c, k)| cf[c][k]))
@@ -156,14 +174,16 @@ impl MassTree {
     /// Static motor torques (N*m) holding every variable's joint against gravity at `q`,
     /// with the masses of the whole subtree it carries (0 for a variable not in the tree).
     pub fn static_torques(&self, q: &[f64]) -> Vec<f64> {
+        self.frames_and_torques(q).1
+    }
+
+    /// [`MassTree::link_frames`] and [`MassTree::static_torques`] from one forward pass.
+    pub fn frames_and_torques(&self, q: &[f64]) -> (Vec<Frame>, Vec<f64>) {
         let cf = self.chain_frames(q);
-        let frames: Vec<Frame> = self
-            .links
-            .iter()
-            .map(|l| l.at.map_or_else(Frame::identity, |(c, k)| cf[c][k]))
-            .collect();
+        let frames = self.frames_of(&cf);
         let up = Vector3::new(0.0, 0.0, G);
-        self.joints
+        let torques = self
+            .joints
             .iter()
             .map(|j| {
                 let Some((c, k, carried)) = j else {
@@ -180,6 +200,7 @@ impl MassTree {
                     .sum();
                 axis.dot(&moment)
             })
-            .collect()
+            .collect();
+        (frames, torques)
     }
 }

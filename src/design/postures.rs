@@ -1,0 +1,436 @@
+//! Optimal calibration postures (`../shared/spec/humanoid.md`): the O1 index of a posture set
+//! from its information matrix, `worstIndex`, `partialOptim` (a continuous, constrained
+//! optimisation of the joint angles of chosen postures), COCP (the paper's Algorithm 1) and
+//! NOCP (Algorithm 2, blocks of random feasible postures until O1 stops growing).
+//!
+//! Generic over a [`PostureModel`]: anything that gives a Jacobian block (rows x base
+//! parameters) per posture, joint limits and a feasibility test.
+
+use nalgebra::DMatrix;
+use serde::Serialize;
+
+use crate::identify::IdentifyError;
+use crate::util::{Monitor, Rng};
+
+/// What posture design needs from a robot model.
+pub trait PostureModel: Sync {
+    /// Number of joint variables of a posture.
+    fn dof(&self) -> usize;
+    /// Lower and upper limit of each joint variable (rad).
+    fn limits(&self) -> Vec<[f64; 2]>;
+    /// The identification Jacobian block of one posture (rows x base parameters).
+    fn block(&self, q: &[f64]) -> DMatrix<f64>;
+    /// Whether a posture satisfies every constraint.
+    fn feasible(&self, q: &[f64]) -> bool;
+}
+
+/// A posture set with its information matrix `M = sum B_p^T B_p`.
+#[derive(Debug, Clone)]
+pub struct PostureSet {
+    /// Joint values of each posture.
+    pub postures: Vec<Vec<f64>>,
+    blocks: Vec<DMatrix<f64>>,
+    info: DMatrix<f64>,
+}
+
+/// `log det(M)`, factored with `M` scaled to unit diagonal for accuracy; -inf when `M` is
+/// numerically singular (a pivot of the scaled factor below 1e-10: some base parameter is not
+/// observable by the set).
+fn log_det(m: &DMatrix<f64>) -> f64 {
+    let n = m.nrows();
+    let d: Vec<f64> = (0..n).map(|k| m[(k, k)].sqrt()).collect();
+    if d.iter().any(|v| !(*v > 0.0)) {
+        return f64::NEG_INFINITY;
+    }
+    let s = DMatrix::from_fn(n, n, |i, j| m[(i, j)] / (d[i] * d[j]));
+    match s.cholesky() {
+        Some(c) => {
+            let diag = c.l_dirty().diagonal();
+            if diag.iter().any(|v| v * v < 1e-10) {
+                return f64::NEG_INFINITY;
+            }
+            diag.iter().map(|v| 2.0 * v.ln()).sum::<f64>()
+                + d.iter().map(|v| 2.0 * v.ln()).sum::<f64>()
+        }
+        None => f64::NEG_INFINITY,
+    }
+}
+
+/// O1 = (s1 ... sNb)^(1/Nb) / sqrt(Nq) of an information matrix `M = J^T J` built from `nq`
+/// postures: `exp(log det(M) / (2 Nb)) / sqrt(Nq)`. The blocks must already carry a fixed
+/// column scaling (independent of the set, e.g. per-parameter RMS over a reference pool),
+/// so that O1 measures information per posture and levels off as postures are added.
+pub fn o1_of(info: &DMatrix<f64>, nq: usize) -> f64 {
+    let nb = info.nrows().max(1) as f64;
+    (log_det(info) / (2.0 * nb)).exp() / (nq.max(1) as f64).sqrt()
+}
+
+impl PostureSet {
+    /// An empty set for a model with `params` base parameters.
+    pub fn new(params: usize) -> Self {
+        Self {
+            postures: Vec::new(),
+            blocks: Vec::new(),
+            info: DMatrix::zeros(params, params),
+        }
+    }
+
+    /// A set from postures.
+    pub fn from_postures(model: &dyn PostureModel, postures: Vec<Vec<f64>>) -> Self {
+        let params = model.block(&vec![0.0; model.dof()]).ncols();
+        let mut s = Self::new(params);
+        for q in postures {
+            s.push(model, q);
+        }
+        s
+    }
+
+    /// Add a posture.
+    pub fn push(&mut self, model: &dyn PostureModel, q: Vec<f64>) {
+        let b = model.block(&q);
+        self.info += b.tr_mul(&b);
+        self.blocks.push(b);
+        self.postures.push(q);
+    }
+
+    /// Replace posture `i`.
+    pub fn replace(&mut self, i: usize, q: Vec<f64>, b: DMatrix<f64>) {
+        self.info -= self.blocks[i].tr_mul(&self.blocks[i]);
+        self.info += b.tr_mul(&b);
+        self.blocks[i] = b;
+        self.postures[i] = q;
+    }
+
+    /// Remove the last `k` postures.
+    pub fn truncate(&mut self, len: usize) {
+        while self.postures.len() > len {
+            if let Some(b) = self.blocks.pop() {
+                self.info -= b.tr_mul(&b);
+            }
+            self.postures.pop();
+        }
+    }
+
+    /// Number of postures.
+    pub fn len(&self) -> usize {
+        self.postures.len()
+    }
+
+    /// True when empty.
+    pub fn is_empty(&self) -> bool {
+        self.postures.is_empty()
+    }
+
+    /// O1 of the set (0 when the base parameters are not all observable yet).
+    pub fn o1(&self) -> f64 {
+        o1_of(&self.info, self.len())
+    }
+
+    /// The stacked Jacobian of the set.
+    pub fn stacked(&self) -> DMatrix<f64> {
+        let rows: usize = self.blocks.iter().map(|b| b.nrows()).sum();
+        let mut j = DMatrix::zeros(rows, self.info.ncols());
+        let mut r = 0;
+        for b in &self.blocks {
+            j.rows_mut(r, b.nrows()).copy_from(b);
+            r += b.nrows();
+        }
+        j
+    }
+}
+
+/// `worstIndex`: the posture whose removal lowers O1 least (the set's weakest member).
+pub fn worst_index(set: &PostureSet) -> Option<usize> {
+    let n = set.len();
+    (0..n)
+        .map(|i| {
+            let m = &set.info - set.blocks[i].tr_mul(&set.blocks[i]);
+            (i, o1_of(&m, n - 1))
+        })
+        .fold(None, |acc: Option<(usize, f64)>, v| match acc {
+            Some(a) if a.1 >= v.1 => Some(a),
+            _ => Some(v),
+        })
+        .map(|v| v.0)
+}
+
+/// Settings of the continuous optimisation.
+#[derive(Debug, Clone)]
+pub struct OptimOptions {
+    /// Gradient steps per call.
+    pub iterations: usize,
+    /// First trial step, as a fraction of each joint's range.
+    pub step: f64,
+    /// Finite-difference step on the joints (rad).
+    pub fd_step: f64,
+}
+
+impl Default for OptimOptions {
+    fn default() -> Self {
+        Self {
+            iterations: 8,
+            step: 0.1,
+            fd_step: 1e-5,
+        }
+    }
+}
+
+/// `partialOptim`: raise O1 by moving the joint angles of postures `which`, the others fixed.
+/// Projected gradient ascent on `log det(M)` (the log of O1 up to constants),
+/// with the gradient from finite differences of the blocks, joint limits by projection and
+/// the other constraints by backtracking (a step is taken only if every moved posture stays
+/// feasible). Returns the O1 gain.
+pub fn partial_optim(
+    model: &dyn PostureModel,
+    set: &mut PostureSet,
+    which: &[usize],
+    opts: &OptimOptions,
+) -> f64 {
+    let limits = model.limits();
+    let range: Vec<f64> = limits.iter().map(|l| (l[1] - l[0]).max(1e-9)).collect();
+    let start = set.o1();
+    let mut f = log_det(&set.info);
+    if !f.is_finite() {
+        return 0.0;
+    }
+    let mut step = opts.step;
+    for _ in 0..opts.iterations {
+        // Gradient of f = log det M w.r.t. every moved joint: df = 2 <B M^-1, dB>.
+        let Some(chol) = set.info.clone().cholesky() else {
+            break;
+        };
+        let minv = chol.inverse();
+        let mut grad: Vec<Vec<f64>> = Vec::with_capacity(which.len());
+        for &p in which {
+            let b = &set.blocks[p];
+            let pm = b * &minv;
+            let q = set.postures[p].clone();
+            let g: Vec<f64> = (0..q.len())
+                .map(|k| {
+                    let h = opts.fd_step;
+                    let (mut a, mut c) = (q.clone(), q.clone());
+                    a[k] += h;
+                    c[k] -= h;
+                    let db = (model.block(&a) - model.block(&c)) / (2.0 * h);
+                    // Scaled by the joint range: ascent in normalised joint space.
+                    2.0 * pm.dot(&db) * range[k]
+                })
+                .collect();
+            grad.push(g);
+        }
+        let gnorm = grad.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
+        if !(gnorm > 0.0) {
+            break;
+        }
+        // Backtracking along the projected gradient.
+        let mut accepted = false;
+        for _ in 0..8 {
+            let mut trial = set.clone();
+            let mut ok = true;
+            for (w, &p) in which.iter().enumerate() {
+                let q: Vec<f64> = set.postures[p]
+                    .iter()
+                    .enumerate()
+                    .map(|(k, v)| {
+                        (v + step * range[k] * grad[w][k] / gnorm).clamp(limits[k][0], limits[k][1])
+                    })
+                    .collect();
+                if !model.feasible(&q) {
+                    ok = false;
+                    break;
+                }
+                let b = model.block(&q);
+                trial.replace(p, q, b);
+            }
+            if ok {
+                let ft = log_det(&trial.info);
+                if ft > f {
+                    *set = trial;
+                    f = ft;
+                    accepted = true;
+                    step = (step * 1.5).min(0.5);
+                    break;
+                }
+            }
+            step *= 0.5;
+        }
+        if !accepted {
+            break;
+        }
+    }
+    set.o1() - start
+}
+
+/// Draw a random feasible posture (up to `tries` draws within the limits).
+pub fn random_feasible(model: &dyn PostureModel, rng: &mut Rng, tries: usize) -> Option<Vec<f64>> {
+    let limits = model.limits();
+    (0..tries).find_map(|_| {
+        let q: Vec<f64> = limits.iter().map(|l| rng.range(l[0], l[1])).collect();
+        model.feasible(&q).then_some(q)
+    })
+}
+
+/// How COCP ended.
+#[derive(Debug, Clone, Serialize)]
+pub struct CocpReport {
+    /// Postures re-optimised.
+    pub iterations: usize,
+    /// O1 before and after.
+    pub o1_start: f64,
+    /// O1 at the end.
+    pub o1: f64,
+}
+
+/// COCP (Algorithm 1): re-optimise the weakest posture until the same index comes back
+/// twice in a row (the weakest posture is already optimal), or `max_iter` postures.
+pub fn cocp(
+    model: &dyn PostureModel,
+    set: &mut PostureSet,
+    opts: &OptimOptions,
+    max_iter: usize,
+    monitor: &dyn Monitor,
+) -> Result<CocpReport, IdentifyError> {
+    let o1_start = set.o1();
+    let mut last = None;
+    let mut iterations = 0;
+    while iterations < max_iter {
+        if monitor.is_cancelled() {
+            return Err(IdentifyError::Cancelled);
+        }
+        let Some(w) = worst_index(set) else { break };
+        if last == Some(w) {
+            break;
+        }
+        partial_optim(model, set, &[w], opts);
+        last = Some(w);
+        iterations += 1;
+    }
+    Ok(CocpReport {
+        iterations,
+        o1_start,
+        o1: set.o1(),
+    })
+}
+
+/// Settings of NOCP.
+#[derive(Debug, Clone)]
+pub struct NocpOptions {
+    /// Postures per block (Np, 4 in the paper).
+    pub block: usize,
+    /// Stop when O1 changes by less than this fraction.
+    pub epsilon: f64,
+    /// Never more postures than this.
+    pub max_postures: usize,
+    /// Seed of the random blocks.
+    pub seed: u64,
+    /// Continuous optimisation settings.
+    pub optim: OptimOptions,
+    /// Random draws per feasible posture before giving up.
+    pub tries: usize,
+}
+
+impl Default for NocpOptions {
+    fn default() -> Self {
+        Self {
+            block: 4,
+            epsilon: 0.01,
+            max_postures: 80,
+            seed: 0,
+            optim: OptimOptions::default(),
+            tries: 2000,
+        }
+    }
+}
+
+/// One NOCP step, for the O1 history.
+#[derive(Debug, Clone, Serialize)]
+pub struct NocpStep {
+    /// Postures in the set after this block.
+    pub postures: usize,
+    /// O1 after optimising the block and running COCP (0 while not full rank).
+    pub o1: f64,
+}
+
+/// NOCP's result: the set where O1 stopped growing and its history.
+#[derive(Debug, Clone)]
+pub struct Nocp {
+    /// The selected postures (without the last block, which changed O1 by less than epsilon).
+    pub set: PostureSet,
+    /// O1 after each block.
+    pub history: Vec<NocpStep>,
+    /// Whether the plateau was reached (else the posture cap stopped it).
+    pub plateau: bool,
+}
+
+/// NOCP (Algorithm 2): add blocks of random feasible postures, optimise each new block, run
+/// COCP, and stop at the first block that changes O1 by less than `epsilon` (relative).
+pub fn nocp(
+    model: &dyn PostureModel,
+    opts: &NocpOptions,
+    monitor: &dyn Monitor,
+) -> Result<Nocp, IdentifyError> {
+    let mut rng = Rng::new(opts.seed);
+    let params = model.block(&vec![0.0; model.dof()]).ncols();
+    let mut set = PostureSet::new(params);
+    let mut history: Vec<NocpStep> = Vec::new();
+    let mut previous: Option<PostureSet> = None;
+    while set.len() + opts.block <= opts.max_postures.max(opts.block) {
+        if monitor.is_cancelled() {
+            return Err(IdentifyError::Cancelled);
+        }
+        monitor.progress(set.len() as f64 / opts.max_postures as f64, "nocp");
+        let first = set.len();
+        for _ in 0..opts.block {
+            let q = random_feasible(model, &mut rng, opts.tries).ok_or_else(|| {
+                IdentifyError::Model(format!(
+                    "no feasible posture found in {} random draws: the constraints leave no room",
+                    opts.tries
+                ))
+            })?;
+            set.push(model, q);
+        }
+        let o1 = set.o1();
+        if !(o1 > 0.0) {
+            // Not all base parameters observable yet: keep adding blocks.
+            history.push(NocpStep {
+                postures: set.len(),
+                o1: 0.0,
+            });
+            continue;
+        }
+        let block: Vec<usize> = (first..set.len()).collect();
+        partial_optim(model, &mut set, &block, &opts.optim);
+        let cap = 4 * set.len();
+        cocp(model, &mut set, &opts.optim, cap, monitor)?;
+        let o1 = set.o1();
+        history.push(NocpStep {
+            postures: set.len(),
+            o1,
+        });
+        if let Some(prev) = &previous {
+            let before = prev.o1();
+            if (o1 - before).abs() < opts.epsilon * before {
+                return Ok(Nocp {
+                    set: prev.clone(),
+                    history,
+                    plateau: true,
+                });
+            }
+        }
+        previous = Some(set.clone());
+    }
+    Ok(Nocp {
+        set,
+        history,
+        plateau: false,
+    })
+}
+
+/// The O1 of postures given directly (e.g. a DETMAX selection).
+pub fn o1_of_postures(model: &dyn PostureModel, postures: &[Vec<f64>]) -> f64 {
+    PostureSet::from_postures(model, postures.to_vec()).o1()
+}
+
+#[cfg(test)]
+#[path = "postures_tests.rs"]
+mod tests;
