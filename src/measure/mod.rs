@@ -4,6 +4,7 @@
 pub mod ballplate;
 pub mod marker_fit;
 pub mod markers;
+pub mod mocap;
 pub mod point;
 
 pub use ballplate::BallPlate;
