@@ -6,6 +6,7 @@
 
 pub mod envelope;
 pub mod error;
+pub mod humanoid;
 pub mod input;
 pub mod serial;
 pub mod table;
@@ -37,6 +38,18 @@ pub const KINDS: &[(&str, &str)] = &[
     (
         "serial.dispersion",
         "dispersion of identification results over DETMAX-selected set sizes",
+    ),
+    (
+        "humanoid.identify",
+        "whole-body elasto-geometric calibration of a humanoid from motion-capture markers",
+    ),
+    (
+        "humanoid.validate",
+        "marker RMSE of non-calibrated, geometric and full models on a validation session",
+    ),
+    (
+        "humanoid.design",
+        "optimal calibration postures (NOCP / COCP) for a marker layout, with trajectory",
     ),
 ];
 
@@ -105,6 +118,9 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         "serial.identify" => Box::new(serial::identify::prepare(doc, &inputs)?),
         "serial.design" => Box::new(serial::design::prepare(doc, &inputs)?),
         "serial.dispersion" => Box::new(serial::dispersion::prepare(doc, &inputs)?),
+        "humanoid.identify" => Box::new(humanoid::identify::prepare(doc, &inputs)?),
+        "humanoid.validate" => Box::new(humanoid::validate::prepare(doc, &inputs)?),
+        "humanoid.design" => Box::new(humanoid::design::prepare(doc, &inputs)?),
         other => return Err(JobError::UnknownKind(other.to_string())),
     };
     let mut inputs_sha256 = inputs.into_hashes();

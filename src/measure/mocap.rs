@@ -24,6 +24,10 @@ pub struct MocapOptions {
     pub rate_hz: Option<f64>,
     /// A sample is stable when every visible marker is slower than this (m/s).
     pub velocity_threshold: f64,
+    /// ... and, when joint values are given, every joint slower than this (rad/s). Joints
+    /// also bridge samples where no marker is visible: a posture is not cut in two by an
+    /// occlusion while the robot stands still.
+    pub joint_velocity_threshold: f64,
     /// Shortest run of stable samples that counts as a posture.
     pub min_stable: usize,
     /// Samples kept per posture and marker.
@@ -37,6 +41,7 @@ impl Default for MocapOptions {
             cutoff_hz: 5.0,
             rate_hz: None,
             velocity_threshold: 0.02,
+            joint_velocity_threshold: 0.02,
             min_stable: 20,
             samples_per_posture: 10,
         }
@@ -73,16 +78,18 @@ pub struct MocapReport {
     pub unfilterable_samples: usize,
 }
 
-/// Pre-process a recording: time stamps `t` (s) and `markers[marker][sample]`.
+/// Pre-process a recording: time stamps `t` (s), `markers[marker][sample]` and, optionally,
+/// the joint values of every sample (`joints[sample][joint]`, rad).
 pub fn preprocess(
     t: &[f64],
     markers: &[Vec<Option<Vector3<f64>>>],
+    joints: Option<&[Vec<f64>]>,
     opts: &MocapOptions,
 ) -> Result<Stable, SignalError> {
     let n = t.len();
-    if markers.iter().any(|m| m.len() != n) {
+    if markers.iter().any(|m| m.len() != n) || joints.is_some_and(|j| j.len() != n) {
         return Err(SignalError::Design(
-            "every marker needs one entry per time stamp".into(),
+            "every marker and joint needs one entry per time stamp".into(),
         ));
     }
     if n < 2 {
@@ -142,6 +149,16 @@ pub fn preprocess(
         }
         filtered.push(out);
     }
+    let joint_still = |s: usize| -> Option<bool> {
+        let q = joints?;
+        let (a, b) = (s.saturating_sub(1), (s + 1).min(n - 1));
+        let dt = t[b] - t[a];
+        Some(
+            q[a].iter()
+                .zip(&q[b])
+                .all(|(x, y)| ((y - x) / dt).abs() < opts.joint_velocity_threshold),
+        )
+    };
     let stable: Vec<bool> = (0..n)
         .map(|s| {
             let seen: Vec<f64> = speed
@@ -149,7 +166,11 @@ pub fn preprocess(
                 .map(|v| v[s])
                 .filter(|v| v.is_finite())
                 .collect();
-            !seen.is_empty() && seen.iter().all(|v| *v < opts.velocity_threshold)
+            let markers_still = seen.iter().all(|v| *v < opts.velocity_threshold);
+            match joint_still(s) {
+                Some(j) => j && markers_still,
+                None => !seen.is_empty() && markers_still,
+            }
         })
         .collect();
     let mut runs = Vec::new();
@@ -261,7 +282,7 @@ mod tests {
             m1[i] = None;
         }
         let opts = MocapOptions::default();
-        let s = preprocess(&t, &[m0.clone(), m1.clone()], &opts).unwrap();
+        let s = preprocess(&t, &[m0.clone(), m1.clone()], None, &opts).unwrap();
         assert!((s.report.rate_hz - 100.0).abs() < 1e-6);
         assert_eq!(s.postures.len(), 5, "{:?}", s.report);
         // Equal counts per posture and marker; marker 1 dropped in posture 3 only.

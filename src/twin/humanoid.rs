@@ -264,3 +264,110 @@ impl HumanoidTwin {
         self.spec.noise * Vector3::new(rng.normal(), rng.normal(), rng.normal())
     }
 }
+
+/// A samples table as column names and rows, in the `humanoid.*` job layout: `t`, the joint
+/// columns, `tau_<joint>` for the elastic joints, then `<marker>_x/_y/_z` (NaN = occluded).
+pub fn samples_table(
+    nominal: &Humanoid,
+    t: Option<&[f64]>,
+    samples: &[MarkerSample],
+) -> (Vec<String>, Vec<Vec<f64>>) {
+    let mut cols = Vec::new();
+    if t.is_some() {
+        cols.push("t".to_string());
+    }
+    cols.extend(nominal.variables.iter().cloned());
+    let taus: Vec<usize> = (0..nominal.variables.len())
+        .filter(|&v| {
+            nominal
+                .joints
+                .iter()
+                .any(|j| j.elastic && j.name == nominal.variables[v])
+                || nominal.support_variables().contains(&nominal.variables[v])
+        })
+        .collect();
+    cols.extend(
+        taus.iter()
+            .map(|&v| format!("tau_{}", nominal.variables[v])),
+    );
+    for m in &nominal.markers {
+        for a in ["x", "y", "z"] {
+            cols.push(format!("{}_{a}", m.name));
+        }
+    }
+    let rows = samples
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let mut r = Vec::with_capacity(cols.len());
+            if let Some(t) = t {
+                r.push(t[i]);
+            }
+            r.extend(&s.state.q);
+            r.extend(taus.iter().map(|&v| s.state.tau[v]));
+            for p in &s.points {
+                match p {
+                    Some(p) => r.extend([p.x, p.y, p.z]),
+                    None => r.extend([f64::NAN; 3]),
+                }
+            }
+            r
+        })
+        .collect();
+    (cols, rows)
+}
+
+impl HumanoidTwin {
+    /// A continuous recording at `rate_hz` (identify base mode: the waist stands still):
+    /// each posture held `hold_s`, quintic moves of `move_s` between them, every sample with
+    /// mocap noise and its true joint values and torques. Returns time stamps and samples.
+    pub fn recording(
+        &self,
+        postures: &[Vec<f64>],
+        hold_s: f64,
+        move_s: f64,
+        rate_hz: f64,
+        seed: u64,
+    ) -> (Vec<f64>, Vec<MarkerSample>) {
+        let mut qs = Vec::new();
+        let dt = 1.0 / rate_hz;
+        for (k, p) in postures.iter().enumerate() {
+            for _ in 0..(hold_s * rate_hz).round() as usize {
+                qs.push(p.clone());
+            }
+            if let Some(next) = postures.get(k + 1) {
+                for i in 0..(move_s * rate_hz).round() as usize {
+                    qs.push(crate::design::trajectory::quintic(p, next, move_s, i as f64 * dt).0);
+                }
+            }
+        }
+        let t = (0..qs.len()).map(|i| i as f64 * dt).collect();
+        (t, self.samples(&qs, seed))
+    }
+}
+
+impl HumanoidTwin {
+    /// The same robot in a new session: markers re-mounted (each moved by up to +-5 mm) and
+    /// the measurement frame moved; the joints keep their true errors and compliances.
+    pub fn remounted(&self, seed: u64) -> HumanoidTwin {
+        let mut rng = Rng::new(seed);
+        let mut t = self.clone();
+        for p in &mut t.truth.marker_pos {
+            *p += Vector3::new(
+                rng.range(-5e-3, 5e-3),
+                rng.range(-5e-3, 5e-3),
+                rng.range(-5e-3, 5e-3),
+            );
+        }
+        if !matches!(t.truth.base_mode, BaseMode::Cluster) {
+            for (k, v) in t.truth.base.iter_mut().enumerate() {
+                *v += if k < 3 {
+                    0.05 * rng.normal()
+                } else {
+                    0.05 * rng.normal()
+                };
+            }
+        }
+        t
+    }
+}

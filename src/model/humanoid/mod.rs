@@ -501,6 +501,14 @@ impl Humanoid {
             .map(|tc| &tc.chain)
     }
 
+    /// Names of the measured joints on the support leg (empty without one).
+    pub fn support_variables(&self) -> Vec<String> {
+        self.support
+            .iter()
+            .flat_map(|tc| tc.vars.iter().map(|&v| self.variables[v].clone()))
+            .collect()
+    }
+
     /// Limits (rad) of each measured variable, if the URDF gives them.
     pub fn limits(&self) -> Vec<Option<[f64; 2]>> {
         self.variables
