@@ -29,7 +29,7 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial`.
+        /// Area: `serial`, `humanoid`.
         area: String,
     },
     /// List the job kinds.
@@ -101,7 +101,8 @@ fn main() -> Result<()> {
         Command::Bench { area } => {
             let figs = match area.as_str() {
                 "serial" => calibd::bench::serial::run(),
-                other => bail!("unknown benchmark area `{other}` (known: serial)"),
+                "humanoid" => calibd::bench::humanoid::run(),
+                other => bail!("unknown benchmark area `{other}` (known: serial, humanoid)"),
             };
             calibd::bench::print(&mut std::io::stdout(), &figs)?;
             Ok(())

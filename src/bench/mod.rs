@@ -1,6 +1,7 @@
 //! Benchmarks printed by `calibd bench <area>`: wall-clock figures of the hot paths, measured
 //! as the median of repeated runs (speed targets are checked here, never by timed tests).
 
+pub mod humanoid;
 pub mod serial;
 
 use std::time::{Duration, Instant};

@@ -168,7 +168,7 @@ pub struct OptimOptions {
 impl Default for OptimOptions {
     fn default() -> Self {
         Self {
-            iterations: 8,
+            iterations: 20,
             step: 0.1,
             fd_step: 1e-5,
         }
@@ -222,27 +222,34 @@ pub fn partial_optim(
         if !(gnorm > 0.0) {
             break;
         }
-        // Backtracking along the projected gradient.
+        // Backtracking along the projected gradient. A posture whose move would leave the
+        // feasible set keeps its halved move (up to three halvings) or stays where it is, so
+        // one constrained posture does not stall the others.
         let mut accepted = false;
         for _ in 0..8 {
             let mut trial = set.clone();
-            let mut ok = true;
+            let mut moved = false;
             for (w, &p) in which.iter().enumerate() {
-                let q: Vec<f64> = set.postures[p]
-                    .iter()
-                    .enumerate()
-                    .map(|(k, v)| {
-                        (v + step * range[k] * grad[w][k] / gnorm).clamp(limits[k][0], limits[k][1])
-                    })
-                    .collect();
-                if !model.feasible(&q) {
-                    ok = false;
-                    break;
+                let mut s = step;
+                for _ in 0..4 {
+                    let q: Vec<f64> = set.postures[p]
+                        .iter()
+                        .enumerate()
+                        .map(|(k, v)| {
+                            (v + s * range[k] * grad[w][k] / gnorm)
+                                .clamp(limits[k][0], limits[k][1])
+                        })
+                        .collect();
+                    if model.feasible(&q) {
+                        let b = model.block(&q);
+                        trial.replace(p, q, b);
+                        moved = true;
+                        break;
+                    }
+                    s *= 0.5;
                 }
-                let b = model.block(&q);
-                trial.replace(p, q, b);
             }
-            if ok {
+            if moved {
                 let ft = log_det(&trial.info);
                 if ft > f {
                     *set = trial;
