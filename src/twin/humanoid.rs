@@ -42,6 +42,8 @@ pub struct TwinSpec {
     pub noise: f64,
     /// Torque sensor noise, standard deviation (N*m).
     pub torque_noise: f64,
+    /// Joint ranges (rad) drawn by [`HumanoidTwin::random_q`] instead of the URDF limits.
+    pub ranges: Vec<(String, [f64; 2])>,
 }
 
 /// Marker clusters: three markers per link, on a triangle of `radius` around `centre`.
@@ -93,6 +95,56 @@ pub fn left_arm_spec(elastic: bool) -> TwinSpec {
         elastic_truth: elastic,
         noise: 0.5e-3,
         torque_noise: 0.2,
+        ranges: Vec::new(),
+    }
+}
+
+/// A leg problem: TALOS stands on its right foot (support-foot base mode) and moves its left
+/// leg; clusters on the left thigh, shank and foot and on the waist. With `elastic`, the true
+/// floating base deflects under the wrench the support leg carries (the paper's TALOS hip
+/// flexibility) and the model identifies the base compliance.
+pub fn left_leg_support_spec(elastic: bool) -> TwinSpec {
+    let mut joints: Vec<String> = (1..=6).map(|k| format!("leg_right_{k}_joint")).collect();
+    joints.extend((1..=6).map(|k| format!("leg_left_{k}_joint")));
+    let mut markers = clusters(
+        &[
+            ("leg_left_3_link", [0.06, 0.0, -0.2]),
+            ("leg_left_4_link", [0.06, 0.0, -0.15]),
+            ("leg_left_6_link", [0.08, 0.0, -0.06]),
+        ],
+        0.04,
+    );
+    markers.extend(WAIST_CLUSTER.iter().enumerate().map(|(k, p)| MarkerDef {
+        name: format!("waist_{}", k + 1),
+        link: "base_link".into(),
+        initial: Vector3::from(*p),
+    }));
+    // Standing: the support leg stays near a slightly flexed stance.
+    let stance = [
+        [-0.2, 0.2],
+        [-0.15, 0.15],
+        [-0.6, 0.0],
+        [0.0, 0.8],
+        [-0.5, 0.1],
+        [-0.1, 0.1],
+    ];
+    TwinSpec {
+        root: "base_link".into(),
+        joints,
+        markers,
+        base: BaseMode::SupportFoot {
+            link: "right_sole_link".into(),
+        },
+        elasticity: Elasticity {
+            base: elastic,
+            ..Default::default()
+        },
+        elastic_truth: elastic,
+        noise: 0.5e-3,
+        torque_noise: 0.2,
+        ranges: (1..=6)
+            .map(|k| (format!("leg_right_{k}_joint"), stance[k - 1]))
+            .collect(),
     }
 }
 
@@ -177,19 +229,41 @@ impl HumanoidTwin {
         })
     }
 
-    /// Uniformly random joint values within the limits.
+    /// Uniformly random joint values within the limits (or the spec's ranges).
     pub fn random_q(&self, rng: &mut Rng) -> Vec<f64> {
         self.nominal
             .limits()
             .iter()
-            .map(|l| l.map_or(rng.range(-1.0, 1.0), |[a, b]| rng.range(a, b)))
+            .zip(&self.nominal.variables)
+            .map(|(l, v)| {
+                let r = self
+                    .spec
+                    .ranges
+                    .iter()
+                    .find(|r| &r.0 == v)
+                    .map(|r| r.1)
+                    .or(*l);
+                r.map_or(rng.range(-1.0, 1.0), |[a, b]| rng.range(a, b))
+            })
             .collect()
     }
 
-    /// Measured torques at `q`: whole-tree gravity torques plus sensor noise.
+    /// Measured torques at `q`: whole-tree gravity torques plus sensor noise. Standing on a
+    /// support foot, gravity is taken in the true root frame and the support leg carries the
+    /// rest of the robot.
     pub fn torques(&self, q: &[f64], rng: &mut Rng) -> Vec<f64> {
-        self.tree
-            .static_torques(q)
+        let exact = match &self.truth.base_mode {
+            BaseMode::SupportFoot { link } => {
+                let foot = self.tree.link_index(link);
+                let frames = self.tree.link_frames(q);
+                let f = Frame::from_xyzabc(&self.truth.base);
+                let g_foot = f.r.transpose() * Vector3::new(0.0, 0.0, -crate::model::urdf::G);
+                let g_root = foot.map_or(g_foot, |i| frames[i].r * g_foot);
+                self.tree.frames_and_torques_with(q, &g_root, foot).1
+            }
+            _ => self.tree.static_torques(q),
+        };
+        exact
             .into_iter()
             .map(|t| t + self.spec.torque_noise * rng.normal())
             .collect()

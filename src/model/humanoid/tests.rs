@@ -277,3 +277,50 @@ fn calibrated_urdf_reproduces_the_model() {
         }
     }
 }
+
+/// Standing on the right foot: every motor torque (support leg, swing leg, arm) is the
+/// derivative of the potential energy with the foot fixed in the world.
+#[test]
+fn support_torques_are_the_potential_energy_gradient_with_the_foot_fixed() {
+    let urdf = UrdfModel::parse(TALOS).unwrap();
+    let mut vars: Vec<String> = (1..=6).map(|k| format!("leg_right_{k}_joint")).collect();
+    vars.extend(names(&[
+        "leg_left_3_joint",
+        "leg_left_4_joint",
+        "arm_left_2_joint",
+        "torso_2_joint",
+    ]));
+    let tree = MassTree::new(&urdf, "base_link", &vars).unwrap();
+    let foot = tree.link_index("right_sole_link").unwrap();
+    let masses: Vec<(f64, Vector3<f64>)> = (0..tree.link_names().len())
+        .map(|i| tree.link_mass(i))
+        .collect();
+    let g = crate::model::urdf::G;
+    let energy = |q: &[f64]| -> f64 {
+        let frames = tree.link_frames(q);
+        let root_in_world = frames[foot].inverse();
+        frames
+            .iter()
+            .zip(&masses)
+            .map(|(f, (m, c))| m * g * root_in_world.apply(&f.apply(c)).z)
+            .sum()
+    };
+    let q = vec![0.1, -0.1, -0.4, 0.6, -0.3, 0.05, -0.5, 0.9, 0.4, 0.3];
+    let frames = tree.link_frames(&q);
+    let g_root = frames[foot].r * Vector3::new(0.0, 0.0, -g);
+    let (_, tau) = tree.frames_and_torques_with(&q, &g_root, Some(foot));
+    for k in 0..q.len() {
+        let (mut a, mut b) = (q.clone(), q.clone());
+        a[k] += 1e-6;
+        b[k] -= 1e-6;
+        let d = (energy(&a) - energy(&b)) / 2e-6;
+        assert!(
+            (d - tau[k]).abs() < 1e-4 * (1.0 + d.abs()),
+            "{}: {d} vs {}",
+            vars[k],
+            tau[k]
+        );
+    }
+    // The support knee carries the body: tens of N*m when bent.
+    assert!(tau[3].abs() > 20.0, "{}", tau[3]);
+}

@@ -27,8 +27,9 @@ struct TreeLink {
 pub struct MassTree {
     chains: Vec<(Chain, Vec<Option<usize>>)>,
     links: Vec<TreeLink>,
-    /// For each variable: (chain, joint index) of its joint, and the links it carries.
-    joints: Vec<Option<(usize, usize, Vec<usize>)>>,
+    /// For each variable: (chain, joint index) of its joint, the links it carries, and its
+    /// URDF joint index.
+    joints: Vec<Option<(usize, usize, Vec<usize>, usize)>>,
 }
 
 impl MassTree {
@@ -116,7 +117,7 @@ impl MassTree {
                 let carried = (0..links.len())
                     .filter(|&l| links[l].path.contains(&ji) && links[l].mass > 0.0)
                     .collect();
-                Some((c, k, carried))
+                Some((c, k, carried, ji))
             })
             .collect();
         Ok(Self {
@@ -179,25 +180,46 @@ impl MassTree {
 
     /// [`MassTree::link_frames`] and [`MassTree::static_torques`] from one forward pass.
     pub fn frames_and_torques(&self, q: &[f64]) -> (Vec<Frame>, Vec<f64>) {
+        self.frames_and_torques_with(q, &Vector3::new(0.0, 0.0, -G), None)
+    }
+
+    /// Frames and static torques with gravity `g_root` (m/s^2, in the root frame) and,
+    /// optionally, a support foot link that stands on the ground: a joint on the way from the
+    /// root to that foot then holds everything except what lies beyond it towards the foot
+    /// (the rest of the robot rests on it), instead of its own subtree.
+    pub fn frames_and_torques_with(
+        &self,
+        q: &[f64],
+        g_root: &Vector3<f64>,
+        support: Option<usize>,
+    ) -> (Vec<Frame>, Vec<f64>) {
         let cf = self.chain_frames(q);
         let frames = self.frames_of(&cf);
-        let up = Vector3::new(0.0, 0.0, G);
+        let support_path: &[usize] = support.map_or(&[], |l| &self.links[l].path);
         let torques = self
             .joints
             .iter()
             .map(|j| {
-                let Some((c, k, carried)) = j else {
+                let Some((c, k, carried, ji)) = j else {
                     return 0.0;
                 };
                 let f = &cf[*c][*k];
                 let axis = f.r * crate::model::chain::joint_axis(&self.chains[*c].0.joints[*k]);
-                let moment: Vector3<f64> = carried
-                    .iter()
-                    .map(|&l| {
-                        let link = &self.links[l];
-                        (frames[l].apply(&link.com) - f.p).cross(&(up * link.mass))
-                    })
-                    .sum();
+                let moment_of = |l: usize| {
+                    let link = &self.links[l];
+                    (frames[l].apply(&link.com) - f.p).cross(&(g_root * link.mass))
+                };
+                let on_support = support_path.contains(ji);
+                let moment: Vector3<f64> = if on_support {
+                    // Motor torque on the foot side = gravity moment of the body side.
+                    (0..self.links.len())
+                        .filter(|l| !carried.contains(l) && self.links[*l].mass > 0.0)
+                        .map(moment_of)
+                        .sum()
+                } else {
+                    // Motor torque holding the subtree = minus its gravity moment.
+                    -carried.iter().map(|&l| moment_of(l)).sum::<Vector3<f64>>()
+                };
                 axis.dot(&moment)
             })
             .collect();
