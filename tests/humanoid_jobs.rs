@@ -54,7 +54,8 @@ fn write_csv(path: &Path, cols: &[String], rows: &[Vec<f64>]) {
     std::fs::write(path, s).unwrap();
 }
 
-/// Regenerates `examples/data/talos_twin_*.csv` (run with `--ignored` after changing the twin).
+/// Regenerates `examples/data/talos_twin_*.csv` (run with `--ignored` after changing the twin;
+/// the twin is seeded, so the files come out identical).
 #[test]
 #[ignore]
 fn write_example_data() {
@@ -78,6 +79,11 @@ fn write_example_data() {
             *p = None;
         }
     }
+    // Standing on the right foot with a compliant floating base, left leg moving.
+    let leg = HumanoidTwin::new(calibd::twin::humanoid::left_leg_support_spec(true), 3).unwrap();
+    let qs: Vec<Vec<f64>> = (0..40).map(|_| leg.random_q(&mut rng)).collect();
+    let (c, r) = samples_table(&leg.nominal, None, &leg.samples(&qs, 6));
+    write_csv(&dir.join("talos_twin_leg.csv"), &c, &r);
     let (c, r) = samples_table(&rigid.nominal, Some(&t), &samples);
     let keep: Vec<usize> = (0..c.len())
         .filter(|&k| !c[k].contains("_link_") || c[k].starts_with("arm_left_7_link"))
@@ -357,4 +363,24 @@ fn bad_jobs_are_refused_with_the_field_row_and_value() {
     let mut d = base();
     d["samples"][0]["x1"] = Value::Null;
     assert!(err(d).contains("no usable sample"));
+}
+
+/// Standing-leg example: support-foot base mode (exact elimination) with base elasticity
+/// from the support leg's torques; the rotational base compliance of the twin (5e-5
+/// rad/(N*m)) is found.
+#[test]
+fn leg_example_identifies_through_the_support_foot() {
+    let r = run_example("humanoid_identify_leg.json");
+    let after = r["rmse_after_mm"].as_f64().unwrap();
+    let geo = r["geometric_only"]["rmse_after_mm"].as_f64().unwrap();
+    assert!(after < 0.9 && geo > after, "full {after} geometric {geo}");
+    let p = r["parameters"].as_array().unwrap();
+    let rx = p
+        .iter()
+        .find(|p| p["name"] == "base_compliance.rx")
+        .unwrap();
+    let (v, s) = (rx["value"].as_f64().unwrap(), rx["std"].as_f64().unwrap());
+    assert!((v - 5e-5).abs() < 4.0 * s && s < 1e-5, "{v} +- {s}");
+    assert_eq!(rx["unit"], "rad/(N*m)");
+    assert!(p.iter().any(|p| p["name"] == "foot.x"));
 }

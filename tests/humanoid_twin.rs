@@ -161,16 +161,20 @@ fn cluster_mode_reaches_the_floor_set_by_its_cluster() {
 }
 
 /// Standing on the right foot (support-foot constraint by exact elimination), moving the left
-/// leg: with a compliant floating base in the twin, the geometric-only fit of the leg markers
-/// stays millimetres off, the fit with the base compliance reaches the noise level and finds
-/// the twin's compliance.
+/// leg, with a compliant floating base in the twin: the fit with the base compliance reaches
+/// the noise level on calibration and fresh postures and finds the twin's rotational
+/// compliance; the geometric-only fit is worse, but the joint geometry absorbs much of the
+/// deflection (the wrench on a standing leg is mostly the body weight, so the deflection
+/// varies smoothly with the posture).
 #[test]
-fn support_leg_twin_needs_the_base_compliance() {
+fn support_leg_twin_identifies_the_base_compliance() {
     use calibd::twin::humanoid::left_leg_support_spec;
     let twin = HumanoidTwin::new(left_leg_support_spec(true), 3).unwrap();
     let mut rng = Rng::new(5);
     let qs: Vec<Vec<f64>> = (0..40).map(|_| twin.random_q(&mut rng)).collect();
     let samples = twin.samples(&qs, 6);
+    let vq: Vec<Vec<f64>> = (0..25).map(|_| twin.random_q(&mut rng)).collect();
+    let validation = twin.samples(&vq, 7);
     let o = FitOptions::default();
     let frames = fit_frames(&twin.nominal, &samples, &o, &NoMonitor).unwrap();
     let geo = fit(
@@ -191,17 +195,27 @@ fn support_leg_twin_needs_the_base_compliance() {
     .unwrap();
     let noise = 3f64.sqrt() * 0.5;
     let (g, f) = (geo.rmse * 1e3, full.rmse * 1e3);
+    let val = |m: &calibd::model::humanoid::Humanoid| {
+        fit_frames(m, &validation, &o, &NoMonitor).unwrap().rmse * 1e3
+    };
+    let (vg, vf) = (val(&geo.model), val(&full.model));
     assert!(f < 1.02 * noise, "full {f} mm");
-    assert!(g > 3.0 * f, "geometric-only {g} mm vs full {f} mm");
+    assert!(vf < 1.1 * noise, "validation full {vf} mm");
+    assert!(
+        g > 1.05 * f && vg > 1.05 * vf,
+        "geometric-only {g}/{vg} mm vs full {f}/{vf} mm"
+    );
     for (k, p) in full.solution.params.iter().enumerate() {
-        if !p.name.starts_with("base_compliance") {
+        // About x and y the gravity moments vary with the posture; about the vertical axis
+        // they hardly do, so rz is weakly determined (large std) and not checked.
+        if !(p.name == "base_compliance.rx" || p.name == "base_compliance.ry") {
             continue;
         }
         let gi = full.problem.free()[k];
         let truth = twin.truth.value(twin.truth.params[gi]);
         let std = p.std.unwrap_or(f64::INFINITY);
         assert!(
-            (p.value - truth).abs() < 4.0 * std,
+            (p.value - truth).abs() < 4.0 * std && std < 0.3 * truth,
             "{}: {} vs {truth} (std {std})",
             p.name,
             p.value

@@ -5,7 +5,9 @@
 //! True error sizes (the paper's Table 1 is not available to us; these are typical TALOS
 //! magnitudes, documented here): joint offsets and placement angles N(0, 0.005 rad),
 //! placement translations N(0, 2 mm), marker positions uniform +-5 mm around their guesses;
-//! compliances 1e-4..2e-4 rad/(N*m) (stiffness 5,000..10,000 N*m/rad) when elastic.
+//! joint compliances 1e-4..2e-4 rad/(N*m) (stiffness 5,000..10,000 N*m/rad) and a floating
+//! base compliance of 5e-6 m/N and 5e-5 rad/(N*m) (2e5 N/m, 2e4 N*m/rad: TALOS's flexible
+//! hips) when elastic.
 
 use nalgebra::Vector3;
 
@@ -119,12 +121,13 @@ pub fn left_leg_support_spec(elastic: bool) -> TwinSpec {
         link: "base_link".into(),
         initial: Vector3::from(*p),
     }));
-    // Standing: the support leg stays near a slightly flexed stance.
+    // Standing: the support leg stays near a flexed stance (the knee never straight, where
+    // the leg Jacobian is singular and the torques do not determine the wrench).
     let stance = [
         [-0.2, 0.2],
         [-0.15, 0.15],
         [-0.6, 0.0],
-        [0.0, 0.8],
+        [0.3, 0.9],
         [-0.5, 0.1],
         [-0.1, 0.1],
     ];
@@ -191,9 +194,9 @@ impl HumanoidTwin {
                 HParam::Joint(..) => v + 0.005 * rng.normal(),
                 HParam::BaseCompliance(k) if spec.elastic_truth => {
                     if *k < 3 {
-                        2e-6
+                        5e-6
                     } else {
-                        2e-5
+                        5e-5
                     }
                 }
                 HParam::BaseCompliance(_) => 0.0,

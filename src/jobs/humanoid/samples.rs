@@ -11,6 +11,9 @@ use crate::measure::markers::{MarkerSample, fit_cluster};
 use crate::measure::mocap::{MocapReport, preprocess};
 use crate::model::humanoid::State;
 
+/// Support-leg Jacobian condition number above which a sample's base wrench is not trusted.
+pub const MAX_SUPPORT_CONDITION: f64 = 1e3;
+
 /// Validated samples.
 #[derive(Debug, Clone)]
 pub struct SampleSet {
@@ -241,7 +244,16 @@ pub fn load_samples(
         }
         let mut state = states[i].clone();
         state.cluster = poses[i];
-        model.fill_wrench(&mut state);
+        let cond = model.fill_wrench(&mut state);
+        if !(cond < MAX_SUPPORT_CONDITION) {
+            dropped.push((
+                i + 1,
+                format!(
+                    "support leg near a singularity (Jacobian condition {cond:.1e}, e.g. a straight knee): its torques do not determine the wrench on the base"
+                ),
+            ));
+            continue;
+        }
         samples.push(MarkerSample { state, points: pts });
         used.push(i + 1);
     }

@@ -66,8 +66,15 @@ impl Humanoid {
     /// The wrench `w = (J^T)^+ tau` carried by the support leg, at the root origin in root
     /// axes (force, moment), or zeros without a support leg.
     pub fn support_wrench(&self, s: &State) -> [f64; 6] {
+        self.support_wrench_conditioned(s).0
+    }
+
+    /// [`Humanoid::support_wrench`] and the condition number of the support leg's Jacobian
+    /// (columns in m/rad and 1): near a singular leg (a straight knee) the torques do not
+    /// determine the wrench, and samples there should not carry base elasticity.
+    pub fn support_wrench_conditioned(&self, s: &State) -> ([f64; 6], f64) {
         let Some(tc) = &self.support else {
-            return [0.0; 6];
+            return ([0.0; 6], 1.0);
         };
         let (q, tau) = (tc.q(s), tc.tau(s));
         let mut frames = Vec::new();
@@ -86,19 +93,29 @@ impl Humanoid {
         let t = nalgebra::DVector::from_vec(tau);
         let svd = jt.svd(true, true);
         let smax = svd.singular_values.max();
-        match svd.solve(&t, 1e-9 * smax.max(f64::MIN_POSITIVE)) {
+        let smin = svd.singular_values.min();
+        let cond = if smin > 0.0 {
+            smax / smin
+        } else {
+            f64::INFINITY
+        };
+        let w = match svd.solve(&t, 1e-9 * smax.max(f64::MIN_POSITIVE)) {
             Ok(w) if w.len() == 6 => [w[0], w[1], w[2], w[3], w[4], w[5]],
             _ => [0.0; 6],
-        }
+        };
+        (w, cond)
     }
 
-    /// Set `s.wrench` from this model's support leg (zeros without base elasticity).
-    pub fn fill_wrench(&self, s: &mut State) {
-        s.wrench = if self.base_elastic {
-            self.support_wrench(s)
+    /// Set `s.wrench` from this model's support leg (zeros without base elasticity) and
+    /// return the condition number of the support leg's Jacobian (1 without).
+    pub fn fill_wrench(&self, s: &mut State) -> f64 {
+        let (w, cond) = if self.base_elastic {
+            self.support_wrench_conditioned(s)
         } else {
-            [0.0; 6]
+            ([0.0; 6], 1.0)
         };
+        s.wrench = w;
+        cond
     }
 
     fn root(&self, s: &State) -> Root {
