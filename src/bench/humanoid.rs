@@ -6,7 +6,8 @@ use std::time::Duration;
 
 use super::{Figure, time};
 use crate::design::humanoid::{ConstraintOptions, HumanoidPostures};
-use crate::design::postures::{NocpOptions, OptimOptions, PostureSet, cocp, nocp, o1_of_postures};
+use crate::design::ocp::{NocpOptions, OptimOptions, cocp, nocp, o1_of_postures};
+use crate::design::postures::PostureSet;
 use crate::design::{DetmaxOptions, Pool, PostureModel, detmax};
 use crate::jobs::{NoReferences, prepare};
 use crate::measure::marker_fit::Groups;

@@ -1,12 +1,17 @@
 //! Posture design for a humanoid marker layout: the [`PostureModel`] of a [`Humanoid`] with
 //! its base parameters (found by pivoted QR over random feasible postures) and a fixed column
-//! scaling, and its feasibility (joint limits, whole-tree gravity torques under the URDF
-//! efforts, an end-effector box, link spheres).
+//! scaling, its feasibility (joint limits, whole-tree gravity torques under the URDF efforts,
+//! an end-effector box, link spheres), and the comparison of a design with DETMAX and with
+//! COCP from random starts (the paper's Fig. 6).
 
 use nalgebra::{DMatrix, Vector3};
 
+use serde::Serialize;
+
+use super::detmax::{DetmaxOptions, Pool, detmax};
 use super::feasibility::{Constraints, PointBox, Sphere, Violation, spheres_along};
-use super::postures::{PostureModel, random_feasible};
+use super::ocp::{OptimOptions, cocp, o1_of_postures, random_feasible};
+use super::postures::{PostureModel, PostureSet};
 use crate::identify::{IdentifyError, RankReport};
 use crate::measure::marker_fit::base_parameters;
 use crate::model::ModelError;
@@ -270,4 +275,92 @@ impl PostureModel for HumanoidPostures {
     fn feasible(&self, q: &[f64]) -> bool {
         self.violation(q).is_none()
     }
+}
+
+/// One COCP run from a random start.
+#[derive(Debug, Clone, Serialize)]
+pub struct RandomStart {
+    /// Index of the start.
+    pub start: usize,
+    /// O1 of the random feasible postures.
+    pub o1_random_start: f64,
+    /// O1 after COCP.
+    pub o1: f64,
+    /// Postures COCP re-optimised.
+    pub iterations: usize,
+}
+
+/// DETMAX's part of a [`Comparison`].
+#[derive(Debug, Clone, Serialize)]
+pub struct DetmaxResult {
+    /// O1 of the selection.
+    pub o1: f64,
+    /// Random feasible postures it chose from.
+    pub pool: usize,
+    /// log det of the selection's information matrix.
+    pub log_det: f64,
+}
+
+/// The paper's Fig. 6 comparison for a posture set.
+#[derive(Debug, Clone, Serialize)]
+pub struct Comparison {
+    /// Number of postures compared.
+    pub postures: usize,
+    /// O1 of the set being compared (NOCP's).
+    pub nocp_o1: f64,
+    /// DETMAX over a random feasible pool.
+    pub detmax: DetmaxResult,
+    /// COCP from random feasible starts.
+    pub cocp_random_starts: Vec<RandomStart>,
+}
+
+/// Compare `set` with DETMAX over `pool_n` random feasible postures and with COCP from
+/// `starts` random feasible starts, all of the same size (`None` when no feasible posture
+/// can be drawn).
+pub fn compare_baselines(
+    pm: &HumanoidPostures,
+    set: &PostureSet,
+    pool_n: usize,
+    starts: usize,
+    seed: u64,
+    optim: &OptimOptions,
+    monitor: &dyn Monitor,
+) -> Result<Option<Comparison>, IdentifyError> {
+    let n = set.len();
+    let mut rng = Rng::new(seed ^ 0x5eed);
+    let Some(pool) = pm.random_postures(pool_n, &mut rng, 20_000) else {
+        return Ok(None);
+    };
+    let blocks: Vec<DMatrix<f64>> = pool.iter().map(|q| pm.block(q)).collect();
+    let opts = DetmaxOptions {
+        n,
+        seed,
+        max_excursion: 6,
+    };
+    let sel = detmax(&Pool::from_blocks(&blocks), &opts, monitor)?;
+    let chosen: Vec<Vec<f64>> = sel.selected.iter().map(|&i| pool[i].clone()).collect();
+    let mut runs = Vec::new();
+    for k in 0..starts {
+        let Some(start) = pm.random_postures(n, &mut rng, 20_000) else {
+            return Ok(None);
+        };
+        let mut s = PostureSet::from_postures(pm, start);
+        let rep = cocp(pm, &mut s, optim, 4 * n, monitor)?;
+        runs.push(RandomStart {
+            start: k,
+            o1_random_start: rep.o1_start,
+            o1: rep.o1,
+            iterations: rep.iterations,
+        });
+    }
+    Ok(Some(Comparison {
+        postures: n,
+        nocp_o1: set.o1(),
+        detmax: DetmaxResult {
+            o1: o1_of_postures(pm, &chosen),
+            pool: pool_n,
+            log_det: sel.log_det,
+        },
+        cocp_random_starts: runs,
+    }))
 }

@@ -6,13 +6,12 @@ pub mod detmax;
 pub mod feasibility;
 pub mod humanoid;
 pub mod observability;
+pub mod ocp;
 pub mod postures;
 pub mod trajectory;
 
 pub use detmax::{DetmaxOptions, Pool, Selection, detmax};
 pub use feasibility::{Constraints, PointBox, Sphere, Violation};
 pub use observability::{Indices, indices};
-pub use postures::{
-    NocpOptions, OptimOptions, PostureModel, PostureSet, cocp, nocp, partial_optim,
-    random_feasible, worst_index,
-};
+pub use ocp::{NocpOptions, OptimOptions, cocp, nocp, partial_optim, random_feasible};
+pub use postures::{PostureModel, PostureSet, worst_index};

@@ -5,8 +5,9 @@
 use nalgebra::DMatrix;
 
 use super::*;
+use crate::design::ocp::*;
 use crate::design::{DetmaxOptions, Pool, detmax};
-use crate::util::NoMonitor;
+use crate::util::{NoMonitor, Rng};
 
 /// Planar 3R arm (lengths 0.5, 0.4, 0.3 m); parameters: three lengths and three joint
 /// offsets; measurement: tip (x, y). Feasible: tip above y = -0.3.

@@ -8,10 +8,10 @@ use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{BaseSpec, ElasticSpec, LoadedModel, MarkerSpec, load_model};
-use crate::design::humanoid::{ConstraintOptions, HumanoidPostures};
-use crate::design::postures::{NocpOptions, OptimOptions, PostureSet, cocp, nocp, o1_of_postures};
+use crate::design::humanoid::{ConstraintOptions, HumanoidPostures, compare_baselines};
+use crate::design::ocp::{NocpOptions, OptimOptions, cocp, nocp};
+use crate::design::postures::PostureSet;
 use crate::design::trajectory::{order_postures, sample_trajectory, travel};
-use crate::design::{DetmaxOptions, Pool, PostureModel, detmax};
 use crate::jobs::{Artefact, Inputs, JobError, Output, Prepared, Table, parse_spec};
 use crate::measure::marker_fit::Groups;
 use crate::model::srdf::disabled_collisions;
@@ -351,18 +351,12 @@ impl Prepared for DesignJob {
         );
         if let Some((pool_n, starts)) = self.compare {
             let sub = SubMonitor::new(monitor, 0.6, 0.95);
+            let c =
+                compare_baselines(&pm, &set, pool_n, starts, self.seed, &self.nocp.optim, &sub)?
+                    .ok_or_else(|| no_room("the comparison pools"))?;
             f.insert(
                 "comparison".into(),
-                compare(
-                    &pm,
-                    count,
-                    set.o1(),
-                    pool_n,
-                    starts,
-                    self.seed,
-                    &self.nocp.optim,
-                    &sub,
-                )?,
+                serde_json::to_value(&c).unwrap_or(Value::Null),
             );
         }
         Ok(Output {
@@ -375,53 +369,4 @@ impl Prepared for DesignJob {
             }],
         })
     }
-}
-
-/// The Fig. 6 comparison: DETMAX over a random feasible pool, COCP from random starts, and
-/// random sets, all with the same number of postures.
-#[allow(clippy::too_many_arguments)]
-fn compare(
-    pm: &HumanoidPostures,
-    n: usize,
-    o1: f64,
-    pool_n: usize,
-    starts: usize,
-    seed: u64,
-    optim: &OptimOptions,
-    monitor: &dyn Monitor,
-) -> Result<Value, JobError> {
-    let mut rng = Rng::new(seed ^ 0x5eed);
-    let pool = pm
-        .random_postures(pool_n, &mut rng, 20_000)
-        .ok_or_else(|| no_room("the DETMAX pool"))?;
-    let blocks: Vec<_> = pool.iter().map(|q| pm.block(q)).collect();
-    let sel = detmax(
-        &Pool::from_blocks(&blocks),
-        &DetmaxOptions {
-            n,
-            seed,
-            max_excursion: 6,
-        },
-        monitor,
-    )?;
-    let chosen: Vec<Vec<f64>> = sel.selected.iter().map(|&i| pool[i].clone()).collect();
-    let d = o1_of_postures(pm, &chosen);
-    let mut runs = Vec::new();
-    for k in 0..starts {
-        if monitor.is_cancelled() {
-            return Err(JobError::Cancelled);
-        }
-        let start = pm
-            .random_postures(n, &mut rng, 20_000)
-            .ok_or_else(|| no_room("a random start"))?;
-        let mut set = PostureSet::from_postures(pm, start);
-        let rep = cocp(pm, &mut set, optim, 4 * n, monitor)?;
-        runs.push(json!({"start": k, "o1_random_start": rep.o1_start, "o1": rep.o1, "iterations": rep.iterations}));
-    }
-    Ok(json!({
-        "postures": n,
-        "nocp_o1": o1,
-        "detmax": {"o1": d, "pool": pool_n, "log_det": sel.log_det},
-        "cocp_random_starts": runs,
-    }))
 }
