@@ -354,6 +354,9 @@ fn bad_jobs_are_refused_with_the_field_row_and_value() {
     let e = err(d);
     assert!(e.contains("tau_arm_left_2_joint"), "{e}");
     let mut d = base();
+    d["base"] = json!({"mode": "identify", "markers": ["w1"]});
+    assert!(err(d).contains("markers"));
+    let mut d = base();
     d["base"] = json!({"mode": "cluster", "markers": ["w1", "w2"]});
     assert!(err(d).contains("three markers"));
     // A NaN joint is refused; a missing marker coordinate is an occlusion (accepted).

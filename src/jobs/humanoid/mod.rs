@@ -38,8 +38,8 @@ pub struct MarkerSpec {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(tag = "mode", rename_all = "snake_case", deny_unknown_fields)]
 pub enum BaseSpec {
-    /// Six constant unknowns.
-    Identify,
+    /// Six constant unknowns (a struct variant so that unknown fields are refused).
+    Identify {},
     /// Per sample from a cluster of at least three markers on the root link.
     Cluster {
         /// The cluster's marker names (columns `<name>_x` ...).
@@ -54,7 +54,7 @@ pub enum BaseSpec {
 
 impl Default for BaseSpec {
     fn default() -> Self {
-        BaseSpec::Identify
+        BaseSpec::Identify {}
     }
 }
 
@@ -272,7 +272,7 @@ pub fn load_model(
         })
         .collect();
     let (mode, cluster) = match base {
-        BaseSpec::Identify => (BaseMode::Identify, Vec::new()),
+        BaseSpec::Identify {} => (BaseMode::Identify, Vec::new()),
         BaseSpec::Cluster { markers: c } => {
             if c.len() < 3 {
                 return Err(JobError::invalid(
