@@ -261,12 +261,9 @@ impl HumanoidTwin {
             );
         }
         if !matches!(t.truth.base_mode, BaseMode::Cluster) {
-            for (k, v) in t.truth.base.iter_mut().enumerate() {
-                *v += if k < 3 {
-                    0.05 * rng.normal()
-                } else {
-                    0.05 * rng.normal()
-                };
+            // About 5 cm and 0.05 rad (3 degrees) per component.
+            for v in t.truth.base.iter_mut() {
+                *v += 0.05 * rng.normal();
             }
         }
         t
