@@ -6,11 +6,15 @@
 //! - [`model`]: robot models (serial chains from DH files or URDF, the 3-PF parallel
 //!   continuum robot), FK, IK, Jacobians, torques.
 //! - [`identify`]: least squares shared by every method: Levenberg-Marquardt, rank detection
-//!   by pivoted QR, gauge freedoms, covariance and reports.
+//!   by pivoted QR, gauge freedoms, robust losses, covariance and reports.
 //! - [`measure`]: measurement models (ball coincidence, Cartesian points, the 3-PF
-//!   microscope), the 3-PF three-step identification, ISO 9283 accuracy.
+//!   microscope, mocap markers), the 3-PF three-step identification, ISO 9283 accuracy,
+//!   mocap pre-processing.
+//! - [`signal`]: Butterworth design and zero-phase filtering.
 //! - [`design`]: observability indices, configuration selection (DETMAX), Poisson-disc
-//!   sampling, trajectories.
+//!   sampling, trajectories, optimal calibration postures (COCP, NOCP), feasibility.
+//! - [`procedures`]: device-driven steps (centring loop, campaigns) over small device
+//!   traits.
 //! - [`twin`]: digital twins (true parameters and noise) for tests and simulation.
 //! - [`jobs`]: job specifications, inputs, dispatch to the job kinds, results.
 //! - [`store`]: SQLite storage of jobs, datasets, progress, results, logs, schedules.
@@ -39,6 +43,7 @@ pub mod report;
 pub mod schedule;
 pub mod server;
 pub mod service;
+pub mod signal;
 pub mod store;
 pub mod twin;
 pub mod util;

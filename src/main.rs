@@ -29,7 +29,8 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial`, `pcr`, `drivers` or `api` (the daemon under many concurrent clients).
+        /// Area: `serial`, `pcr`, `humanoid`, `drivers` or `api` (the daemon under many concurrent
+        /// clients).
         area: String,
     },
     /// List the job kinds.
@@ -327,6 +328,7 @@ fn main() -> Result<()> {
         Command::Bench { area } => {
             let figs = match area.as_str() {
                 "serial" => calibd::bench::serial::run(),
+                "humanoid" => calibd::bench::humanoid::run(),
                 "pcr" => calibd::bench::pcr::run(),
                 "api" => {
                     let report =
@@ -338,7 +340,9 @@ fn main() -> Result<()> {
                     return Ok(calibd_drivers::bench::run_and_print(&mut std::io::stdout())?);
                 }
                 other => {
-                    bail!("unknown benchmark area `{other}` (known: serial, pcr, drivers, api)")
+                    bail!(
+                        "unknown benchmark area `{other}` (known: serial, pcr, humanoid, drivers, api)"
+                    )
                 }
             };
             calibd::bench::print(&mut std::io::stdout(), &figs)?;

@@ -1,14 +1,15 @@
 //! Least squares shared by every calibration method: the [`Problem`] trait, bounded
 //! Levenberg-Marquardt with column scaling ([`lm`]), rank detection by pivoted QR
-//! ([`rank`]), standard deviations and conditioning ([`uncertainty`]), and the
-//! rank -> LM -> covariance pipeline with its report ([`solve`]); gauge freedoms held at
-//! their nominal combination ([`gauge`]). No I/O.
+//! ([`rank`]), standard deviations and conditioning ([`uncertainty`]), the
+//! rank -> LM -> covariance pipeline with its report ([`solve`]), gauge freedoms held at
+//! their nominal combination ([`gauge`]) and robust losses by IRLS ([`robust`]). No I/O.
 
 mod bounds;
 pub mod gauge;
 pub mod lm;
 pub mod problem;
 pub mod rank;
+pub mod robust;
 pub mod solve;
 pub mod uncertainty;
 
@@ -16,6 +17,7 @@ pub use gauge::{Gauge, Gauged, null_directions};
 pub use lm::{LmOptions, LmReport, StopReason, levenberg_marquardt};
 pub use problem::{Problem, Restricted};
 pub use rank::{Pivoting, RankReport, rank_revealing};
+pub use robust::{Robust, RobustKind, RobustReport, solve_robust};
 pub use solve::{ParamReport, Solution, SolveOptions, Unknown, solve};
 pub use uncertainty::{Uncertainty, uncertainty};
 

@@ -115,6 +115,8 @@ pub struct Solution {
     pub residuals: DVector<f64>,
     /// Uncertainty of the identified unknowns (in `free` order).
     pub uncertainty: Uncertainty,
+    /// What a robust loss did (`None` for plain least squares).
+    pub robust: Option<super::RobustReport>,
 }
 
 /// Identify `unknowns` from `x0`: rank detection, bounded LM, uncertainty, report.
@@ -210,5 +212,6 @@ pub fn solve(
         residuals_before: r0,
         residuals: rep.residuals,
         uncertainty: unc,
+        robust: None,
     })
 }

@@ -125,17 +125,28 @@ impl<'a> Inputs<'a> {
 
     /// A table: inline rows, or a reference to a CSV file.
     pub fn table(&self, field: &str, v: &Value) -> Result<Table, JobError> {
+        self.table_with_gaps(field, v, &|_: &str| false)
+    }
+
+    /// As [`Inputs::table`], with missing values (empty, `NaN` or `null`) admitted in the
+    /// columns `gaps` admits.
+    pub fn table_with_gaps(
+        &self,
+        field: &str,
+        v: &Value,
+        gaps: &dyn Fn(&str) -> bool,
+    ) -> Result<Table, JobError> {
         match v {
             Value::String(s) => {
                 let bytes = self.resolver.read(field, s)?;
                 self.record(field, &bytes);
                 let text = String::from_utf8(bytes)
                     .map_err(|_| JobError::invalid(field, format!("`{s}` is not UTF-8 text")))?;
-                Table::from_csv(field, &text)
+                Table::from_csv_with_gaps(field, &text, gaps)
             }
             Value::Array(_) => {
                 self.record(field, &serde_json::to_vec(v).unwrap_or_default());
-                Table::from_json_rows(field, v)
+                Table::from_json_rows_with_gaps(field, v, gaps)
             }
             _ => Err(JobError::invalid(
                 field,

@@ -7,6 +7,7 @@
 pub mod envelope;
 pub mod error;
 pub mod examples;
+pub mod humanoid;
 pub mod input;
 pub mod pcr;
 pub mod serial;
@@ -59,6 +60,18 @@ pub const KINDS: &[(&str, &str)] = &[
     (
         "pcr.accuracy",
         "ISO 9283 pose accuracy of a 3-PF robot on a square, a circle or poses (Table 4)",
+    ),
+    (
+        "humanoid.identify",
+        "whole-body elasto-geometric calibration of a humanoid from motion-capture markers",
+    ),
+    (
+        "humanoid.validate",
+        "marker RMSE of non-calibrated, geometric and full models on a validation session",
+    ),
+    (
+        "humanoid.design",
+        "optimal calibration postures (NOCP / COCP) for a marker layout, with trajectory",
     ),
 ];
 
@@ -139,6 +152,9 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         "pcr.sensitivity" => Box::new(pcr::sensitivity::prepare(doc, &inputs)?),
         "pcr.identify" => Box::new(pcr::identify::prepare(doc, &inputs)?),
         "pcr.accuracy" => Box::new(pcr::accuracy::prepare(doc, &inputs)?),
+        "humanoid.identify" => Box::new(humanoid::identify::prepare(doc, &inputs)?),
+        "humanoid.validate" => Box::new(humanoid::validate::prepare(doc, &inputs)?),
+        "humanoid.design" => Box::new(humanoid::design::prepare(doc, &inputs)?),
         other => return Err(JobError::UnknownKind(other.to_string())),
     };
     let mut inputs_sha256 = inputs.into_hashes();

@@ -26,6 +26,16 @@ impl Table {
 
     /// Parse CSV text with a header row; `field` names the input in errors.
     pub fn from_csv(field: &str, text: &str) -> Result<Self, JobError> {
+        Self::from_csv_with_gaps(field, text, &|_: &str| false)
+    }
+
+    /// As [`Table::from_csv`], but in the columns `gaps` admits an empty or `NaN` cell is a
+    /// missing value (kept as NaN), e.g. an occluded motion-capture marker.
+    pub fn from_csv_with_gaps(
+        field: &str,
+        text: &str,
+        gaps: &dyn Fn(&str) -> bool,
+    ) -> Result<Self, JobError> {
         let mut rdr = csv::ReaderBuilder::new()
             .has_headers(true)
             .trim(csv::Trim::All)
@@ -56,6 +66,10 @@ impl Table {
             }
             let mut vals = Vec::with_capacity(rec.len());
             for (c, cell) in rec.iter().enumerate() {
+                if gaps(&columns[c]) && (cell.is_empty() || cell.eq_ignore_ascii_case("nan")) {
+                    vals.push(f64::NAN);
+                    continue;
+                }
                 let v: f64 = cell.parse().map_err(|_| {
                     JobError::row(
                         field,
@@ -79,6 +93,16 @@ impl Table {
 
     /// Parse a JSON array of row objects keyed by column name (the form results use).
     pub fn from_json_rows(field: &str, v: &Value) -> Result<Self, JobError> {
+        Self::from_json_rows_with_gaps(field, v, &|_: &str| false)
+    }
+
+    /// As [`Table::from_json_rows`], with `null` admitted as a missing value (NaN) in the
+    /// columns `gaps` admits.
+    pub fn from_json_rows_with_gaps(
+        field: &str,
+        v: &Value,
+        gaps: &dyn Fn(&str) -> bool,
+    ) -> Result<Self, JobError> {
         let arr = v.as_array().ok_or_else(|| {
             JobError::invalid(field, "expected an array of row objects or a file name")
         })?;
@@ -105,6 +129,10 @@ impl Table {
             }
             let mut vals = Vec::with_capacity(columns.len());
             for c in &columns {
+                if gaps(c) && obj.get(c).is_some_and(Value::is_null) {
+                    vals.push(f64::NAN);
+                    continue;
+                }
                 let v = obj.get(c).and_then(Value::as_f64).ok_or_else(|| {
                     JobError::row(
                         field,
@@ -210,5 +238,15 @@ mod tests {
         assert!(e.contains("`abc` is not a number"), "{e}");
         let e = t.col("joints", "q3").unwrap_err().to_string();
         assert!(e.contains("missing column `q3`"), "{e}");
+        // Gaps only where admitted.
+        let g = Table::from_csv_with_gaps("s", "q1,m_x\n1,\n2,NaN\n3,4\n", &|c: &str| {
+            c.ends_with("_x")
+        })
+        .unwrap();
+        assert!(g.rows[0][1].is_nan() && g.rows[1][1].is_nan() && g.rows[2][1] == 4.0);
+        let e = Table::from_csv_with_gaps("s", "q1,m_x\n,1\n", &|c: &str| c.ends_with("_x"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("row 1") && e.contains("q1"), "{e}");
     }
 }

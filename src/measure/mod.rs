@@ -3,10 +3,14 @@
 //! [`crate::identify::Problem`]; none does I/O.
 
 pub mod ballplate;
+pub mod marker_fit;
+pub mod markers;
+pub mod mocap;
 pub mod pcr;
 pub mod point;
 
 pub use ballplate::BallPlate;
+pub use markers::{MarkerProblem, MarkerSample};
 pub use point::{PointMeasurement, PointProblem, Target};
 
 /// Errors in measurement data.

@@ -158,6 +158,14 @@ impl PointProblem {
         out
     }
 
+    /// Column order for priority rank detection: the parameters' priority classes
+    /// ([`ParamId::priority`]), chain order within a class, unknown ball centres last.
+    pub fn priority_order(&self) -> Vec<usize> {
+        let mut order: Vec<usize> = (0..self.unknown_count()).collect();
+        order.sort_by_key(|&k| (self.ids.get(k).map_or(u8::MAX, |id| id.priority()), k));
+        order
+    }
+
     /// The chain with the chain part of `x` applied.
     pub fn model(&self, x: &[f64]) -> Chain {
         let mut c = self.chain.clone();

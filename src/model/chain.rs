@@ -685,7 +685,7 @@ fn pre_frame(j: &Joint) -> Frame {
 }
 
 /// Rotation axis of a joint in its output frame.
-fn joint_axis(j: &Joint) -> Vector3<f64> {
+pub(crate) fn joint_axis(j: &Joint) -> Vector3<f64> {
     match &j.geometry {
         Geometry::Mdh { .. } => Vector3::z(),
         Geometry::Urdf { axis, .. } => *axis,

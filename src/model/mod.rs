@@ -2,9 +2,11 @@
 
 pub mod chain;
 pub mod dh;
+pub mod humanoid;
 pub mod ik;
 pub mod params;
 pub mod pcr;
+pub mod srdf;
 pub mod urdf;
 
 pub use chain::{Chain, Geometry, Joint, PointMass};

@@ -75,3 +75,19 @@ impl ParamId {
         }
     }
 }
+
+impl ParamId {
+    /// Priority class in rank detection for URDF-style chains (`../shared/spec/humanoid.md`):
+    /// joint offsets, then translations, then angles, then compliances, then base and tool.
+    /// Smaller is kept first; a dependent column later in the order is the one dropped.
+    pub fn priority(&self) -> u8 {
+        match self {
+            ParamId::Joint(_, JointField::Offset) => 0,
+            ParamId::Joint(_, JointField::A | JointField::D) => 1,
+            ParamId::Joint(_, JointField::Err(k)) if *k < 3 => 1,
+            ParamId::Joint(_, JointField::Compliance) => 3,
+            ParamId::Joint(_, _) => 2,
+            ParamId::Base(_) | ParamId::Tool(_) => 4,
+        }
+    }
+}

@@ -176,8 +176,17 @@ impl UrdfModel {
     /// `<origin>` of each of its joints: `origin' = origin * E(errors) * Rot(axis, offset)`,
     /// which reproduces the chain's forward kinematics exactly.
     pub fn write_calibrated(&self, chain: &Chain) -> Result<String, ModelError> {
+        self.write_calibrated_chains([chain])
+    }
+
+    /// As [`UrdfModel::write_calibrated`] for several chains of one tree (a joint shared by
+    /// chains carries the same values in each, so writing it twice is harmless).
+    pub fn write_calibrated_chains<'c>(
+        &self,
+        chains: impl IntoIterator<Item = &'c Chain>,
+    ) -> Result<String, ModelError> {
         let mut text = self.text.clone();
-        for joint in &chain.joints {
+        for joint in chains.into_iter().flat_map(|c| c.joints.iter()) {
             let Geometry::Urdf {
                 origin,
                 errors,

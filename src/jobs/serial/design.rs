@@ -7,7 +7,7 @@ use serde_json::{Map, Value, json};
 use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs};
 use super::{ChainSpec, PlateSpec};
 use crate::design::{DetmaxOptions, Indices, Pool, detmax, indices};
-use crate::identify::{Pivoting, Problem, rank_revealing};
+use crate::identify::{Problem, rank_revealing};
 use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
 use crate::measure::PointProblem;
 use crate::util::Monitor;
@@ -68,7 +68,7 @@ impl DesignPool {
         let j = j.rows(0, rows).clone_owned();
         let rank = rank_revealing(
             &j,
-            &Pivoting::Norm,
+            &inp.pivoting(&problem),
             inp.options.rank_tolerance.unwrap_or(1e-8),
         );
         let names: Vec<String> = problem.unknowns().into_iter().map(|u| u.name).collect();

@@ -143,9 +143,9 @@ pub fn parse_inputs(
 
 impl IdentifyInputs {
     /// Solver settings from the options.
-    pub fn solve_options(&self) -> SolveOptions {
+    pub fn solve_options(&self, problem: &PointProblem) -> SolveOptions {
         let mut o = SolveOptions {
-            pivoting: Pivoting::Norm,
+            pivoting: self.pivoting(problem),
             noise: self.options.noise,
             ..Default::default()
         };
@@ -156,6 +156,19 @@ impl IdentifyInputs {
             o.lm.max_iterations = n;
         }
         o
+    }
+
+    /// Column order of rank detection: norm pivoting for DH models (whose parameter lists
+    /// are minimal by construction, and where serial-robot.md keeps base parameters over
+    /// link-1 ones); the priority order of humanoid.md for URDF chains, whose six placement
+    /// errors per joint over-parameterise on purpose: a deterministic choice among
+    /// equivalent columns, translations before angles, so that a rotation acting through a
+    /// tiny lever (a strongly nonlinear direction) is the one held.
+    pub fn pivoting(&self, problem: &PointProblem) -> Pivoting {
+        match self.model.source {
+            super::Source::Dh(_) => Pivoting::Norm,
+            super::Source::Urdf { .. } => Pivoting::Priority(problem.priority_order()),
+        }
     }
 
     /// Identify from the measurements `subset` (all when `None`).
@@ -179,7 +192,7 @@ impl IdentifyInputs {
             &problem,
             &problem.unknowns(),
             &x0,
-            &self.solve_options(),
+            &self.solve_options(&problem),
             monitor,
         )?;
         Ok((problem, sol))
@@ -338,7 +351,7 @@ impl Prepared for IdentifyJob {
             "stop_reason": sol.stop, "converged": sol.stop.converged(), "iterations": sol.iterations,
             "cost_before": sol.cost_before, "cost_after": sol.cost_after, "cost_unit": format!("{unit}^2"),
         }));
-        f.insert("rank".into(), json!({"rank": sol.free.len(), "unknowns": sol.params.len(), "tolerance": inp.solve_options().rank_tolerance}));
+        f.insert("rank".into(), json!({"rank": sol.free.len(), "unknowns": sol.params.len(), "tolerance": inp.solve_options(&problem).rank_tolerance}));
         f.insert(
             "condition_number".into(),
             json!(sol.uncertainty.condition_number),
