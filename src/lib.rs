@@ -36,6 +36,7 @@ pub mod design;
 pub mod geometry;
 pub mod identify;
 pub mod jobs;
+pub mod lab;
 pub mod measure;
 pub mod model;
 pub mod procedures;

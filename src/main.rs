@@ -242,6 +242,9 @@ impl calibd::util::Monitor for StderrMonitor {
     fn is_cancelled(&self) -> bool {
         false
     }
+    fn report(&self, fraction: f64, stage: &str, message: &str) {
+        eprintln!("[{:>5.1}%] {stage}: {message}", 100.0 * fraction);
+    }
 }
 
 fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<()> {
@@ -254,7 +257,30 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
     let monitor = StderrMonitor {
         last: std::sync::Mutex::new(String::new()),
     };
-    let done = prepared.run(&monitor)?;
+    let done = if prepared.devices().is_empty() {
+        prepared.run(&monitor)?
+    } else {
+        // A device-driven kind offline: drive the simulated lab over the real protocols.
+        eprintln!(
+            "`{}` drives devices: starting the simulated lab on loopback",
+            prepared.kind
+        );
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()?;
+        let lab = rt.block_on(calibd::lab::Lab::simulated(
+            &calibd::lab::SimOptions::default(),
+        ))?;
+        let ctx = calibd::jobs::RunContext {
+            lab: Some(&lab),
+            journal: None,
+            runtime: Some(rt.handle()),
+        };
+        let r = prepared.run_in(&ctx, &monitor);
+        rt.block_on(lab.stop());
+        r?
+    };
     match out {
         Some(p) if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) => {
             let Some(t) = &done.main_table else {

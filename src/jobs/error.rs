@@ -52,6 +52,22 @@ pub enum JobError {
     /// The job was cancelled.
     #[error("cancelled")]
     Cancelled,
+    /// A campaign stopped on persistent device faults; it can be resumed from its journal.
+    #[error("paused at configuration {index}: {reason}")]
+    Paused {
+        /// First configuration not measured.
+        index: usize,
+        /// The last fault.
+        reason: String,
+    },
+    /// A device-driven kind run without a lab.
+    #[error(
+        "`{kind}` drives devices: run it in the daemon (`calibd serve` + `calibd submit`) or with `calibd run --lab sim`"
+    )]
+    NeedsLab {
+        /// The kind.
+        kind: String,
+    },
     /// The job ran but could not produce a result.
     #[error("{0}")]
     Failed(String),

@@ -4,6 +4,7 @@
 //! kind's fields in the result envelope. The same path serves `calibd run`, the daemon and
 //! schedules.
 
+pub mod cell;
 pub mod envelope;
 pub mod error;
 pub mod examples;
@@ -70,6 +71,14 @@ pub const KINDS: &[(&str, &str)] = &[
         "marker RMSE of non-calibrated, geometric and full models on a validation session",
     ),
     (
+        "cell.centre",
+        "the centring loop on one ball of a ball-centring cell, from a joint configuration",
+    ),
+    (
+        "cell.trical_campaign",
+        "TriCal campaign on a cell: centre each (given or DETMAX) configuration, identify, validate",
+    ),
+    (
         "humanoid.design",
         "optimal calibration postures (NOCP / COCP) for a marker layout, with trajectory",
     ),
@@ -97,10 +106,44 @@ pub struct Output {
     pub artefacts: Vec<Artefact>,
 }
 
+/// What a job may use besides its inputs: the lab's devices, its own measurement journal
+/// (durable in the daemon, in memory offline) and the runtime the device drivers run on.
+/// Numerical kinds need none of it.
+#[derive(Clone, Copy, Default)]
+pub struct RunContext<'a> {
+    /// Devices, by cell.
+    pub lab: Option<&'a crate::lab::Lab>,
+    /// The job's measurement journal.
+    pub journal: Option<&'a dyn crate::procedures::Journal>,
+    /// The async runtime of the drivers (the job itself runs on a blocking thread).
+    pub runtime: Option<&'a tokio::runtime::Handle>,
+}
+
+impl std::fmt::Debug for RunContext<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RunContext")
+            .field("lab", &self.lab.is_some())
+            .field("journal", &self.journal.is_some())
+            .field("runtime", &self.runtime.is_some())
+            .finish()
+    }
+}
+
 /// A validated job of one kind, ready to execute.
 pub trait Prepared: Send + Sync + std::fmt::Debug {
     /// Execute it; long loops poll `monitor` for cancellation.
     fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError>;
+
+    /// Execute it with devices and a journal; the default ignores them.
+    fn execute_in(&self, ctx: &RunContext<'_>, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        let _ = ctx;
+        self.execute(monitor)
+    }
+
+    /// Whether an interrupted or paused run can continue from its journal (campaigns).
+    fn resumable(&self) -> bool {
+        false
+    }
 
     /// Names of the devices the job drives while it runs (none for numerical kinds). The
     /// daemon's queue never runs two jobs that share a device, and only operators may
@@ -155,6 +198,8 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         "humanoid.identify" => Box::new(humanoid::identify::prepare(doc, &inputs)?),
         "humanoid.validate" => Box::new(humanoid::validate::prepare(doc, &inputs)?),
         "humanoid.design" => Box::new(humanoid::design::prepare(doc, &inputs)?),
+        "cell.centre" => Box::new(cell::centre::prepare(doc)?),
+        "cell.trical_campaign" => Box::new(cell::trical::prepare(doc, &inputs)?),
         other => return Err(JobError::UnknownKind(other.to_string())),
     };
     let mut inputs_sha256 = inputs.into_hashes();
@@ -175,10 +220,24 @@ impl Job {
         self.prepared.devices()
     }
 
+    /// Whether an interrupted or paused run can continue from its journal.
+    pub fn resumable(&self) -> bool {
+        self.prepared.resumable()
+    }
+
     /// Run the job and wrap its output in the result envelope.
     pub fn run(&self, monitor: &dyn Monitor) -> Result<Completed, JobError> {
+        self.run_in(&RunContext::default(), monitor)
+    }
+
+    /// Run the job with devices and a journal.
+    pub fn run_in(
+        &self,
+        ctx: &RunContext<'_>,
+        monitor: &dyn Monitor,
+    ) -> Result<Completed, JobError> {
         let started = chrono::Utc::now();
-        let out = self.prepared.execute(monitor)?;
+        let out = self.prepared.execute_in(ctx, monitor)?;
         let finished = chrono::Utc::now();
         let result = envelope::wrap(
             &self.kind,

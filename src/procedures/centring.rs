@@ -23,6 +23,9 @@ pub struct CentringOptions {
     pub settle: Duration,
     /// Longest wait for one reading.
     pub reading_timeout: Duration,
+    /// Largest joint change of one approach move (rad): a move to the start configuration
+    /// is split into steps no larger than this.
+    pub approach_step: f64,
 }
 
 impl Default for CentringOptions {
@@ -33,6 +36,7 @@ impl Default for CentringOptions {
             max_step_mm: 6.0,
             settle: Duration::from_millis(200),
             reading_timeout: Duration::from_secs(2),
+            approach_step: 15f64.to_radians(),
         }
     }
 }
@@ -103,6 +107,47 @@ fn norm(r: &[f64; 3]) -> f64 {
     (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt()
 }
 
+/// Move to `q` (rad) in joint-space steps no larger than `max_step` (rad), checking for
+/// cancellation before each step; the last step lands exactly on `q`.
+pub async fn approach(
+    robot: &dyn Robot,
+    q: &[f64],
+    max_step: f64,
+    monitor: &dyn Monitor,
+) -> Result<(), CentringError> {
+    let now = robot.joints().await?;
+    if now.len() != q.len() {
+        return Err(CentringError::Device(DeviceError::Refused {
+            device: "procedure".into(),
+            reason: format!("{} joint values for a {}-joint robot", q.len(), now.len()),
+        }));
+    }
+    let d = now
+        .iter()
+        .zip(q)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    // A margin for the resolution of the joints the controller reports.
+    let n = if max_step > 0.0 {
+        (d / (0.99 * max_step)).ceil().max(1.0) as usize
+    } else {
+        1
+    };
+    for k in 1..=n {
+        if monitor.is_cancelled() {
+            return Err(CentringError::Cancelled);
+        }
+        let t: Vec<f64> = if k == n {
+            q.to_vec()
+        } else {
+            let s = k as f64 / n as f64;
+            now.iter().zip(q).map(|(a, b)| a + s * (b - a)).collect()
+        };
+        robot.move_joints(&t).await?;
+    }
+    Ok(())
+}
+
 /// Move to `q_d` (rad) and centre the TCP on the ball under the device.
 pub async fn centre(
     robot: &dyn Robot,
@@ -114,7 +159,7 @@ pub async fn centre(
     if monitor.is_cancelled() {
         return Err(CentringError::Cancelled);
     }
-    robot.move_joints(q_d).await?;
+    approach(robot, q_d, opts.approach_step, monitor).await?;
     tokio::time::sleep(opts.settle).await;
     let mut r = read(indicators, opts).await?;
     let mut readings = vec![r];

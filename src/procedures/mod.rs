@@ -6,8 +6,10 @@ pub mod centring;
 pub mod devices;
 pub mod envelope;
 pub mod fakes;
+pub mod journal;
 pub mod trical;
 
 pub use centring::{Centred, CentringError, CentringOptions, centre};
 pub use devices::{DeviceError, DeviceFuture, Indicators, Robot};
 pub use envelope::{Envelope, MotionLimiter};
+pub use journal::{EntryStatus, Journal, JournalEntry, MemoryJournal};

@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use super::centring::{CentringError, CentringOptions, centre};
 use super::devices::{DeviceError, Indicators, Robot};
+use super::journal::{EntryStatus, Journal, JournalEntry};
 use crate::util::Monitor;
 
 /// One planned configuration: where to start and which ball (0-based) it aims at.
@@ -33,16 +34,6 @@ pub struct Recorded {
     pub residual_mm: f64,
     /// Corrective moves.
     pub iterations: usize,
-}
-
-/// Durable storage of a campaign's measurements.
-pub trait Journal: Send + Sync {
-    /// Everything recorded so far (for resume).
-    fn recorded(&self) -> Result<Vec<Recorded>, String>;
-    /// Make `m` durable; returns only once it is committed.
-    fn record(&self, m: &Recorded) -> Result<(), String>;
-    /// Note a skipped configuration (centring failed for a reason that is not a device fault).
-    fn skipped(&self, index: usize, reason: &str) -> Result<(), String>;
 }
 
 /// Retry policy for device faults.
@@ -106,32 +97,73 @@ fn is_device_fault(e: &CentringError) -> bool {
     )
 }
 
-/// Measure every configuration of `plan` not yet in the journal.
+/// The recorded measurements of a journal (entries at `offset..offset + len`).
+pub fn recorded(journal: &dyn Journal, offset: usize, len: usize) -> Result<Vec<Recorded>, String> {
+    Ok(journal
+        .entries()?
+        .into_iter()
+        .filter(|e| {
+            e.status == EntryStatus::Measured && e.index >= offset && e.index < offset + len
+        })
+        .filter_map(|e| serde_json::from_value::<Recorded>(e.data).ok())
+        .collect())
+}
+
+/// Measure every configuration of `plan` not yet in the journal; plan entry `k` is journal
+/// index `offset + k` (a campaign's phases use disjoint ranges).
+#[allow(clippy::too_many_arguments)]
 pub async fn run(
     robot: &dyn Robot,
     indicators: &dyn Indicators,
     plan: &[Planned],
+    offset: usize,
     journal: &dyn Journal,
     centring: &CentringOptions,
     retry: &Retry,
     monitor: &dyn Monitor,
 ) -> Result<CampaignSummary, CampaignError> {
-    let done: std::collections::HashSet<usize> = journal
-        .recorded()
-        .map_err(CampaignError::Journal)?
-        .into_iter()
-        .map(|r| r.index)
-        .collect();
-    let mut skipped = 0;
-    let mut recorded = done.len();
-    for (index, p) in plan.iter().enumerate() {
+    let entries = journal.entries().map_err(CampaignError::Journal)?;
+    let done: std::collections::HashSet<usize> = entries.iter().map(|e| e.index).collect();
+    let mut recorded = entries
+        .iter()
+        .filter(|e| {
+            e.status == EntryStatus::Measured && e.index >= offset && e.index < offset + plan.len()
+        })
+        .count();
+    let mut skipped = entries
+        .iter()
+        .filter(|e| {
+            e.status == EntryStatus::Skipped && e.index >= offset && e.index < offset + plan.len()
+        })
+        .count();
+    let t0 = std::time::Instant::now();
+    let mut this_run = 0usize;
+    let todo = plan.len() - recorded - skipped;
+    for (k, p) in plan.iter().enumerate() {
+        let index = offset + k;
         if done.contains(&index) {
             continue;
         }
         if monitor.is_cancelled() {
             return Err(CampaignError::Cancelled);
         }
-        monitor.progress(index as f64 / plan.len() as f64, "centring");
+        let eta = if this_run > 0 {
+            let per = t0.elapsed().as_secs_f64() / this_run as f64;
+            format!("{:.0} s", per * (todo - this_run) as f64)
+        } else {
+            "unknown".into()
+        };
+        monitor.report(
+            k as f64 / plan.len() as f64,
+            "centring",
+            &format!(
+                "configuration {}/{} (ball {}): {recorded} recorded, {skipped} skipped, ETA {eta}",
+                k + 1,
+                plan.len(),
+                p.ball + 1
+            ),
+        );
+        this_run += 1;
         let mut delay = retry.backoff;
         let mut attempt = 0;
         loop {
@@ -145,8 +177,23 @@ pub async fn run(
                         residual_mm: c.residual_mm,
                         iterations: c.iterations,
                     };
-                    journal.record(&m).map_err(CampaignError::Journal)?;
+                    let data = serde_json::to_value(&m)
+                        .map_err(|e| CampaignError::Journal(e.to_string()))?;
+                    journal
+                        .append(&JournalEntry {
+                            index,
+                            status: EntryStatus::Measured,
+                            data,
+                        })
+                        .map_err(CampaignError::Journal)?;
                     recorded += 1;
+                    tracing::info!(
+                        index,
+                        ball = p.ball + 1,
+                        moves = m.iterations,
+                        residual_mm = m.residual_mm,
+                        "centred"
+                    );
                     break;
                 }
                 Err(CentringError::Cancelled) => return Err(CampaignError::Cancelled),
@@ -162,9 +209,15 @@ pub async fn run(
                     delay *= 2;
                 }
                 Err(e) => {
+                    let data = serde_json::json!({"reason": e.to_string()});
                     journal
-                        .skipped(index, &e.to_string())
+                        .append(&JournalEntry {
+                            index,
+                            status: EntryStatus::Skipped,
+                            data,
+                        })
                         .map_err(CampaignError::Journal)?;
+                    tracing::warn!(index, reason = %e, "configuration skipped");
                     skipped += 1;
                     break;
                 }

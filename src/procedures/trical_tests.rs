@@ -7,36 +7,11 @@ use std::sync::{Arc, Mutex};
 use super::*;
 use crate::design::balls::ball_pool;
 use crate::procedures::fakes::{FakeIndicators, FakeRobot, SharedCell};
-use crate::procedures::{DeviceFuture, Indicators, Robot};
+use crate::procedures::journal::{Journal, MemoryJournal};
+use crate::procedures::{DeviceFuture, Robot};
 use crate::twin::SerialTwin;
 use crate::twin::cell::SimulatedCell;
 use crate::util::NoMonitor;
-
-#[derive(Default)]
-struct MemJournal {
-    rows: Mutex<Vec<Recorded>>,
-    skipped: Mutex<Vec<usize>>,
-    /// Fail (like a full disk) after this many records.
-    fail_after: Option<usize>,
-}
-
-impl Journal for MemJournal {
-    fn recorded(&self) -> Result<Vec<Recorded>, String> {
-        Ok(self.rows.lock().unwrap().clone())
-    }
-    fn record(&self, m: &Recorded) -> Result<(), String> {
-        let mut rows = self.rows.lock().unwrap();
-        if self.fail_after.is_some_and(|n| rows.len() >= n) {
-            return Err("disk full".into());
-        }
-        rows.push(m.clone());
-        Ok(())
-    }
-    fn skipped(&self, index: usize, _reason: &str) -> Result<(), String> {
-        self.skipped.lock().unwrap().push(index);
-        Ok(())
-    }
-}
 
 fn setup(per_ball: usize) -> (SerialTwin, SharedCell, Vec<Planned>) {
     let twin = SerialTwin::irb120(1);
@@ -66,33 +41,47 @@ fn opts() -> CentringOptions {
     }
 }
 
+async fn campaign(
+    robot: &dyn Robot,
+    cell: &SharedCell,
+    plan: &[Planned],
+    journal: &dyn Journal,
+) -> Result<CampaignSummary, CampaignError> {
+    let retry = Retry {
+        attempts: 3,
+        backoff: Duration::from_millis(1),
+    };
+    run(
+        robot,
+        &FakeIndicators(cell.clone()),
+        plan,
+        0,
+        journal,
+        &opts(),
+        &retry,
+        &NoMonitor,
+    )
+    .await
+}
+
 #[tokio::test]
 async fn campaign_then_identification_reaches_the_noise_level() {
     let (twin, cell, plan) = setup(20);
     assert_eq!(plan.len(), 60);
-    let journal = MemJournal::default();
-    let s = run(
-        &FakeRobot(cell.clone()),
-        &FakeIndicators(cell.clone()),
-        &plan,
-        &journal,
-        &opts(),
-        &Retry::default(),
-        &NoMonitor,
-    )
-    .await
-    .unwrap();
+    let journal = MemoryJournal::default();
+    let s = campaign(&FakeRobot(cell.clone()), &cell, &plan, &journal)
+        .await
+        .unwrap();
     assert_eq!(s.recorded + s.skipped, 60);
     assert!(s.recorded >= 57, "{s:?}");
+    let rec = recorded(&journal, 0, plan.len()).unwrap();
     // Every recorded configuration has the true TCP within epsilon (+ indicator noise) of its ball.
-    for m in journal.recorded().unwrap() {
+    for m in &rec {
         let e = (twin.true_tcp(&m.q) - twin.plate.centres[m.ball].unwrap()).norm();
         assert!(e < 0.012, "config {}: {e} mm", m.index);
     }
     // Identify from what was recorded, validate on the laser tracker.
-    let meas: Vec<_> = journal
-        .recorded()
-        .unwrap()
+    let meas: Vec<_> = rec
         .into_iter()
         .map(|m| crate::measure::PointMeasurement {
             q: m.q,
@@ -131,62 +120,37 @@ async fn campaign_then_identification_reaches_the_noise_level() {
 #[tokio::test]
 async fn an_interrupted_campaign_resumes_to_the_same_measurements() {
     let (_, cell, plan) = setup(4);
-    let full = MemJournal::default();
-    run(
-        &FakeRobot(cell.clone()),
-        &FakeIndicators(cell.clone()),
-        &plan,
-        &full,
-        &opts(),
-        &Retry::default(),
-        &NoMonitor,
-    )
-    .await
-    .unwrap();
-    // A journal that dies after 5 records (the "crash"), then a restart from what it holds,
+    let full = MemoryJournal::default();
+    campaign(&FakeRobot(cell.clone()), &cell, &plan, &full)
+        .await
+        .unwrap();
+    // A journal that dies after 5 entries (the "crash"), then a restart from what it holds,
     // with a fresh cell (the arm elsewhere).
-    let broken = MemJournal {
-        fail_after: Some(5),
-        ..Default::default()
-    };
-    let e = run(
-        &FakeRobot(cell.clone()),
-        &FakeIndicators(cell.clone()),
-        &plan,
-        &broken,
-        &opts(),
-        &Retry::default(),
-        &NoMonitor,
-    )
-    .await
-    .unwrap_err();
+    let broken = MemoryJournal::failing_after(5);
+    let e = campaign(&FakeRobot(cell.clone()), &cell, &plan, &broken)
+        .await
+        .unwrap_err();
     assert!(matches!(e, CampaignError::Journal(_)));
-    let resumed = MemJournal {
-        rows: Mutex::new(broken.recorded().unwrap()),
-        ..Default::default()
-    };
+    let resumed = MemoryJournal::with(broken.entries().unwrap());
     let (twin2, _, _) = setup(0);
     let cell2: SharedCell = Arc::new(Mutex::new(SimulatedCell::new(twin2, 9)));
-    run(
-        &FakeRobot(cell2.clone()),
-        &FakeIndicators(cell2),
-        &plan,
-        &resumed,
-        &opts(),
-        &Retry::default(),
-        &NoMonitor,
-    )
-    .await
-    .unwrap();
-    let (a, b) = (full.recorded().unwrap(), resumed.recorded().unwrap());
+    campaign(&FakeRobot(cell2.clone()), &cell2, &plan, &resumed)
+        .await
+        .unwrap();
+    let (a, b) = (
+        recorded(&full, 0, plan.len()).unwrap(),
+        recorded(&resumed, 0, plan.len()).unwrap(),
+    );
     assert_eq!(a.len(), b.len());
+    assert_eq!(
+        resumed.entries().unwrap().len(),
+        full.entries().unwrap().len()
+    );
     // Same configurations, each measured once, with identical joint values.
-    let mut idx: Vec<usize> = b.iter().map(|m| m.index).collect();
-    idx.dedup();
-    assert_eq!(idx.len(), b.len());
     for m in &a {
-        let other = b.iter().find(|x| x.index == m.index).unwrap();
-        assert_eq!(m.q, other.q, "configuration {}", m.index);
+        let other: Vec<_> = b.iter().filter(|x| x.index == m.index).collect();
+        assert_eq!(other.len(), 1);
+        assert_eq!(m.q, other[0].q, "configuration {}", m.index);
     }
 }
 
@@ -219,32 +183,22 @@ impl Robot for Flaky {
 #[tokio::test]
 async fn device_faults_are_retried_then_pause_with_the_reason() {
     let (_, cell, plan) = setup(2);
-    let retry = Retry {
-        attempts: 3,
-        backoff: Duration::from_millis(1),
-    };
-    let ind = FakeIndicators(cell.clone());
     let flaky = Flaky {
         inner: FakeRobot(cell.clone()),
         fails: AtomicUsize::new(2),
     };
-    let j = MemJournal::default();
-    let s = run(&flaky, &ind, &plan, &j, &opts(), &retry, &NoMonitor)
-        .await
-        .unwrap();
+    let j = MemoryJournal::default();
+    let s = campaign(&flaky, &cell, &plan, &j).await.unwrap();
     assert_eq!(s.recorded, plan.len());
     let dead = Flaky {
         inner: FakeRobot(cell.clone()),
         fails: AtomicUsize::new(usize::MAX / 2),
     };
-    let j = MemJournal::default();
-    let e = run(&dead, &ind, &plan, &j, &opts(), &retry, &NoMonitor)
-        .await
-        .unwrap_err();
+    let j = MemoryJournal::default();
+    let e = campaign(&dead, &cell, &plan, &j).await.unwrap_err();
     assert!(
         matches!(&e, CampaignError::Paused { index: 0, reason } if reason.contains("disconnected")),
         "{e}"
     );
-    assert!(j.recorded().unwrap().is_empty());
-    let _: &dyn Indicators = &ind;
+    assert!(j.entries().unwrap().is_empty());
 }

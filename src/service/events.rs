@@ -88,6 +88,20 @@ impl JobMonitor {
 
 impl Monitor for JobMonitor {
     fn progress(&self, fraction: f64, stage: &str) {
+        self.send(fraction, stage, None);
+    }
+
+    fn report(&self, fraction: f64, stage: &str, message: &str) {
+        self.send(fraction, stage, Some(message));
+    }
+
+    fn is_cancelled(&self) -> bool {
+        self.cancel.load(Ordering::Relaxed)
+    }
+}
+
+impl JobMonitor {
+    fn send(&self, fraction: f64, stage: &str, message: Option<&str>) {
         let now = Instant::now();
         let Ok(mut last) = self.last.lock() else {
             return;
@@ -110,12 +124,8 @@ impl Monitor for JobMonitor {
             id: self.id,
             fraction,
             stage: stage.to_string(),
-            message: None,
+            message: message.map(str::to_string),
         });
-    }
-
-    fn is_cancelled(&self) -> bool {
-        self.cancel.load(Ordering::Relaxed)
     }
 }
 

@@ -83,20 +83,44 @@ impl SimulatedCell {
     /// Move the TCP by `offset_mm` along the tool axes, keeping the tool orientation, as the
     /// controller computes it: with the nominal model.
     pub fn move_tool(&mut self, offset_mm: [f64; 3]) -> Result<(), CellError> {
+        let q = self.tool_move_target(&self.q, offset_mm)?;
+        self.move_joints(&q)
+    }
+
+    /// The joint values (rad) a tool-frame move of `offset_mm` from `q` leads to, as the
+    /// controller computes them with the nominal model.
+    pub fn tool_move_target(&self, q: &[f64], offset_mm: [f64; 3]) -> Result<Vec<f64>, CellError> {
         let nominal = &self.twin.nominal;
-        let now = nominal.tcp(&self.q, None);
+        let now = nominal.tcp(q, None);
         let target = Frame {
             r: now.r,
             p: now.apply(&Vector3::from(offset_mm)),
         };
-        let q = pose_ik(nominal, &self.q, &target).ok_or(CellError::Unreachable)?;
-        self.move_joints(&q)
+        pose_ik(nominal, q, &target).ok_or(CellError::Unreachable)
     }
 
     /// The three indicator readings (mm): the ball centre relative to the true TCP along the
     /// true tool axes, for the ball nearest the device, saturated at the end of travel. No
     /// ball within reach of the stems gives a [`CellError::OutOfRange`].
     pub fn read_indicators(&mut self) -> Result<[f64; 3], CellError> {
+        let v = self.indicator_values().ok_or(CellError::OutOfRange {
+            indicator: 1,
+            value_mm: 3.0 * INDICATOR_HALF_RANGE_MM,
+        })?;
+        for (k, x) in v.iter().enumerate() {
+            if x.abs() > INDICATOR_HALF_RANGE_MM {
+                return Err(CellError::OutOfRange {
+                    indicator: k + 1,
+                    value_mm: *x,
+                });
+            }
+        }
+        Ok(v)
+    }
+
+    /// The indicator offsets (mm, 0.001 mm resolution) before saturation, with noise; `None`
+    /// when no ball is within reach of the stems.
+    pub fn indicator_values(&self) -> Option<[f64; 3]> {
         let tcp = {
             let tau = self.twin.truth.static_torques(&self.q);
             self.twin.truth.tcp(&self.q, Some(&tau))
@@ -108,14 +132,10 @@ impl SimulatedCell {
             .iter()
             .flatten()
             .min_by(|a, b| (*a - tcp.p).norm().total_cmp(&(*b - tcp.p).norm()))
-            .copied()
-            .unwrap_or_else(Vector3::zeros);
+            .copied()?;
         let r = tcp.r.transpose() * (nearest - tcp.p);
         if r.norm() > 3.0 * INDICATOR_HALF_RANGE_MM {
-            return Err(CellError::OutOfRange {
-                indicator: 1,
-                value_mm: r.norm(),
-            });
+            return None;
         }
         // Noise is a function of the arm's state, so the same pose always reads the same:
         // a resumed campaign measures exactly what an uninterrupted one would.
@@ -126,15 +146,9 @@ impl SimulatedCell {
         let mut out = [0.0; 3];
         for k in 0..3 {
             let v = r[k] + self.indicator_noise_mm * rng.normal();
-            if v.abs() > INDICATOR_HALF_RANGE_MM {
-                return Err(CellError::OutOfRange {
-                    indicator: k + 1,
-                    value_mm: v,
-                });
-            }
-            out[k] = (v * 1000.0).round() / 1000.0; // 0.001 mm resolution
+            out[k] = (v * 1000.0).round() / 1000.0;
         }
-        Ok(out)
+        Some(out)
     }
 }
 

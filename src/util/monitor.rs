@@ -8,6 +8,11 @@ pub trait Monitor: Sync {
     fn progress(&self, fraction: f64, stage: &str);
     /// True once the work should stop as soon as possible.
     fn is_cancelled(&self) -> bool;
+    /// Progress with a line for the operator (e.g. "configuration 12/60, ETA 40 s").
+    fn report(&self, fraction: f64, stage: &str, message: &str) {
+        let _ = message;
+        self.progress(fraction, stage);
+    }
 }
 
 /// A monitor that ignores progress and never cancels.
@@ -53,5 +58,12 @@ impl Monitor for SubMonitor<'_> {
     }
     fn is_cancelled(&self) -> bool {
         self.parent.is_cancelled()
+    }
+    fn report(&self, fraction: f64, stage: &str, message: &str) {
+        self.parent.report(
+            self.lo + (self.hi - self.lo) * fraction.clamp(0.0, 1.0),
+            stage,
+            message,
+        );
     }
 }

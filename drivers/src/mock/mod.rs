@@ -220,6 +220,20 @@ pub async fn start_with(listen: &str, handler: Handler) -> Result<RunningMock, M
     })
 }
 
+/// Starts a serial mock on a new pseudo-terminal around any handler (e.g. the U-WAVE
+/// receiver of a digital-twin fixture through `uwave::mock::handler_with`); `addr` of the
+/// result is the pty path clients open.
+pub fn start_pty_with(handler: Handler) -> Result<RunningMock, MockError> {
+    let token = CancellationToken::new();
+    let tracker = TaskTracker::new();
+    let addr = crate::uwave::mock::serve_pty(handler, None, &tracker, &token)?;
+    Ok(RunningMock {
+        addr,
+        token,
+        tracker,
+    })
+}
+
 /// Runs a mock until `shutdown` resolves; prints `mock <device> ready on <addr>` on stdout
 /// once it accepts connections.
 pub async fn run(

@@ -39,6 +39,9 @@ pub trait ArmModel: Send + 'static {
     fn speed_deg_s(&self) -> f64 {
         90.0
     }
+    /// Called whenever the simulated joints change (during and at the end of a move), so a
+    /// twin can keep the physical arm, and the sensors that see it, in step.
+    fn moved(&mut self, _q_deg: &[f64; 6]) {}
 }
 
 /// Default model: an IRB 120 at rest in its calibration-friendly pose.
@@ -111,8 +114,14 @@ impl Robot {
                 ((now - m.start).as_secs_f64() / m.duration.as_secs_f64()).min(1.0)
             };
             for i in 0..6 {
-                self.joints[i] = m.from[i] + s * (m.to[i] - m.from[i]);
+                // The end of a move is the target exactly, whatever the path to it.
+                self.joints[i] = if s >= 1.0 {
+                    m.to[i]
+                } else {
+                    m.from[i] + s * (m.to[i] - m.from[i])
+                };
             }
+            self.model.moved(&self.joints);
             if s >= 1.0 {
                 self.motion = None;
                 self.vars.insert("calib_ack".into(), self.last_seq.clone());

@@ -1,0 +1,261 @@
+//! The TriCal cell: an IRB 120 on an IRC5 (RWS) with the three-indicator centring device
+//! (U-WAVE-R), its ball plate and its motion envelope. In the simulated lab the cell's twin
+//! ([`SimulatedCell`]) drives the RWS mock's arm and the U-WAVE mock's indicators.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use calibd_drivers::mock::{self, Faults, MockArgs, MockDevice, RunningMock};
+use calibd_drivers::rws::mock::ArmModel;
+use calibd_drivers::rws::{RwsConfig, RwsHandle};
+use calibd_drivers::uwave::mock::IndicatorModel;
+use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle};
+use calibd_drivers::{Backoff, TcpConnector};
+
+use super::LabError;
+use super::adapters::{RwsRobot, UwaveIndicators};
+use crate::model::dh::DhFile;
+use crate::procedures::{Envelope, Indicators, MotionLimiter, Robot};
+use crate::twin::SerialTwin;
+use crate::twin::cell::{INDICATOR_HALF_RANGE_MM, SimulatedCell};
+
+/// Reading of an indicator at the tool-axis zero (mid-travel of the 12.7 mm ID-C112XB).
+pub const INDICATOR_ZERO_MM: f64 = INDICATOR_HALF_RANGE_MM;
+
+/// A ball-centring cell as campaigns see it.
+pub struct TricalCell {
+    /// Cell name (jobs name it in `cell`).
+    pub name: String,
+    /// The arm, behind the cell's motion envelope.
+    pub robot: Arc<dyn Robot>,
+    /// The centring device.
+    pub indicators: Arc<dyn Indicators>,
+    /// The cell's current model (nominal until a calibration is accepted).
+    pub model: Mutex<DhFile>,
+    /// Ballbar distances d12, d13, d23 of the plate (mm).
+    pub ballbar: [f64; 3],
+    /// The envelope the procedures enforce.
+    pub envelope: Envelope,
+    /// Device names (queue locks).
+    pub devices: Vec<String>,
+}
+
+impl std::fmt::Debug for TricalCell {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TricalCell")
+            .field("name", &self.name)
+            .field("devices", &self.devices)
+            .finish()
+    }
+}
+
+impl TricalCell {
+    /// The current model.
+    pub fn current_model(&self) -> DhFile {
+        self.model.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
+    /// Make `m` the current model.
+    pub fn set_model(&self, m: DhFile) {
+        *self.model.lock().unwrap_or_else(|p| p.into_inner()) = m;
+    }
+}
+
+/// Settings of the simulated TriCal cell.
+#[derive(Debug, Clone)]
+pub struct SimTricalOptions {
+    /// Joint speed of the simulated arm (deg/s).
+    pub arm_speed_deg_s: f64,
+    /// Indicator streaming rate (readings per second and channel).
+    pub indicator_rate_hz: f64,
+    /// Largest joint change of one move (deg), in the driver and the envelope.
+    pub max_joint_step_deg: f64,
+    /// Faults planned on the RWS mock's replies.
+    pub rws_faults: Vec<calibd_drivers::mock::FaultSpec>,
+    /// While set, the indicators stop sending (a stalled receiver).
+    pub indicator_stall: Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl Default for SimTricalOptions {
+    fn default() -> Self {
+        Self {
+            arm_speed_deg_s: 720.0,
+            indicator_rate_hz: 200.0,
+            max_joint_step_deg: 30.0,
+            rws_faults: Vec::new(),
+            indicator_stall: Arc::default(),
+        }
+    }
+}
+
+type Shared = Arc<Mutex<SimulatedCell>>;
+
+fn with<T>(cell: &Shared, f: impl FnOnce(&mut SimulatedCell) -> T) -> T {
+    f(&mut cell.lock().unwrap_or_else(|p| p.into_inner()))
+}
+
+fn rad(q_deg: &[f64; 6]) -> Vec<f64> {
+    q_deg.iter().map(|v| v.to_radians()).collect()
+}
+
+/// The twin's arm behind the RWS mock: the controller plans with the nominal model, the
+/// physical arm (what the indicators see) follows the controller's joints.
+struct TwinArm {
+    cell: Shared,
+    speed_deg_s: f64,
+}
+
+impl ArmModel for TwinArm {
+    fn home_deg(&self) -> [f64; 6] {
+        let q = with(&self.cell, |c| c.joints());
+        std::array::from_fn(|i| q.get(i).map_or(0.0, |v| v.to_degrees()))
+    }
+    fn tool_pose(&self, q_deg: &[f64; 6]) -> ([f64; 3], [f64; 4]) {
+        let f = with(&self.cell, |c| c.twin.nominal.tcp(&rad(q_deg), None));
+        let q = nalgebra::UnitQuaternion::from_matrix(&f.r);
+        ([f.p.x, f.p.y, f.p.z], [q.w, q.i, q.j, q.k])
+    }
+    fn rel_tool(&self, q_deg: &[f64; 6], dp_mm: [f64; 3]) -> Option<[f64; 6]> {
+        let q = with(&self.cell, |c| c.tool_move_target(&rad(q_deg), dp_mm)).ok()?;
+        Some(std::array::from_fn(|i| q[i].to_degrees()))
+    }
+    fn speed_deg_s(&self) -> f64 {
+        self.speed_deg_s
+    }
+    fn moved(&mut self, q_deg: &[f64; 6]) {
+        // The controller already refused targets outside its limits.
+        let _ = with(&self.cell, |c| c.move_joints(&rad(q_deg)));
+    }
+}
+
+/// The twin's indicators behind the U-WAVE mock: plungers at mid-travel when the TCP is on
+/// the ball centre, saturated at the ends of travel, fully extended with no ball.
+struct TwinIndicators {
+    cell: Shared,
+    stall: Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl IndicatorModel for TwinIndicators {
+    fn channels(&self) -> Vec<u8> {
+        vec![0, 1, 2]
+    }
+    fn read_mm(&mut self, channel: u8, _t_s: f64) -> Option<f64> {
+        if self.stall.load(std::sync::atomic::Ordering::SeqCst) {
+            return None;
+        }
+        let h = INDICATOR_HALF_RANGE_MM;
+        let v = match with(&self.cell, |c| c.indicator_values()) {
+            Some(v) => v[usize::from(channel).min(2)].clamp(-h, h),
+            None => -h,
+        };
+        Some(INDICATOR_ZERO_MM + v)
+    }
+}
+
+fn mock_err(device: &str, e: impl std::fmt::Display) -> LabError {
+    LabError::Mock {
+        device: device.into(),
+        message: e.to_string(),
+    }
+}
+
+/// Start the simulated TriCal cell: the twin (true parameters from `seed`), an RWS mock on
+/// a loopback port and a U-WAVE mock on a pseudo-terminal, and driver actors connected to
+/// them.
+pub(super) async fn simulated(
+    seed: u64,
+    o: &SimTricalOptions,
+) -> Result<(TricalCell, Vec<RunningMock>), LabError> {
+    let twin = SerialTwin::irb120(seed);
+    let file = twin.file.clone();
+    let ballbar = twin.ballbar;
+    let limits: Vec<[f64; 2]> = twin
+        .nominal
+        .actuated()
+        .iter()
+        .map(|&j| {
+            twin.nominal.joints[j]
+                .limits
+                .unwrap_or([-std::f64::consts::PI, std::f64::consts::PI])
+        })
+        .collect();
+    let cell: Shared = Arc::new(Mutex::new(SimulatedCell::new(twin, seed ^ 0x5eed)));
+    let rws_args = MockArgs::new(MockDevice::Abb);
+    let arm = TwinArm {
+        cell: cell.clone(),
+        speed_deg_s: o.arm_speed_deg_s,
+    };
+    let rws_mock = mock::start_with(
+        "127.0.0.1:0",
+        calibd_drivers::rws::mock::handler_with(
+            Box::new(arm),
+            &rws_args,
+            Faults::new(o.rws_faults.clone()),
+        ),
+    )
+    .await
+    .map_err(|e| mock_err("rws", e))?;
+    let mut uw_args = MockArgs::new(MockDevice::Uwave);
+    uw_args.rate_hz = o.indicator_rate_hz;
+    let ind: Arc<Mutex<dyn IndicatorModel>> = Arc::new(Mutex::new(TwinIndicators {
+        cell,
+        stall: o.indicator_stall.clone(),
+    }));
+    let uw_mock = mock::start_pty_with(calibd_drivers::uwave::mock::handler_with(
+        ind,
+        &uw_args,
+        Faults::default(),
+    ))
+    .map_err(|e| mock_err("uwave", e))?;
+    let backoff = Backoff {
+        initial: Duration::from_millis(50),
+        max: Duration::from_millis(500),
+        ..Backoff::default()
+    };
+    let rws = RwsHandle::connect(
+        TcpConnector::new(rws_mock.addr.clone()),
+        RwsConfig {
+            host: rws_mock.addr.clone(),
+            timeout: Duration::from_secs(2),
+            move_timeout: Duration::from_secs(20),
+            poll: Duration::from_millis(5),
+            max_joint_step_deg: o.max_joint_step_deg,
+            backoff: backoff.clone(),
+            ..RwsConfig::default()
+        },
+    );
+    let axis = |c| AxisMap {
+        channel: c,
+        sign: 1.0,
+        zero_mm: INDICATOR_ZERO_MM,
+    };
+    let uwave = UwaveHandle::connect(
+        SerialConnector {
+            path: uw_mock.addr.clone(),
+            baud: 57_600,
+            recorder: None,
+        },
+        UwaveConfig {
+            timeout: Duration::from_millis(500),
+            axes: [axis(0), axis(1), axis(2)],
+            backoff,
+            ..UwaveConfig::default()
+        },
+    );
+    let envelope = Envelope {
+        limits,
+        max_joint_step: o.max_joint_step_deg.to_radians(),
+        max_tool_step_mm: 6.5,
+    };
+    let robot = MotionLimiter::new(RwsRobot::new(rws, "irb120.rws"), envelope.clone());
+    let cell = TricalCell {
+        name: "irb120".into(),
+        robot: Arc::new(robot),
+        indicators: Arc::new(UwaveIndicators::new(uwave, "irb120.uwave")),
+        model: Mutex::new(file),
+        ballbar,
+        envelope,
+        devices: vec!["irb120.rws".into(), "irb120.uwave".into()],
+    };
+    Ok((cell, vec![rws_mock, uw_mock]))
+}
