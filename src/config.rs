@@ -105,6 +105,11 @@ pub struct Config {
     pub devices: Vec<String>,
     /// Authentication.
     pub auth: AuthConfig,
+    /// The lab the campaign kinds drive: `sim` (the simulated lab on loopback: digital
+    /// twins behind the mock device servers, driven over the real protocols) or `none`.
+    pub lab: String,
+    /// Seed of the simulated lab's twins.
+    pub lab_seed: u64,
 }
 
 impl Default for Config {
@@ -119,6 +124,8 @@ impl Default for Config {
             log_format: LogFormat::Text,
             devices: Vec::new(),
             auth: AuthConfig::default(),
+            lab: "sim".into(),
+            lab_seed: 7,
         }
     }
 }
@@ -133,6 +140,8 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ("CALIBD_REQUEST_TIMEOUT_S", "request_timeout_s: integer"),
     ("CALIBD_LOG_FORMAT", "log_format: text or json"),
     ("CALIBD_DEVICES", "devices: comma-separated names"),
+    ("CALIBD_LAB", "lab: sim or none"),
+    ("CALIBD_LAB_SEED", "lab_seed: integer"),
     (
         "CALIBD_ANONYMOUS_READ",
         "auth.anonymous_read: true or false",
@@ -214,6 +223,17 @@ impl Config {
                         .map(String::from)
                         .collect()
                 }
+                "CALIBD_LAB" => {
+                    if !matches!(v.trim(), "sim" | "none") {
+                        return Err(ConfigError::Env {
+                            name,
+                            value: v,
+                            message: "expected sim or none".into(),
+                        });
+                    }
+                    self.lab = v.trim().into();
+                }
+                "CALIBD_LAB_SEED" => self.lab_seed = parse(name, &v)?,
                 "CALIBD_ANONYMOUS_READ" => self.auth.anonymous_read = parse(name, &v)?,
                 "CALIBD_TOKENS" => {
                     let mut tokens = Vec::new();

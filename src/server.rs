@@ -32,6 +32,15 @@ pub enum ServeError {
     /// The listener.
     #[error("serve: {0}")]
     Io(#[from] std::io::Error),
+    /// The lab's devices.
+    #[error("lab: {0}")]
+    Lab(String),
+}
+
+impl From<crate::lab::LabError> for ServeError {
+    fn from(e: crate::lab::LabError) -> Self {
+        ServeError::Lab(e.to_string())
+    }
 }
 
 /// What the daemon set up, for logging by the binary.
@@ -63,13 +72,31 @@ pub async fn start(
         auth.add_token("operator", Role::Operator, &token);
         startup.operator_token_file = Some(path);
     }
-    let (service, workers) = Service::start(
+    let lab = match config.lab.as_str() {
+        "none" => None,
+        "sim" => {
+            let opts = crate::lab::SimOptions {
+                seed: config.lab_seed,
+                ..Default::default()
+            };
+            let lab = crate::lab::Lab::simulated(&opts).await?;
+            tracing::info!(devices = ?lab.device_names(), addresses = ?lab.mock_addresses(), "simulated lab started on loopback");
+            Some(Arc::new(lab))
+        }
+        other => {
+            return Err(ServeError::Lab(format!(
+                "unknown lab `{other}` (sim or none)"
+            )));
+        }
+    };
+    let (service, workers) = Service::start_with_lab(
         store,
         ServiceConfig {
             workers: config.worker_count(),
             max_queued: config.max_queued,
             devices: config.devices.clone(),
         },
+        lab,
         shutdown.clone(),
     )
     .await?;

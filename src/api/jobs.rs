@@ -19,6 +19,8 @@ pub(super) fn router() -> Router<AppState> {
         .route("/jobs", post(submit).get(list))
         .route("/jobs/{id}", get(one))
         .route("/jobs/{id}/cancel", post(cancel))
+        .route("/jobs/{id}/resume", post(resume))
+        .route("/jobs/{id}/measurements", get(measurements))
         .route("/jobs/{id}/rerun", post(rerun))
         .route("/jobs/{id}/result", get(result))
         .route("/jobs/{id}/table", get(table))
@@ -126,6 +128,25 @@ async fn cancel(
     caller.require(Role::Submitter)?;
     let state = s.service.cancel(id).await?;
     Ok(Json(json!({"id": id, "state": state})))
+}
+
+async fn resume(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require(Role::Operator)?;
+    let state = s.service.resume(id).await?;
+    Ok(Json(json!({"id": id, "state": state})))
+}
+
+async fn measurements(
+    State(s): State<AppState>,
+    caller: Caller,
+    Path(id): Path<i64>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    Ok(Json(s.service.measurements(id).await?))
 }
 
 async fn rerun(

@@ -18,6 +18,7 @@ pub(super) fn router() -> Router<AppState> {
         .route("/examples", get(example_list))
         .route("/examples/{name}", get(example))
         .route("/devices", get(devices))
+        .route("/cells", get(cells))
 }
 
 pub(super) fn root_router() -> Router<AppState> {
@@ -72,6 +73,11 @@ async fn example(caller: Caller, Path(name): Path<String>) -> Result<Json<Value>
 async fn devices(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     Ok(Json(json!({"devices": s.service.devices()})))
+}
+
+async fn cells(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    Ok(Json(json!({"cells": s.service.cells().await?})))
 }
 
 async fn openapi() -> Response {

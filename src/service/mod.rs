@@ -3,6 +3,7 @@
 //! API, the scheduler and tests talk to it through [`Service`]; it knows jobs and the
 //! store, not models.
 
+mod cells;
 mod events;
 mod queue;
 mod types;
@@ -46,6 +47,8 @@ struct Shared {
     events: broadcast::Sender<Event>,
     progress_tx: mpsc::UnboundedSender<Event>,
     shutdown: CancellationToken,
+    lab: Option<Arc<crate::lab::Lab>>,
+    runtime: tokio::runtime::Handle,
 }
 
 /// Handle to the job service; cheap to clone.
@@ -75,6 +78,25 @@ impl Service {
         config: ServiceConfig,
         shutdown: CancellationToken,
     ) -> Result<(Service, worker::Workers), ServiceError> {
+        Self::start_with_lab(store, config, None, shutdown).await
+    }
+
+    /// [`Service::start`] with a lab whose cells the campaign kinds drive. Campaigns that
+    /// were running when the daemon stopped are queued again and resume from their journal;
+    /// each cell gets its current model from the store.
+    pub async fn start_with_lab(
+        store: Store,
+        mut config: ServiceConfig,
+        lab: Option<Arc<crate::lab::Lab>>,
+        shutdown: CancellationToken,
+    ) -> Result<(Service, worker::Workers), ServiceError> {
+        if let Some(l) = &lab {
+            for d in l.device_names() {
+                if !config.devices.contains(&d) {
+                    config.devices.push(d);
+                }
+            }
+        }
         let (events, _) = broadcast::channel(4096);
         let (progress_tx, progress_rx) = mpsc::unbounded_channel();
         let svc = Service {
@@ -87,8 +109,11 @@ impl Service {
                 events,
                 progress_tx,
                 shutdown,
+                lab,
+                runtime: tokio::runtime::Handle::current(),
             }),
         };
+        cells::load_current_models(&svc).await;
         let st = store.clone();
         let recovered = blocking(move || Ok(st.recover()?)).await?;
         for id in &recovered.interrupted {
@@ -97,7 +122,25 @@ impl Service {
                 "job was running when the daemon stopped: marked interrupted"
             );
         }
-        for (id, priority, _doc) in recovered.queued {
+        let mut queued = recovered.queued;
+        for id in recovered.interrupted {
+            if cells::resumable(&store, id).await {
+                let st = store.clone();
+                let ok = blocking(move || {
+                    Ok(st.resume_job(
+                        id,
+                        "the daemon restarted: the campaign continues from its journal",
+                    )?)
+                })
+                .await?;
+                if ok {
+                    tracing::info!(job = id, "resuming campaign after restart");
+                    let prio = store.job(id).ok().flatten().map_or(0, |r| r.priority);
+                    queued.push((id, prio, Value::Null));
+                }
+            }
+        }
+        for (id, priority, _doc) in queued {
             let devices = doc_devices(&store, id);
             lock(&svc.shared.queue).push(Entry {
                 id,

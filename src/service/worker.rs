@@ -82,7 +82,7 @@ async fn next(svc: &Service) -> Entry {
 
 /// What became of a job.
 enum Outcome {
-    Succeeded,
+    Succeeded(serde_json::Value),
     Ended(JobState, Option<String>),
 }
 
@@ -181,10 +181,17 @@ async fn run_one(svc: &Service, entry: Entry) {
         )
     });
     let (state, error) = match outcome {
-        Outcome::Succeeded => (JobState::Succeeded, None),
+        Outcome::Succeeded(result) => {
+            super::cells::after_success(svc, id, &job.kind, &result).await;
+            (JobState::Succeeded, None)
+        }
         Outcome::Ended(s, e) => (s, e),
     };
-    if state != JobState::Succeeded {
+    if state == JobState::Paused {
+        let st = store.clone();
+        let e2 = error.clone().unwrap_or_default();
+        let _ = tokio::task::spawn_blocking(move || st.pause_job(id, &e2)).await;
+    } else if state != JobState::Succeeded {
         let st = store.clone();
         let e2 = error.clone();
         let _ = tokio::task::spawn_blocking(move || st.end_job(id, state, e2.as_deref())).await;
@@ -209,7 +216,18 @@ fn execute(
     job: &jobs::Job,
     monitor: &JobMonitor,
 ) -> Outcome {
-    match job.run(monitor) {
+    let journal = crate::store::StoreJournal {
+        store: store.clone(),
+        job: id,
+    };
+    let ctx = jobs::RunContext {
+        lab: svc.shared.lab.as_deref(),
+        journal: job
+            .resumable()
+            .then_some(&journal as &dyn crate::procedures::Journal),
+        runtime: Some(&svc.shared.runtime),
+    };
+    match job.run_in(&ctx, monitor) {
         Ok(done) => {
             let mut artefacts: Vec<StoredArtefact> = done
                 .artefacts
@@ -231,7 +249,7 @@ fn execute(
             }
             let csv = done.main_table.as_ref().map(|t| t.to_csv());
             match store.finish_job(id, &done.result, csv.as_deref(), &artefacts) {
-                Ok(true) => Outcome::Succeeded,
+                Ok(true) => Outcome::Succeeded(done.result),
                 Ok(false) => Outcome::Ended(
                     JobState::Failed,
                     Some("the job was no longer running".into()),
@@ -258,6 +276,7 @@ fn execute(
                 )
             }
         }
+        Err(e @ JobError::Paused { .. }) => Outcome::Ended(JobState::Paused, Some(e.to_string())),
         Err(e) => Outcome::Ended(JobState::Failed, Some(e.to_string())),
     }
 }

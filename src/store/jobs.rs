@@ -51,7 +51,7 @@ fn finish(raw: (JobRecord, String, String, String)) -> Result<JobRecord, StoreEr
     Ok(j)
 }
 
-fn log_tx(
+pub(super) fn log_tx(
     c: &rusqlite::Connection,
     job: Option<i64>,
     level: &str,
@@ -197,7 +197,7 @@ impl Store {
             let tx = c.transaction()?;
             let n = tx.execute(
                 "UPDATE jobs SET state = ?2, finished_at = ?3, error = ?4 \
-                 WHERE id = ?1 AND state IN ('queued', 'running')",
+                 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
                 params![id, state.as_str(), now(), error],
             )?;
             if n == 1 {

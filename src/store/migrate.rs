@@ -88,6 +88,26 @@ const STEPS: &[&str] = &[
         message TEXT
     );
     CREATE INDEX schedule_runs_schedule ON schedule_runs(schedule_id, id);",
+    // 2: campaign measurement journals and the cells' model history.
+    "CREATE TABLE measurements (
+        job_id INTEGER NOT NULL REFERENCES jobs(id),
+        idx INTEGER NOT NULL,
+        status TEXT NOT NULL,
+        data TEXT NOT NULL,
+        at TEXT NOT NULL,
+        PRIMARY KEY (job_id, idx)
+    );
+    CREATE TABLE cell_models (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        cell TEXT NOT NULL,
+        job_id INTEGER,
+        state TEXT NOT NULL,
+        reason TEXT NOT NULL,
+        validation TEXT NOT NULL,
+        model TEXT NOT NULL,
+        at TEXT NOT NULL
+    );
+    CREATE INDEX cell_models_cell ON cell_models(cell, id);",
 ];
 
 /// The schema version this binary writes.

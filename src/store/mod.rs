@@ -6,6 +6,7 @@
 //! so a crash either keeps the whole result or leaves the job `running`, which
 //! [`Store::recover`] turns into `interrupted` on the next start.
 
+mod campaigns;
 mod datasets;
 mod jobs;
 mod migrate;
@@ -19,6 +20,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use rusqlite::{Connection, OpenFlags};
 
+pub use campaigns::{CellModel, StoreJournal};
 pub use datasets::DatasetInfo;
 pub use jobs::{JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered};
 pub use migrate::SCHEMA_VERSION;

@@ -19,17 +19,20 @@ pub enum JobState {
     Cancelled,
     /// Was running when the daemon stopped without finishing it.
     Interrupted,
+    /// A campaign stopped on persistent device faults; the operator resumes or cancels it.
+    Paused,
 }
 
 impl JobState {
     /// Every state, in life order.
-    pub const ALL: [JobState; 6] = [
+    pub const ALL: [JobState; 7] = [
         JobState::Queued,
         JobState::Running,
         JobState::Succeeded,
         JobState::Failed,
         JobState::Cancelled,
         JobState::Interrupted,
+        JobState::Paused,
     ];
 
     /// The name used in the API and the database.
@@ -41,6 +44,7 @@ impl JobState {
             JobState::Failed => "failed",
             JobState::Cancelled => "cancelled",
             JobState::Interrupted => "interrupted",
+            JobState::Paused => "paused",
         }
     }
 
@@ -51,7 +55,10 @@ impl JobState {
 
     /// True once the job will not change any more.
     pub fn is_final(self) -> bool {
-        !matches!(self, JobState::Queued | JobState::Running)
+        !matches!(
+            self,
+            JobState::Queued | JobState::Running | JobState::Paused
+        )
     }
 }
 

@@ -36,7 +36,7 @@ impl Default for CentringSpec {
             epsilon_mm: d.epsilon_mm,
             max_iterations: d.max_iterations,
             max_step_mm: d.max_step_mm,
-            settle_ms: 0,
+            settle_ms: d.settle.as_millis() as u64,
             reading_timeout_ms: d.reading_timeout.as_millis() as u64,
         }
     }

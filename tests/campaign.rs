@@ -1,0 +1,242 @@
+//! TriCal campaigns in the daemon's service against the simulated lab, over the real RWS
+//! and U-WAVE protocols: device faults are retried, persistent ones pause the campaign, and
+//! a resumed campaign ends with exactly the measurement set of an uninterrupted one; the
+//! overnight schedule runs a campaign and the cell's model is replaced only when validation
+//! improves.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+use calibd::lab::{Lab, SimOptions};
+use calibd::procedures::JournalEntry;
+use calibd::schedule::{Clock, Scheduler};
+use calibd::service::{Origin, Service, ServiceConfig, Submitter};
+use calibd::store::{JobState, MissedPolicy, NewSchedule, Store};
+use chrono::TimeZone;
+use serde_json::{Value, json};
+use tokio_util::sync::CancellationToken;
+
+fn campaign() -> Value {
+    json!({
+        "kind": "cell.trical_campaign",
+        "cell": "irb120",
+        "design": {"pool_per_ball": 16, "per_ball": 6, "seed": 3},
+        "validation": {"per_ball": 2, "seed": 4},
+        "options": {
+            "centring": {"settle_ms": 40, "reading_timeout_ms": 400},
+            "retry": {"attempts": 2, "backoff_ms": 50}
+        }
+    })
+}
+
+struct Daemon {
+    _dir: tempfile::TempDir,
+    svc: Service,
+    lab: Arc<Lab>,
+    stop: CancellationToken,
+}
+
+async fn daemon(opts: SimOptions) -> Daemon {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(dir.path()).unwrap();
+    let lab = Arc::new(Lab::simulated(&opts).await.unwrap());
+    let stop = CancellationToken::new();
+    let cfg = ServiceConfig {
+        workers: 1,
+        ..Default::default()
+    };
+    let (svc, _w) = Service::start_with_lab(store, cfg, Some(lab.clone()), stop.clone())
+        .await
+        .unwrap();
+    Daemon {
+        _dir: dir,
+        svc,
+        lab,
+        stop,
+    }
+}
+
+fn operator() -> Submitter {
+    Submitter {
+        name: Some("test".into()),
+        may_drive_devices: true,
+    }
+}
+
+/// Wait until job `id` is in one of `states` (or fail after two minutes).
+async fn until_state(svc: &Service, id: i64, states: &[JobState]) -> calibd::store::JobRecord {
+    for _ in 0..1200 {
+        let j = svc.job(id).await.unwrap();
+        if states.contains(&j.state) {
+            return j;
+        }
+        assert!(
+            !j.state.is_final() || states.contains(&j.state),
+            "job {id} ended {:?}: {:?}",
+            j.state,
+            j.error
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    panic!("job {id} never reached {states:?}");
+}
+
+async fn journal(svc: &Service, id: i64) -> Vec<JournalEntry> {
+    let v = svc.measurements(id).await.unwrap();
+    serde_json::from_value(v["entries"].clone()).unwrap()
+}
+
+async fn uninterrupted() -> (Vec<JournalEntry>, Value) {
+    let d = daemon(SimOptions::default()).await;
+    let id = d
+        .svc
+        .submit(campaign(), 0, operator(), Origin::default())
+        .await
+        .unwrap();
+    until_state(&d.svc, id, &[JobState::Succeeded]).await;
+    let r = d.svc.store().result(id).unwrap().unwrap();
+    let j = journal(&d.svc, id).await;
+    d.stop.cancel();
+    (j, r)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn faults_are_retried_a_stall_pauses_and_resume_ends_with_the_uninterrupted_set() {
+    let (reference, r0) = uninterrupted().await;
+    assert_eq!(
+        reference.len(),
+        24,
+        "18 campaign + 6 validation configurations"
+    );
+    // Validation at the noise level of the twin (centring tolerance 0.010 mm), against
+    // millimetres for the nominal model.
+    let after = r0["validation"]["after"]["mean"].as_f64().unwrap();
+    let before = r0["validation"]["before"]["mean"].as_f64().unwrap();
+    assert!(after < 0.010 && before > 0.3, "{before} -> {after}");
+
+    // The same cell with transient RWS faults (garbage, a dropped connection, a device
+    // error) and, after a few measurements, an indicator receiver that stops sending.
+    let mut opts = SimOptions::default();
+    opts.trical.rws_faults = ["garbage@60", "drop@140", "device-error@230"]
+        .iter()
+        .map(|s| s.parse().unwrap())
+        .collect();
+    let stall = opts.trical.indicator_stall.clone();
+    let d = daemon(opts).await;
+    let id = d
+        .svc
+        .submit(campaign(), 0, operator(), Origin::default())
+        .await
+        .unwrap();
+    for _ in 0..600 {
+        if journal(&d.svc, id).await.len() >= 6 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    stall.store(true, Ordering::SeqCst);
+    let paused = until_state(&d.svc, id, &[JobState::Paused]).await;
+    let reason = paused.error.unwrap_or_default();
+    assert!(reason.contains("paused at configuration"), "{reason}");
+    let held = journal(&d.svc, id).await.len();
+    assert!((6..24).contains(&held), "{held}");
+    // Nothing moves while paused; the operator clears the fault and resumes.
+    stall.store(false, Ordering::SeqCst);
+    assert_eq!(d.svc.resume(id).await.unwrap(), JobState::Queued);
+    until_state(&d.svc, id, &[JobState::Succeeded]).await;
+    let got = journal(&d.svc, id).await;
+    assert_eq!(
+        got, reference,
+        "the resumed campaign measured exactly the uninterrupted set"
+    );
+    let logs = d.svc.store().logs(id).unwrap();
+    assert!(logs.iter().any(|l| l.message.starts_with("paused:")));
+    assert!(logs.iter().any(|l| l.message.starts_with("resumed:")));
+    // A finished campaign cannot be resumed.
+    assert!(d.svc.resume(id).await.is_err());
+    let _ = &d.lab;
+    d.stop.cancel();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_overnight_schedule_calibrates_and_only_an_improvement_replaces_the_model() {
+    // 01:59:58 in Berlin (CET): the 02:00 schedule fires two seconds from now.
+    let clock = Clock::starting_at(
+        chrono::Utc
+            .with_ymd_and_hms(2026, 1, 10, 0, 59, 58)
+            .unwrap(),
+    );
+    let d = daemon(SimOptions::default()).await;
+    let store = d.svc.store().clone();
+    let sid = store
+        .insert_schedule(
+            &NewSchedule {
+                name: "overnight-trical".into(),
+                cron: "0 2 * * *".into(),
+                timezone: "Europe/Berlin".into(),
+                job: campaign(),
+                priority: 0,
+                missed: MissedPolicy::Skip,
+                enabled: true,
+            },
+            Some("operator"),
+            &calibd::store::format_time(clock.now()),
+        )
+        .unwrap();
+    tokio::spawn(Scheduler::new(clock).run(d.svc.clone(), d.stop.clone()));
+    let mut job = None;
+    for _ in 0..200 {
+        if let Some(r) = store.schedule_runs(sid, 5).unwrap().first() {
+            job = r.job_id;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let night1 = job.expect("the schedule submitted the campaign at 02:00");
+    until_state(&d.svc, night1, &[JobState::Succeeded]).await;
+    let cells = d.svc.cells().await.unwrap();
+    let models = cells[0]["models"].as_array().unwrap().clone();
+    assert_eq!(models.len(), 1);
+    assert_eq!(models[0]["state"], "current", "{}", models[0]["reason"]);
+    assert_eq!(models[0]["job_id"], night1);
+    // The cell now runs on the calibrated model: the next campaign starts from it, its
+    // validation is already at the noise level, and its candidate is kept as rejected.
+    let calibrated = d
+        .lab
+        .trical
+        .as_ref()
+        .unwrap()
+        .current_model()
+        .to_chain()
+        .unwrap();
+    let stored: calibd::model::dh::DhFile =
+        serde_json::from_value(models[0]["model"].clone()).unwrap();
+    let stored = stored.to_chain().unwrap();
+    let q = [0.3, 0.2, -0.1, 0.5, 0.8, -0.4];
+    let gap = (calibrated.tcp(&q, None).p - stored.tcp(&q, None).p).norm();
+    assert!(
+        gap < 1e-9,
+        "the cell's model is the stored current model ({gap} mm)"
+    );
+    let night2 = d
+        .svc
+        .submit(campaign(), 0, operator(), Origin::default())
+        .await
+        .unwrap();
+    until_state(&d.svc, night2, &[JobState::Succeeded]).await;
+    let r2 = store.result(night2).unwrap().unwrap();
+    assert!(r2["validation"]["before"]["mean"].as_f64().unwrap() < 0.010);
+    let cells = d.svc.cells().await.unwrap();
+    let models = cells[0]["models"].as_array().unwrap();
+    assert_eq!(models.len(), 2);
+    assert_eq!(models[0]["state"], "rejected");
+    assert!(
+        models[0]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("did not improve")
+    );
+    assert_eq!(models[1]["state"], "current");
+    d.stop.cancel();
+}
