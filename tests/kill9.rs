@@ -191,3 +191,101 @@ async fn sigkill_at_random_moments_loses_no_result() {
         kept.len()
     );
 }
+
+/// Submit a document with the data folder's operator token; returns the job id.
+async fn submit(c: &reqwest::Client, d: &Daemon, data: &std::path::Path, doc: &Value) -> i64 {
+    let token = std::fs::read_to_string(data.join("operator.token")).unwrap();
+    let r = c
+        .post(format!("{}/v1/jobs", d.url))
+        .bearer_auth(token.trim())
+        .json(doc)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    r.json::<Value>().await.unwrap()["id"].as_i64().unwrap()
+}
+
+async fn journal(c: &reqwest::Client, d: &Daemon, id: i64) -> Vec<Value> {
+    get(c, &format!("{}/v1/jobs/{id}/measurements", d.url)).await["entries"]
+        .as_array()
+        .unwrap()
+        .clone()
+}
+
+async fn until_done(c: &reqwest::Client, d: &Daemon, id: i64) -> Value {
+    for _ in 0..1200 {
+        let j = get(c, &format!("{}/v1/jobs/{id}", d.url)).await;
+        if j["state"] == "succeeded" {
+            return j;
+        }
+        assert!(
+            j["state"] == "queued" || j["state"] == "running",
+            "campaign {id} is {}: {}",
+            j["state"],
+            j["error"]
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    panic!("campaign {id} did not finish");
+}
+
+/// A TriCal campaign on the simulated lab (over RWS and U-WAVE), killed with SIGKILL after
+/// a seeded number of measurements: the restarted daemon resumes it from its journal and
+/// ends with exactly the measurement set of an uninterrupted run of the same seed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_campaign_killed_mid_way_resumes_and_measures_what_an_uninterrupted_one_does() {
+    let http = reqwest::Client::new();
+    let doc = serde_json::json!({
+        "kind": "cell.trical_campaign",
+        "design": {"pool_per_ball": 16, "per_ball": 6, "seed": 5},
+        "validation": {"per_ball": 2, "seed": 6},
+        "options": {"centring": {"settle_ms": 40}}
+    });
+    // Uninterrupted reference.
+    let ref_dir = tempfile::tempdir().unwrap();
+    let r = spawn(ref_dir.path());
+    let id = submit(&http, &r, ref_dir.path(), &doc).await;
+    until_done(&http, &r, id).await;
+    let reference = journal(&http, &r, id).await;
+    let ref_result = get(&http, &format!("{}/v1/jobs/{id}/result", r.url)).await;
+    drop(r);
+    assert_eq!(reference.len(), 24);
+
+    let data = tempfile::tempdir().unwrap();
+    let mut d = spawn(data.path());
+    let id = submit(&http, &d, data.path(), &doc).await;
+    let mut rng = Rng::new(7);
+    for kill in 0..2 {
+        let at = 4 + 8 * kill + rng.range(0.0, 5.0) as usize;
+        for _ in 0..1200 {
+            if journal(&http, &d, id).await.len() >= at {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let held = journal(&http, &d, id).await;
+        d.child.kill().unwrap(); // SIGKILL, mid-campaign
+        d.child.wait().unwrap();
+        drop(d);
+        d = spawn(data.path());
+        // What was committed before the kill is all there.
+        let now = journal(&http, &d, id).await;
+        assert!(
+            now.len() >= held.len() && now[..held.len()] == held[..],
+            "kill {kill}"
+        );
+        assert!(
+            now.len() < 24,
+            "kill {kill} came after the campaign finished"
+        );
+    }
+    until_done(&http, &d, id).await;
+    let got = journal(&http, &d, id).await;
+    assert_eq!(got, reference, "no configuration measured twice or lost");
+    let logs = get(&http, &format!("{}/v1/jobs/{id}/logs", d.url)).await;
+    assert!(logs.to_string().contains("resumed"), "{logs}");
+    let result = get(&http, &format!("{}/v1/jobs/{id}/result", d.url)).await;
+    assert_eq!(result["calibrated_model"], ref_result["calibrated_model"]);
+    assert!(result["validation"]["after"]["mean"].as_f64().unwrap() < 0.010);
+}

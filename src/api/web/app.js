@@ -33,7 +33,9 @@ function row(j) {
   const cancel = (j.state === "queued" || j.state === "running")
     ? el("button", { type: "button", class: "cancel", onclick: (e) => { e.stopPropagation(); cancelJob(j.id); } }, "cancel") : "";
   const cells = [el("td", {}, String(j.id)), el("td", {}, j.kind), el("td", { class: "state state-" + j.state }, j.state),
-    el("td", { title: j.stage || "" }, bar), el("td", {}, time(j.submitted_at)), el("td", {}, cancel)];
+    el("td", { title: [j.stage, j.message].filter(Boolean).join(": ") }, bar,
+      j.state === "running" && j.message ? el("small", { class: "hint" }, j.message) : ""),
+    el("td", {}, time(j.submitted_at)), el("td", {}, cancel)];
   const fresh = el("tr", { "data-id": j.id, onclick: () => showJob(j.id) }, ...cells);
   if (selected === j.id) fresh.classList.add("sel");
   if (tr) tr.replaceWith(fresh);
@@ -67,7 +69,13 @@ async function refreshJob(id) {
 function handleEvent(name, data) {
   if (name === "progress") {
     const j = jobs.get(data.id);
-    if (j) { j.progress = data.fraction; j.stage = data.stage; j.state = "running"; row(j); }
+    if (j) {
+      j.progress = data.fraction; j.stage = data.stage; j.state = "running";
+      if (data.message) j.message = data.message;
+      row(j);
+      const live = document.getElementById("detail-progress");
+      if (live && selected === data.id) live.textContent = ` — ${j.stage} (${Math.round(100 * j.progress)} %) ${j.message || ""}`;
+    }
   } else if (name === "state") {
     refreshJob(data.id).catch(() => {});
   } else if (name === "lagged") {
@@ -131,11 +139,14 @@ async function showJob(id) {
   const j = await api("/v1/jobs/" + id);
   const parts = [el("h2", {}, `Job ${j.id}: ${j.kind}`),
     el("p", {}, el("span", { class: "state state-" + j.state, id: "detail-state" }, j.state),
-      j.state === "running" && j.stage ? ` — ${j.stage} (${Math.round(100 * j.progress)} %)` : "",
+      el("span", { id: "detail-progress" },
+        j.state === "running" && j.stage ? ` — ${j.stage} (${Math.round(100 * j.progress)} %) ${j.message || ""}` : ""),
       j.error ? el("div", { class: "msg err" }, j.error) : ""),
     el("p", { class: "hint" }, `submitted ${time(j.submitted_at)} by ${j.submitted_by || "?"}` +
       (j.finished_at ? `, finished ${time(j.finished_at)}` : "")),
-    el("button", { type: "button", onclick: () => rerun(j.id) }, "re-run")];
+    el("button", { type: "button", onclick: () => rerun(j.id) }, "re-run"),
+    j.state === "paused" || j.state === "interrupted"
+      ? el("button", { type: "button", onclick: () => resumeJob(j.id) }, "resume") : ""];
   if (j.state === "succeeded") {
     const r = await api(`/v1/jobs/${id}/result`);
     const a = await api(`/v1/jobs/${id}/artefacts`);
@@ -177,6 +188,10 @@ async function download(path, name) {
 async function cancelJob(id) {
   try { await api(`/v1/jobs/${id}/cancel`, { method: "POST" }); } catch (e) { alert(e.message); }
 }
+async function resumeJob(id) {
+  try { await api(`/v1/jobs/${id}/resume`, { method: "POST" }); await refreshJob(id); } catch (e) { alert(e.message); }
+}
+
 async function rerun(id) {
   try { const r = await api(`/v1/jobs/${id}/rerun`, { method: "POST" }); await refreshJob(r.id); showJob(r.id); } catch (e) { alert(e.message); }
 }
