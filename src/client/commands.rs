@@ -38,10 +38,14 @@ pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
                 "progress" => {
                     let f = v["fraction"].as_f64().unwrap_or(0.0);
                     let stage = v["stage"].as_str().unwrap_or("");
+                    let line = match v["message"].as_str() {
+                        Some(m) => format!("{}: {m}", progress_line(f, stage)),
+                        None => progress_line(f, stage),
+                    };
                     if tty {
-                        let _ = write!(err, "\r{:<70}", progress_line(f, stage));
-                    } else if stage != last_stage {
-                        let _ = writeln!(err, "{}", progress_line(f, stage));
+                        let _ = write!(err, "\r{line:<110}");
+                    } else if stage != last_stage || v["message"].is_string() {
+                        let _ = writeln!(err, "{line}");
                     }
                     last_stage = stage.to_string();
                 }

@@ -160,6 +160,13 @@ async fn shutdown_marks_a_running_job_interrupted_and_queued_jobs_survive() {
         .submit(slow_job(), 0, who(), Origin::default())
         .await
         .unwrap();
+    for _ in 0..3000 {
+        if svc.job(slow).await.unwrap().state == JobState::Running {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    // Queued behind the running job (the only worker is busy).
     let next = svc
         .submit(
             crate::jobs::examples::twin_fk(1),
@@ -169,12 +176,6 @@ async fn shutdown_marks_a_running_job_interrupted_and_queued_jobs_survive() {
         )
         .await;
     let next = next.unwrap();
-    for _ in 0..3000 {
-        if svc.job(slow).await.unwrap().state == JobState::Running {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(5)).await;
-    }
     stop.cancel();
     w.join().await;
     let j = svc.store().job(slow).unwrap().unwrap();
