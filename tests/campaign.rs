@@ -240,3 +240,79 @@ async fn the_overnight_schedule_calibrates_and_only_an_improvement_replaces_the_
     assert_eq!(models[1]["state"], "current");
     d.stop.cancel();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cell_centre_centres_on_a_ball_and_every_abort_says_why() {
+    let opts = SimOptions::default();
+    let stall = opts.trical.indicator_stall.clone();
+    let lab = Lab::simulated(&opts).await.unwrap();
+    let cell = lab.trical.as_ref().unwrap();
+    let chain = cell.current_model().to_chain().unwrap();
+    let plate = calibd::measure::BallPlate::from_ballbar(
+        cell.ballbar[0],
+        cell.ballbar[1],
+        cell.ballbar[2],
+    )
+    .unwrap();
+    let centres: Vec<_> = plate.centres.iter().flatten().copied().collect();
+    // A start configuration on ball 2 by the nominal model (the true arm is mm away).
+    let (q, _) = calibd::design::balls::ball_pool(
+        &chain,
+        &centres[1..2],
+        1,
+        9,
+        |r| {
+            vec![
+                r.range(-1.0, 1.5),
+                r.range(-0.5, 1.0),
+                r.range(-1.0, 0.7),
+                r.range(-2.5, 2.5),
+                r.range(-1.9, 1.9),
+                r.range(-5.0, 5.0),
+            ]
+        },
+        |q| q[4].abs() > 0.2,
+    )
+    .remove(0);
+    let rt = tokio::runtime::Handle::current();
+    let run = move |doc: Value| {
+        let lab = &lab;
+        let rt = rt.clone();
+        std::thread::scope(|s| {
+            s.spawn(move || {
+                let job = calibd::jobs::prepare(&doc, &calibd::jobs::NoReferences).unwrap();
+                assert_eq!(job.devices(), ["irb120.rws", "irb120.uwave"]);
+                let ctx = calibd::jobs::RunContext {
+                    lab: Some(lab),
+                    journal: None,
+                    runtime: Some(&rt),
+                };
+                job.run_in(&ctx, &calibd::util::NoMonitor)
+            })
+            .join()
+            .unwrap()
+        })
+    };
+    let q_deg: Vec<f64> = q.iter().map(|v| v.to_degrees()).collect();
+    let doc = json!({"kind": "cell.centre", "q_deg": q_deg, "options": {"settle_ms": 20}});
+    let done = tokio::task::block_in_place(|| run(doc.clone())).unwrap();
+    let r = &done.result;
+    assert!(r["residual_mm"].as_f64().unwrap() < 0.010, "{r}");
+    let first = &r["readings"][0];
+    assert!(first["norm_mm"].as_f64().unwrap() > 0.1, "the nominal start is off the ball");
+    // Far from every ball: the plungers are fully extended and the loop refuses to chase.
+    let home = json!({"kind": "cell.centre", "q_deg": [0.0, 0.0, 0.0, 0.0, 30.0, 0.0]});
+    let e = tokio::task::block_in_place(|| run(home)).unwrap_err().to_string();
+    assert!(e.contains("ball lost") && e.contains("6 mm limit"), "{e}");
+    // A silent receiver: the reading timeout names itself.
+    stall.store(true, Ordering::SeqCst);
+    let mut slow = doc.clone();
+    slow["options"]["reading_timeout_ms"] = json!(300);
+    let e = tokio::task::block_in_place(|| run(slow)).unwrap_err().to_string();
+    assert!(e.contains("no indicator reading within 300 ms"), "{e}");
+    // Outside the envelope: refused before anything moves.
+    let e = calibd::jobs::prepare(&json!({"kind": "cell.centre", "q_deg": [0.0, "x"]}), &calibd::jobs::NoReferences)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("q_deg"), "{e}");
+}
