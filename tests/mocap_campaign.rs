@@ -120,7 +120,7 @@ fn record(lab: &Lab, rt: &tokio::runtime::Runtime, j: &dyn Journal) -> Result<us
     let cell = lab.mocap.as_ref().expect("mocap cell");
     let opts = RecordOptions {
         settle: Duration::from_millis(50),
-        window: Duration::from_secs_f64(0.3),
+        window: Duration::from_secs_f64(RECORD_S),
         preprocess: Default::default(),
     };
     let retry = Retry {
