@@ -79,6 +79,10 @@ pub const KINDS: &[(&str, &str)] = &[
         "TriCal campaign on a cell: centre each (given or DETMAX) configuration, identify, validate",
     ),
     (
+        "cell.mocap_campaign",
+        "motion-capture campaign: play NOCP (or given) postures, record and pre-process markers, identify",
+    ),
+    (
         "humanoid.design",
         "optimal calibration postures (NOCP / COCP) for a marker layout, with trajectory",
     ),
@@ -200,6 +204,7 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         "humanoid.design" => Box::new(humanoid::design::prepare(doc, &inputs)?),
         "cell.centre" => Box::new(cell::centre::prepare(doc)?),
         "cell.trical_campaign" => Box::new(cell::trical::prepare(doc, &inputs)?),
+        "cell.mocap_campaign" => Box::new(cell::mocap::prepare(doc, &inputs)?),
         other => return Err(JobError::UnknownKind(other.to_string())),
     };
     let mut inputs_sha256 = inputs.into_hashes();

@@ -66,3 +66,31 @@ pub trait Indicators: Send + Sync {
     /// A fresh reading (mm), with per-indicator sign and zero already applied.
     fn read(&self) -> DeviceFuture<'_, [f64; 3]>;
 }
+
+/// A robot driven joint by joint to whole postures (a humanoid's joint interface).
+pub trait JointRobot: Send + Sync {
+    /// Names of the joints this interface drives, in the order of [`JointRobot::joints`].
+    fn joint_names(&self) -> Vec<String>;
+    /// Current joint values (rad), in the order of [`JointRobot::joint_names`].
+    fn joints(&self) -> DeviceFuture<'_, Vec<f64>>;
+    /// Move to a posture of named joint values (rad); joints not named keep their values.
+    /// Returns once the posture is reached.
+    fn move_to<'a>(&'a self, posture: &'a [(String, f64)]) -> DeviceFuture<'a, ()>;
+}
+
+/// A stretch of a motion-capture stream: labelled 3-D markers with time stamps.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MarkerFrames {
+    /// Marker labels, in the order of each frame's positions.
+    pub labels: Vec<String>,
+    /// Time stamp of each frame (s, the capture system's clock).
+    pub t_s: Vec<f64>,
+    /// Positions per frame and label (m, capture frame); `None` where occluded.
+    pub frames: Vec<Vec<Option<[f64; 3]>>>,
+}
+
+/// A motion-capture system streaming labelled markers.
+pub trait MarkerStream: Send + Sync {
+    /// Record the stream for `duration` from the next frame on.
+    fn record(&self, duration: std::time::Duration) -> DeviceFuture<'_, MarkerFrames>;
+}
