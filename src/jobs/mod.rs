@@ -79,6 +79,10 @@ pub const KINDS: &[(&str, &str)] = &[
         "TriCal campaign on a cell: centre each (given or DETMAX) configuration, identify, validate",
     ),
     (
+        "cell.pcr_campaign",
+        "3-PF campaign: Poisson-disc joint sets on the stages, microscope poses, pcr.identify, optional pcr.accuracy",
+    ),
+    (
         "humanoid.design",
         "optimal calibration postures (NOCP / COCP) for a marker layout, with trajectory",
     ),
@@ -200,6 +204,7 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         "humanoid.design" => Box::new(humanoid::design::prepare(doc, &inputs)?),
         "cell.centre" => Box::new(cell::centre::prepare(doc)?),
         "cell.trical_campaign" => Box::new(cell::trical::prepare(doc, &inputs)?),
+        "cell.pcr_campaign" => Box::new(cell::pcr::prepare(doc, &inputs)?),
         other => return Err(JobError::UnknownKind(other.to_string())),
     };
     let mut inputs_sha256 = inputs.into_hashes();

@@ -4,10 +4,13 @@
 //! protocols exactly as the daemon would reach the real instruments.
 
 pub mod adapters;
+pub mod pcr;
+pub mod pcr_adapters;
 pub mod trical;
 
 use calibd_drivers::mock::RunningMock;
 
+pub use pcr::{PcrCell, SimPcrOptions};
 pub use trical::{SimTricalOptions, TricalCell};
 
 /// Why a lab could not be started.
@@ -31,6 +34,8 @@ pub struct SimOptions {
     pub seed: u64,
     /// The TriCal cell.
     pub trical: SimTricalOptions,
+    /// The 3-PF cell.
+    pub pcr: SimPcrOptions,
 }
 
 impl Default for SimOptions {
@@ -38,6 +43,7 @@ impl Default for SimOptions {
         Self {
             seed: 7,
             trical: SimTricalOptions::default(),
+            pcr: SimPcrOptions::default(),
         }
     }
 }
@@ -46,6 +52,8 @@ impl Default for SimOptions {
 pub struct Lab {
     /// The ball-centring cell of the serial arm.
     pub trical: Option<TricalCell>,
+    /// The 3-PF robot under its microscope.
+    pub pcr: Option<PcrCell>,
     mocks: Vec<RunningMock>,
 }
 
@@ -53,6 +61,7 @@ impl std::fmt::Debug for Lab {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Lab")
             .field("trical", &self.trical.as_ref().map(|c| &c.name))
+            .field("pcr", &self.pcr.as_ref().map(|c| &c.name))
             .field("mocks", &self.mocks.len())
             .finish()
     }
@@ -63,6 +72,7 @@ impl Lab {
     pub fn empty() -> Self {
         Self {
             trical: None,
+            pcr: None,
             mocks: Vec::new(),
         }
     }
@@ -70,9 +80,12 @@ impl Lab {
     /// Start the simulated lab on loopback. Must be called inside a tokio runtime: the mock
     /// servers and the driver actors are tasks on it.
     pub async fn simulated(opts: &SimOptions) -> Result<Self, LabError> {
-        let (cell, mocks) = trical::simulated(opts.seed, &opts.trical).await?;
+        let (cell, mut mocks) = trical::simulated(opts.seed, &opts.trical).await?;
+        let (pcr, more) = pcr::simulated(opts.seed, &opts.pcr).await?;
+        mocks.extend(more);
         Ok(Self {
             trical: Some(cell),
+            pcr: Some(pcr),
             mocks,
         })
     }
@@ -81,6 +94,9 @@ impl Lab {
     pub fn device_names(&self) -> Vec<String> {
         let mut v = Vec::new();
         if let Some(c) = &self.trical {
+            v.extend(c.devices.iter().cloned());
+        }
+        if let Some(c) = &self.pcr {
             v.extend(c.devices.iter().cloned());
         }
         v

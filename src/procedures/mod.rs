@@ -7,9 +7,10 @@ pub mod devices;
 pub mod envelope;
 pub mod fakes;
 pub mod journal;
+pub mod pcr;
 pub mod trical;
 
 pub use centring::{Centred, CentringError, CentringOptions, centre};
-pub use devices::{DeviceError, DeviceFuture, Indicators, Robot};
+pub use devices::{DeviceError, DeviceFuture, Indicators, LinearStages, PoseSensor, Robot};
 pub use envelope::{Envelope, MotionLimiter};
 pub use journal::{EntryStatus, Journal, JournalEntry, MemoryJournal};

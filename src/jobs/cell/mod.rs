@@ -3,6 +3,7 @@
 //! journal every measurement before the next move.
 
 pub mod centre;
+pub mod pcr;
 pub mod trical;
 
 use std::time::Duration;
