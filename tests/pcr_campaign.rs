@@ -89,7 +89,8 @@ fn measured(j: &MemoryJournal) -> Vec<JournalEntry> {
 
 #[test]
 fn a_failed_journal_resumes_to_the_same_measurement_set() {
-    let doc = json!({"kind": "cell.pcr_campaign", "poses": 20, "seed": 4, "validation_fraction": 0.2});
+    let doc =
+        json!({"kind": "cell.pcr_campaign", "poses": 20, "seed": 4, "validation_fraction": 0.2});
     let rt = runtime();
     // Uninterrupted.
     let lab = rt

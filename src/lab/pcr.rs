@@ -133,7 +133,11 @@ impl PoseModel for TwinMicroscope {
     fn image(&mut self) -> Option<[f64; 3]> {
         with(&self.sim, |s| {
             let eq = match &s.last {
-                Some(prev) => s.twin.truth.fk_from(prev, &s.q).or_else(|_| s.twin.truth.fk(&s.q)),
+                Some(prev) => s
+                    .twin
+                    .truth
+                    .fk_from(prev, &s.q)
+                    .or_else(|_| s.twin.truth.fk(&s.q)),
                 None => s.twin.truth.fk(&s.q),
             }
             .ok()?;

@@ -12,8 +12,8 @@ use serde_json::{Value, json};
 
 use super::RunContext;
 use crate::jobs::pcr::accuracy::trajectory;
-use crate::jobs::pcr::ik::solve_rows;
 use crate::jobs::pcr::identify::IdentifyOptions;
+use crate::jobs::pcr::ik::solve_rows;
 use crate::jobs::pcr::{PcrModel, load_model};
 use crate::jobs::{Artefact, Inputs, JobError, NoReferences, Output, Prepared, Table, parse_spec};
 use crate::lab::PcrCell;
@@ -192,9 +192,7 @@ fn campaign_error(e: CampaignError) -> JobError {
     match e {
         CampaignError::Paused { index, reason } => JobError::Paused { index, reason },
         CampaignError::Cancelled => JobError::Cancelled,
-        other => JobError::Failed(format!(
-            "{other}; nothing more is measured"
-        )),
+        other => JobError::Failed(format!("{other}; nothing more is measured")),
     }
 }
 
@@ -389,7 +387,8 @@ impl Prepared for PcrCampaignJob {
                 &opts,
                 &SubMonitor::new(monitor, id_end, 1.0),
             )?;
-            out.fields.insert("accuracy".into(), Value::Object(acc.fields));
+            out.fields
+                .insert("accuracy".into(), Value::Object(acc.fields));
             acc_rec = rec;
         }
         let all: Vec<PcrRecorded> = cal.iter().chain(&val).cloned().collect();
