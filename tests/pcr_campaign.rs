@@ -136,3 +136,53 @@ fn a_failed_journal_resumes_to_the_same_measurement_set() {
     assert_eq!(r_resumed["campaign"]["recorded"], 20);
     assert_eq!(r_resumed["campaign"]["journal_entries"], 20);
 }
+
+#[test]
+fn microscope_faults_are_retried_and_a_dead_microscope_pauses_the_campaign() {
+    use calibd_drivers::mock::{FaultKind, FaultSpec};
+    let rt = runtime();
+    let mut opts = SimOptions::default();
+    opts.pcr.microscope_faults = vec![
+        FaultSpec {
+            kind: FaultKind::Garbage,
+            at: 5,
+        },
+        FaultSpec {
+            kind: FaultKind::DeviceError,
+            at: 9,
+        },
+        FaultSpec {
+            kind: FaultKind::Drop,
+            at: 12,
+        },
+    ];
+    let lab = rt.block_on(Lab::simulated(&opts)).expect("lab");
+    let doc = json!({"kind": "cell.pcr_campaign", "poses": 16, "seed": 2, "validation_fraction": 0.0,
+                     "options": {"retry": {"attempts": 3, "backoff_ms": 5}}});
+    let j = MemoryJournal::default();
+    let r = run(&rt, &lab, &doc, &j).expect("campaign survives three faults");
+    assert_eq!(r["campaign"]["recorded"], 16);
+    // Each joint set is journalled once despite the retries.
+    assert_eq!(j.entries().expect("entries").len(), 16);
+    rt.block_on(lab.stop());
+    // Every reply from reply 3 on is a device error: the campaign pauses at the first unmeasured index.
+    let mut opts = SimOptions::default();
+    opts.pcr.microscope_faults = (3..40)
+        .map(|at| FaultSpec {
+            kind: FaultKind::DeviceError,
+            at,
+        })
+        .collect();
+    let lab = rt.block_on(Lab::simulated(&opts)).expect("lab");
+    let j = MemoryJournal::default();
+    let e = run(&rt, &lab, &doc, &j).expect_err("paused");
+    match e {
+        calibd::jobs::JobError::Paused { index, reason } => {
+            assert_eq!(index, 2);
+            assert!(reason.contains("microscope"), "{reason}");
+        }
+        other => panic!("expected a pause, got {other}"),
+    }
+    assert_eq!(j.entries().expect("entries").len(), 2);
+    rt.block_on(lab.stop());
+}
