@@ -67,10 +67,10 @@ impl MicroscopeHandle {
                 let r = exchange(&mut link, c.request, cfg.timeout)
                     .await
                     .and_then(|r| fresh(r, &mut last_seq));
-                if let Err(e) = &r {
-                    if e.breaks_link() {
-                        link.reset();
-                    }
+                if let Err(e) = &r
+                    && e.breaks_link()
+                {
+                    link.reset();
                 }
                 let _ = c.reply.send(r);
             }
@@ -120,13 +120,13 @@ impl MicroscopeHandle {
 /// Refuse a pose whose image counter did not grow (the same image read twice).
 fn fresh(r: Reply, last: &mut Option<u64>) -> Result<Reply, DriverError> {
     if let Reply::Pose { seq, .. } = r {
-        if let Some(prev) = *last {
-            if seq <= prev {
-                return Err(DriverError::Protocol {
-                    device: DEVICE,
-                    detail: format!("stale image: counter {seq} after {prev}"),
-                });
-            }
+        if let Some(prev) = *last
+            && seq <= prev
+        {
+            return Err(DriverError::Protocol {
+                device: DEVICE,
+                detail: format!("stale image: counter {seq} after {prev}"),
+            });
         }
         *last = Some(seq);
     }
