@@ -113,7 +113,9 @@ impl StageModel for TwinStages {
     fn settle(&self, ch: u8, target_pm: i64) -> i64 {
         let r = self.residual_pm;
         with(&self.sim, |s| {
-            let at = target_pm + s.residual.range(-r, r).round() as i64;
+            // The closed-loop residual never carries a stage past the joint range.
+            let (lo, hi) = self.range_pm;
+            let at = (target_pm + s.residual.range(-r, r).round() as i64).clamp(lo, hi);
             if let Some(q) = s.q.get_mut(usize::from(ch)) {
                 *q = at as f64 * 1e-12;
             }
