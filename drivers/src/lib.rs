@@ -12,6 +12,7 @@ pub mod bench;
 pub mod can;
 pub mod error;
 pub mod link;
+pub mod microscope;
 pub mod mock;
 pub mod qtm;
 pub mod rws;

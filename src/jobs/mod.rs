@@ -83,6 +83,10 @@ pub const KINDS: &[(&str, &str)] = &[
         "motion-capture campaign: play NOCP (or given) postures, record and pre-process markers, identify",
     ),
     (
+        "cell.pcr_campaign",
+        "3-PF campaign: Poisson-disc joint sets on the stages, microscope poses, pcr.identify, optional pcr.accuracy",
+    ),
+    (
         "humanoid.design",
         "optimal calibration postures (NOCP / COCP) for a marker layout, with trajectory",
     ),
@@ -205,6 +209,7 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         "cell.centre" => Box::new(cell::centre::prepare(doc)?),
         "cell.trical_campaign" => Box::new(cell::trical::prepare(doc, &inputs)?),
         "cell.mocap_campaign" => Box::new(cell::mocap::prepare(doc, &inputs)?),
+        "cell.pcr_campaign" => Box::new(cell::pcr::prepare(doc, &inputs)?),
         other => return Err(JobError::UnknownKind(other.to_string())),
     };
     let mut inputs_sha256 = inputs.into_hashes();

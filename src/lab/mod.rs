@@ -6,11 +6,14 @@
 pub mod adapters;
 pub mod mocap;
 pub mod qtm_stream;
+pub mod pcr;
+pub mod pcr_adapters;
 pub mod trical;
 
 use calibd_drivers::mock::RunningMock;
 
 pub use mocap::{MocapCell, SimMocapOptions};
+pub use pcr::{PcrCell, SimPcrOptions};
 pub use trical::{SimTricalOptions, TricalCell};
 
 /// Why a lab could not be started.
@@ -36,6 +39,8 @@ pub struct SimOptions {
     pub trical: SimTricalOptions,
     /// The humanoid motion-capture cell.
     pub mocap: SimMocapOptions,
+    /// The 3-PF cell.
+    pub pcr: SimPcrOptions,
 }
 
 impl Default for SimOptions {
@@ -44,6 +49,7 @@ impl Default for SimOptions {
             seed: 7,
             trical: SimTricalOptions::default(),
             mocap: SimMocapOptions::default(),
+            pcr: SimPcrOptions::default(),
         }
     }
 }
@@ -54,6 +60,8 @@ pub struct Lab {
     pub trical: Option<TricalCell>,
     /// The humanoid motion-capture cell.
     pub mocap: Option<MocapCell>,
+    /// The 3-PF robot under its microscope.
+    pub pcr: Option<PcrCell>,
     mocks: Vec<RunningMock>,
 }
 
@@ -62,6 +70,7 @@ impl std::fmt::Debug for Lab {
         f.debug_struct("Lab")
             .field("trical", &self.trical.as_ref().map(|c| &c.name))
             .field("mocap", &self.mocap.as_ref().map(|c| &c.name))
+            .field("pcr", &self.pcr.as_ref().map(|c| &c.name))
             .field("mocks", &self.mocks.len())
             .finish()
     }
@@ -73,6 +82,7 @@ impl Lab {
         Self {
             trical: None,
             mocap: None,
+            pcr: None,
             mocks: Vec::new(),
         }
     }
@@ -83,9 +93,12 @@ impl Lab {
         let (cell, mut mocks) = trical::simulated(opts.seed, &opts.trical).await?;
         let (mocap, qtm) = mocap::simulated(opts.seed, &opts.mocap).await?;
         mocks.push(qtm);
+        let (pcr, more) = pcr::simulated(opts.seed, &opts.pcr).await?;
+        mocks.extend(more);
         Ok(Self {
             trical: Some(cell),
             mocap: Some(mocap),
+            pcr: Some(pcr),
             mocks,
         })
     }
@@ -97,6 +110,9 @@ impl Lab {
             v.extend(c.devices.iter().cloned());
         }
         if let Some(c) = &self.mocap {
+            v.extend(c.devices.iter().cloned());
+        }
+        if let Some(c) = &self.pcr {
             v.extend(c.devices.iter().cloned());
         }
         v

@@ -94,3 +94,19 @@ pub trait MarkerStream: Send + Sync {
     /// Record the stream for `duration` from the next frame on.
     fn record(&self, duration: std::time::Duration) -> DeviceFuture<'_, MarkerFrames>;
 }
+
+/// A pose source over a planar platform (the microscope of the 3-PF cell).
+pub trait PoseSensor: Send + Sync {
+    /// The pose in a fresh image: x (m), y (m), theta (rad) of the pattern in the sensor
+    /// frame.
+    fn read_pose(&self) -> DeviceFuture<'_, [f64; 3]>;
+}
+
+/// Three linear stages driving the joints of a parallel robot (the 3-PF's clamps).
+pub trait LinearStages: Send + Sync {
+    /// Move every stage to `q` (m) and return once all have settled, with the positions
+    /// they settled at (m; closed-loop stages stop a few nm from the target).
+    fn move_to<'a>(&'a self, q: &'a [f64; 3]) -> DeviceFuture<'a, [f64; 3]>;
+    /// Current positions (m).
+    fn positions(&self) -> DeviceFuture<'_, [f64; 3]>;
+}

@@ -8,11 +8,13 @@ pub mod envelope;
 pub mod fakes;
 pub mod journal;
 pub mod mocap;
+pub mod pcr;
 pub mod trical;
 
 pub use centring::{Centred, CentringError, CentringOptions, centre};
 pub use devices::{
-    DeviceError, DeviceFuture, Indicators, JointRobot, MarkerFrames, MarkerStream, Robot,
+    DeviceError, DeviceFuture, Indicators, JointRobot, LinearStages, MarkerFrames, MarkerStream,
+    PoseSensor, Robot,
 };
 pub use envelope::{Envelope, MotionLimiter};
 pub use journal::{EntryStatus, Journal, JournalEntry, MemoryJournal};

@@ -4,6 +4,7 @@
 
 pub mod centre;
 pub mod mocap;
+pub mod pcr;
 pub mod trical;
 
 use std::time::Duration;

@@ -89,7 +89,7 @@ pub struct AccuracyJob {
     source: Source,
 }
 
-fn trajectory(inputs: &Inputs<'_>, v: &Value) -> Result<(String, Vec<Pose2>), JobError> {
+pub(crate) fn trajectory(inputs: &Inputs<'_>, v: &Value) -> Result<(String, Vec<Pose2>), JobError> {
     let field = "trajectory";
     if !v.is_object() {
         let t = inputs.table(field, v)?;
