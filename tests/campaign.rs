@@ -159,6 +159,21 @@ async fn faults_are_retried_a_stall_pauses_and_resume_ends_with_the_uninterrupte
     d.stop.cancel();
 }
 
+/// The TriCal cell's model history once it holds `n` entries (the decision on a campaign's
+/// model is recorded just after the job is stored as succeeded).
+async fn history(svc: &Service, n: usize) -> Vec<Value> {
+    for _ in 0..200 {
+        let cells = svc.cells().await.unwrap();
+        let models = cells[0]["models"].as_array().unwrap().clone();
+        if models.len() >= n {
+            assert_eq!(models.len(), n);
+            return models;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    panic!("the cell's model history never reached {n} entries");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_overnight_schedule_calibrates_and_only_an_improvement_replaces_the_model() {
     // 01:59:58 in Berlin (CET): the 02:00 schedule fires two seconds from now.
@@ -195,8 +210,7 @@ async fn the_overnight_schedule_calibrates_and_only_an_improvement_replaces_the_
     }
     let night1 = job.expect("the schedule submitted the campaign at 02:00");
     until_state(&d.svc, night1, &[JobState::Succeeded]).await;
-    let cells = d.svc.cells().await.unwrap();
-    let models = cells[0]["models"].as_array().unwrap().clone();
+    let models = history(&d.svc, 1).await;
     assert_eq!(models.len(), 1);
     assert_eq!(models[0]["state"], "current", "{}", models[0]["reason"]);
     assert_eq!(models[0]["job_id"], night1);
@@ -227,9 +241,7 @@ async fn the_overnight_schedule_calibrates_and_only_an_improvement_replaces_the_
     until_state(&d.svc, night2, &[JobState::Succeeded]).await;
     let r2 = store.result(night2).unwrap().unwrap();
     assert!(r2["validation"]["before"]["mean"].as_f64().unwrap() < 0.010);
-    let cells = d.svc.cells().await.unwrap();
-    let models = cells[0]["models"].as_array().unwrap();
-    assert_eq!(models.len(), 2);
+    let models = history(&d.svc, 2).await;
     assert_eq!(models[0]["state"], "rejected");
     assert!(
         models[0]["reason"]
@@ -248,12 +260,9 @@ async fn cell_centre_centres_on_a_ball_and_every_abort_says_why() {
     let lab = Lab::simulated(&opts).await.unwrap();
     let cell = lab.trical.as_ref().unwrap();
     let chain = cell.current_model().to_chain().unwrap();
-    let plate = calibd::measure::BallPlate::from_ballbar(
-        cell.ballbar[0],
-        cell.ballbar[1],
-        cell.ballbar[2],
-    )
-    .unwrap();
+    let plate =
+        calibd::measure::BallPlate::from_ballbar(cell.ballbar[0], cell.ballbar[1], cell.ballbar[2])
+            .unwrap();
     let centres: Vec<_> = plate.centres.iter().flatten().copied().collect();
     // A start configuration on ball 2 by the nominal model (the true arm is mm away).
     let (q, _) = calibd::design::balls::ball_pool(
@@ -299,20 +308,30 @@ async fn cell_centre_centres_on_a_ball_and_every_abort_says_why() {
     let r = &done.result;
     assert!(r["residual_mm"].as_f64().unwrap() < 0.010, "{r}");
     let first = &r["readings"][0];
-    assert!(first["norm_mm"].as_f64().unwrap() > 0.1, "the nominal start is off the ball");
+    assert!(
+        first["norm_mm"].as_f64().unwrap() > 0.1,
+        "the nominal start is off the ball"
+    );
     // Far from every ball: the plungers are fully extended and the loop refuses to chase.
     let home = json!({"kind": "cell.centre", "q_deg": [0.0, 0.0, 0.0, 0.0, 30.0, 0.0]});
-    let e = tokio::task::block_in_place(|| run(home)).unwrap_err().to_string();
+    let e = tokio::task::block_in_place(|| run(home))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("ball lost") && e.contains("6 mm limit"), "{e}");
     // A silent receiver: the reading timeout names itself.
     stall.store(true, Ordering::SeqCst);
     let mut slow = doc.clone();
     slow["options"]["reading_timeout_ms"] = json!(300);
-    let e = tokio::task::block_in_place(|| run(slow)).unwrap_err().to_string();
-    assert!(e.contains("no indicator reading within 300 ms"), "{e}");
-    // Outside the envelope: refused before anything moves.
-    let e = calibd::jobs::prepare(&json!({"kind": "cell.centre", "q_deg": [0.0, "x"]}), &calibd::jobs::NoReferences)
+    let e = tokio::task::block_in_place(|| run(slow))
         .unwrap_err()
         .to_string();
+    assert!(e.contains("no indicator reading within 300 ms"), "{e}");
+    // Outside the envelope: refused before anything moves.
+    let e = calibd::jobs::prepare(
+        &json!({"kind": "cell.centre", "q_deg": [0.0, "x"]}),
+        &calibd::jobs::NoReferences,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("q_deg"), "{e}");
 }

@@ -5,9 +5,9 @@
 
 pub mod adapters;
 pub mod mocap;
-pub mod qtm_stream;
 pub mod pcr;
 pub mod pcr_adapters;
+pub mod qtm_stream;
 pub mod trical;
 
 use calibd_drivers::mock::RunningMock;
