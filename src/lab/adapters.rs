@@ -65,33 +65,38 @@ impl RwsRobot {
         device_error(&self.name, e)
     }
 
-    /// Before a move: if the last one got no reply, check it finished on the controller.
+    /// Before a move: if the last one got no reply, wait (up to 5 s) until the controller
+    /// acknowledges it; a move is never stacked on a missing reply.
     async fn confirm_previous(&self) -> Result<(), DeviceError> {
         if !self.unconfirmed.load(Ordering::SeqCst) {
             return Ok(());
         }
-        let seq = self
-            .handle
-            .read_rapid("calib_seq")
-            .await
-            .map_err(|e| self.err(e))?;
-        let ack = self
-            .handle
-            .read_rapid("calib_ack")
-            .await
-            .map_err(|e| self.err(e))?;
-        if seq.trim() != ack.trim() {
-            return Err(DeviceError::Fault {
-                device: self.name.clone(),
-                message: format!(
-                    "the previous move (sequence {}) is not acknowledged (ack {}); no new move is sent",
-                    seq.trim(),
-                    ack.trim()
-                ),
-            });
+        let (mut seq, mut ack) = (String::new(), String::new());
+        for _ in 0..50 {
+            seq = self
+                .handle
+                .read_rapid("calib_seq")
+                .await
+                .map_err(|e| self.err(e))?;
+            ack = self
+                .handle
+                .read_rapid("calib_ack")
+                .await
+                .map_err(|e| self.err(e))?;
+            if seq.trim() == ack.trim() {
+                self.unconfirmed.store(false, Ordering::SeqCst);
+                return Ok(());
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(100)).await;
         }
-        self.unconfirmed.store(false, Ordering::SeqCst);
-        Ok(())
+        Err(DeviceError::Fault {
+            device: self.name.clone(),
+            message: format!(
+                "the previous move (sequence {}) is not acknowledged (ack {}) after 5 s; no new move is sent",
+                seq.trim(),
+                ack.trim()
+            ),
+        })
     }
 
     /// After a move: remember whether its reply went missing.

@@ -108,44 +108,40 @@ fn norm(r: &[f64; 3]) -> f64 {
 }
 
 /// Move to `q` (rad) in joint-space steps no larger than `max_step` (rad), checking for
-/// cancellation before each step; the last step lands exactly on `q`.
+/// cancellation before each step. Each step starts from the joints the robot reports, so a
+/// move that went on after a lost reply is absorbed; the last step lands exactly on `q`.
 pub async fn approach(
     robot: &dyn Robot,
     q: &[f64],
     max_step: f64,
     monitor: &dyn Monitor,
 ) -> Result<(), CentringError> {
-    let now = robot.joints().await?;
-    if now.len() != q.len() {
-        return Err(CentringError::Device(DeviceError::Refused {
-            device: "procedure".into(),
-            reason: format!("{} joint values for a {}-joint robot", q.len(), now.len()),
-        }));
-    }
-    let d = now
-        .iter()
-        .zip(q)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
     // A margin for the resolution of the joints the controller reports.
-    let n = if max_step > 0.0 {
-        (d / (0.99 * max_step)).ceil().max(1.0) as usize
-    } else {
-        1
-    };
-    for k in 1..=n {
+    let step = 0.99 * max_step;
+    loop {
         if monitor.is_cancelled() {
             return Err(CentringError::Cancelled);
         }
-        let t: Vec<f64> = if k == n {
-            q.to_vec()
-        } else {
-            let s = k as f64 / n as f64;
-            now.iter().zip(q).map(|(a, b)| a + s * (b - a)).collect()
-        };
+        let now = robot.joints().await?;
+        if now.len() != q.len() {
+            return Err(CentringError::Device(DeviceError::Refused {
+                device: "procedure".into(),
+                reason: format!("{} joint values for a {}-joint robot", q.len(), now.len()),
+            }));
+        }
+        let d = now
+            .iter()
+            .zip(q)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        if !(step > 0.0) || d <= step {
+            robot.move_joints(q).await?;
+            return Ok(());
+        }
+        let s = step / d;
+        let t: Vec<f64> = now.iter().zip(q).map(|(a, b)| a + s * (b - a)).collect();
         robot.move_joints(&t).await?;
     }
-    Ok(())
 }
 
 /// Move to `q_d` (rad) and centre the TCP on the ball under the device.
