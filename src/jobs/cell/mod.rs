@@ -131,6 +131,27 @@ pub fn trical_devices(name: &str) -> Vec<String> {
     vec![format!("{name}.rws"), format!("{name}.uwave")]
 }
 
+/// Retry policy of a campaign as a job gives it: attempts per configuration and the first
+/// back-off delay (ms, doubled after each failure).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RetrySpec {
+    /// Attempts per configuration before the campaign pauses.
+    pub attempts: usize,
+    /// First back-off delay (ms).
+    pub backoff_ms: u64,
+}
+
+impl Default for RetrySpec {
+    fn default() -> Self {
+        let r = crate::procedures::trical::Retry::default();
+        Self {
+            attempts: r.attempts,
+            backoff_ms: r.backoff.as_millis() as u64,
+        }
+    }
+}
+
 fn default_cell() -> String {
     "irb120".into()
 }

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
+use super::RetrySpec;
 use super::RunContext;
 use crate::jobs::pcr::accuracy::trajectory;
 use crate::jobs::pcr::identify::IdentifyOptions;
@@ -22,23 +23,6 @@ use crate::procedures::pcr::{self, PcrOptions, PcrRecorded};
 use crate::procedures::trical::{CampaignError, Retry};
 use crate::procedures::{Journal, MemoryJournal};
 use crate::util::{Monitor, SubMonitor};
-
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-struct RetrySpec {
-    attempts: usize,
-    backoff_ms: u64,
-}
-
-impl Default for RetrySpec {
-    fn default() -> Self {
-        let r = Retry::default();
-        Self {
-            attempts: r.attempts,
-            backoff_ms: r.backoff.as_millis() as u64,
-        }
-    }
-}
 
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields, default)]

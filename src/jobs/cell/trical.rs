@@ -9,7 +9,7 @@ use std::time::Instant;
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
-use super::{CentringSpec, default_cell, trical_cell, trical_devices};
+use super::{CentringSpec, RetrySpec, default_cell, trical_cell, trical_devices};
 use crate::design::balls::ball_pool;
 use crate::jobs::serial::identify::IdentifyOptions;
 use crate::jobs::{
@@ -49,23 +49,6 @@ struct ValidationSpec {
 
 fn validation_seed() -> u64 {
     1_000_003
-}
-
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-struct RetrySpec {
-    attempts: usize,
-    backoff_ms: u64,
-}
-
-impl Default for RetrySpec {
-    fn default() -> Self {
-        let r = Retry::default();
-        Self {
-            attempts: r.attempts,
-            backoff_ms: r.backoff.as_millis() as u64,
-        }
-    }
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
