@@ -68,7 +68,7 @@ pub struct TokenConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AuthConfig {
-    /// Allow reads (GET) without a token.
+    /// Allow reads (GET) without a token (default false: results and datasets are the lab's).
     pub anonymous_read: bool,
     /// Tokens. Empty: an operator token is created in `DATA/operator.token`.
     pub tokens: Vec<TokenConfig>,
@@ -77,7 +77,7 @@ pub struct AuthConfig {
 impl Default for AuthConfig {
     fn default() -> Self {
         Self {
-            anonymous_read: true,
+            anonymous_read: false,
             tokens: Vec::new(),
         }
     }
@@ -99,6 +99,18 @@ pub struct Config {
     pub max_body_bytes: usize,
     /// Time limit for producing a response, in seconds (event streams are not limited).
     pub request_timeout_s: u64,
+    /// Most open client connections; one more is closed at once (idle and half-sent
+    /// connections cannot exhaust the daemon's memory).
+    pub max_connections: usize,
+    /// Time a client has to send a request's headers, in seconds; also closes idle
+    /// keep-alive connections.
+    pub header_read_timeout_s: u64,
+    /// Host names the API answers to (the `Host` header, port ignored; `*` allows any).
+    /// Loopback names by default: a DNS-rebinding page cannot reach the API through a
+    /// browser. Add the reverse proxy's public name or the lab PC's name here.
+    pub allowed_hosts: Vec<String>,
+    /// Shortest interval between two occurrences of a schedule, in seconds.
+    pub min_schedule_interval_s: u64,
     /// Log line format.
     pub log_format: LogFormat,
     /// Devices of the lab, shown by the device panel.
@@ -121,6 +133,10 @@ impl Default for Config {
             max_queued: 10_000,
             max_body_bytes: 16 * 1024 * 1024,
             request_timeout_s: 30,
+            max_connections: 512,
+            header_read_timeout_s: 10,
+            allowed_hosts: vec!["localhost".into(), "127.0.0.1".into(), "::1".into()],
+            min_schedule_interval_s: 60,
             log_format: LogFormat::Text,
             devices: Vec::new(),
             auth: AuthConfig::default(),
@@ -138,6 +154,16 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ("CALIBD_MAX_QUEUED", "max_queued: integer"),
     ("CALIBD_MAX_BODY_BYTES", "max_body_bytes: integer"),
     ("CALIBD_REQUEST_TIMEOUT_S", "request_timeout_s: integer"),
+    ("CALIBD_MAX_CONNECTIONS", "max_connections: integer"),
+    ("CALIBD_HEADER_READ_TIMEOUT_S", "header_read_timeout_s: integer"),
+    (
+        "CALIBD_ALLOWED_HOSTS",
+        "allowed_hosts: comma-separated host names, * = any",
+    ),
+    (
+        "CALIBD_MIN_SCHEDULE_INTERVAL_S",
+        "min_schedule_interval_s: integer",
+    ),
     ("CALIBD_LOG_FORMAT", "log_format: text or json"),
     ("CALIBD_DEVICES", "devices: comma-separated names"),
     ("CALIBD_LAB", "lab: sim or none"),
@@ -161,6 +187,15 @@ where
         value: value.into(),
         message: e.to_string(),
     })
+}
+
+/// A comma-separated list, items trimmed, empty items dropped.
+fn list(v: &str) -> Vec<String> {
+    v.split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(String::from)
+        .collect()
 }
 
 impl Config {
@@ -202,6 +237,12 @@ impl Config {
                 "CALIBD_MAX_QUEUED" => self.max_queued = parse(name, &v)?,
                 "CALIBD_MAX_BODY_BYTES" => self.max_body_bytes = parse(name, &v)?,
                 "CALIBD_REQUEST_TIMEOUT_S" => self.request_timeout_s = parse(name, &v)?,
+                "CALIBD_MAX_CONNECTIONS" => self.max_connections = parse(name, &v)?,
+                "CALIBD_HEADER_READ_TIMEOUT_S" => self.header_read_timeout_s = parse(name, &v)?,
+                "CALIBD_MIN_SCHEDULE_INTERVAL_S" => {
+                    self.min_schedule_interval_s = parse(name, &v)?
+                }
+                "CALIBD_ALLOWED_HOSTS" => self.allowed_hosts = list(&v),
                 "CALIBD_LOG_FORMAT" => {
                     self.log_format = match v.trim() {
                         "text" => LogFormat::Text,
@@ -215,14 +256,7 @@ impl Config {
                         }
                     }
                 }
-                "CALIBD_DEVICES" => {
-                    self.devices = v
-                        .split(',')
-                        .map(str::trim)
-                        .filter(|s| !s.is_empty())
-                        .map(String::from)
-                        .collect()
-                }
+                "CALIBD_DEVICES" => self.devices = list(&v),
                 "CALIBD_LAB" => {
                     if !matches!(v.trim(), "sim" | "none") {
                         return Err(ConfigError::Env {

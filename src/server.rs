@@ -108,6 +108,17 @@ pub async fn start(
         auth: Arc::new(auth),
         max_body_bytes: config.max_body_bytes,
         request_timeout: Duration::from_secs(config.request_timeout_s.max(1)),
+        limits: api::ServeLimits {
+            max_connections: config.max_connections.max(1),
+            header_read_timeout: Duration::from_secs(config.header_read_timeout_s.max(1)),
+            ..Default::default()
+        },
+        allowed_hosts: config
+            .allowed_hosts
+            .iter()
+            .map(|h| if h == "*" { h.clone() } else { api::host_name(h) })
+            .collect(),
+        min_schedule_interval: Duration::from_secs(config.min_schedule_interval_s),
         metrics,
         shutdown,
     };
@@ -131,12 +142,7 @@ pub async fn run(
         stop.cancel();
     });
     let t = token.clone();
-    api::run(
-        listener,
-        api::app(state),
-        async move { t.cancelled().await },
-    )
-    .await?;
+    api::run(listener, state, async move { t.cancelled().await }).await?;
     token.cancel();
     if tokio::time::timeout(STOP_GRACE, workers.join())
         .await

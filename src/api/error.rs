@@ -37,6 +37,15 @@ pub enum ApiError {
     /// Try again later.
     #[error("{0}")]
     Unavailable(String),
+    /// The route exists, the method does not.
+    #[error("{0}")]
+    MethodNotAllowed(String),
+    /// The `Host` header names a host this daemon is not configured to be.
+    #[error(
+        "this daemon does not answer to the host name `{0}`; add it to allowed_hosts \
+         (CALIBD_ALLOWED_HOSTS) if it is this daemon's name"
+    )]
+    MisdirectedHost(String),
     /// Something failed on the server (details logged only).
     #[error("internal error")]
     Internal(String),
@@ -54,6 +63,8 @@ impl ApiError {
             ApiError::Conflict(_) => (StatusCode::CONFLICT, "conflict"),
             ApiError::TooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "too_large"),
             ApiError::Unavailable(_) => (StatusCode::SERVICE_UNAVAILABLE, "unavailable"),
+            ApiError::MethodNotAllowed(_) => (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed"),
+            ApiError::MisdirectedHost(_) => (StatusCode::MISDIRECTED_REQUEST, "misdirected"),
             ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
         }
     }
@@ -88,6 +99,7 @@ impl From<ServiceError> for ApiError {
             ServiceError::Forbidden(m) => ApiError::Forbidden(m),
             ServiceError::Conflict(m) => ApiError::Conflict(m),
             e @ ServiceError::QueueFull(_) => ApiError::Unavailable(e.to_string()),
+            ServiceError::Store(e) => ApiError::from(e),
             other => ApiError::Internal(other.to_string()),
         }
     }

@@ -2,15 +2,15 @@
 
 use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
-use axum::extract::{Path, Query, State};
-use axum::http::{StatusCode, header};
+use axum::extract::{Query, State};
+use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
-use super::{ApiError, AppState, Caller, Role, blocking, json_body};
+use super::{ApiError, ApiPath, AppState, Caller, Role, attachment, blocking, json_body};
 use crate::service::{Origin, Submitter};
 use crate::store::{JobFilter, JobState};
 
@@ -46,17 +46,59 @@ struct SubmitQuery {
 async fn submit(
     State(s): State<AppState>,
     caller: Caller,
+    headers: HeaderMap,
     q: Result<Query<SubmitQuery>, axum::extract::rejection::QueryRejection>,
     b: Result<Bytes, BytesRejection>,
 ) -> Result<Response, ApiError> {
     let role = caller.require(Role::Submitter)?;
     let Query(q) = q?;
+    let key = idempotency_key(&headers)?;
     let doc = json_body(&s, b)?;
-    let id = s
+    let origin = Origin {
+        idempotency_key: key,
+        ..Default::default()
+    };
+    let (id, new) = s
         .service
-        .submit(doc, q.priority, submitter(&caller, role), Origin::default())
+        .submit_once(doc, q.priority, submitter(&caller, role), origin)
         .await?;
-    Ok(created(id))
+    if new {
+        return Ok(created(id));
+    }
+    // A retry of a submission that was committed: the first job, not a second one.
+    let j = s.service.job(id).await?;
+    Ok((
+        StatusCode::OK,
+        [
+            (header::LOCATION, format!("/v1/jobs/{id}")),
+            (
+                header::HeaderName::from_static(IDEMPOTENT_REPLAYED),
+                "true".to_string(),
+            ),
+        ],
+        Json(json!({"id": id, "state": j.state})),
+    )
+        .into_response())
+}
+
+/// Header naming a response that answers an earlier submission with the same key.
+const IDEMPOTENT_REPLAYED: &str = "idempotent-replayed";
+
+/// The `Idempotency-Key` header: 1 to 200 visible ASCII characters.
+fn idempotency_key(h: &HeaderMap) -> Result<Option<String>, ApiError> {
+    let Some(v) = h.get("idempotency-key") else {
+        return Ok(None);
+    };
+    let bad = || {
+        ApiError::BadRequest(
+            "Idempotency-Key must be 1 to 200 visible ASCII characters (e.g. a UUID)".into(),
+        )
+    };
+    let k = v.to_str().map_err(|_| bad())?.trim();
+    if k.is_empty() || k.len() > 200 || !k.bytes().all(|b| b.is_ascii_graphic()) {
+        return Err(bad());
+    }
+    Ok(Some(k.to_string()))
 }
 
 fn created(id: i64) -> Response {
@@ -92,7 +134,12 @@ async fn list(
             ))
         })?),
     };
-    let limit = q.limit.unwrap_or(50).clamp(1, 500);
+    let limit = q.limit.unwrap_or(50);
+    if !(1..=500).contains(&limit) {
+        return Err(ApiError::BadRequest(format!(
+            "limit {limit} is out of range: 1 to 500"
+        )));
+    }
     let jobs = s
         .service
         .jobs(JobFilter {
@@ -111,7 +158,7 @@ async fn list(
 async fn one(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     let j = s.service.job(id).await?;
@@ -123,17 +170,17 @@ async fn one(
 async fn cancel(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
-    caller.require(Role::Submitter)?;
-    let state = s.service.cancel(id).await?;
+    let role = caller.require(Role::Submitter)?;
+    let state = s.service.cancel(id, &submitter(&caller, role)).await?;
     Ok(Json(json!({"id": id, "state": state})))
 }
 
 async fn resume(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require(Role::Operator)?;
     let state = s.service.resume(id).await?;
@@ -143,7 +190,7 @@ async fn resume(
 async fn measurements(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     Ok(Json(s.service.measurements(id).await?))
@@ -152,7 +199,7 @@ async fn measurements(
 async fn rerun(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Response, ApiError> {
     let role = caller.require(Role::Submitter)?;
     let new = s.service.rerun(id, submitter(&caller, role)).await?;
@@ -174,7 +221,7 @@ async fn no_result(s: &AppState, id: i64) -> ApiError {
 async fn result(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     let st = s.service.store().clone();
@@ -187,7 +234,7 @@ async fn result(
 async fn table(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Response, ApiError> {
     caller.require_read()?;
     let st = s.service.store().clone();
@@ -205,7 +252,7 @@ async fn table(
 async fn artefacts(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     s.service.job(id).await?;
@@ -217,7 +264,7 @@ async fn artefacts(
 async fn artefact(
     State(s): State<AppState>,
     caller: Caller,
-    Path((id, name)): Path<(i64, String)>,
+    ApiPath((id, name)): ApiPath<(i64, String)>,
 ) -> Result<Response, ApiError> {
     caller.require_read()?;
     let st = s.service.store().clone();
@@ -225,10 +272,7 @@ async fn artefact(
     let a = blocking(move || st.artefact(id, &n))
         .await?
         .ok_or_else(|| ApiError::NotFound(format!("job {id} has no artefact `{name}`")))?;
-    let disposition = format!(
-        "attachment; filename=\"{}\"",
-        a.name.replace(['"', '\\', '\r', '\n'], "_")
-    );
+    let disposition = attachment(&a.name);
     Ok((
         [
             (header::CONTENT_TYPE, a.media_type),
@@ -242,7 +286,7 @@ async fn artefact(
 async fn logs(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     s.service.job(id).await?;

@@ -4,6 +4,7 @@
 //! and `/metrics`. The API knows the job service and the store, not models.
 
 pub mod auth;
+mod conn;
 mod datasets;
 mod error;
 pub mod events;
@@ -21,13 +22,14 @@ use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
 use axum::extract::{DefaultBodyLimit, MatchedPath, Request};
 use axum::middleware::{self, Next};
-use axum::response::Response;
+use axum::response::{IntoResponse, Response};
 use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle};
 use tokio::net::TcpListener;
 use tower_http::timeout::TimeoutLayer;
 use tower_http::trace::TraceLayer;
 
 pub use auth::{Auth, Caller, Role};
+pub use conn::ServeLimits;
 pub use error::ApiError;
 
 use crate::schedule::Scheduler;
@@ -49,6 +51,12 @@ pub struct AppState {
     pub max_body_bytes: usize,
     /// Time limit for a response.
     pub request_timeout: Duration,
+    /// Connection limits of the server.
+    pub limits: ServeLimits,
+    /// Host names the API answers to (normalised: lowercase, no brackets; `*` = any).
+    pub allowed_hosts: Arc<[String]>,
+    /// Shortest interval between two occurrences of a schedule.
+    pub min_schedule_interval: Duration,
     /// Prometheus text renderer.
     pub metrics: Option<PrometheusHandle>,
     /// Cancelled at shutdown: ends event streams so the server can drain.
@@ -78,6 +86,10 @@ pub fn app(state: AppState) -> Router {
         .merge(system::root_router())
         .merge(web::router())
         .route_layer(middleware::from_fn(track))
+        .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(middleware::from_fn_with_state(state.clone(), check_host))
+        .layer(middleware::from_fn(security_headers))
         .layer(DefaultBodyLimit::max(limit))
         .layer(TimeoutLayer::with_status_code(
             axum::http::StatusCode::SERVICE_UNAVAILABLE,
@@ -86,6 +98,87 @@ pub fn app(state: AppState) -> Router {
         .layer(TraceLayer::new_for_http())
         .with_state(state)
 }
+
+/// A path no route matches: the JSON error body, like every other error.
+async fn not_found(uri: axum::http::Uri) -> ApiError {
+    ApiError::NotFound(format!("no resource at {}", uri.path()))
+}
+
+/// A method the route does not have.
+async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) -> ApiError {
+    ApiError::MethodNotAllowed(format!("{method} is not allowed on {}", uri.path()))
+}
+
+/// The host name of a `Host` header or URI authority: lowercase, without port, brackets or
+/// a trailing dot.
+pub fn host_name(authority: &str) -> String {
+    let a = authority.trim();
+    let host = if let Some(rest) = a.strip_prefix('[') {
+        rest.split(']').next().unwrap_or(rest)
+    } else {
+        match a.rsplit_once(':') {
+            Some((h, port)) if port.bytes().all(|b| b.is_ascii_digit()) && !h.contains(':') => h,
+            _ => a,
+        }
+    };
+    host.trim_end_matches('.').to_ascii_lowercase()
+}
+
+/// Refuse requests addressed to a host name this daemon is not configured to be: a page
+/// on another origin that rebinds its DNS name to the lab PC cannot read the API through a
+/// browser, because the browser still sends the page's name.
+async fn check_host(
+    axum::extract::State(s): axum::extract::State<AppState>,
+    req: Request,
+    next: Next,
+) -> Response {
+    if s.allowed_hosts.iter().any(|h| h == "*") {
+        return next.run(req).await;
+    }
+    let given = req
+        .uri()
+        .authority()
+        .map(|a| a.as_str().to_owned())
+        .or_else(|| {
+            req.headers()
+                .get(axum::http::header::HOST)
+                .and_then(|h| h.to_str().ok())
+                .map(str::to_owned)
+        });
+    let Some(given) = given else {
+        return ApiError::BadRequest("the request has no Host header".into()).into_response();
+    };
+    let name = host_name(&given);
+    if s.allowed_hosts.iter().any(|h| *h == name) {
+        return next.run(req).await;
+    }
+    let mut shown: String = name.chars().take(100).collect();
+    if shown.len() < name.len() {
+        shown.push_str("...");
+    }
+    ApiError::MisdirectedHost(shown).into_response()
+}
+
+/// Headers on every response: nothing is sniffed into an active type, the page runs only
+/// its own script (no inline code, no framing), and nothing with a token is cached.
+async fn security_headers(req: Request, next: Next) -> Response {
+    use axum::http::{HeaderValue, header};
+    let mut res = next.run(req).await;
+    let h = res.headers_mut();
+    h.insert(header::X_CONTENT_TYPE_OPTIONS, HeaderValue::from_static("nosniff"));
+    h.insert(header::CONTENT_SECURITY_POLICY, HeaderValue::from_static(CSP));
+    h.insert(header::X_FRAME_OPTIONS, HeaderValue::from_static("DENY"));
+    h.insert(header::REFERRER_POLICY, HeaderValue::from_static("no-referrer"));
+    h.entry(header::CACHE_CONTROL)
+        .or_insert(HeaderValue::from_static("no-store"));
+    res
+}
+
+/// The Content-Security-Policy of every response: the page's own script and style only;
+/// plots are shown from `blob:` URLs the script makes; API calls go to the same origin.
+pub const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; \
+img-src 'self' blob: data:; connect-src 'self'; base-uri 'none'; form-action 'none'; \
+frame-ancestors 'none'";
 
 /// Request metrics by route template (never by raw path).
 async fn track(req: Request, next: Next) -> Response {
@@ -104,15 +197,15 @@ async fn track(req: Request, next: Next) -> Response {
     res
 }
 
-/// Serve `app` on an already-bound listener until `shutdown` completes.
+/// Serve the application on an already-bound listener, with the state's connection
+/// limits, until `shutdown` completes.
 pub async fn run(
     listener: TcpListener,
-    router: Router,
+    state: AppState,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    axum::serve(listener, router)
-        .with_graceful_shutdown(shutdown)
-        .await
+    let limits = state.limits;
+    conn::serve(listener, app(state), limits, shutdown).await
 }
 
 /// The body of a request, with the size limit turned into a clear 413.
@@ -131,6 +224,62 @@ pub(crate) fn json_body(
     let b = body(state, b)?;
     serde_json::from_slice(&b)
         .map_err(|e| ApiError::BadRequest(format!("the body is not valid JSON: {e}")))
+}
+
+/// A path parameter whose rejection is the API's JSON error (axum's own is plain text).
+#[derive(Debug)]
+pub(crate) struct ApiPath<T>(pub T);
+
+impl<T, S> axum::extract::FromRequestParts<S> for ApiPath<T>
+where
+    T: serde::de::DeserializeOwned + Send,
+    S: Send + Sync,
+{
+    type Rejection = ApiError;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        state: &S,
+    ) -> Result<Self, ApiError> {
+        axum::extract::Path::<T>::from_request_parts(parts, state)
+            .await
+            .map(|axum::extract::Path(t)| ApiPath(t))
+            .map_err(ApiError::from)
+    }
+}
+
+/// `attachment; filename="..."` with the name reduced to safe characters.
+pub(crate) fn attachment(name: &str) -> String {
+    let safe: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || "._-".contains(c) {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    format!("attachment; filename=\"{safe}\"")
+}
+
+/// Longest dataset or schedule name, in characters.
+pub(crate) const MAX_NAME_CHARS: usize = 200;
+
+/// A name (`field` names it in the error): non-empty, bounded, printable.
+pub(crate) fn check_name(field: &str, name: &str) -> Result<(), ApiError> {
+    let n = name.chars().count();
+    if n > MAX_NAME_CHARS {
+        return Err(ApiError::BadRequest(format!(
+            "`{field}` has {n} characters; at most {MAX_NAME_CHARS} are allowed"
+        )));
+    }
+    if name.trim().is_empty() || name.chars().any(char::is_control) {
+        return Err(ApiError::BadRequest(format!(
+            "`{field}` must be non-empty and hold no control characters"
+        )));
+    }
+    Ok(())
 }
 
 /// Run blocking store work off the runtime.

@@ -3,14 +3,14 @@
 
 use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
-use axum::extract::{Path, State};
+use axum::extract::{State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
 use serde_json::{Value, json};
 
-use super::{ApiError, AppState, Caller, Role, blocking, json_body};
+use super::{ApiError, ApiPath, AppState, Caller, Role, blocking, check_name, json_body};
 use crate::schedule::Rule;
 use crate::store::{NewSchedule, ScheduleRecord, format_time};
 
@@ -39,10 +39,20 @@ async fn parse(s: &AppState, b: Result<Bytes, BytesRejection>) -> Result<NewSche
     let v = json_body(s, b)?;
     let spec: NewSchedule = serde_path_to_error::deserialize(&v)
         .map_err(|e| ApiError::Invalid(format!("`{}`: {}", e.path(), e.inner())))?;
-    if spec.name.trim().is_empty() {
-        return Err(ApiError::Invalid("`name`: must not be empty".into()));
+    check_name("name", &spec.name).map_err(|e| ApiError::Invalid(e.to_string()))?;
+    let rule = Rule::parse(&spec).map_err(|e| ApiError::Invalid(e.to_string()))?;
+    let min = s.min_schedule_interval;
+    if let Some(gap) = rule.shortest_interval(s.scheduler.now(), 1000)
+        && gap < min
+    {
+        return Err(ApiError::Invalid(format!(
+            "`cron`: `{}` fires every {} s; the shortest interval allowed is {} s \
+             (min_schedule_interval_s)",
+            spec.cron,
+            gap.as_secs(),
+            min.as_secs()
+        )));
     }
-    Rule::parse(&spec).map_err(|e| ApiError::Invalid(e.to_string()))?;
     s.service
         .validate(spec.job.clone())
         .await
@@ -86,7 +96,7 @@ async fn get_one(s: &AppState, id: i64) -> Result<ScheduleRecord, ApiError> {
 async fn one(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     let r = get_one(&s, id).await?;
@@ -96,7 +106,7 @@ async fn one(
 async fn replace(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
     b: Result<Bytes, BytesRejection>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require(Role::Operator)?;
@@ -114,7 +124,7 @@ async fn replace(
 async fn remove(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<StatusCode, ApiError> {
     caller.require(Role::Operator)?;
     let st = s.service.store().clone();
@@ -128,7 +138,7 @@ async fn remove(
 async fn runs(
     State(s): State<AppState>,
     caller: Caller,
-    Path(id): Path<i64>,
+    ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     get_one(&s, id).await?;

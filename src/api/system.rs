@@ -1,13 +1,13 @@
 //! Health, version, job kinds, example jobs, device status, `/metrics` and `/openapi.yaml`.
 
-use axum::extract::{Path, State};
+use axum::extract::{State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
 use serde_json::{Value, json};
 
-use super::{ApiError, AppState, Caller, OPENAPI_YAML};
+use super::{ApiError, ApiPath, AppState, Caller, OPENAPI_YAML};
 use crate::jobs::{KINDS, envelope::VERSION, examples};
 
 pub(super) fn router() -> Router<AppState> {
@@ -61,7 +61,7 @@ async fn example_list(caller: Caller) -> Result<Json<Value>, ApiError> {
     Ok(Json(json!({"examples": e})))
 }
 
-async fn example(caller: Caller, Path(name): Path<String>) -> Result<Json<Value>, ApiError> {
+async fn example(caller: Caller, ApiPath(name): ApiPath<String>) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     let doc = tokio::task::spawn_blocking(move || examples::example(&name).ok_or(name))
         .await

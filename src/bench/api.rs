@@ -95,7 +95,7 @@ pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
     let t = stop.clone();
     let server = tokio::spawn(crate::api::run(
         listener,
-        crate::api::app(state),
+        state,
         async move { t.cancelled().await },
     ));
     let token = Client::find_token(None, &dir);

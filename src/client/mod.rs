@@ -46,6 +46,16 @@ pub enum ClientError {
     Protocol(String),
 }
 
+/// How often `submit` sends a submission again when its answer was lost.
+const SUBMIT_RETRIES: u32 = 4;
+
+/// Errors after which the request may or may not have been carried out: the daemon was
+/// unreachable or went away mid-answer, or was not ready.
+fn retryable(e: &ClientError) -> bool {
+    matches!(e, ClientError::Connect { .. } | ClientError::Protocol(_))
+        || matches!(e, ClientError::Api { status: 502..=504, .. })
+}
+
 /// A connection to a daemon.
 #[derive(Debug, Clone)]
 pub struct Client {
@@ -133,17 +143,29 @@ impl Client {
             .to_vec())
     }
 
-    /// Submit a job document; returns the job id.
+    /// Submit a job document; returns the job id. The submission carries a fresh
+    /// `Idempotency-Key`, and a submission whose answer was lost (connection reset, daemon
+    /// restarting, 503) is sent again with the same key, so the daemon never runs it twice.
     pub async fn submit(&self, doc: &Value, priority: i64) -> Result<i64, ClientError> {
-        let v = self
-            .json(
-                self.req(
+        let key = crate::api::auth::new_token().map_err(|e| ClientError::Protocol(e.to_string()))?;
+        let mut attempt = 0u32;
+        let v = loop {
+            let r = self
+                .req(
                     reqwest::Method::POST,
                     &format!("/v1/jobs?priority={priority}"),
                 )
-                .json(doc),
-            )
-            .await?;
+                .header("Idempotency-Key", &key)
+                .json(doc);
+            match self.json(r).await {
+                Err(e) if attempt < SUBMIT_RETRIES && retryable(&e) => {
+                    attempt += 1;
+                    tracing::warn!(attempt, error = %e, "submit: no answer; retrying with the same Idempotency-Key");
+                    tokio::time::sleep(std::time::Duration::from_millis(250 << attempt)).await;
+                }
+                other => break other?,
+            }
+        };
         v["id"]
             .as_i64()
             .ok_or_else(|| ClientError::Protocol(format!("no id in {v}")))

@@ -71,6 +71,22 @@ pub enum JobError {
     /// The job ran but could not produce a result.
     #[error("{0}")]
     Failed(String),
+    /// The computation overflowed: a result is not a finite number (an input far outside
+    /// the model's range). Never stored as a result with `null`s or `NaN`s.
+    #[error(
+        "the result `{table}` is {value} at row {row}, column `{column}`: the inputs give no \
+         finite result (check parameters and inputs for values far outside the model's range)"
+    )]
+    NonFinite {
+        /// The result table.
+        table: String,
+        /// Row, from 1.
+        row: usize,
+        /// Column.
+        column: String,
+        /// The value (NaN or an infinity).
+        value: f64,
+    },
 }
 
 impl From<IdentifyError> for JobError {

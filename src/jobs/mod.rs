@@ -248,6 +248,16 @@ impl Job {
     ) -> Result<Completed, JobError> {
         let started = chrono::Utc::now();
         let out = self.prepared.execute_in(ctx, monitor)?;
+        if let Some((row, column, value)) =
+            out.main_table.as_ref().and_then(Table::first_non_finite)
+        {
+            return Err(JobError::NonFinite {
+                table: "main table".into(),
+                row,
+                column: column.into(),
+                value,
+            });
+        }
         let finished = chrono::Utc::now();
         let result = envelope::wrap(
             &self.kind,

@@ -192,6 +192,16 @@ impl Table {
         )
     }
 
+    /// The first cell that is not a finite number: (row from 1, column, value).
+    pub fn first_non_finite(&self) -> Option<(usize, &str, f64)> {
+        self.rows.iter().enumerate().find_map(|(i, r)| {
+            r.iter()
+                .zip(&self.columns)
+                .find(|(v, _)| !v.is_finite())
+                .map(|(v, c)| (i + 1, c.as_str(), *v))
+        })
+    }
+
     /// The table as CSV text with a header row.
     pub fn to_csv(&self) -> String {
         let mut s = self.columns.join(",");

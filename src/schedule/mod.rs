@@ -84,6 +84,21 @@ impl Rule {
             .map(|d| d.with_timezone(&Utc))
     }
 
+    /// The shortest gap between consecutive occurrences among the first `count` after
+    /// `from` (None if fewer than two occur): how often the schedule really fires, DST
+    /// changes included.
+    pub fn shortest_interval(&self, from: DateTime<Utc>, count: usize) -> Option<Duration> {
+        let mut prev = self.next_after(from)?;
+        let mut best: Option<Duration> = None;
+        for _ in 1..count {
+            let Some(n) = self.next_after(prev) else { break };
+            let gap = (n - prev).to_std().unwrap_or(Duration::ZERO);
+            best = Some(best.map_or(gap, |b| b.min(gap)));
+            prev = n;
+        }
+        best
+    }
+
     /// Occurrences in (`from`, `to`], at most `max`.
     pub fn between(
         &self,
@@ -248,7 +263,7 @@ async fn handle(service: &Service, s: &ScheduleRecord, due: &[DateTime<Utc>], no
             outcome: outcome.into(),
             message: message.clone(),
         }),
-        rerun_of: None,
+        ..Default::default()
     };
     let who = Submitter {
         name: Some(format!("schedule:{}", s.spec.name)),

@@ -25,7 +25,7 @@ pub use types::{
 pub use worker::Workers;
 
 use crate::jobs;
-use crate::store::{JobFilter, JobRecord, JobState, NewJob, Store};
+use crate::store::{JobFilter, JobRecord, JobState, IdempotencyKey, NewJob, Store};
 
 /// Live state of a running job.
 #[derive(Debug)]
@@ -182,12 +182,27 @@ impl Service {
         who: Submitter,
         origin: Origin,
     ) -> Result<i64, ServiceError> {
+        self.submit_once(doc, priority, who, origin)
+            .await
+            .map(|(id, _)| id)
+    }
+
+    /// [`Service::submit`], returning also whether the job is new: `false` when the
+    /// origin's idempotency key was already used for the same request (the first job's id
+    /// is returned and nothing is queued again).
+    pub async fn submit_once(
+        &self,
+        doc: Value,
+        priority: i64,
+        who: Submitter,
+        origin: Origin,
+    ) -> Result<(i64, bool), ServiceError> {
         let waiting = lock(&self.shared.queue).len();
         if waiting >= self.shared.config.max_queued {
             return Err(ServiceError::QueueFull(waiting));
         }
         let store = self.shared.store.clone();
-        let (id, job) = blocking(move || {
+        let (id, created, job) = blocking(move || {
             let job = jobs::prepare(&doc, &StoreResolver(store.clone())).map_err(|e| {
                 if e.is_invalid_input() {
                     ServiceError::Invalid(e)
@@ -203,6 +218,14 @@ impl Service {
                     devices.join(", ")
                 )));
             }
+            let idempotency = origin.idempotency_key.map(|key| {
+                let mut request = serde_json::to_vec(&doc).unwrap_or_default();
+                request.extend_from_slice(format!("\npriority={priority}").as_bytes());
+                IdempotencyKey {
+                    key,
+                    request_sha256: crate::jobs::input::sha256_hex(&request),
+                }
+            });
             let new = NewJob {
                 kind: job.kind.clone(),
                 doc,
@@ -213,11 +236,15 @@ impl Service {
                 schedule_id: origin.schedule.as_ref().map(|s| s.id),
                 rerun_of: origin.rerun_of,
                 schedule_run: origin.schedule.map(|s| (s.due, s.outcome, s.message)),
+                idempotency,
             };
-            let id = store.insert_job(&new)?;
-            Ok((id, job))
+            let (id, created) = store.insert_job_once(&new)?;
+            Ok((id, created, job))
         })
         .await?;
+        if !created {
+            return Ok((id, false));
+        }
         let kind = job.kind.clone();
         lock(&self.shared.queue).push(Entry {
             id,
@@ -234,7 +261,7 @@ impl Service {
             error: None,
         });
         self.shared.wake.notify_one();
-        Ok(id)
+        Ok((id, true))
     }
 
     /// Validate a job document without submitting it (for schedules); returns its kind.
@@ -267,10 +294,33 @@ impl Service {
         .await
     }
 
+    /// A job that drives devices (a campaign) is stopped only by an operator or by its own
+    /// submitter: a submitter must not abort another person's run on the robot.
+    async fn may_stop(&self, id: i64, who: &Submitter) -> Result<(), ServiceError> {
+        if who.may_drive_devices {
+            return Ok(());
+        }
+        let store = self.shared.store.clone();
+        let rec = blocking(move || Ok(store.job(id)?))
+            .await?
+            .ok_or(ServiceError::NotFound(id))?;
+        if rec.devices.is_empty() || (rec.submitted_by.is_some() && rec.submitted_by == who.name) {
+            return Ok(());
+        }
+        Err(ServiceError::Forbidden(format!(
+            "job {id} is a `{}` job that drives devices ({}) submitted by {}: stopping it \
+             needs the operator role or being its submitter",
+            rec.kind,
+            rec.devices.join(", "),
+            rec.submitted_by.as_deref().unwrap_or("a schedule")
+        )))
+    }
+
     /// Cancel a job: a queued job ends at once, a running one at its next cancellation
     /// check. Returns the state after the request (`cancelled`, or `running` while the job
     /// winds down). A final job is a conflict.
-    pub async fn cancel(&self, id: i64) -> Result<JobState, ServiceError> {
+    pub async fn cancel(&self, id: i64, who: &Submitter) -> Result<JobState, ServiceError> {
+        self.may_stop(id, who).await?;
         if let Some(r) = lock(&self.shared.running).get_mut(&id) {
             r.user_cancelled = true;
             r.cancel.store(true, Ordering::Relaxed);

@@ -36,9 +36,32 @@ fn who() -> Submitter {
     }
 }
 
-/// A long job: many identifications that poll for cancellation.
+/// A job that cannot finish within a test (80,000 identifications: minutes on two cores)
+/// and polls for cancellation between them, so a test that waits for it to run never sees
+/// it end first.
 fn slow_job() -> Value {
-    crate::jobs::examples::twin_dispersion(&[30, 60, 90, 120], 400)
+    crate::jobs::examples::twin_dispersion(&[30, 60, 90, 120], 20_000)
+}
+
+/// Wait (on the state events, however loaded the machine) until job `id` is `state`.
+async fn wait_state(svc: &Service, id: i64, state: JobState) {
+    let mut events = svc.subscribe();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(600);
+    loop {
+        // Checked after subscribing, so a change between the check and the wait is seen.
+        let now = svc.job(id).await.unwrap().state;
+        if now == state {
+            return;
+        }
+        assert!(!now.is_final(), "job {id} ended {now:?} while waiting for {state:?}");
+        match tokio::time::timeout_at(deadline, events.recv()).await {
+            Ok(Err(tokio::sync::broadcast::error::RecvError::Closed)) => {
+                panic!("the service stopped while job {id} waited for {state:?}")
+            }
+            Ok(_) => {}
+            Err(_) => panic!("job {id} did not become {state:?}"),
+        }
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -131,23 +154,18 @@ async fn queued_and_running_jobs_can_be_cancelled() {
         .await
         .unwrap();
     // Wait until the slow job runs, then cancel both.
-    for _ in 0..3000 {
-        if svc.job(slow).await.unwrap().state == JobState::Running {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(5)).await;
-    }
-    assert_eq!(svc.cancel(queued).await.unwrap(), JobState::Cancelled);
-    assert_eq!(svc.cancel(slow).await.unwrap(), JobState::Running);
+    wait_state(&svc, slow, JobState::Running).await;
+    assert_eq!(svc.cancel(queued, &who()).await.unwrap(), JobState::Cancelled);
+    assert_eq!(svc.cancel(slow, &who()).await.unwrap(), JobState::Running);
     let j = wait_final(&svc, slow).await;
     assert_eq!(j.state, JobState::Cancelled);
     assert!(svc.store().result(slow).unwrap().is_none());
     assert!(matches!(
-        svc.cancel(slow).await,
+        svc.cancel(slow, &who()).await,
         Err(ServiceError::Conflict(_))
     ));
     assert!(matches!(
-        svc.cancel(999).await,
+        svc.cancel(999, &who()).await,
         Err(ServiceError::NotFound(999))
     ));
     stop.cancel();
@@ -160,12 +178,7 @@ async fn shutdown_marks_a_running_job_interrupted_and_queued_jobs_survive() {
         .submit(slow_job(), 0, who(), Origin::default())
         .await
         .unwrap();
-    for _ in 0..3000 {
-        if svc.job(slow).await.unwrap().state == JobState::Running {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(5)).await;
-    }
+    wait_state(&svc, slow, JobState::Running).await;
     // Queued behind the running job (the only worker is busy).
     let next = svc
         .submit(

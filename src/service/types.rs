@@ -83,6 +83,8 @@ pub struct Origin {
     pub schedule: Option<ScheduleOrigin>,
     /// Re-run of this job.
     pub rerun_of: Option<i64>,
+    /// The client's `Idempotency-Key`: a retry with the same key returns the first job.
+    pub idempotency_key: Option<String>,
 }
 
 /// A device and who holds it.

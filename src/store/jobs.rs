@@ -4,7 +4,7 @@ use rusqlite::{OptionalExtension, Row, params};
 use serde_json::Value;
 
 pub use super::records::{
-    JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered,
+    IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered,
 };
 use super::{Store, StoreError, now};
 
@@ -67,11 +67,40 @@ pub(super) fn log_tx(
 impl Store {
     /// Persist a new job as `queued`; returns its id.
     pub fn insert_job(&self, j: &NewJob) -> Result<i64, StoreError> {
+        self.insert_job_once(j).map(|(id, _)| id)
+    }
+
+    /// Insert a job unless its idempotency key was used before by the same submitter:
+    /// returns the job id and whether it is new. The key is written in the job's own
+    /// transaction, so a submission cut by a crash either left both or neither. The same
+    /// key with a different request is a conflict.
+    pub fn insert_job_once(&self, j: &NewJob) -> Result<(i64, bool), StoreError> {
         let doc = serde_json::to_string(&j.doc)?;
         let devices = serde_json::to_string(&j.devices)?;
         let hashes = serde_json::to_string(&j.inputs_sha256)?;
+        let by = j.submitted_by.as_deref().unwrap_or("anonymous");
         self.write(|c| {
             let tx = c.transaction()?;
+            if let Some(k) = &j.idempotency {
+                let seen: Option<(i64, String)> = tx
+                    .query_row(
+                        "SELECT job_id, request_sha256 FROM idempotency_keys \
+                         WHERE submitted_by = ?1 AND key = ?2",
+                        params![by, k.key],
+                        |r| Ok((r.get(0)?, r.get(1)?)),
+                    )
+                    .optional()?;
+                match seen {
+                    Some((id, sha)) if sha == k.request_sha256 => return Ok((id, false)),
+                    Some((id, _)) => {
+                        return Err(StoreError::Conflict(format!(
+                            "Idempotency-Key `{}` for a different request (job {id})",
+                            k.key
+                        )));
+                    }
+                    None => {}
+                }
+            }
             tx.execute(
                 "INSERT INTO jobs (kind, state, priority, devices, doc, inputs_sha256, submitted_at, \
                  submitted_by, schedule_id, rerun_of) VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
@@ -81,10 +110,16 @@ impl Store {
             if let (Some(sid), Some((due, outcome, message))) = (j.schedule_id, &j.schedule_run) {
                 super::schedules::record_run_tx(&tx, sid, due, outcome, Some(id), message.as_deref())?;
             }
-            let by = j.submitted_by.as_deref().unwrap_or("anonymous");
+            if let Some(k) = &j.idempotency {
+                tx.execute(
+                    "INSERT INTO idempotency_keys (submitted_by, key, request_sha256, job_id, at) \
+                     VALUES (?1, ?2, ?3, ?4, ?5)",
+                    params![by, k.key, k.request_sha256, id, now()],
+                )?;
+            }
             log_tx(&tx, Some(id), "info", &format!("submitted by {by}"))?;
             tx.commit()?;
-            Ok(id)
+            Ok((id, true))
         })
     }
 

@@ -108,6 +108,16 @@ const STEPS: &[&str] = &[
         at TEXT NOT NULL
     );
     CREATE INDEX cell_models_cell ON cell_models(cell, id);",
+    // Idempotent submission: the key a client sent with a job, per token name, and the
+    // hash of what it submitted; written in the job's own transaction.
+    "CREATE TABLE idempotency_keys (
+        submitted_by TEXT NOT NULL,
+        key TEXT NOT NULL,
+        request_sha256 TEXT NOT NULL,
+        job_id INTEGER NOT NULL REFERENCES jobs(id),
+        at TEXT NOT NULL,
+        PRIMARY KEY (submitted_by, key)
+    );",
 ];
 
 /// The schema version this binary writes.

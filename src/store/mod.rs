@@ -22,7 +22,7 @@ use rusqlite::{Connection, OpenFlags};
 
 pub use campaigns::{CellModel, StoreJournal};
 pub use datasets::DatasetInfo;
-pub use jobs::{JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered};
+pub use jobs::{JobFilter, JobRecord, JobState, LogLine, IdempotencyKey, NewJob, ProgressPoint, Recovered};
 pub use migrate::SCHEMA_VERSION;
 pub use results::{ArtefactInfo, StoredArtefact};
 pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};
@@ -102,14 +102,40 @@ fn lock(m: &Mutex<Connection>) -> MutexGuard<'_, Connection> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
+/// Create (or tighten) the data folder to 0700 and the database file to 0600 before SQLite
+/// opens it: SQLite gives its `-wal` and `-shm` files the database file's mode, so results,
+/// datasets and journals are readable by the daemon's user only, whatever the umask.
+fn private_files(dir: &Path, db: &Path) -> Result<(), (PathBuf, std::io::Error)> {
+    fn at(p: &Path) -> impl FnOnce(std::io::Error) -> (PathBuf, std::io::Error) + '_ {
+        move |e| (p.to_path_buf(), e)
+    }
+    std::fs::create_dir_all(dir).map_err(at(dir))?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
+        std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o700)).map_err(at(dir))?;
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .mode(0o600)
+            .open(db)
+            .map_err(at(db))?;
+        for suffix in ["", "-wal", "-shm"] {
+            let f = PathBuf::from(format!("{}{suffix}", db.display()));
+            match std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o600)) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err((f, e)),
+                _ => {}
+            }
+        }
+    }
+    Ok(())
+}
+
 impl Store {
     /// Open (or create) the database `calibd.sqlite3` in folder `dir` and migrate it.
     pub fn open(dir: &Path) -> Result<Store, StoreError> {
-        std::fs::create_dir_all(dir).map_err(|source| StoreError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
         let path = dir.join("calibd.sqlite3");
+        private_files(dir, &path).map_err(|(path, source)| StoreError::Io { path, source })?;
         let mut writer = Connection::open(&path)?;
         writer.pragma_update(None, "journal_mode", "WAL")?;
         writer.pragma_update(None, "synchronous", "FULL")?;

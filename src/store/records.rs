@@ -122,6 +122,18 @@ pub struct NewJob {
     /// (`submitted`, `missed_run_once`) and a message. The schedule's run record and its
     /// `checked_until` are written in the same transaction as the job.
     pub schedule_run: Option<(String, String, Option<String>)>,
+    /// The client's `Idempotency-Key` and the SHA-256 of the request it came with: a second
+    /// submission with the same key (same token name) returns the first job.
+    pub idempotency: Option<IdempotencyKey>,
+}
+
+/// An `Idempotency-Key` of a submission.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct IdempotencyKey {
+    /// The key the client sent.
+    pub key: String,
+    /// SHA-256 of the request (document and priority).
+    pub request_sha256: String,
 }
 
 /// Filter and page for listing jobs (newest first).

@@ -13,6 +13,7 @@ fn job(kind: &str) -> NewJob {
         schedule_id: None,
         rerun_of: None,
         schedule_run: None,
+        idempotency: None,
     }
 }
 
@@ -172,4 +173,24 @@ fn schedules_are_unique_by_name_and_record_runs() {
     );
     assert!(s.delete_schedule(id).unwrap());
     assert!(s.schedule(id).unwrap().is_none());
+}
+
+#[cfg(unix)]
+#[test]
+fn the_data_folder_and_database_are_private_whatever_the_umask() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    // A folder left world-readable by an earlier version (or a permissive umask).
+    std::fs::create_dir(&data).unwrap();
+    std::fs::set_permissions(&data, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let s = Store::open(&data).unwrap();
+    s.insert_job(&job("serial.fk")).unwrap();
+    let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode(&data), 0o700);
+    for entry in std::fs::read_dir(&data).unwrap() {
+        let p = entry.unwrap().path();
+        assert_eq!(mode(&p), 0o600, "{} is readable by others", p.display());
+    }
+    assert!(data.join("calibd.sqlite3-wal").exists(), "WAL file checked too");
 }

@@ -61,7 +61,7 @@ pub async fn start(tweak: impl FnOnce(&mut Config)) -> TestServer {
     let s = stop.clone();
     tokio::spawn(calibd::api::run(
         listener,
-        calibd::api::app(state),
+        state,
         async move { s.cancelled().await },
     ));
     TestServer {

@@ -38,6 +38,8 @@ pub struct FkJob {
 pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<FkJob, JobError> {
     let spec: Spec = parse_spec(doc)?;
     let mut model = load_model(inputs, &spec.model, spec.chain.as_ref())?;
+    let table = inputs.table("joints", &spec.joints)?;
+    let q = model.joints("joints", &table)?;
     for (name, v) in &spec.parameters {
         let id = model.chain.param_by_name(name).map_err(|_| {
             JobError::invalid(format!("parameters.{name}"), "unknown parameter name")
@@ -50,10 +52,24 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<FkJob, JobError> {
         }
         let to_file = model.chain.units.to_file(id.quantity());
         model.chain.set_param(id, v / to_file);
+        // A value far outside the model's range overflows the kinematics: name it here
+        // rather than compute a table of NaN.
+        if let Some(q0) = q.first()
+            && !pose(&model.chain, q0).iter().all(|x| x.is_finite())
+        {
+            return Err(JobError::invalid(
+                format!("parameters.{name}"),
+                format!("{v}: the forward kinematics is not finite with this value"),
+            ));
+        }
     }
-    let table = inputs.table("joints", &spec.joints)?;
-    let q = model.joints("joints", &table)?;
     Ok(FkJob { model, q })
+}
+
+/// The elasto-geometric TCP pose (x, y, z, a, b, c in the chain's internal units).
+fn pose(c: &crate::model::Chain, q: &[f64]) -> [f64; 6] {
+    let tau = c.static_torques(q);
+    c.tcp(q, Some(&tau)).to_xyzabc()
 }
 
 impl Prepared for FkJob {
@@ -65,8 +81,7 @@ impl Prepared for FkJob {
             if i % 1024 == 0 && monitor.is_cancelled() {
                 return Err(JobError::Cancelled);
             }
-            let tau = c.static_torques(q);
-            let v = c.tcp(q, Some(&tau)).to_xyzabc();
+            let v = pose(c, q);
             poses.push(vec![v[0], v[1], v[2], v[3] * k, v[4] * k, v[5] * k]);
         }
         let mut fields = serde_json::Map::new();

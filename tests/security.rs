@@ -1,0 +1,370 @@
+//! The defects of the security review (issue 14), each reproduced against a daemon on a
+//! real socket: stored XSS through datasets, reads without a token, DNS rebinding through
+//! the `Host` header, idle and half-sent connections, a submitter stopping an operator's
+//! campaign, absurd inputs, unbounded names and headers, the bearer scheme's case, retried
+//! submissions, and plain-text error bodies.
+
+mod server;
+
+use std::time::Duration;
+
+use reqwest::Method;
+use serde_json::{Value, json};
+use server::{OPERATOR, SUBMITTER, VIEWER, start};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_uploaded_page_comes_back_as_an_inert_attachment() {
+    let s = start(|_| {}).await;
+    let page = "<html><script>fetch('/steal?t='+localStorage.getItem('calibd-token'))</script>";
+    let r = s
+        .req(Method::POST, "/v1/datasets?name=x.html", Some(SUBMITTER))
+        .header("content-type", "text/html")
+        .body(page)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let info: Value = r.json().await.unwrap();
+    let id = info["id"].as_str().unwrap();
+    assert_eq!(info["media_type"], "text/html", "the declared type is kept as data");
+    // Without a token: nothing.
+    let anon = s
+        .req(Method::GET, &format!("/v1/datasets/{id}"), None)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(anon.status().as_u16(), 401);
+    let r = s
+        .req(Method::GET, &format!("/v1/datasets/{id}"), Some(VIEWER))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let h = r.headers().clone();
+    assert_eq!(h["content-type"], "application/octet-stream");
+    assert_eq!(h["x-content-type-options"], "nosniff");
+    assert_eq!(h["content-disposition"], "attachment; filename=\"x.html\"");
+    let csp = h["content-security-policy"].to_str().unwrap();
+    assert!(
+        csp.contains("script-src 'self'") && csp.contains("default-src 'none'"),
+        "{csp}"
+    );
+    assert_eq!(r.text().await.unwrap(), page, "the bytes come back unchanged");
+    // The page itself runs only its own script file.
+    let p = s.req(Method::GET, "/", None).send().await.unwrap();
+    assert!(
+        p.headers()["content-security-policy"]
+            .to_str()
+            .unwrap()
+            .contains("frame-ancestors 'none'")
+    );
+    let html = p.text().await.unwrap();
+    assert!(!html.contains("<script>"), "no inline script in the page");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn only_configured_host_names_are_answered() {
+    let s = start(|_| {}).await;
+    let port = s.url.rsplit(':').next().unwrap().to_string();
+    for host in [
+        format!("127.0.0.1:{port}"),
+        format!("localhost:{port}"),
+        "LOCALHOST".to_string(),
+        format!("[::1]:{port}"),
+    ] {
+        let r = s
+            .req(Method::GET, "/v1/jobs", Some(VIEWER))
+            .header("host", &host)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 200, "{host}");
+    }
+    // A rebinding page's name: refused, with a JSON body that says what to configure.
+    let r = s
+        .req(Method::GET, "/v1/jobs", Some(VIEWER))
+        .header("host", format!("attacker.example:{port}"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 421);
+    let e: Value = r.json().await.unwrap();
+    let m = e["error"]["message"].as_str().unwrap();
+    assert!(
+        m.contains("attacker.example") && m.contains("allowed_hosts"),
+        "{m}"
+    );
+    // The health check obeys the same rule (it is reachable from the same browser).
+    let r = s
+        .req(Method::GET, "/v1/health", None)
+        .header("host", "attacker.example")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 421);
+    // A configured name is answered.
+    let named = start(|c| c.allowed_hosts.push("calib.lab.example".into())).await;
+    let r = named
+        .req(Method::GET, "/v1/jobs", Some(VIEWER))
+        .header("host", "calib.lab.example")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+}
+
+/// Read until the server closes the connection (EOF or reset); false if it stays open.
+async fn closed_by_server(c: &mut tokio::net::TcpStream, within: Duration) -> bool {
+    let mut buf = [0u8; 512];
+    let deadline = tokio::time::Instant::now() + within;
+    loop {
+        match tokio::time::timeout_at(deadline, c.read(&mut buf)).await {
+            Err(_) => return false,
+            Ok(Ok(0)) | Ok(Err(_)) => return true,
+            Ok(Ok(_)) => {} // a 408/431 answer before the close
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_and_half_sent_connections_are_bounded_and_timed_out() {
+    let s = start(|c| {
+        c.max_connections = 4;
+        c.header_read_timeout_s = 1;
+    })
+    .await;
+    let addr = s.url.trim_start_matches("http://").to_string();
+    // Four connections: two idle, two with half a request head.
+    let mut held = Vec::new();
+    for i in 0..4 {
+        let mut c = tokio::net::TcpStream::connect(&addr).await.unwrap();
+        if i % 2 == 1 {
+            c.write_all(b"GET /v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
+                .await
+                .unwrap();
+        }
+        held.push(c);
+    }
+    // The fifth is over the limit. The server may accept it before the four are
+    // registered, so retry until one is refused (each refusal is immediate).
+    let mut refused = false;
+    for _ in 0..50 {
+        let mut extra = tokio::net::TcpStream::connect(&addr).await.unwrap();
+        if closed_by_server(&mut extra, Duration::from_millis(500)).await {
+            refused = true;
+            break;
+        }
+    }
+    assert!(refused, "a connection over the limit was kept open");
+    // The header-read timeout closes every held connection, idle or half-sent.
+    for (i, c) in held.iter_mut().enumerate() {
+        assert!(
+            closed_by_server(c, Duration::from_secs(60)).await,
+            "connection {i} outlived the header-read timeout"
+        );
+    }
+    // Slots are free again: a normal request is served.
+    let (status, _) = s.get("/v1/jobs").await;
+    assert_eq!(status, 200);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_submitter_cannot_stop_an_operators_campaign() {
+    let s = start(|_| {}).await;
+    // A device job (the centring loop on the simulated cell) submitted by the operator.
+    let doc = json!({"kind": "cell.centre", "q_deg": [0.0, 0.0, 0.0, 0.0, 30.0, 0.0]});
+    let r = s
+        .req(Method::POST, "/v1/jobs", Some(OPERATOR))
+        .json(&doc)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let id = r.json::<Value>().await.unwrap()["id"].as_i64().unwrap();
+    let cancel = |t: &'static str| {
+        s.req(Method::POST, &format!("/v1/jobs/{id}/cancel"), Some(t))
+            .send()
+    };
+    let r = cancel(SUBMITTER).await.unwrap();
+    assert_eq!(r.status().as_u16(), 403);
+    let e: Value = r.json().await.unwrap();
+    assert!(
+        e["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("operator role"),
+        "{e}"
+    );
+    // The operator can (200 while it winds down, or 409 if it already ended).
+    let r = cancel(OPERATOR).await.unwrap();
+    assert!(matches!(r.status().as_u16(), 200 | 409), "{}", r.status());
+    // A submitter still cancels its own numerical jobs.
+    let mine = s.submit(&calibd::jobs::examples::twin_fk(1)).await;
+    let r = cancel_as(&s, mine, SUBMITTER).await;
+    assert!(matches!(r, 200 | 409), "{r}");
+}
+
+async fn cancel_as(s: &server::TestServer, id: i64, t: &str) -> u16 {
+    s.req(Method::POST, &format!("/v1/jobs/{id}/cancel"), Some(t))
+        .send()
+        .await
+        .unwrap()
+        .status()
+        .as_u16()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn absurd_inputs_are_refused_with_the_field_named() {
+    let s = start(|_| {}).await;
+    let post = |path: &str, body: Value| {
+        s.req(Method::POST, path, Some(OPERATOR))
+            .json(&body)
+            .send()
+    };
+    // A parameter that overflows the kinematics: no job of NaN.
+    let mut fk = calibd::jobs::examples::twin_fk(3);
+    fk["parameters"] = json!({"a2": 1e308});
+    let r = post("/v1/jobs", fk).await.unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    let e: Value = r.json().await.unwrap();
+    assert!(
+        e["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("parameters.a2"),
+        "{e}"
+    );
+    // A schedule every second: refused, naming the interval and the setting.
+    let every_second = json!({"name": "spam", "cron": "* * * * * *", "timezone": "UTC",
+        "job": calibd::jobs::examples::twin_fk(1)});
+    let r = post("/v1/schedules", every_second).await.unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    let e: Value = r.json().await.unwrap();
+    let m = e["error"]["message"].as_str().unwrap();
+    assert!(
+        m.contains("cron") && m.contains("every 1 s") && m.contains("60 s"),
+        "{m}"
+    );
+    // Every minute is allowed.
+    let minutely = json!({"name": "minutely", "cron": "* * * * *", "timezone": "UTC",
+        "job": calibd::jobs::examples::twin_fk(1), "enabled": false});
+    assert_eq!(post("/v1/schedules", minutely).await.unwrap().status().as_u16(), 201);
+    // A 1 MB name is not stored.
+    let long = json!({"name": "n".repeat(1 << 20), "cron": "0 2 * * *", "timezone": "UTC",
+        "job": calibd::jobs::examples::twin_fk(1)});
+    let r = post("/v1/schedules", long).await.unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    let r = s
+        .req(
+            Method::POST,
+            &format!("/v1/datasets?name={}", "n".repeat(5000)),
+            Some(SUBMITTER),
+        )
+        .body("x,y\n1,2\n")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 400);
+    // A 100 KB Content-Type never reaches a handler; a 1 KB one is refused by name.
+    let r = s
+        .req(Method::POST, "/v1/datasets", Some(SUBMITTER))
+        .header("content-type", format!("text/{}", "x".repeat(100 * 1024)))
+        .body("x,y\n1,2\n")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 431);
+    let r = s
+        .req(Method::POST, "/v1/datasets", Some(SUBMITTER))
+        .header("content-type", format!("text/{}", "x".repeat(1024)))
+        .body("x,y\n1,2\n")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 400);
+    assert!(
+        r.text().await.unwrap().contains("Content-Type"),
+        "the error names the header"
+    );
+    assert_eq!(s.get("/v1/datasets").await.1["datasets"], json!([]));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_bearer_scheme_is_case_insensitive() {
+    let s = start(|_| {}).await;
+    for scheme in ["bearer", "BEARER", "Bearer"] {
+        let r = s
+            .req(Method::GET, "/v1/jobs", None)
+            .header("authorization", format!("{scheme} {VIEWER}"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 200, "{scheme}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_retried_submission_is_one_job() {
+    let s = start(|_| {}).await;
+    let job = calibd::jobs::examples::twin_fk(2);
+    let send = |key: &'static str, doc: &Value| {
+        s.req(Method::POST, "/v1/jobs", Some(SUBMITTER))
+            .header("idempotency-key", key)
+            .json(doc)
+            .send()
+    };
+    let first = send("k-1", &job).await.unwrap();
+    assert_eq!(first.status().as_u16(), 201);
+    let id = first.json::<Value>().await.unwrap()["id"].as_i64().unwrap();
+    // The client saw a reset and sends again: the same job, not a second one.
+    let again = send("k-1", &job).await.unwrap();
+    assert_eq!(again.status().as_u16(), 200);
+    assert_eq!(again.headers()["idempotent-replayed"], "true");
+    assert_eq!(
+        again.json::<Value>().await.unwrap()["id"].as_i64(),
+        Some(id)
+    );
+    // The same key for another job is a conflict, not a silent replay.
+    let other = calibd::jobs::examples::twin_fk(3);
+    assert_eq!(send("k-1", &other).await.unwrap().status().as_u16(), 409);
+    // Another token's key space is its own.
+    let r = s
+        .req(Method::POST, "/v1/jobs", Some(OPERATOR))
+        .header("idempotency-key", "k-1")
+        .json(&job)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let (_, list) = s.get("/v1/jobs").await;
+    assert_eq!(list["jobs"].as_array().unwrap().len(), 2);
+    // The CLI's client sends a key of its own.
+    let c = calibd::client::Client::new(&s.url, Some(SUBMITTER.into()));
+    let n = c.submit(&job, 0).await.unwrap();
+    assert!(n > id);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_error_body_is_json() {
+    let s = start(|_| {}).await;
+    for (m, path, want) in [
+        (Method::GET, "/v1/jobs/abc", 400),
+        (Method::GET, "/v1/jobs/1/artefacts/x", 404),
+        (Method::GET, "/v1/schedules/9999999999999999999999", 400),
+        (Method::GET, "/v1/nothing-here", 404),
+        (Method::DELETE, "/v1/jobs", 405),
+        (Method::GET, "/v1/jobs?limit=0", 400),
+        (Method::GET, "/v1/jobs?limit=100000", 400),
+    ] {
+        let r = s.req(m.clone(), path, Some(OPERATOR)).send().await.unwrap();
+        assert_eq!(r.status().as_u16(), want, "{m} {path}");
+        assert_eq!(
+            r.headers()["content-type"],
+            "application/json",
+            "{m} {path}"
+        );
+        let e: Value = r.json().await.unwrap();
+        assert!(e["error"]["message"].is_string(), "{m} {path}: {e}");
+    }
+}
