@@ -13,7 +13,7 @@ use tokio::time::Instant;
 use tokio_util::codec::Framed;
 
 use super::line::LineCodec;
-use crate::mock::fault::GARBAGE;
+use crate::mock::fault::{DELAY_FAULT, GARBAGE};
 use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, serve};
 use mcs2::mcs2_reply;
 
@@ -229,6 +229,10 @@ async fn session(io: BoxIo, conn: Conn, sim: Arc<Mutex<Sim>>, faults: Faults, d:
             let fault = faults.next();
             let text = match fault {
                 None => format!("{r}{eol}"),
+                Some(FaultKind::Delay) => {
+                    tokio::time::sleep(DELAY_FAULT).await;
+                    format!("{r}{eol}")
+                }
                 Some(FaultKind::Drop) => return,
                 Some(FaultKind::Stall) => {
                     let mut io = f.into_inner();
