@@ -262,11 +262,13 @@ async fn late_reply_to_a_timed_out_request_is_not_the_next_reading() {
     let m = mock::start_with("127.0.0.1:0", handler).await.unwrap();
     let mut c = cfg();
     c.request_template = "RQ{cc}{gg}".into();
-    c.timeout = Duration::from_millis(300);
+    // Shorter than the delay, longer than what is left of it after the first timeout: the
+    // late reply arrives while the second request waits.
+    c.timeout = Duration::from_millis(700);
     let h = UwaveHandle::connect(TcpConnector::new(m.addr.clone()), c);
     wait_state(&h, "the reading sent at connect", |s| s.lines >= 1).await;
     match h.fresh(0).await {
-        Err(DriverError::Timeout { after_ms: 300, .. }) => {}
+        Err(DriverError::Timeout { after_ms: 700, .. }) => {}
         other => panic!("expected a timeout, got {other:?}"),
     }
     // The fixture moves: the indicator now reads 2 mm; the 1 mm reply is still on its way.
