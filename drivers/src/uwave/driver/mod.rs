@@ -57,8 +57,8 @@ pub struct UwaveConfig {
     pub axes: [AxisMap; 3],
     /// Reconnection back-off.
     pub backoff: Backoff,
-    /// Close and reopen the link after this many consecutive reading timeouts with no line
-    /// received in between (0 = never).
+    /// Close and reopen the link after this many consecutive timed-out readings (any
+    /// channel) with no line received in between (0 = never).
     pub reopen_after_timeouts: u32,
     /// With a request template: how long a timed-out request's reply is still expected
     /// (and discarded when it comes); the next request on that channel waits for it.
@@ -585,7 +585,9 @@ impl<C: Connect> Actor<C> {
                     self.owed.insert(*ch, until);
                 }
             }
-            self.timeouts = self.timeouts.saturating_add(1);
+            // Every timed-out reading counts (a stalled tool-axes read is three).
+            let k = u32::try_from(timed_out.len()).unwrap_or(u32::MAX);
+            self.timeouts = self.timeouts.saturating_add(k);
             let n = self.timeouts;
             self.state.send_modify(|s| s.consecutive_timeouts = n);
             let limit = self.cfg.reopen_after_timeouts;
