@@ -26,6 +26,11 @@ pub trait Connect: Send + 'static {
     type Io: AsyncRead + AsyncWrite + Unpin + Send + 'static;
     /// Opens one connection.
     fn connect(&mut self) -> BoxFuture<'_, io::Result<Self::Io>>;
+    /// False when a closed transport cannot be opened again (an attached one): drivers then
+    /// do not close a silent link on purpose.
+    fn can_reopen(&self) -> bool {
+        true
+    }
 }
 
 /// A connector that hands out one already-open transport and then refuses: used by
@@ -42,6 +47,9 @@ impl<T> Once<T> {
 
 impl<T: AsyncRead + AsyncWrite + Unpin + Send + 'static> Connect for Once<T> {
     type Io = T;
+    fn can_reopen(&self) -> bool {
+        false
+    }
     fn connect(&mut self) -> BoxFuture<'_, io::Result<T>> {
         let io = self.0.take();
         Box::pin(async move {
@@ -139,6 +147,11 @@ impl<C: Connect, K: Clone> Link<C, K> {
             framed: None,
             connects: 0,
         }
+    }
+
+    /// Whether the connector can open a new transport after this one is closed.
+    pub(crate) fn can_reopen(&self) -> bool {
+        self.connector.can_reopen()
     }
 
     /// True when a transport is open.

@@ -4,7 +4,8 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use calibd_drivers::mock::{self, FaultSpec, MockArgs, MockDevice};
+use calibd_drivers::mock::{self, FaultSpec, Faults, MockArgs, MockDevice};
+use calibd_drivers::smaract::mock::{Mcs2ErrorQueue, Slc1730x3, mcs2_handler_with_queue};
 use calibd_drivers::smaract::{Mcs2Handle, McsHandle, Stage, StageConfig};
 use calibd_drivers::{Backoff, DriverError, TcpConnector};
 
@@ -100,7 +101,8 @@ async fn mcs_raw_command_errors_are_device_errors() {
 
 #[tokio::test]
 async fn mcs2_positioner_fault_is_a_device_error() {
-    // Reply 1 = the first status query; the mock then latches a positioner fault on ch 0.
+    // Reply 1 = the error-queue count read on connect; the mock then latches a positioner
+    // fault on ch 0 (and queues its error, drained as not ours before the next command).
     let (m, s, _) = start(MockDevice::Mcs2, &["device-error@1"], None).await;
     s.status(0).await.unwrap();
     assert!(s.status(0).await.unwrap().fault);
@@ -117,7 +119,14 @@ async fn mcs2_positioner_fault_is_a_device_error() {
 async fn link_faults_give_typed_errors_then_reconnect() {
     for dev in [MockDevice::Mcs, MockDevice::Mcs2] {
         for fault in ["garbage@3", "drop@3", "truncate@3", "stall@3"] {
-            let (m, s, _) = start(dev, &[fault], None).await;
+            // The MCS2 driver reads the error queue count once more, on connect: the second
+            // position query is reply 4 there.
+            let planned = if dev == MockDevice::Mcs2 {
+                fault.replace("@3", "@4")
+            } else {
+                fault.to_string()
+            };
+            let (m, s, _) = start(dev, &[planned.as_str()], None).await;
             s.position(0).await.unwrap();
             let e = s.position(0).await.unwrap_err();
             let ok = match fault {
@@ -166,4 +175,65 @@ async fn documented_exchanges_replay() {
         }
         m.stop().await;
     }
+}
+
+/// An MCS2 mock whose error queue already holds `stale` (left by another client), and a
+/// driver connected to it.
+async fn mcs2_with_queue(stale: &[(i64, &str)]) -> (mock::RunningMock, Mcs2Handle, Mcs2ErrorQueue) {
+    let (handler, queue) = mcs2_handler_with_queue(Box::new(Slc1730x3), Faults::default());
+    for (code, text) in stale {
+        queue.push(*code, text);
+    }
+    let m = mock::start_with("127.0.0.1:0", handler).await.unwrap();
+    let h = Mcs2Handle::connect(TcpConnector::new(m.addr.clone()), cfg());
+    (m, h, queue)
+}
+
+#[tokio::test]
+async fn mcs2_errors_left_by_another_client_are_drained_on_connect_not_blamed() {
+    let (m, h, q) = mcs2_with_queue(&[
+        (-200, "Execution error (another client)"),
+        (-113, "Undefined header (another client)"),
+    ])
+    .await;
+    h.set(":CHAN0:MMOD 0").await.unwrap();
+    assert!(q.pending().is_empty(), "{:?}", q.pending());
+    assert_eq!(h.state().borrow().stale_errors_drained, 2);
+    assert_eq!(h.position(0).await.unwrap(), 0);
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn mcs2_no_error_reply_is_not_a_fault() {
+    // A queue entry that reads back as 0,"No error", before connect and between commands.
+    let (m, h, q) = mcs2_with_queue(&[(0, "No error")]).await;
+    h.set(":CHAN0:MMOD 0").await.unwrap();
+    q.push(0, "No error");
+    h.set(":CHAN0:VEL 1000000000").await.unwrap();
+    assert!(q.pending().is_empty(), "{:?}", q.pending());
+    assert_eq!(h.state().borrow().stale_errors_drained, 0);
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn mcs2_error_is_attributed_to_the_command_that_caused_it() {
+    let (m, h, q) = mcs2_with_queue(&[(-200, "Execution error (another client)")]).await;
+    match h.set(":CHAN0:BOGUS 1").await {
+        Err(DriverError::Device {
+            code: -113,
+            message,
+            ..
+        }) => {
+            assert!(message.contains(":CHAN0:BOGUS 1"), "{message}");
+            assert!(!message.contains("another client"), "{message}");
+        }
+        other => panic!("expected the invalid command's own error, got {other:?}"),
+    }
+    // An unchecked query that queues an error (no channel 9) is not blamed on the next
+    // command either.
+    h.query(":CHAN9:STAT?").await.unwrap();
+    h.set(":CHAN0:MMOD 0").await.unwrap();
+    assert!(q.pending().is_empty(), "{:?}", q.pending());
+    assert_eq!(h.state().borrow().stale_errors_drained, 2);
+    m.stop().await;
 }

@@ -1,9 +1,11 @@
 //! U-WAVE driver against the U-WAVE mock over a real pty and over TCP, with faults.
 
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use calibd_drivers::mock::{self, FaultSpec, MockArgs, MockDevice};
-use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle};
+use calibd_drivers::mock::{self, FaultSpec, Faults, MockArgs, MockDevice};
+use calibd_drivers::uwave::mock::IndicatorModel;
+use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle, UwaveState};
 use calibd_drivers::{Backoff, DriverError, Recorder, TcpConnector, Transcript};
 
 fn cfg() -> UwaveConfig {
@@ -222,5 +224,87 @@ async fn transmitter_search_lists_the_three_indicators() {
     );
     // Readings keep flowing during and after the search.
     assert!(h.fresh(2).await.is_ok());
+    m.stop().await;
+}
+
+/// One indicator on channel 0 whose reading the test sets.
+struct Settable(Arc<Mutex<f64>>);
+
+impl IndicatorModel for Settable {
+    fn channels(&self) -> Vec<u8> {
+        vec![0]
+    }
+    fn read_mm(&mut self, _: u8, _: f64) -> Option<f64> {
+        self.0.lock().ok().map(|v| *v)
+    }
+}
+
+/// Waits (bounded) until the driver state satisfies `f`.
+async fn wait_state(h: &UwaveHandle, what: &str, f: impl FnMut(&UwaveState) -> bool) {
+    let mut rx = h.state();
+    match tokio::time::timeout(Duration::from_secs(10), rx.wait_for(f)).await {
+        Ok(Ok(_)) => {}
+        _ => panic!("state never reached: {what}; last {:?}", *h.state().borrow()),
+    }
+}
+
+#[tokio::test]
+async fn late_reply_to_a_timed_out_request_is_not_the_next_reading() {
+    let value = Arc::new(Mutex::new(1.0));
+    let mut args = MockArgs::new(MockDevice::Uwave);
+    args.rate_hz = 0.1; // one spontaneous reading at connect, the next 10 s later
+    args.uwave_request = "RQ{cc}{gg}".into();
+    // Reply 1 = the spontaneous reading at connect; reply 2 = the answer to the first
+    // request, sent one second late (after the driver's timeout).
+    let faults = Faults::new(vec!["delay@2".parse::<FaultSpec>().unwrap()]);
+    let model: Arc<Mutex<dyn IndicatorModel>> = Arc::new(Mutex::new(Settable(value.clone())));
+    let handler = calibd_drivers::uwave::mock::handler_with(model, &args, faults);
+    let m = mock::start_with("127.0.0.1:0", handler).await.unwrap();
+    let mut c = cfg();
+    c.request_template = "RQ{cc}{gg}".into();
+    // Shorter than the delay, longer than what is left of it after the first timeout: the
+    // late reply arrives while the second request waits.
+    c.timeout = Duration::from_millis(700);
+    let h = UwaveHandle::connect(TcpConnector::new(m.addr.clone()), c);
+    wait_state(&h, "the reading sent at connect", |s| s.lines >= 1).await;
+    match h.fresh(0).await {
+        Err(DriverError::Timeout { after_ms: 700, .. }) => {}
+        other => panic!("expected a timeout, got {other:?}"),
+    }
+    // The fixture moves: the indicator now reads 2 mm; the 1 mm reply is still on its way.
+    if let Ok(mut v) = value.lock() {
+        *v = 2.0;
+    }
+    let asked = tokio::time::Instant::now();
+    let r = h.fresh(0).await.unwrap();
+    assert_eq!(r.value, 2.0, "stale reading returned: {r:?}");
+    assert!(r.received_at >= asked);
+    assert_eq!(h.state().borrow().late_replies_discarded, 1);
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn consecutive_timeouts_reopen_the_link() {
+    let mut args = MockArgs::new(MockDevice::Uwave);
+    args.rate_hz = 20.0;
+    // The first tick sends channels 0 and 1, then the mock stops answering on this link.
+    args.faults = vec!["stall@3".parse::<FaultSpec>().unwrap()];
+    let m = mock::start(args).await.unwrap();
+    let mut c = cfg();
+    c.timeout = Duration::from_millis(200);
+    c.reopen_after_timeouts = 2;
+    let h = UwaveHandle::connect(TcpConnector::new(m.addr.clone()), c);
+    wait_state(&h, "two readings before the stall", |s| s.lines >= 2).await;
+    for _ in 0..2 {
+        match h.fresh(0).await {
+            Err(DriverError::Timeout { .. }) => {}
+            other => panic!("expected a timeout, got {other:?}"),
+        }
+    }
+    wait_state(&h, "link reopened", |s| s.reopens == 1 && s.connected).await;
+    assert_eq!(h.state().borrow().connects, 2);
+    let r = h.fresh(0).await.unwrap();
+    assert!((r.value_mm() - model_mm(0)).abs() < 0.0025, "{r:?}");
+    assert_eq!(h.state().borrow().consecutive_timeouts, 0);
     m.stop().await;
 }

@@ -15,7 +15,7 @@ use super::canopen::{SDO_TX, SdoResponse, response};
 use super::frame::CanFrame;
 use super::node::{Drive, DriveModel, LinearAxis};
 use super::socketcand::{SocketcandCodec, frame_body, parse_send};
-use crate::mock::fault::GARBAGE;
+use crate::mock::fault::{DELAY_FAULT, GARBAGE};
 use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, serve};
 
 /// Bus id of the simulated drive (clients get ids from 1).
@@ -119,6 +119,7 @@ async fn client(
                     let mut frame = frame;
                     match faults.next() {
                         None => {}
+                        Some(FaultKind::Delay) => tokio::time::sleep(DELAY_FAULT).await,
                         Some(FaultKind::Drop) => return,
                         Some(FaultKind::Stall) => {
                             let mut io = f.into_inner();

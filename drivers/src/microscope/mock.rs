@@ -10,7 +10,7 @@ use tokio::io::AsyncWriteExt;
 use tokio_util::codec::Framed;
 
 use super::codec::{Reply, Request, ServerCodec};
-use crate::mock::fault::GARBAGE;
+use crate::mock::fault::{DELAY_FAULT, GARBAGE};
 use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, serve};
 
 /// What the microscope sees: the hook for a digital twin of the robot under the camera.
@@ -110,6 +110,7 @@ async fn session(
         let reply = answer(&line, &model, &seq);
         match faults.next() {
             None => {}
+            Some(FaultKind::Delay) => tokio::time::sleep(DELAY_FAULT).await,
             Some(FaultKind::Drop) => return,
             Some(FaultKind::Stall) => {
                 let mut io = f.into_inner();

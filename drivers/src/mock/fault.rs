@@ -19,7 +19,12 @@ pub enum FaultKind {
     Truncate,
     /// Reply with an error of the device's own kind.
     DeviceError,
+    /// Send the reply, unchanged, [`DELAY_FAULT`] late (it arrives after a client's timeout).
+    Delay,
 }
+
+/// How late the `delay` fault sends its reply.
+pub const DELAY_FAULT: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// One planned fault: `kind` at reply number `at` (1-based).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,9 +47,10 @@ impl FromStr for FaultSpec {
             "garbage" => FaultKind::Garbage,
             "truncate" => FaultKind::Truncate,
             "device-error" | "device_error" => FaultKind::DeviceError,
+            "delay" => FaultKind::Delay,
             _ => {
                 return Err(format!(
-                    "fault kind {k:?}: expected drop, stall, garbage, truncate or device-error"
+                    "fault kind {k:?}: expected drop, stall, garbage, truncate, device-error or delay"
                 ));
             }
         };
@@ -65,6 +71,7 @@ impl fmt::Display for FaultSpec {
             FaultKind::Garbage => "garbage",
             FaultKind::Truncate => "truncate",
             FaultKind::DeviceError => "device-error",
+            FaultKind::Delay => "delay",
         };
         write!(f, "{k}@{}", self.at)
     }
@@ -109,6 +116,7 @@ mod tests {
         assert_eq!(f.to_string(), "device-error@2");
         assert!("drop@0".parse::<FaultSpec>().is_err());
         assert!("melt@1".parse::<FaultSpec>().is_err());
+        assert_eq!("delay@3".parse::<FaultSpec>().unwrap().to_string(), "delay@3");
         let p = Faults::new(vec![f, "drop@4".parse().unwrap()]);
         let seen: Vec<_> = (0..5).map(|_| p.next()).collect();
         assert_eq!(

@@ -67,7 +67,7 @@ pub struct MockArgs {
     /// Replay this transcript to every client instead of simulating.
     #[arg(long)]
     pub replay: Option<PathBuf>,
-    /// Inject a fault: KIND@N with KIND drop|stall|garbage|truncate|device-error and N the
+    /// Inject a fault: KIND@N with KIND drop|stall|garbage|truncate|device-error|delay and N the
     /// reply number (1-based) it replaces. Repeatable.
     #[arg(long = "fault")]
     pub faults: Vec<FaultSpec>,

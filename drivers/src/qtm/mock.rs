@@ -15,7 +15,7 @@ use tokio_util::codec::FramedRead;
 use super::codec::QtmCodec;
 use super::packet::{self, Component, DataFrame, Packet, event};
 use super::params::{Settings3d, write_3d};
-use crate::mock::fault::GARBAGE;
+use crate::mock::fault::{DELAY_FAULT, GARBAGE};
 use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs};
 
 /// Highest protocol version the mock accepts.
@@ -216,6 +216,10 @@ impl Session {
         packet::encode(&p, &mut b);
         let bytes: Vec<u8> = match self.faults.next() {
             None => b.to_vec(),
+            Some(FaultKind::Delay) => {
+                tokio::time::sleep(DELAY_FAULT).await;
+                b.to_vec()
+            }
             Some(FaultKind::Drop) => return Step::Stop,
             Some(FaultKind::Stall) => {
                 self.stream = None;

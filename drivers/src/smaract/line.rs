@@ -5,8 +5,9 @@ use std::time::Duration;
 
 use bytes::{BufMut, BytesMut};
 use futures_util::{SinkExt, StreamExt};
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::{mpsc, watch};
-use tokio_util::codec::{Decoder, Encoder};
+use tokio_util::codec::{Decoder, Encoder, Framed};
 
 use crate::actor::{Reply, call};
 use crate::error::{CodecError, DriverError, quote};
@@ -69,11 +70,31 @@ pub struct LineState {
     pub connects: u64,
     /// Last error.
     pub last_error: Option<String>,
+    /// Errors found in the controller's error queue that no command of ours caused (left
+    /// by another client or before a reconnect), drained and logged.
+    pub stale_errors_drained: u64,
 }
+
+/// A controller that reports errors through a queue (MCS2: `:SYST:ERR:COUN?` and
+/// `:SYST:ERR?`, SCPI style, code 0 = no error).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ErrorQueue {
+    /// Query for the number of queued errors.
+    pub(crate) count: &'static str,
+    /// Query that pops the oldest error.
+    pub(crate) next: &'static str,
+    /// Parses a `next` reply into code and text.
+    pub(crate) parse: fn(&str) -> Result<(i64, String), DriverError>,
+}
+
+/// Most queue entries read in one drain (a controller that never says 0 cannot hang us).
+const MAX_DRAIN: usize = 64;
 
 pub(crate) struct Exchange {
     line: String,
     want_reply: bool,
+    /// Attribute the errors queued by this command to it (needs an `ErrorQueue`).
+    checked: bool,
     reply: Reply<Option<String>>,
 }
 
@@ -93,19 +114,37 @@ pub(crate) struct LineClient {
 
 impl LineClient {
     /// Starts the actor; `hello` lines are sent (each awaiting one reply) after every connect.
+    /// With an error `queue`, it is drained after every connect and before a checked
+    /// command when an unchecked one may have left errors; a checked command gets the
+    /// errors queued after it.
     pub(crate) fn start<C: Connect>(
         device: &'static str,
         connector: C,
         timeout: Duration,
         backoff: Backoff,
         hello: Vec<String>,
+        queue: Option<ErrorQueue>,
     ) -> Self {
         let (tx, mut rx) = mpsc::channel::<Exchange>(16);
         let (stx, srx) = watch::channel(LineState::default());
         let mut link = Link::new(device, connector, LineCodec::default(), backoff);
         tokio::spawn(async move {
+            let mut s = Session {
+                device,
+                timeout,
+                hello,
+                queue,
+                dirty: true,
+                stale: 0,
+            };
             while let Some(ex) = rx.recv().await {
-                let r = run_one(device, &mut link, &ex, timeout, &hello).await;
+                let r = s.run_one(&mut link, &ex).await;
+                if r.is_err() {
+                    // Whatever the command left in the queue is not known to be read.
+                    s.dirty = true;
+                }
+                let stale = s.stale;
+                stx.send_modify(|st| st.stale_errors_drained = stale);
                 if let Err(e) = &r {
                     if e.breaks_link() {
                         link.reset();
@@ -137,6 +176,23 @@ impl LineClient {
         call(&self.tx, self.device, |reply| Exchange {
             line,
             want_reply,
+            checked: false,
+            reply,
+        })
+        .await
+    }
+
+    /// Sends `line` (and reads its reply if `want_reply`), then reads the error queue: an
+    /// error queued after this line is returned as a device error naming it.
+    pub(crate) async fn checked(
+        &self,
+        line: String,
+        want_reply: bool,
+    ) -> Result<Option<String>, DriverError> {
+        call(&self.tx, self.device, |reply| Exchange {
+            line,
+            want_reply,
+            checked: true,
             reply,
         })
         .await
@@ -155,49 +211,135 @@ impl LineClient {
     }
 }
 
-async fn run_one<C: Connect>(
+/// The actor's side of one connection-independent session.
+struct Session {
     device: &'static str,
-    link: &mut Link<C, LineCodec>,
-    ex: &Exchange,
     timeout: Duration,
-    hello: &[String],
-) -> Result<Option<String>, DriverError> {
-    let (f, fresh) = link.ensure().await?;
-    let lines: Vec<(String, bool)> = if fresh {
-        hello
-            .iter()
-            .map(|h| (h.clone(), true))
-            .chain([(ex.line.clone(), ex.want_reply)])
-            .collect()
-    } else {
-        vec![(ex.line.clone(), ex.want_reply)]
-    };
-    let mut last = None;
-    for (line, want) in lines {
-        let work = async {
-            // Anything unread belongs to an earlier, abandoned exchange.
-            f.read_buffer_mut().clear();
-            f.send(line.clone())
-                .await
-                .map_err(|e| DriverError::from_codec(device, e))?;
-            if !want {
-                return Ok(None);
+    hello: Vec<String>,
+    queue: Option<ErrorQueue>,
+    /// The error queue may hold errors no checked command has read.
+    dirty: bool,
+    /// Stale errors drained so far.
+    stale: u64,
+}
+
+impl Session {
+    async fn run_one<C: Connect>(
+        &mut self,
+        link: &mut Link<C, LineCodec>,
+        ex: &Exchange,
+    ) -> Result<Option<String>, DriverError> {
+        let (f, fresh) = link.ensure().await?;
+        if fresh {
+            self.dirty = true;
+            for h in &self.hello {
+                round(self.device, f, h, true, self.timeout).await?;
             }
-            match f.next().await {
-                Some(Ok(l)) => Ok(Some(l)),
-                Some(Err(e)) => Err(DriverError::from_codec(device, e)),
-                None => Err(DriverError::Closed { device }),
-            }
+        }
+        let Some(q) = self.queue.filter(|_| ex.checked || fresh) else {
+            self.dirty = true;
+            return round(self.device, f, &ex.line, ex.want_reply, self.timeout).await;
         };
-        last = tokio::time::timeout(timeout, work)
-            .await
-            .unwrap_or(Err(DriverError::Timeout {
-                device,
-                what: format!("a reply to {line:?}"),
-                after_ms: timeout.as_millis() as u64,
-            }))?;
+        if self.dirty {
+            let why = if fresh { "on connect" } else { "before a command" };
+            for (code, message) in self.drain(f, q).await? {
+                self.stale += 1;
+                tracing::warn!(
+                    device = self.device,
+                    code,
+                    message = %message,
+                    when = why,
+                    before = %ex.line,
+                    "drained an error this client did not cause from the controller's queue"
+                );
+            }
+            self.dirty = false;
+        }
+        let reply = round(self.device, f, &ex.line, ex.want_reply, self.timeout).await?;
+        if !ex.checked {
+            self.dirty = true;
+            return Ok(reply);
+        }
+        let errors = self.drain(f, q).await?;
+        let Some((code, text)) = errors.first() else {
+            return Ok(reply);
+        };
+        let mut message = format!("{text} (caused by {:?})", ex.line);
+        if errors.len() > 1 {
+            let more: Vec<String> = errors[1..]
+                .iter()
+                .map(|(c, t)| format!("{c} {t}"))
+                .collect();
+            message.push_str(&format!("; also queued: {}", more.join("; ")));
+        }
+        tracing::debug!(device = self.device, code, command = %ex.line, "device error");
+        Err(DriverError::Device {
+            device: self.device,
+            code: *code,
+            message,
+        })
     }
-    Ok(last)
+
+    /// Reads the queue until it reports code 0; returns the real errors (never code 0).
+    async fn drain<T: AsyncRead + AsyncWrite + Unpin>(
+        &self,
+        f: &mut Framed<T, LineCodec>,
+        q: ErrorQueue,
+    ) -> Result<Vec<(i64, String)>, DriverError> {
+        let device = self.device;
+        let n = round(device, f, q.count, true, self.timeout).await?;
+        let n = n.unwrap_or_default();
+        let n: i64 = n.trim().parse().map_err(|_| DriverError::Protocol {
+            device,
+            detail: format!("{}: {n:?} is not an integer", q.count),
+        })?;
+        let mut errors = Vec::new();
+        if n <= 0 {
+            return Ok(errors);
+        }
+        for _ in 0..MAX_DRAIN {
+            let line = round(device, f, q.next, true, self.timeout).await?;
+            let (code, text) = (q.parse)(line.as_deref().unwrap_or_default())?;
+            if code == 0 {
+                return Ok(errors);
+            }
+            errors.push((code, text));
+        }
+        tracing::warn!(device, "error queue not empty after {MAX_DRAIN} reads");
+        Ok(errors)
+    }
+}
+
+/// Sends one line and, if `want`, reads one reply line, within `timeout`.
+async fn round<T: AsyncRead + AsyncWrite + Unpin>(
+    device: &'static str,
+    f: &mut Framed<T, LineCodec>,
+    line: &str,
+    want: bool,
+    timeout: Duration,
+) -> Result<Option<String>, DriverError> {
+    let work = async {
+        // Anything unread belongs to an earlier, abandoned exchange.
+        f.read_buffer_mut().clear();
+        f.send(line.to_string())
+            .await
+            .map_err(|e| DriverError::from_codec(device, e))?;
+        if !want {
+            return Ok(None);
+        }
+        match f.next().await {
+            Some(Ok(l)) => Ok(Some(l)),
+            Some(Err(e)) => Err(DriverError::from_codec(device, e)),
+            None => Err(DriverError::Closed { device }),
+        }
+    };
+    tokio::time::timeout(timeout, work)
+        .await
+        .unwrap_or(Err(DriverError::Timeout {
+            device,
+            what: format!("a reply to {line:?}"),
+            after_ms: timeout.as_millis() as u64,
+        }))
 }
 
 #[cfg(test)]

@@ -111,6 +111,7 @@ impl McsHandle {
             cfg.timeout,
             cfg.backoff,
             vec![":SCM0".into()],
+            None,
         );
         McsHandle {
             line,

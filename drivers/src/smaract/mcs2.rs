@@ -1,8 +1,13 @@
 //! SmarAct MCS2 SCPI-like protocol over TCP 55551: queries end with `?` and get one CRLF
 //! line; set commands and actions are silent and checked with `:SYST:ERR:COUN?` /
 //! `:SYST:ERR?`; positions in pm (devices.md §3b).
+//!
+//! Error attribution: the queue is drained (and what was in it logged) after every connect,
+//! and before a checked command whenever an unchecked query may have left errors, so the
+//! errors read right after a command are that command's. Code 0 ("No error") ends a drain
+//! and is never an error.
 
-use super::line::{LineClient, LineState};
+use super::line::{ErrorQueue, LineClient, LineState};
 use super::stage::{Stage, StageConfig, StageStatus, wait_until};
 use crate::error::DriverError;
 use crate::link::{BoxFuture, Connect};
@@ -20,6 +25,21 @@ pub struct Mcs2Handle {
     cfg: StageConfig,
 }
 
+/// The MCS2 error queue (devices.md §3b).
+const QUEUE: ErrorQueue = ErrorQueue {
+    count: ":SYST:ERR:COUN?",
+    next: ":SYST:ERR?",
+    parse: parse_error,
+};
+
+/// Parses a `:SYST:ERR?` reply, SCPI style `<code>,"<text>"` (split at the first comma,
+/// quotes dropped); `0,"No error"` is code 0.
+pub fn parse_error(line: &str) -> Result<(i64, String), DriverError> {
+    let (code, text) = line.split_once(',').unwrap_or((line, ""));
+    let code = int(code, ":SYST:ERR?")?;
+    Ok((code, text.trim().trim_matches('"').to_string()))
+}
+
 fn int(s: &str, what: &str) -> Result<i64, DriverError> {
     s.trim().parse().map_err(|_| DriverError::Protocol {
         device: DEVICE,
@@ -30,33 +50,35 @@ fn int(s: &str, what: &str) -> Result<i64, DriverError> {
 impl Mcs2Handle {
     /// Starts the actor.
     pub fn connect<C: Connect>(connector: C, cfg: StageConfig) -> Self {
-        let line = LineClient::start(DEVICE, connector, cfg.timeout, cfg.backoff, Vec::new());
+        let line = LineClient::start(
+            DEVICE,
+            connector,
+            cfg.timeout,
+            cfg.backoff,
+            Vec::new(),
+            Some(QUEUE),
+        );
         Mcs2Handle { line, cfg }
     }
 
-    /// A query (`...?`): the reply line.
+    /// A query (`...?`): the reply line; the error queue is not read.
     pub async fn query(&self, q: &str) -> Result<String, DriverError> {
         self.line.query(q.to_string()).await
     }
 
-    /// A set command or action, then the error queue is checked (device error if not empty).
-    pub async fn set(&self, cmd: &str) -> Result<(), DriverError> {
-        self.line.exchange(cmd.to_string(), false).await?;
-        self.check_errors(cmd).await
+    /// A query whose errors are read right after it: an error it caused is a device error
+    /// naming it.
+    pub async fn checked_query(&self, q: &str) -> Result<String, DriverError> {
+        self.line
+            .checked(q.to_string(), true)
+            .await?
+            .ok_or(DriverError::Closed { device: DEVICE })
     }
 
-    async fn check_errors(&self, after: &str) -> Result<(), DriverError> {
-        let n = int(&self.query(":SYST:ERR:COUN?").await?, ":SYST:ERR:COUN?")?;
-        if n == 0 {
-            return Ok(());
-        }
-        let e = self.query(":SYST:ERR?").await?;
-        let (code, text) = e.split_once(',').unwrap_or((e.as_str(), ""));
-        Err(DriverError::Device {
-            device: DEVICE,
-            code: int(code, ":SYST:ERR?")?,
-            message: format!("{} (after {after:?})", text.trim().trim_matches('"')),
-        })
+    /// A set command or action, then the error queue is read: an error this command caused
+    /// is a device error whose message names it.
+    pub async fn set(&self, cmd: &str) -> Result<(), DriverError> {
+        self.line.checked(cmd.to_string(), false).await.map(|_| ())
     }
 
     async fn status_of(&self, ch: u8) -> Result<StageStatus, DriverError> {
@@ -96,10 +118,8 @@ impl Stage for Mcs2Handle {
     }
     fn position(&self, ch: u8) -> BoxFuture<'_, Result<i64, DriverError>> {
         Box::pin(async move {
-            let q = format!(":CHAN{ch}:POS?");
-            let v = self.query(&q).await?;
             // An invalid channel still gets a reply line; the error queue says why.
-            self.check_errors(&q).await?;
+            let v = self.checked_query(&format!(":CHAN{ch}:POS?")).await?;
             int(&v, "position")
         })
     }

@@ -11,7 +11,7 @@ use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
 use super::codec::{Unit, UwaveLine};
-use crate::mock::fault::GARBAGE;
+use crate::mock::fault::{DELAY_FAULT, GARBAGE};
 use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, MockError, serve};
 
 /// What the indicators read: the hook for a digital twin of the centring fixture.
@@ -134,6 +134,14 @@ impl Session {
         };
         let bytes = match self.faults.next() {
             None => line.into_bytes(),
+            Some(FaultKind::Delay) => {
+                // The reading was taken now; it reaches the client late.
+                tokio::select! {
+                    _ = tokio::time::sleep(DELAY_FAULT) => {}
+                    _ = conn.token.cancelled() => return Next::Stop,
+                }
+                line.into_bytes()
+            }
             Some(FaultKind::Drop) => return Next::Stop,
             Some(FaultKind::Stall) => {
                 serve::stall(io, &conn.token).await;

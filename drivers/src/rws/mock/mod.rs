@@ -21,7 +21,7 @@ use super::digest;
 use super::http::{Headers, HttpServerCodec, Request, Response};
 use super::irb120;
 use super::rapid::{format_jointtarget, parse_jointtarget, parse_pos};
-use crate::mock::fault::GARBAGE;
+use crate::mock::fault::{DELAY_FAULT, GARBAGE};
 use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, serve};
 
 /// Realm of IRC5 RobotWare 6.
@@ -260,6 +260,7 @@ impl Server {
             if resp.status != 401 {
                 match self.faults.next() {
                     None => {}
+                    Some(FaultKind::Delay) => tokio::time::sleep(DELAY_FAULT).await,
                     Some(FaultKind::Drop) => return,
                     Some(FaultKind::Stall) => {
                         let mut io = f.into_inner();

@@ -13,7 +13,7 @@ use tokio::time::Instant;
 use tokio_util::codec::Framed;
 
 use super::line::LineCodec;
-use crate::mock::fault::GARBAGE;
+use crate::mock::fault::{DELAY_FAULT, GARBAGE};
 use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, serve};
 use mcs2::mcs2_reply;
 
@@ -182,6 +182,40 @@ pub fn mcs2_handler_with_model(model: Box<dyn StageModel>, faults: Faults) -> Ha
     mcs2_handler_with(Arc::new(Mutex::new(Sim::new(model))), faults)
 }
 
+/// The error queue of a simulated MCS2 controller, shared by all its connections: tests use
+/// it to play another client that left errors behind, and to look at what is queued.
+#[derive(Clone)]
+pub struct Mcs2ErrorQueue(Arc<Mutex<Sim>>);
+
+impl std::fmt::Debug for Mcs2ErrorQueue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Mcs2ErrorQueue({:?})", self.pending())
+    }
+}
+
+impl Mcs2ErrorQueue {
+    /// Appends an error as `:SYST:ERR?` will report it (`<code>,"<text>"`).
+    pub fn push(&self, code: i64, text: &str) {
+        if let Ok(mut s) = self.0.lock() {
+            s.errors.push((code, text.to_string()));
+        }
+    }
+
+    /// The queued errors, oldest first.
+    pub fn pending(&self) -> Vec<(i64, String)> {
+        self.0.lock().map(|s| s.errors.clone()).unwrap_or_default()
+    }
+}
+
+/// MCS2 handler around any stage model, with a handle on its error queue.
+pub fn mcs2_handler_with_queue(
+    model: Box<dyn StageModel>,
+    faults: Faults,
+) -> (Handler, Mcs2ErrorQueue) {
+    let sim = Arc::new(Mutex::new(Sim::new(model)));
+    (mcs2_handler_with(sim.clone(), faults), Mcs2ErrorQueue(sim))
+}
+
 fn mcs_handler_with(sim: Arc<Mutex<Sim>>, faults: Faults) -> Handler {
     Arc::new(move |io, conn| Box::pin(session(io, conn, sim.clone(), faults.clone(), Dialect::Mcs)))
 }
@@ -229,6 +263,10 @@ async fn session(io: BoxIo, conn: Conn, sim: Arc<Mutex<Sim>>, faults: Faults, d:
             let fault = faults.next();
             let text = match fault {
                 None => format!("{r}{eol}"),
+                Some(FaultKind::Delay) => {
+                    tokio::time::sleep(DELAY_FAULT).await;
+                    format!("{r}{eol}")
+                }
                 Some(FaultKind::Drop) => return,
                 Some(FaultKind::Stall) => {
                     let mut io = f.into_inner();

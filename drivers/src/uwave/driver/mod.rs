@@ -2,14 +2,21 @@
 //! answers "latest" (with a staleness limit) and "fresh" (wait for the next reading after an
 //! optional configurable request) and maps three indicators onto the tool axes. The
 //! transmitter search (`IR11ccgg1` → `TI1` lines until `ST1 … 51`) is in `search`.
+//!
+//! A fresh reading is one produced after its request: lines already buffered on the link are
+//! read and put aside before a request is sent, and with a data-request template at most one
+//! request per channel is on the wire. A request that timed out still owes its reply; that
+//! late reply (the receiver answers in order) is discarded, not given to the next request,
+//! which is held back until the late reply came or `late_reply_grace` ran out. After
+//! `reopen_after_timeouts` consecutive timeouts the port is closed and reopened.
 
 mod search;
 pub use search::Transmitter;
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::time::Duration;
 
-use futures_util::SinkExt;
+use futures_util::{FutureExt, SinkExt, StreamExt};
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
@@ -50,6 +57,12 @@ pub struct UwaveConfig {
     pub axes: [AxisMap; 3],
     /// Reconnection back-off.
     pub backoff: Backoff,
+    /// Close and reopen the link after this many consecutive timed-out readings (any
+    /// channel) with no line received in between (0 = never).
+    pub reopen_after_timeouts: u32,
+    /// With a request template: how long a timed-out request's reply is still expected
+    /// (and discarded when it comes); the next request on that channel waits for it.
+    pub late_reply_grace: Duration,
 }
 
 impl Default for UwaveConfig {
@@ -66,6 +79,8 @@ impl Default for UwaveConfig {
             staleness: Duration::from_millis(500),
             axes: [ax(0), ax(1), ax(2)],
             backoff: Backoff::default(),
+            reopen_after_timeouts: 3,
+            late_reply_grace: Duration::from_secs(2),
         }
     }
 }
@@ -101,6 +116,12 @@ pub struct UwaveState {
     pub lines: u64,
     /// Last error seen on the link, if any.
     pub last_error: Option<String>,
+    /// Reading timeouts since the last line received.
+    pub consecutive_timeouts: u32,
+    /// Times the link was closed and reopened after `reopen_after_timeouts` timeouts.
+    pub reopens: u64,
+    /// Late replies to timed-out requests that were discarded.
+    pub late_replies_discarded: u64,
 }
 
 /// Opens a serial port at 57600 8N1 (or a pty slave in tests).
@@ -126,6 +147,13 @@ impl Connect for SerialConnector {
                 .flow_control(tokio_serial::FlowControl::None)
                 .open_native_async()
                 .map_err(std::io::Error::other)?;
+            // Bytes the OS buffered before this open are not fresh readings.
+            {
+                use tokio_serial::SerialPort;
+                if let Err(e) = s.clear(tokio_serial::ClearBuffer::Input) {
+                    tracing::debug!(device = DEVICE, error = %e, "cannot clear the input buffer");
+                }
+            }
             Ok(Tee::new(s, self.recorder.clone(), Side::Client))
         })
     }
@@ -140,6 +168,12 @@ enum Request {
 struct Waiter {
     channel: u8,
     deadline: Instant,
+    reply: Reply<Reading>,
+}
+
+/// A `Fresh` request not sent yet because its channel is busy (request mode).
+struct Held {
+    channel: u8,
     reply: Reply<Reading>,
 }
 
@@ -182,6 +216,10 @@ impl UwaveHandle {
             state: stx,
             cache: HashMap::new(),
             waiters: Vec::new(),
+            held: VecDeque::new(),
+            owed: HashMap::new(),
+            timeouts: 0,
+            reopen_due: false,
             search: None,
             to_send: None,
         };
@@ -233,6 +271,14 @@ struct Actor<C: Connect> {
     state: watch::Sender<UwaveState>,
     cache: HashMap<u8, Reading>,
     waiters: Vec<Waiter>,
+    /// Fresh requests waiting for their channel to be free (request mode).
+    held: VecDeque<Held>,
+    /// Channels whose last request timed out and still owes its reply, until the grace ends.
+    owed: HashMap<u8, Instant>,
+    /// Consecutive reading timeouts with no line received.
+    timeouts: u32,
+    /// Reopen the link at the end of this turn.
+    reopen_due: bool,
     /// A transmitter search in progress.
     search: Option<search::Search>,
     /// Request bytes to send after handling a line (next search step).
@@ -248,6 +294,7 @@ impl<C: Connect> Actor<C> {
                 .iter()
                 .map(|w| w.deadline)
                 .chain(self.search.as_ref().map(|s| s.deadline))
+                .chain(self.owed.values().copied())
                 .min()
                 .unwrap_or_else(|| Instant::now() + Duration::from_secs(3600));
             tokio::select! {
@@ -259,6 +306,66 @@ impl<C: Connect> Actor<C> {
                 _ = tokio::time::sleep_until(deadline) => self.expire(),
             }
             self.flush().await;
+            if self.reopen_due {
+                self.reopen_due = false;
+                self.reopen().await;
+            }
+            self.dispatch_held().await;
+        }
+    }
+
+    /// With a request template, one request per channel is on the wire at a time.
+    fn busy(&self, ch: u8) -> bool {
+        !self.cfg.request_template.is_empty()
+            && (self.owed.contains_key(&ch) || self.waiters.iter().any(|w| w.channel == ch))
+    }
+
+    /// Sends the held requests whose channel became free.
+    async fn dispatch_held(&mut self) {
+        let mut i = 0;
+        while i < self.held.len() {
+            if self.busy(self.held[i].channel) {
+                i += 1;
+                continue;
+            }
+            let Some(h) = self.held.remove(i) else { break };
+            self.send_request(h.channel, h.reply).await;
+        }
+    }
+
+    /// Reads and applies every line already buffered on the link, so that none of them can
+    /// be taken as the answer to a request sent after this.
+    fn drain_buffered(&mut self) {
+        for _ in 0..4096 {
+            let Some(f) = self.link.current() else { return };
+            match f.next().now_or_never() {
+                Some(line) => {
+                    if let Some(Ok(l)) = &line {
+                        tracing::debug!(device = DEVICE, line = ?l, "buffered before the request");
+                    }
+                    self.on_line(line);
+                }
+                None => return,
+            }
+        }
+    }
+
+    /// Closes the link after too many consecutive timeouts and opens it again.
+    async fn reopen(&mut self) {
+        let n = self.timeouts;
+        tracing::warn!(device = DEVICE, timeouts = n, "no reply: reopening the link");
+        self.drop_link(&DriverError::Timeout {
+            device: DEVICE,
+            what: format!("{n} consecutive readings; reopening the link"),
+            after_ms: self.cfg.timeout.as_millis() as u64,
+        });
+        self.timeouts = 0;
+        self.state.send_modify(|s| {
+            s.reopens += 1;
+            s.consecutive_timeouts = 0;
+        });
+        if let Err(e) = self.reconnect().await {
+            tracing::warn!(device = DEVICE, error = %e, "reopen failed");
         }
     }
 
@@ -296,32 +403,47 @@ impl<C: Connect> Actor<C> {
                     let _ = reply.send(Err(e));
                     return;
                 }
-                if !self.cfg.request_template.is_empty() {
-                    let mut bytes = self
-                        .cfg
-                        .request_template
-                        .replace("{cc}", &format!("{ch:02}"))
-                        .replace("{gg}", &format!("{:02}", self.cfg.group))
-                        .into_bytes();
-                    bytes.push(b'\r');
-                    let sent = match self.link.current() {
-                        Some(f) => f.send(bytes).await,
-                        None => Ok(()),
-                    };
-                    if let Err(e) = sent {
-                        let e = DriverError::from_codec(DEVICE, e);
-                        self.drop_link(&e);
-                        let _ = reply.send(Err(e));
-                        return;
-                    }
+                self.drain_buffered();
+                if self.busy(ch) || self.held.iter().any(|h| h.channel == ch) {
+                    self.held.push_back(Held { channel: ch, reply });
+                    return;
                 }
-                self.waiters.push(Waiter {
-                    channel: ch,
-                    deadline: Instant::now() + self.cfg.timeout,
-                    reply,
-                });
+                self.send_request(ch, reply).await;
             }
         }
+    }
+
+    /// Sends the data request of `ch` (if configured) and waits for its reading.
+    async fn send_request(&mut self, ch: u8, reply: Reply<Reading>) {
+        if let Err(e) = self.reconnect().await {
+            let _ = reply.send(Err(e));
+            return;
+        }
+        self.drain_buffered();
+        if !self.cfg.request_template.is_empty() {
+            let mut bytes = self
+                .cfg
+                .request_template
+                .replace("{cc}", &format!("{ch:02}"))
+                .replace("{gg}", &format!("{:02}", self.cfg.group))
+                .into_bytes();
+            bytes.push(b'\r');
+            let sent = match self.link.current() {
+                Some(f) => f.send(bytes).await,
+                None => Ok(()),
+            };
+            if let Err(e) = sent {
+                let e = DriverError::from_codec(DEVICE, e);
+                self.drop_link(&e);
+                let _ = reply.send(Err(e));
+                return;
+            }
+        }
+        self.waiters.push(Waiter {
+            channel: ch,
+            deadline: Instant::now() + self.cfg.timeout,
+            reply,
+        });
     }
 
     fn on_line(&mut self, line: Option<Result<UwaveLine, crate::error::CodecError>>) {
@@ -332,7 +454,11 @@ impl<C: Connect> Actor<C> {
                 self.drop_link(&e)
             }
             Some(Ok(l)) => {
-                self.state.send_modify(|s| s.lines += 1);
+                self.timeouts = 0;
+                self.state.send_modify(|s| {
+                    s.lines += 1;
+                    s.consecutive_timeouts = 0;
+                });
                 self.apply(l)
             }
         }
@@ -340,6 +466,21 @@ impl<C: Connect> Actor<C> {
 
     fn apply(&mut self, line: UwaveLine) {
         if self.on_search_line(&line) {
+            return;
+        }
+        // The receiver answers requests in order: the first line on a channel whose request
+        // timed out is that request's late reply.
+        let late = match &line {
+            UwaveLine::Data { channel, .. }
+            | UwaveLine::Status {
+                channel: Some(channel),
+                ..
+            } => self.owed.remove(channel).is_some(),
+            _ => false,
+        };
+        if late {
+            tracing::info!(device = DEVICE, line = ?line, "discarding a late reply to a timed-out request");
+            self.state.send_modify(|s| s.late_replies_discarded += 1);
             return;
         }
         match line {
@@ -398,6 +539,8 @@ impl<C: Connect> Actor<C> {
         tracing::warn!(device = DEVICE, error = %e, "link dropped");
         self.fail_search(e.duplicate());
         self.link.reset();
+        // Replies owed on the old link will not come on a new one.
+        self.owed.clear();
         self.state.send_modify(|s| {
             s.connected = false;
             s.last_error = Some(e.to_string());
@@ -422,6 +565,36 @@ impl<C: Connect> Actor<C> {
     fn expire(&mut self) {
         let now = Instant::now();
         self.expire_search(now);
+        self.owed.retain(|ch, until| {
+            let keep = *until > now;
+            if !keep {
+                tracing::debug!(device = DEVICE, channel = *ch, "late reply never came");
+            }
+            keep
+        });
+        let timed_out: Vec<u8> = self
+            .waiters
+            .iter()
+            .filter(|w| w.deadline <= now)
+            .map(|w| w.channel)
+            .collect();
+        if !timed_out.is_empty() {
+            if !self.cfg.request_template.is_empty() {
+                let until = now + self.cfg.late_reply_grace;
+                for ch in &timed_out {
+                    self.owed.insert(*ch, until);
+                }
+            }
+            // Every timed-out reading counts (a stalled tool-axes read is three).
+            let k = u32::try_from(timed_out.len()).unwrap_or(u32::MAX);
+            self.timeouts = self.timeouts.saturating_add(k);
+            let n = self.timeouts;
+            self.state.send_modify(|s| s.consecutive_timeouts = n);
+            let limit = self.cfg.reopen_after_timeouts;
+            if limit > 0 && n >= limit && self.link.can_reopen() {
+                self.reopen_due = true;
+            }
+        }
         let after_ms = self.cfg.timeout.as_millis() as u64;
         self.fail_where(
             |w| w.deadline <= now,
