@@ -166,13 +166,13 @@ async fn read_events(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn progress_streams_live_and_an_identification_ends_with_its_artefacts() {
     let s = start(|_| {}).await;
-    let all = s.req(Method::GET, "/v1/events", None).send().await.unwrap();
+    let all = s.req(Method::GET, "/v1/events", Some(VIEWER)).send().await.unwrap();
     assert_eq!(all.headers()["content-type"], "text/event-stream");
     let id = s
         .submit(&calibd::jobs::examples::example("irb120-identify").unwrap())
         .await;
     let r = s
-        .req(Method::GET, &format!("/v1/jobs/{id}/events"), None)
+        .req(Method::GET, &format!("/v1/jobs/{id}/events"), Some(VIEWER))
         .send()
         .await
         .unwrap();

@@ -9,7 +9,7 @@ use std::collections::BTreeSet;
 use reqwest::Method;
 use serde_json::{Value, json};
 use server::schema::{assert_response, contract};
-use server::{OPERATOR, SUBMITTER, start};
+use server::{OPERATOR, SUBMITTER, VIEWER, start};
 
 /// (method, path template) of every `.route(...)` in src/api, with the `/v1` prefix for
 /// routers nested under it (all but `root_router` and the web page).
@@ -165,10 +165,10 @@ async fn responses_match_the_contract() {
     let (st, _) = call(&s, &c, M::GET, "/v1/health", "/v1/health", None, None).await;
     assert_eq!(st, 200);
     call(&s, &c, M::GET, "/v1/version", "/v1/version", None, None).await;
-    call(&s, &c, M::GET, "/v1/kinds", "/v1/kinds", None, None).await;
-    let (_, ex) = call(&s, &c, M::GET, "/v1/examples", "/v1/examples", None, None).await;
+    call(&s, &c, M::GET, "/v1/kinds", "/v1/kinds", Some(VIEWER), None).await;
+    let (_, ex) = call(&s, &c, M::GET, "/v1/examples", "/v1/examples", Some(VIEWER), None).await;
     assert!(ex["examples"].as_array().unwrap().len() >= 3);
-    call(&s, &c, M::GET, "/v1/devices", "/v1/devices", None, None).await;
+    call(&s, &c, M::GET, "/v1/devices", "/v1/devices", Some(VIEWER), None).await;
     let (st, created) = call(
         &s,
         &c,
@@ -183,7 +183,7 @@ async fn responses_match_the_contract() {
     let id = created["id"].as_i64().unwrap();
     s.wait(id).await;
     let p = format!("/v1/jobs/{id}");
-    let (_, j) = call(&s, &c, M::GET, "/v1/jobs/{id}", &p, None, None).await;
+    let (_, j) = call(&s, &c, M::GET, "/v1/jobs/{id}", &p, Some(VIEWER), None).await;
     assert_eq!(
         (j["state"].as_str(), j["progress"].as_f64()),
         (Some("succeeded"), Some(1.0))
@@ -305,8 +305,8 @@ async fn responses_match_the_contract() {
     assert_eq!(st, 201);
     let sp = format!("/v1/schedules/{}", sc["id"]);
     assert!(sc["next_run_at"].as_str().unwrap().ends_with(":00:00.000Z"));
-    call(&s, &c, M::GET, "/v1/schedules", "/v1/schedules", None, None).await;
-    call(&s, &c, M::GET, "/v1/schedules/{id}", &sp, None, None).await;
+    call(&s, &c, M::GET, "/v1/schedules", "/v1/schedules", Some(VIEWER), None).await;
+    call(&s, &c, M::GET, "/v1/schedules/{id}", &sp, Some(VIEWER), None).await;
     call(
         &s,
         &c,
@@ -370,5 +370,5 @@ async fn responses_match_the_contract() {
     let st = r.status().as_u16();
     let d: Value = r.json().await.unwrap();
     assert_response(&c, "post", "/v1/datasets", st, &d);
-    call(&s, &c, M::GET, "/v1/datasets", "/v1/datasets", None, None).await;
+    call(&s, &c, M::GET, "/v1/datasets", "/v1/datasets", Some(VIEWER), None).await;
 }
