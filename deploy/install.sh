@@ -6,9 +6,13 @@
 # (default: target/release/calibd). .ci/checks/40-deploy.sh runs this very script into a
 # scratch root and starts the installed daemon as an unprivileged user.
 set -eu
-cd "$(dirname "$0")/.."
 DESTDIR=${DESTDIR:-}
-bin=${CALIBD_BIN:-target/release/calibd}
+bin=${CALIBD_BIN:-}
+# Paths given relative to where this is run from, the rest relative to the repository.
+case $DESTDIR in ''|/*) ;; *) DESTDIR=$(pwd)/$DESTDIR ;; esac
+case $bin in ''|/*) ;; *) bin=$(pwd)/$bin ;; esac
+cd "$(dirname "$0")/.."
+bin=${bin:-target/release/calibd}
 [ -x "$bin" ] || { echo "install.sh: no binary at $bin (cargo build --release --locked --bin calibd)" >&2; exit 1; }
 
 # The binary.
