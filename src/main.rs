@@ -103,6 +103,16 @@ enum Command {
         #[command(flatten)]
         remote: Remote,
     },
+    /// Check that a daemon answers `GET /v1/health` with 200 (no token needed): prints one
+    /// line, exits 0 when healthy and 1 otherwise. The container image's HEALTHCHECK.
+    Health {
+        /// The daemon's URL.
+        #[arg(long, env = "CALIBD_URL", default_value = "http://127.0.0.1:8750")]
+        server: String,
+        /// Seconds to wait for the answer.
+        #[arg(long, default_value_t = 5.0)]
+        timeout: f64,
+    },
     /// Make a new API token and print it with the config line that grants it.
     Token {
         /// Name recorded with what the token does.
@@ -432,6 +442,14 @@ fn main() -> Result<()> {
         Command::Result { id, out, remote: r } => remote(&r, |c| async move {
             calibd::client::commands::result(&c, id, out.as_deref()).await
         }),
+        Command::Health { server, timeout } => {
+            let timeout = std::time::Duration::try_from_secs_f64(timeout)
+                .context("--timeout: seconds, a positive number")?;
+            let c = calibd::client::Client::new(&server, None);
+            let (line, ok) = runtime()?.block_on(calibd::client::commands::health(&c, timeout));
+            println!("{line}");
+            std::process::exit(if ok { 0 } else { 1 })
+        }
         Command::Token { name, role } => {
             let role = calibd::api::Role::parse(&role)
                 .with_context(|| format!("unknown role `{role}` (viewer, submitter, operator)"))?;

@@ -334,3 +334,31 @@ fn every_sample_config_in_deploy_loads_and_round_trips() {
     }
     assert!(n >= 1, "no sample config in deploy/");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn health_command_answers_without_a_token_and_fails_when_down() {
+    let s = start(|c| c.auth.anonymous_read = false).await;
+    let timeout = Duration::from_secs(10);
+    let c = calibd::client::Client::new(&s.url, None);
+    let (line, ok) = calibd::client::commands::health(&c, timeout).await;
+    assert!(ok, "{line}");
+    assert!(line.starts_with("healthy: "), "{line}");
+    // A port nothing listens on: bind one, then drop it.
+    let free = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("http://{}", free.local_addr().unwrap());
+    drop(free);
+    let down = calibd::client::Client::new(&url, None);
+    let (line, ok) = calibd::client::commands::health(&down, timeout).await;
+    assert!(!ok, "{line}");
+    assert!(line.starts_with("unhealthy: "), "{line}");
+    assert_eq!(line.lines().count(), 1, "{line}");
+}
+
+#[test]
+fn the_example_config_generates_the_operator_token() {
+    // Preset hashes nobody has the tokens of would leave every request 401 (deploy/OPERATIONS.md).
+    let p = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/deploy/calibd.toml"));
+    let c = calibd::config::Config::load(Some(p), &|_| None).unwrap();
+    assert!(c.auth.tokens.is_empty(), "{:?}", c.auth.tokens);
+    assert!(!c.auth.anonymous_read);
+}

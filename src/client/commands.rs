@@ -1,5 +1,6 @@
-//! The CLI client commands (`calibd submit`, `watch`, `jobs`, `cancel`, `result`): each
-//! prints what a person wants to see and returns an error for the binary to report.
+//! The CLI client commands (`calibd submit`, `watch`, `jobs`, `cancel`, `result`,
+//! `health`): each prints what a person wants to see and returns an error for the binary to
+//! report.
 
 use std::io::Write;
 use std::path::Path;
@@ -114,6 +115,55 @@ pub fn print_summary(r: &Value) {
     if let Some(rows) = r["poses"].as_array() {
         println!("{} poses", rows.len());
     }
+}
+
+/// `GET /v1/health` (no token needed) within `timeout`, straight to the daemon (no proxy):
+/// the one line to print, and whether the daemon answered 200. For container health
+/// checks and scripts waiting for a start.
+pub async fn health(c: &Client, timeout: std::time::Duration) -> (String, bool) {
+    let url = c.url("/v1/health");
+    let http = match reqwest::Client::builder()
+        .no_proxy()
+        .timeout(timeout)
+        .build()
+    {
+        Ok(h) => h,
+        Err(e) => return (format!("unhealthy: {url}: {e}"), false),
+    };
+    let res = match http.get(&url).send().await {
+        Ok(r) => r,
+        Err(e) if e.is_timeout() => {
+            return (
+                format!("unhealthy: {url}: no answer within {timeout:?}"),
+                false,
+            );
+        }
+        Err(e) => {
+            // reqwest's message names the request; the cause (refused, reset) is below it.
+            let mut why = String::new();
+            let mut cause: Option<&dyn std::error::Error> = std::error::Error::source(&e);
+            while let Some(c) = cause {
+                why = c.to_string();
+                cause = c.source();
+            }
+            let why = if why.is_empty() { e.to_string() } else { why };
+            return (format!("unhealthy: {url}: {why}"), false);
+        }
+    };
+    let status = res.status();
+    if status != reqwest::StatusCode::OK {
+        return (format!("unhealthy: {url}: HTTP {}", status.as_u16()), false);
+    }
+    let v: Value = res.json().await.unwrap_or(Value::Null);
+    let n = |k: &str| v[k].as_i64().map_or("?".into(), |n| n.to_string());
+    (
+        format!(
+            "healthy: {url}: queue {}, running {}",
+            n("queue_depth"),
+            n("running")
+        ),
+        true,
+    )
 }
 
 /// Print the job list.

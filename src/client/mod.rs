@@ -1,4 +1,4 @@
-//! The HTTP client behind `calibd submit`, `watch`, `jobs`, `cancel` and `result`, also
+//! The HTTP client behind `calibd submit`, `watch`, `jobs`, `cancel`, `result` and `health`, also
 //! used by the integration tests and the load benchmark. Job files are sent as they are,
 //! except that a top-level string naming a file next to the job file is uploaded as a
 //! dataset and replaced by the dataset's id (over HTTP inputs are inline or dataset ids).
@@ -84,7 +84,7 @@ impl Client {
         })
     }
 
-    fn url(&self, path: &str) -> String {
+    pub(crate) fn url(&self, path: &str) -> String {
         format!("{}{}", self.base, path)
     }
 
