@@ -237,7 +237,7 @@ async fn progress_streams_live_and_an_identification_ends_with_its_artefacts() {
         .req(
             Method::GET,
             &format!("/v1/jobs/{id}/artefacts/error_histogram.svg"),
-            None,
+            Some(VIEWER),
         )
         .send()
         .await
@@ -248,7 +248,7 @@ async fn progress_streams_live_and_an_identification_ends_with_its_artefacts() {
         .req(
             Method::GET,
             &format!("/v1/jobs/{id}/artefacts/calibrated_model.json"),
-            None,
+            Some(VIEWER),
         )
         .send()
         .await

@@ -194,7 +194,7 @@ async fn responses_match_the_contract() {
         M::GET,
         "/v1/jobs",
         "/v1/jobs?state=succeeded&limit=1",
-        None,
+        Some(VIEWER),
         None,
     )
     .await;
@@ -204,7 +204,7 @@ async fn responses_match_the_contract() {
         M::GET,
         "/v1/jobs/{id}/result",
         &format!("{p}/result"),
-        None,
+        Some(VIEWER),
         None,
     )
     .await;
@@ -215,7 +215,7 @@ async fn responses_match_the_contract() {
         M::GET,
         "/v1/jobs/{id}/artefacts",
         &format!("{p}/artefacts"),
-        None,
+        Some(VIEWER),
         None,
     )
     .await;
@@ -225,7 +225,7 @@ async fn responses_match_the_contract() {
         M::GET,
         "/v1/jobs/{id}/logs",
         &format!("{p}/logs"),
-        None,
+        Some(VIEWER),
         None,
     )
     .await;
@@ -254,8 +254,7 @@ async fn responses_match_the_contract() {
     let rerun = s.wait(re["id"].as_i64().unwrap()).await;
     assert_eq!(rerun["rerun_of"], json!(id));
     let csv = s
-        .http
-        .get(format!("{}{p}/table", s.url))
+        .req(Method::GET, &format!("{p}/table"), Some(VIEWER))
         .send()
         .await
         .unwrap()
@@ -270,7 +269,7 @@ async fn responses_match_the_contract() {
         M::GET,
         "/v1/jobs/{id}",
         "/v1/jobs/424242",
-        None,
+        Some(VIEWER),
         None,
     )
     .await;
@@ -313,7 +312,7 @@ async fn responses_match_the_contract() {
         M::GET,
         "/v1/schedules/{id}/runs",
         &format!("{sp}/runs"),
-        None,
+        Some(VIEWER),
         None,
     )
     .await;

@@ -1,6 +1,7 @@
 // Drives the calibd web page in headless Chromium: load the page, enter the token, load the
 // IRB 120 identification example, submit it, watch it finish through the live job list,
-// check the result tables and plots, download the calibrated model, save a screenshot.
+// check the result tables and plots, download the calibrated model, check that an uploaded
+// HTML dataset opens as an inert download (no script runs), save a screenshot.
 // Usage: node browser.mjs URL TOKEN SCREENSHOT.png
 import { chromium } from "playwright-core";
 import { readFileSync } from "node:fs";
@@ -43,6 +44,27 @@ try {
   const model = JSON.parse(readFileSync(await download.path(), "utf8"));
   if (!model || typeof model !== "object" || Object.keys(model).length === 0) fail("calibrated model download is empty");
   console.log(`downloaded ${download.suggestedFilename()} (${Object.keys(model).length} top-level fields)`);
+  // Stored XSS: a submitter uploads an HTML page as a dataset; opening its link must not run
+  // it in the page's origin (where the token lives in localStorage).
+  const hits = [];
+  page.context().on("request", (r) => { if (r.url().includes("xss-marker")) hits.push(r.url()); });
+  const evil = "<html><head><title>x</title></head><body><script>document.title='pwned';" +
+    "fetch('/xss-marker?t='+localStorage.getItem('calibd-token'))</script></body></html>";
+  const dsId = await page.evaluate(async ([t, body]) => {
+    const r = await fetch("/v1/datasets?name=evil.html", { method: "POST", headers: { Authorization: "Bearer " + t, "Content-Type": "text/html" }, body });
+    return (await r.json()).id;
+  }, [token, evil]);
+  const tab = await page.context().newPage();
+  await tab.setExtraHTTPHeaders({ Authorization: "Bearer " + token });
+  const dl = tab.waitForEvent("download", { timeout: 20000 });
+  try { await tab.goto(`${url}/v1/datasets/${dsId}`); } catch (e) { /* a download aborts the navigation */ }
+  const evilFile = await dl;
+  const got = readFileSync(await evilFile.path(), "utf8");
+  if (got !== evil) fail("the uploaded dataset did not come back byte for byte");
+  if ((await tab.title()) === "pwned") fail("the uploaded HTML ran as a page");
+  if (hits.length) fail("the uploaded script ran: " + hits.join(", "));
+  await tab.close();
+  console.log(`uploaded HTML dataset ${dsId.slice(0, 12)}... came back as a download (${evilFile.suggestedFilename()}); no script ran`);
   await page.screenshot({ path: shot, fullPage: true });
   console.log(`screenshot: ${shot}`);
   if (errors.length) fail("page errors: " + errors.join("; "));

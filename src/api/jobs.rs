@@ -127,7 +127,7 @@ async fn list(
     caller.require_read()?;
     let Query(q) = q?;
     let state = match q.state.as_deref() {
-        None | Some("") => None,
+        None => None,
         Some(x) => Some(JobState::parse(x).ok_or_else(|| {
             ApiError::BadRequest(format!(
                 "state `{x}` is not one of queued, running, succeeded, failed, cancelled, interrupted"

@@ -274,7 +274,7 @@ pub(crate) fn check_name(field: &str, name: &str) -> Result<(), ApiError> {
             "`{field}` has {n} characters; at most {MAX_NAME_CHARS} are allowed"
         )));
     }
-    if name.trim().is_empty() || name.chars().any(char::is_control) {
+    if name.is_empty() || name.chars().any(char::is_control) {
         return Err(ApiError::BadRequest(format!(
             "`{field}` must be non-empty and hold no control characters"
         )));
