@@ -13,15 +13,18 @@ const browser = await chromium.launch({
   args: ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
     "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"],
 });
+const errors = [];
 try {
   const page = await browser.newPage({ viewport: { width: 1400, height: 1100 }, acceptDownloads: true });
-  const errors = [];
   page.on("pageerror", (e) => errors.push(e.message));
   page.on("console", (m) => { if (m.type() === "error") errors.push(m.text()); });
   await page.goto(url, { waitUntil: "load" });
+  // Without a token the page can read nothing (401s) and says so.
+  await page.waitForFunction(() => /Enter a token/.test(document.querySelector("#submit-msg").textContent));
   await page.fill("#token", token);
   await page.dispatchEvent("#token", "change");
   await page.waitForSelector('#example-select option[value="irb120-identify"]', { state: "attached" });
+  errors.length = 0; // the 401s of the reads before the token was entered
   await page.selectOption("#example-select", "irb120-identify");
   await page.click("#load-example");
   await page.waitForFunction(() => document.querySelector("#job-text").value.includes("serial.identify"));
@@ -44,6 +47,9 @@ try {
   const model = JSON.parse(readFileSync(await download.path(), "utf8"));
   if (!model || typeof model !== "object" || Object.keys(model).length === 0) fail("calibrated model download is empty");
   console.log(`downloaded ${download.suggestedFilename()} (${Object.keys(model).length} top-level fields)`);
+  await page.screenshot({ path: shot, fullPage: true });
+  console.log(`screenshot: ${shot}`);
+  if (errors.length) fail("page errors: " + errors.join("; "));
   // Stored XSS: a submitter uploads an HTML page as a dataset; opening its link must not run
   // it in the page's origin (where the token lives in localStorage).
   const hits = [];
@@ -54,21 +60,27 @@ try {
     const r = await fetch("/v1/datasets?name=evil.html", { method: "POST", headers: { Authorization: "Bearer " + t, "Content-Type": "text/html" }, body });
     return (await r.json()).id;
   }, [token, evil]);
-  const tab = await page.context().newPage();
-  await tab.setExtraHTTPHeaders({ Authorization: "Bearer " + token });
-  const dl = tab.waitForEvent("download", { timeout: 20000 });
-  try { await tab.goto(`${url}/v1/datasets/${dsId}`); } catch (e) { /* a download aborts the navigation */ }
+  // Opened in the same tab, on the origin whose localStorage holds the token.
+  await page.setExtraHTTPHeaders({ Authorization: "Bearer " + token });
+  const dl = page.waitForEvent("download", { timeout: 20000 });
+  try { await page.goto(`${url}/v1/datasets/${dsId}`); } catch (e) { /* a download aborts the navigation */ }
   const evilFile = await dl;
   const got = readFileSync(await evilFile.path(), "utf8");
   if (got !== evil) fail("the uploaded dataset did not come back byte for byte");
-  if ((await tab.title()) === "pwned") fail("the uploaded HTML ran as a page");
+  if ((await page.title()) === "pwned") fail("the uploaded HTML ran as a page");
   if (hits.length) fail("the uploaded script ran: " + hits.join(", "));
-  await tab.close();
   console.log(`uploaded HTML dataset ${dsId.slice(0, 12)}... came back as a download (${evilFile.suggestedFilename()}); no script ran`);
-  await page.screenshot({ path: shot, fullPage: true });
-  console.log(`screenshot: ${shot}`);
-  if (errors.length) fail("page errors: " + errors.join("; "));
+
   console.log("browser test passed");
+} catch (e) {
+  // Say what the page showed: its errors and the job list.
+  const pages = browser.contexts().flatMap((c) => c.pages());
+  for (const p of pages) {
+    try { await p.screenshot({ path: shot.replace(/\.png$/, "-failed.png"), fullPage: true }); } catch { /* closed */ }
+    try { console.error("job list: " + (await p.textContent("#jobs"))); } catch { /* none */ }
+    try { console.error("live: " + (await p.textContent("#live")) + "; message: " + (await p.textContent("#submit-msg"))); } catch { /* none */ }
+  }
+  fail(e.message + (errors.length ? "; page errors: " + errors.join("; ") : ""));
 } finally {
   await browser.close();
 }

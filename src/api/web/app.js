@@ -90,6 +90,9 @@ async function stream() {
     const res = await fetch("/v1/events", { headers: headers() });
     if (!res.ok) throw new Error(res.status);
     $("#live").textContent = "live"; $("#live").classList.add("on");
+    // Events sent while the stream was down (no token yet, daemon restart) are gone: catch up.
+    loadJobs().catch(() => {});
+    if (selected !== null) showJob(selected).catch(() => {});
     const reader = res.body.getReader(), dec = new TextDecoder();
     let buf = "";
     for (;;) {
@@ -199,7 +202,7 @@ async function rerun(id) {
 
 async function submit() {
   const msg = $("#submit-msg");
-  msg.className = "msg"; msg.textContent = "submitting…";
+  msg.className = "msg"; msg.textContent = "submitting…"; delete msg.dataset.token;
   try {
     const prio = parseInt($("#priority").value || "0", 10);
     const r = await api("/v1/jobs?priority=" + prio, { method: "POST", headers: { "Content-Type": "application/json" }, body: $("#job-text").value });
@@ -229,7 +232,8 @@ async function loadDevices() {
 
 async function init() {
   $("#token").value = localStorage.getItem("calibd-token") || "";
-  $("#token").addEventListener("change", () => { localStorage.setItem("calibd-token", $("#token").value.trim()); loadJobs().catch(() => {}); });
+  // Reads need the token too: everything is (re)loaded when it changes.
+  $("#token").addEventListener("change", () => { localStorage.setItem("calibd-token", $("#token").value.trim()); loadAll(); });
   $("#submit").addEventListener("click", submit);
   $("#upload").addEventListener("click", upload);
   $("#more").addEventListener("click", () => loadJobs(true));
@@ -243,11 +247,24 @@ async function init() {
   try {
     const v = await api("/v1/version");
     $("#version").textContent = "v" + v.calibd_version;
+  } catch { /* shown as offline */ }
+  await loadAll();
+  setInterval(loadDevices, 5000);
+  stream();
+}
+
+async function loadAll() {
+  try {
     const ex = await api("/v1/examples");
     $("#example-select").replaceChildren(...ex.examples.map((e) => el("option", { value: e.name, title: e.description }, e.name)));
     await loadJobs();
-  } catch (e) { $("#submit-msg").className = "msg err"; $("#submit-msg").textContent = e.message; }
-  loadDevices(); setInterval(loadDevices, 5000);
-  stream();
+    if ($("#submit-msg").dataset.token === "missing") { $("#submit-msg").className = "msg"; $("#submit-msg").textContent = ""; delete $("#submit-msg").dataset.token; }
+  } catch (e) {
+    const m = $("#submit-msg"), has = !!$("#token").value.trim();
+    m.className = "msg err";
+    m.textContent = has ? e.message : "Enter a token (the daemon's operator.token, or one from `calibd token`) to see jobs and results.";
+    if (!has) m.dataset.token = "missing";
+  }
+  loadDevices();
 }
 init();
