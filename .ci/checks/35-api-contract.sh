@@ -10,25 +10,10 @@ if [ ! -x "$VENV/bin/python" ]; then
   python3 -m venv "$VENV"
 fi
 "$VENV/bin/pip" install -q --disable-pip-version-check schemathesis==4.32.5
-target=${CARGO_TARGET_DIR:-$root/target}
 cargo build --quiet --bin calibd
-data=$(mktemp -d)
-out="$data/stdout.log"
+. .ci/lib/daemon.sh
 # No simulated lab: generated device jobs would queue campaigns on it for minutes.
-CALIBD_LAB=none "$target/debug/calibd" serve --listen 127.0.0.1:0 --data "$data" \
-  >"$out" 2>"$data/stderr.log" &
-pid=$!
-cleanup() { kill "$pid" 2>/dev/null || true; wait "$pid" 2>/dev/null || true; rm -rf "$data"; }
-trap cleanup EXIT
-url=""
-for _ in $(seq 1 600); do
-  url=$(sed -n 's/^calibd listening on //p' "$out" | head -n1)
-  [ -n "$url" ] && break
-  kill -0 "$pid" 2>/dev/null || { cat "$data/stderr.log"; exit 1; }
-  sleep 0.1
-done
-[ -n "$url" ] || { echo "calibd did not start"; cat "$data/stderr.log"; exit 1; }
-token=$(cat "$data/operator.token")
+CALIBD_LAB=none start_daemon
 mkdir -p "$root/target/schemathesis"
 "$VENV/bin/schemathesis" --config-file .ci/schemathesis/schemathesis.toml run openapi.yaml \
   --url "$url" -H "Authorization: Bearer $token" \

@@ -173,13 +173,7 @@ impl LineClient {
         line: String,
         want_reply: bool,
     ) -> Result<Option<String>, DriverError> {
-        call(&self.tx, self.device, |reply| Exchange {
-            line,
-            want_reply,
-            checked: false,
-            reply,
-        })
-        .await
+        self.send(line, want_reply, false).await
     }
 
     /// Sends `line` (and reads its reply if `want_reply`), then reads the error queue: an
@@ -189,10 +183,19 @@ impl LineClient {
         line: String,
         want_reply: bool,
     ) -> Result<Option<String>, DriverError> {
+        self.send(line, want_reply, true).await
+    }
+
+    async fn send(
+        &self,
+        line: String,
+        want_reply: bool,
+        checked: bool,
+    ) -> Result<Option<String>, DriverError> {
         call(&self.tx, self.device, |reply| Exchange {
             line,
             want_reply,
-            checked: true,
+            checked,
             reply,
         })
         .await
