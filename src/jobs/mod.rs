@@ -284,3 +284,39 @@ pub fn parse_spec<T: serde::de::DeserializeOwned>(doc: &Value) -> Result<T, JobE
         )
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::util::monitor::NoMonitor;
+
+    /// A kind whose computation overflows on its second row.
+    #[derive(Debug)]
+    struct Overflowing;
+
+    impl Prepared for Overflowing {
+        fn execute(&self, _: &dyn Monitor) -> Result<Output, JobError> {
+            let mut t = Table::new(&["x", "y"]);
+            t.push(vec![1.0, 2.0]);
+            t.push(vec![1e308 * 10.0, f64::NAN]);
+            Ok(Output {
+                main_table: Some(t),
+                ..Default::default()
+            })
+        }
+    }
+
+    #[test]
+    fn a_result_that_is_not_finite_fails_the_job_naming_row_and_column() {
+        let job = Job {
+            kind: "test.overflow".into(),
+            inputs_sha256: BTreeMap::new(),
+            prepared: Box::new(Overflowing),
+        };
+        let e = job.run(&NoMonitor).unwrap_err();
+        assert!(matches!(e, JobError::NonFinite { row: 2, .. }), "{e:?}");
+        let m = e.to_string();
+        assert!(m.contains("row 2") && m.contains("`x`") && m.contains("inf"), "{m}");
+        assert!(!e.is_invalid_input(), "the inputs parsed; the computation failed");
+    }
+}
