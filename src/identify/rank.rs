@@ -86,8 +86,8 @@ fn pivoted_qr(
         }
     };
     let mut a = j.clone();
-    for k in 0..m {
-        a.column_mut(k).scale_mut(factor[k]);
+    for (k, f) in factor.iter().enumerate() {
+        a.column_mut(k).scale_mut(*f);
     }
     let order: Vec<usize> = match pivoting {
         Pivoting::Norm => (0..m).collect(),

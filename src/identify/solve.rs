@@ -138,7 +138,8 @@ pub struct Solution {
     pub unobservable: Vec<Unobservable>,
     /// The least-determined combinations (smallest singular values of the physically scaled
     /// Jacobian): each one that led to holding its dominant unknown at nominal, then the
-    /// three smallest of the identified set.
+    /// three smallest of the identified set. With the noise estimated from the fit, the
+    /// Jacobians at the start and at the first solution are judged together (rows stacked).
     pub near_dependent: Vec<NearDependent>,
     /// Condition number of the physically scaled Jacobian of the identified set at the
     /// solution.

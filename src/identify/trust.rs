@@ -183,7 +183,7 @@ pub fn degeneracy(c: &DegeneracyCheck<'_>) -> Option<Degeneracy> {
     if let Some(nc) = c.nuisance_cost {
         // Rounding allowance: the full fit contains the nuisance fit, so it can only be
         // worse if it wandered off.
-        if !(c.cost <= nc * (1.0 + 1e-9) + f64::MIN_POSITIVE) {
+        if c.cost.is_nan() || c.cost > nc * (1.0 + 1e-9) + f64::MIN_POSITIVE {
             reasons.push(format!(
                 "final cost {:.6e} is above the cost {:.6e} of the fit of frames and unknown \
                  points only",
