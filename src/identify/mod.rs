@@ -1,8 +1,9 @@
 //! Least squares shared by every calibration method: the [`Problem`] trait, bounded
 //! Levenberg-Marquardt with column scaling ([`lm`]), rank detection by pivoted QR
-//! ([`rank`]), standard deviations and conditioning ([`uncertainty`]), the
-//! rank -> LM -> covariance pipeline with its report ([`solve`]), gauge freedoms held at
-//! their nominal combination ([`gauge`]) and robust losses by IRLS ([`robust`]). No I/O.
+//! ([`rank`]), physical scales, effect sizes and degeneracy checks ([`trust`]), standard
+//! deviations and conditioning ([`uncertainty`]), the rank -> LM -> covariance pipeline
+//! with its report ([`solve`]), gauge freedoms held at their nominal combination
+//! ([`gauge`]) and robust losses by IRLS ([`robust`]). No I/O.
 
 mod bounds;
 pub mod gauge;
@@ -11,14 +12,16 @@ pub mod problem;
 pub mod rank;
 pub mod robust;
 pub mod solve;
+pub mod trust;
 pub mod uncertainty;
 
 pub use gauge::{Gauge, Gauged, null_directions};
 pub use lm::{LmOptions, LmReport, StopReason, levenberg_marquardt};
 pub use problem::{Problem, Restricted};
-pub use rank::{Pivoting, RankReport, rank_revealing};
+pub use rank::{Pivoting, RankReport, rank_revealing, rank_revealing_scaled};
 pub use robust::{Robust, RobustKind, RobustReport, solve_robust};
-pub use solve::{ParamReport, Solution, SolveOptions, Unknown, solve};
+pub use solve::{ParamReport, Solution, SolveOptions, Unknown, Unobservable, solve};
+pub use trust::{Degeneracy, NearDependent};
 pub use uncertainty::{Uncertainty, uncertainty};
 
 /// Errors of the least-squares layer.

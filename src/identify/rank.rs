@@ -23,7 +23,8 @@ pub struct RankReport {
     pub kept: Vec<usize>,
     /// Dropped (unidentifiable) columns.
     pub dropped: Vec<usize>,
-    /// |R_kk| of each kept column, in pivot order (columns scaled to unit norm).
+    /// |R_kk| of each kept column, in pivot order (columns scaled to unit norm, or by
+    /// their physical scales relative to the largest scaled column).
     pub r_diag: Vec<f64>,
     /// For each dropped column, its expression as a combination of kept columns
     /// (unscaled: dropped = sum coef * kept), largest coefficients first.
@@ -33,8 +34,32 @@ pub struct RankReport {
 }
 
 /// Rank-revealing QR of `j` (rows x columns) with columns scaled to unit norm; a column is
-/// dependent when its remaining norm is below `tol` (relative to 1).
+/// dependent when its remaining norm is below `tol` (relative to 1). Unit norms make a
+/// column of rounding noise look independent: prefer [`rank_revealing_scaled`] where the
+/// unknowns have physical scales.
 pub fn rank_revealing(j: &DMatrix<f64>, pivoting: &Pivoting, tol: f64) -> RankReport {
+    pivoted_qr(j, None, pivoting, tol)
+}
+
+/// Rank-revealing QR of `j * diag(scale)`, `scale` being each unknown's physical scale (a
+/// typical magnitude of its error): a column is dependent when its remaining norm is below
+/// `tol` times the largest scaled column norm. A column whose whole effect is rounding
+/// noise stays as small as it is instead of being blown up to unit norm.
+pub fn rank_revealing_scaled(
+    j: &DMatrix<f64>,
+    scale: &[f64],
+    pivoting: &Pivoting,
+    tol: f64,
+) -> RankReport {
+    pivoted_qr(j, Some(scale), pivoting, tol)
+}
+
+fn pivoted_qr(
+    j: &DMatrix<f64>,
+    scale: Option<&[f64]>,
+    pivoting: &Pivoting,
+    tol: f64,
+) -> RankReport {
     // A tall matrix is first reduced to its R factor: Q is orthogonal, so column norms, the
     // pivoted QR and least-squares dependencies are the same, at a fraction of the cost.
     let reduced;
@@ -46,11 +71,23 @@ pub fn rank_revealing(j: &DMatrix<f64>, pivoting: &Pivoting, tol: f64) -> RankRe
     };
     let (n, m) = j.shape();
     let norms: Vec<f64> = (0..m).map(|k| j.column(k).norm()).collect();
-    let mut a = j.clone();
-    for k in 0..m {
-        if norms[k] > 0.0 {
-            a.column_mut(k).unscale_mut(norms[k]);
+    // Column factors: 1 / norm (unit columns), or scale / largest scaled norm.
+    let factor: Vec<f64> = match scale {
+        None => norms
+            .iter()
+            .map(|&v| if v > 0.0 { 1.0 / v } else { 0.0 })
+            .collect(),
+        Some(s) => {
+            let sc = |k: usize| s.get(k).copied().unwrap_or(1.0);
+            let big = (0..m).map(|k| norms[k] * sc(k)).fold(0.0, f64::max);
+            (0..m)
+                .map(|k| if big > 0.0 { sc(k) / big } else { 0.0 })
+                .collect()
         }
+    };
+    let mut a = j.clone();
+    for (k, f) in factor.iter().enumerate() {
+        a.column_mut(k).scale_mut(*f);
     }
     let order: Vec<usize> = match pivoting {
         Pivoting::Norm => (0..m).collect(),
@@ -176,5 +213,28 @@ mod tests {
         let r = rank_revealing(&j, &Pivoting::Norm, 1e-10);
         // Scaling makes the tiny column as good as the big one.
         assert_eq!(r.rank, 2);
+    }
+
+    #[test]
+    fn physical_scaling_keeps_a_rounding_noise_column_small() {
+        // Column 1 is rounding noise (1e-17): unit scaling keeps it, physical scaling drops it;
+        // a genuinely small but real column (1e-4) stays.
+        let j = DMatrix::from_row_slice(
+            4,
+            3,
+            &[
+                1.0, 1e-17, 0.0, 0.5, -2e-17, 1e-4, 0.2, 1e-17, 0.0, 1.0, 3e-17, -1e-4,
+            ],
+        );
+        assert_eq!(rank_revealing(&j, &Pivoting::Norm, 1e-8).rank, 3);
+        let r = rank_revealing_scaled(&j, &[1.0, 1.0, 1.0], &Pivoting::Norm, 1e-8);
+        assert_eq!((r.rank, r.dropped.clone()), (2, vec![1]));
+        let r = rank_revealing_scaled(
+            &j,
+            &[1.0, 1.0, 1.0],
+            &Pivoting::Priority(vec![1, 0, 2]),
+            1e-8,
+        );
+        assert_eq!(r.dropped, vec![1]);
     }
 }

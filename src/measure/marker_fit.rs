@@ -128,6 +128,8 @@ pub fn fit(
     let mut so = SolveOptions {
         pivoting: Pivoting::Priority(problem.priority_order()),
         rank_tolerance: opts.rank_tolerance,
+        // The 1e-2 tolerance is relative to each column's own norm (see `FitOptions`).
+        physical_rank: false,
         ..Default::default()
     };
     so.lm.max_iterations = opts.max_iterations;

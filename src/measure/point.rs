@@ -158,6 +158,18 @@ impl PointProblem {
         out
     }
 
+    /// Indices of the nuisance unknowns: base and tool frame parameters and unknown ball
+    /// centres (what a fit of the frames alone would move).
+    pub fn nuisance(&self) -> Vec<usize> {
+        let frames = self
+            .ids
+            .iter()
+            .enumerate()
+            .filter(|(_, id)| matches!(id, ParamId::Base(_) | ParamId::Tool(_)))
+            .map(|(k, _)| k);
+        frames.chain(self.ids.len()..self.unknown_count()).collect()
+    }
+
     /// Column order for priority rank detection: the parameters' priority classes
     /// ([`ParamId::priority`]), chain order within a class, unknown ball centres last.
     pub fn priority_order(&self) -> Vec<usize> {

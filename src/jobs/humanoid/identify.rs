@@ -278,7 +278,7 @@ impl Prepared for IdentifyJob {
         f.insert(
             "convergence".into(),
             json!({
-                "stop_reason": sol.stop, "converged": sol.stop.converged(), "iterations": sol.iterations,
+                "stop_reason": sol.stop, "converged": sol.converged(), "status": sol.status(), "degenerate": sol.degenerate, "iterations": sol.iterations,
                 "cost_before": sol.cost_before, "cost_after": sol.cost_after, "cost_unit": "m^2",
                 "rank_tolerance": self.fit.rank_tolerance,
             }),

@@ -140,7 +140,7 @@ fn study(
                         inp.identify(Some(&sel.selected), &crate::util::NoMonitor)
                             .ok()
                     })
-                    .filter(|(_, sol)| sol.stop.converged())
+                    .filter(|(_, sol)| sol.converged())
                     .map(|(problem, sol)| {
                         let e = position_errors(&problem.model(&sol.x), validation);
                         let s = Summary::of(&e, "");

@@ -46,6 +46,10 @@ pub struct IdentifyOptions {
     /// (default: the fitted residual standard deviation).
     #[serde(default)]
     pub noise: Option<f64>,
+    /// Fraction of the noise below which a parameter's effect (or a combination's singular
+    /// value) is not observable and the parameter is held at nominal (default 0.01).
+    #[serde(default)]
+    pub effect_fraction: Option<f64>,
     /// Seed of random choices (dispersion).
     #[serde(default)]
     pub seed: Option<u64>,
@@ -121,6 +125,7 @@ pub fn parse_inputs(
     for (name, v) in [
         ("options.rank_tolerance", options.rank_tolerance),
         ("options.noise", options.noise),
+        ("options.effect_fraction", options.effect_fraction),
     ] {
         if let Some(v) = v {
             if !(v.is_finite() && v > 0.0) {
@@ -147,10 +152,14 @@ impl IdentifyInputs {
         let mut o = SolveOptions {
             pivoting: self.pivoting(problem),
             noise: self.options.noise,
+            nuisance: Some(problem.nuisance()),
             ..Default::default()
         };
         if let Some(t) = self.options.rank_tolerance {
             o.rank_tolerance = t;
+        }
+        if let Some(f) = self.options.effect_fraction {
+            o.effect_fraction = Some(f);
         }
         if let Some(n) = self.options.max_iterations {
             o.lm.max_iterations = n;
@@ -346,11 +355,28 @@ impl Prepared for IdentifyJob {
             serde_json::to_value(&sol.dependencies).unwrap_or(Value::Null),
         );
         f.insert("weakly_observable".into(), json!(sol.weakly_observable));
+        f.insert(
+            "unobservable".into(),
+            serde_json::to_value(&sol.unobservable).unwrap_or(Value::Null),
+        );
+        f.insert(
+            "observability".into(),
+            json!({
+                "condition_number": sol.condition_number,
+                "near_dependent": sol.near_dependent,
+                "scaling": "physical: lengths 1 mm, angles 0.5 deg, compliances 0.005 deg/(N*m)",
+            }),
+        );
         f.insert("gauge_freedom".into(), json!(inp.plate.gauge));
-        f.insert("convergence".into(), json!({
-            "stop_reason": sol.stop, "converged": sol.stop.converged(), "iterations": sol.iterations,
-            "cost_before": sol.cost_before, "cost_after": sol.cost_after, "cost_unit": format!("{unit}^2"),
-        }));
+        f.insert(
+            "convergence".into(),
+            json!({
+                "stop_reason": sol.stop, "converged": sol.converged(), "status": sol.status(),
+                "degenerate": sol.degenerate, "iterations": sol.iterations,
+                "cost_before": sol.cost_before, "cost_after": sol.cost_after,
+                "cost_nuisance_only": sol.nuisance_cost, "cost_unit": format!("{unit}^2"),
+            }),
+        );
         f.insert("rank".into(), json!({"rank": sol.free.len(), "unknowns": sol.params.len(), "tolerance": inp.solve_options(&problem).rank_tolerance}));
         f.insert(
             "condition_number".into(),
