@@ -60,7 +60,8 @@ pub struct SolveOptions {
     /// Indices of the nuisance unknowns (frames, unknown points): when given, they alone are
     /// also fitted from the same start, and a full fit ending above that cost is degenerate.
     pub nuisance: Option<Vec<usize>>,
-    /// A move beyond this many physical scales (or an angle beyond half a turn) makes the
+    /// A move beyond this many physical scales (angles modulo a turn; an angle running
+    /// through more than 1,000 turns) makes the
     /// result degenerate (default 1000).
     pub degenerate_factor: f64,
 }

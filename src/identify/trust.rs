@@ -143,8 +143,13 @@ pub struct DegeneracyCheck<'a> {
     pub nuisance_cost: Option<f64>,
 }
 
-/// The degeneracy checks: a non-finite value, a move beyond `factor` scales or (for angles)
-/// beyond half a turn, or a final cost above the nuisance-only fit's. `None` if sane.
+/// Whole turns an angle may run through before it counts as a runaway (its value modulo a
+/// turn is compared with the scale rule; a few turns are a mount's rotation absorbed).
+const RUNAWAY_TURNS: f64 = 1000.0;
+
+/// The degeneracy checks: a non-finite value, a move beyond `factor` scales (angles modulo
+/// a turn), an angle that ran through more than [`RUNAWAY_TURNS`] turns, or a final cost
+/// above the nuisance-only fit's. `None` if sane.
 pub fn degeneracy(c: &DegeneracyCheck<'_>) -> Option<Degeneracy> {
     let mut reasons = Vec::new();
     let mut names: Vec<String> = Vec::new();
@@ -153,11 +158,22 @@ pub fn degeneracy(c: &DegeneracyCheck<'_>) -> Option<Degeneracy> {
             names.push(name.to_string());
         }
     };
+    // An angle that moved by whole turns has not moved: compare it modulo 2 pi (a joint
+    // offset may absorb a mount's rotation and land a few turns away, e.g. MUKCa's joint 7).
+    let delta_of = |k: usize| {
+        let d = c.x[k] - c.x0[k];
+        if is_angle(&c.unknowns[k]) && d.is_finite() {
+            let tau = std::f64::consts::TAU;
+            d - tau * (d / tau).round()
+        } else {
+            d
+        }
+    };
     let moves: Vec<f64> = (0..c.unknowns.len())
-        .map(|k| (c.x[k] - c.x0[k]) / c.scale[k])
+        .map(|k| delta_of(k) / c.scale[k])
         .collect();
     for (k, u) in c.unknowns.iter().enumerate() {
-        let delta = c.x[k] - c.x0[k];
+        let delta = delta_of(k);
         if !c.x[k].is_finite() {
             reasons.push(format!("{} is not finite", u.name));
             blame(&u.name);
@@ -170,12 +186,12 @@ pub fn degeneracy(c: &DegeneracyCheck<'_>) -> Option<Degeneracy> {
                 moves[k].abs()
             ));
             blame(&u.name);
-        } else if is_angle(u) && delta.abs() > std::f64::consts::PI {
+        } else if is_angle(u) && (c.x[k] - c.x0[k]).abs() > RUNAWAY_TURNS * std::f64::consts::TAU
+        {
             reasons.push(format!(
-                "{} moved by {:.3e} {}, more than half a turn",
+                "{} ran through {:.3e} turns: the data keep it only modulo a turn, if at all",
                 u.name,
-                delta * u.to_report,
-                u.unit
+                (c.x[k] - c.x0[k]).abs() / std::f64::consts::TAU
             ));
             blame(&u.name);
         }
@@ -217,7 +233,7 @@ mod tests {
     }
 
     #[test]
-    fn flags_implausible_moves_half_turns_and_a_cost_above_the_nuisance_fit() {
+    fn flags_implausible_moves_runaway_angles_and_a_cost_above_the_nuisance_fit() {
         let u = [
             unknown("len", "mm", 1.0),
             unknown("ang", "rad", 10.0),
@@ -234,13 +250,29 @@ mod tests {
             nuisance_cost: Some(2.0),
         };
         assert!(degeneracy(&base).is_none());
-        // 1001 mm on a 1 mm scale; 4 rad is within 1000 * 10 but more than half a turn.
+        // 1001 mm on a 1 mm scale; 2,000 turns of an angle.
+        let runaway = 2000.0 * std::f64::consts::TAU + 0.1;
         let d = degeneracy(&DegeneracyCheck {
-            x: &[1001.0, 4.0, 0.2],
+            x: &[1001.0, runaway, 0.2],
             ..base
         })
         .expect("degenerate");
         assert_eq!(d.names, vec!["len".to_string(), "ang".to_string()]);
+        // Two whole turns and 0.64 rad (a mount's rotation absorbed by a joint offset, as
+        // on MUKCa's joint 7) is a move of 0.64 rad, not a degenerate fit.
+        let turns = -2.0 * std::f64::consts::TAU + 0.64;
+        assert!(degeneracy(&DegeneracyCheck { x: &[0.5, turns, 0.2], ..base }).is_none());
+        // Modulo a turn, a move beyond 1000 scales still counts: 0.64 rad on a 1e-4 rad scale.
+        let tight = [unknown("len", "mm", 1.0), unknown("ang", "rad", 1e-4), unknown("ok", "mm", 1.0)];
+        let tight_scale = physical_scales(&tight);
+        let d = degeneracy(&DegeneracyCheck {
+            unknowns: &tight,
+            scale: &tight_scale,
+            x: &[0.5, turns, 0.2],
+            ..base
+        })
+        .expect("degenerate");
+        assert_eq!(d.names, vec!["ang".to_string()]);
         let d = degeneracy(&DegeneracyCheck { cost: 2.1, ..base }).expect("degenerate");
         assert_eq!(d.reasons.len(), 1);
         assert_eq!(d.names[0], "len");
