@@ -130,7 +130,7 @@ async fn list(
         None => None,
         Some(x) => Some(JobState::parse(x).ok_or_else(|| {
             ApiError::BadRequest(format!(
-                "state `{x}` is not one of queued, running, succeeded, failed, cancelled, interrupted"
+                "state `{x}` is not one of queued, running, paused, succeeded, failed, cancelled, interrupted"
             ))
         })?),
     };
