@@ -155,7 +155,10 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ("CALIBD_MAX_BODY_BYTES", "max_body_bytes: integer"),
     ("CALIBD_REQUEST_TIMEOUT_S", "request_timeout_s: integer"),
     ("CALIBD_MAX_CONNECTIONS", "max_connections: integer"),
-    ("CALIBD_HEADER_READ_TIMEOUT_S", "header_read_timeout_s: integer"),
+    (
+        "CALIBD_HEADER_READ_TIMEOUT_S",
+        "header_read_timeout_s: integer",
+    ),
     (
         "CALIBD_ALLOWED_HOSTS",
         "allowed_hosts: comma-separated host names, * = any",
@@ -239,9 +242,7 @@ impl Config {
                 "CALIBD_REQUEST_TIMEOUT_S" => self.request_timeout_s = parse(name, &v)?,
                 "CALIBD_MAX_CONNECTIONS" => self.max_connections = parse(name, &v)?,
                 "CALIBD_HEADER_READ_TIMEOUT_S" => self.header_read_timeout_s = parse(name, &v)?,
-                "CALIBD_MIN_SCHEDULE_INTERVAL_S" => {
-                    self.min_schedule_interval_s = parse(name, &v)?
-                }
+                "CALIBD_MIN_SCHEDULE_INTERVAL_S" => self.min_schedule_interval_s = parse(name, &v)?,
                 "CALIBD_ALLOWED_HOSTS" => self.allowed_hosts = list(&v),
                 "CALIBD_LOG_FORMAT" => {
                     self.log_format = match v.trim() {

@@ -116,7 +116,13 @@ pub async fn start(
         allowed_hosts: config
             .allowed_hosts
             .iter()
-            .map(|h| if h == "*" { h.clone() } else { api::host_name(h) })
+            .map(|h| {
+                if h == "*" {
+                    h.clone()
+                } else {
+                    api::host_name(h)
+                }
+            })
             .collect(),
         min_schedule_interval: Duration::from_secs(config.min_schedule_interval_s),
         metrics,

@@ -166,7 +166,11 @@ async fn read_events(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn progress_streams_live_and_an_identification_ends_with_its_artefacts() {
     let s = start(|_| {}).await;
-    let all = s.req(Method::GET, "/v1/events", Some(VIEWER)).send().await.unwrap();
+    let all = s
+        .req(Method::GET, "/v1/events", Some(VIEWER))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(all.headers()["content-type"], "text/event-stream");
     let id = s
         .submit(&calibd::jobs::examples::example("irb120-identify").unwrap())

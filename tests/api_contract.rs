@@ -166,9 +166,27 @@ async fn responses_match_the_contract() {
     assert_eq!(st, 200);
     call(&s, &c, M::GET, "/v1/version", "/v1/version", None, None).await;
     call(&s, &c, M::GET, "/v1/kinds", "/v1/kinds", Some(VIEWER), None).await;
-    let (_, ex) = call(&s, &c, M::GET, "/v1/examples", "/v1/examples", Some(VIEWER), None).await;
+    let (_, ex) = call(
+        &s,
+        &c,
+        M::GET,
+        "/v1/examples",
+        "/v1/examples",
+        Some(VIEWER),
+        None,
+    )
+    .await;
     assert!(ex["examples"].as_array().unwrap().len() >= 3);
-    call(&s, &c, M::GET, "/v1/devices", "/v1/devices", Some(VIEWER), None).await;
+    call(
+        &s,
+        &c,
+        M::GET,
+        "/v1/devices",
+        "/v1/devices",
+        Some(VIEWER),
+        None,
+    )
+    .await;
     let (st, created) = call(
         &s,
         &c,
@@ -304,8 +322,26 @@ async fn responses_match_the_contract() {
     assert_eq!(st, 201);
     let sp = format!("/v1/schedules/{}", sc["id"]);
     assert!(sc["next_run_at"].as_str().unwrap().ends_with(":00:00.000Z"));
-    call(&s, &c, M::GET, "/v1/schedules", "/v1/schedules", Some(VIEWER), None).await;
-    call(&s, &c, M::GET, "/v1/schedules/{id}", &sp, Some(VIEWER), None).await;
+    call(
+        &s,
+        &c,
+        M::GET,
+        "/v1/schedules",
+        "/v1/schedules",
+        Some(VIEWER),
+        None,
+    )
+    .await;
+    call(
+        &s,
+        &c,
+        M::GET,
+        "/v1/schedules/{id}",
+        &sp,
+        Some(VIEWER),
+        None,
+    )
+    .await;
     call(
         &s,
         &c,
@@ -369,5 +405,14 @@ async fn responses_match_the_contract() {
     let st = r.status().as_u16();
     let d: Value = r.json().await.unwrap();
     assert_response(&c, "post", "/v1/datasets", st, &d);
-    call(&s, &c, M::GET, "/v1/datasets", "/v1/datasets", Some(VIEWER), None).await;
+    call(
+        &s,
+        &c,
+        M::GET,
+        "/v1/datasets",
+        "/v1/datasets",
+        Some(VIEWER),
+        None,
+    )
+    .await;
 }

@@ -96,7 +96,11 @@ fn calibrated_on_front_beats_nominal_on_held_out_placements() {
         );
         // A sound fit: joint 7's offset absorbs the socket mount's rotation (two turns and
         // 0.64 rad from nominal), which is not a runaway.
-        assert_eq!(r["convergence"]["status"], "converged", "{}", r["convergence"]);
+        assert_eq!(
+            r["convergence"]["status"], "converged",
+            "{}",
+            r["convergence"]
+        );
         // Two sockets leave the rotation about the line through them free: detected.
         assert!(r["gauge_freedom"].as_str().unwrap().contains("rotation"));
         assert!(!r["unidentifiable"].as_array().unwrap().is_empty());

@@ -27,7 +27,10 @@ async fn an_uploaded_page_comes_back_as_an_inert_attachment() {
     assert_eq!(r.status().as_u16(), 201);
     let info: Value = r.json().await.unwrap();
     let id = info["id"].as_str().unwrap();
-    assert_eq!(info["media_type"], "text/html", "the declared type is kept as data");
+    assert_eq!(
+        info["media_type"], "text/html",
+        "the declared type is kept as data"
+    );
     // Without a token: nothing.
     let anon = s
         .req(Method::GET, &format!("/v1/datasets/{id}"), None)
@@ -50,7 +53,11 @@ async fn an_uploaded_page_comes_back_as_an_inert_attachment() {
         csp.contains("script-src 'self'") && csp.contains("default-src 'none'"),
         "{csp}"
     );
-    assert_eq!(r.text().await.unwrap(), page, "the bytes come back unchanged");
+    assert_eq!(
+        r.text().await.unwrap(),
+        page,
+        "the bytes come back unchanged"
+    );
     // The page itself runs only its own script file.
     let p = s.req(Method::GET, "/", None).send().await.unwrap();
     assert!(
@@ -217,11 +224,8 @@ async fn cancel_as(s: &server::TestServer, id: i64, t: &str) -> u16 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn absurd_inputs_are_refused_with_the_field_named() {
     let s = start(|_| {}).await;
-    let post = |path: &str, body: Value| {
-        s.req(Method::POST, path, Some(OPERATOR))
-            .json(&body)
-            .send()
-    };
+    let post =
+        |path: &str, body: Value| s.req(Method::POST, path, Some(OPERATOR)).json(&body).send();
     // A parameter that overflows the kinematics: no job of NaN.
     let mut fk = calibd::jobs::examples::twin_fk(3);
     fk["parameters"] = json!({"a2": 1e308});
@@ -249,7 +253,14 @@ async fn absurd_inputs_are_refused_with_the_field_named() {
     // Every minute is allowed.
     let minutely = json!({"name": "minutely", "cron": "* * * * *", "timezone": "UTC",
         "job": calibd::jobs::examples::twin_fk(1), "enabled": false});
-    assert_eq!(post("/v1/schedules", minutely).await.unwrap().status().as_u16(), 201);
+    assert_eq!(
+        post("/v1/schedules", minutely)
+            .await
+            .unwrap()
+            .status()
+            .as_u16(),
+        201
+    );
     // A 1 MB name is not stored.
     let long = json!({"name": "n".repeat(1 << 20), "cron": "0 2 * * *", "timezone": "UTC",
         "job": calibd::jobs::examples::twin_fk(1)});

@@ -244,7 +244,10 @@ async fn wait_state(h: &UwaveHandle, what: &str, f: impl FnMut(&UwaveState) -> b
     let mut rx = h.state();
     match tokio::time::timeout(Duration::from_secs(10), rx.wait_for(f)).await {
         Ok(Ok(_)) => {}
-        _ => panic!("state never reached: {what}; last {:?}", *h.state().borrow()),
+        _ => panic!(
+            "state never reached: {what}; last {:?}",
+            *h.state().borrow()
+        ),
     }
 }
 

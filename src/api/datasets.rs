@@ -95,7 +95,12 @@ fn media_type(h: Option<&axum::http::HeaderValue>) -> Result<String, ApiError> {
         )));
     }
     let v = h.to_str().map_err(|_| bad("not ASCII"))?;
-    let essence = v.split(';').next().unwrap_or("").trim().to_ascii_lowercase();
+    let essence = v
+        .split(';')
+        .next()
+        .unwrap_or("")
+        .trim()
+        .to_ascii_lowercase();
     let token = |t: &str| {
         !t.is_empty()
             && t.len() <= 127
@@ -104,7 +109,9 @@ fn media_type(h: Option<&axum::http::HeaderValue>) -> Result<String, ApiError> {
     };
     match essence.split_once('/') {
         Some((t, sub)) if token(t) && token(sub) => Ok(essence),
-        _ => Err(bad(&format!("`{essence}` is not a media type (type/subtype)"))),
+        _ => Err(bad(&format!(
+            "`{essence}` is not a media type (type/subtype)"
+        ))),
     }
 }
 

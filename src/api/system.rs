@@ -1,6 +1,6 @@
 //! Health, version, job kinds, example jobs, device status, `/metrics` and `/openapi.yaml`.
 
-use axum::extract::{State};
+use axum::extract::State;
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;

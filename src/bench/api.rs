@@ -93,11 +93,9 @@ pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
     let (state, workers, _) =
         crate::server::start(&config, crate::schedule::Clock::system(), stop.clone()).await?;
     let t = stop.clone();
-    let server = tokio::spawn(crate::api::run(
-        listener,
-        state,
-        async move { t.cancelled().await },
-    ));
+    let server = tokio::spawn(crate::api::run(listener, state, async move {
+        t.cancelled().await
+    }));
     let token = Client::find_token(None, &dir);
     let client = Client::new(&format!("http://{addr}"), token);
     let job = small_job();

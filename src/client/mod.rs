@@ -53,7 +53,13 @@ const SUBMIT_RETRIES: u32 = 4;
 /// unreachable or went away mid-answer, or was not ready.
 fn retryable(e: &ClientError) -> bool {
     matches!(e, ClientError::Connect { .. } | ClientError::Protocol(_))
-        || matches!(e, ClientError::Api { status: 502..=504, .. })
+        || matches!(
+            e,
+            ClientError::Api {
+                status: 502..=504,
+                ..
+            }
+        )
 }
 
 /// A connection to a daemon.
@@ -147,7 +153,8 @@ impl Client {
     /// `Idempotency-Key`, and a submission whose answer was lost (connection reset, daemon
     /// restarting, 503) is sent again with the same key, so the daemon never runs it twice.
     pub async fn submit(&self, doc: &Value, priority: i64) -> Result<i64, ClientError> {
-        let key = crate::api::auth::new_token().map_err(|e| ClientError::Protocol(e.to_string()))?;
+        let key =
+            crate::api::auth::new_token().map_err(|e| ClientError::Protocol(e.to_string()))?;
         let mut attempt = 0u32;
         let v = loop {
             let r = self

@@ -186,8 +186,7 @@ pub fn degeneracy(c: &DegeneracyCheck<'_>) -> Option<Degeneracy> {
                 moves[k].abs()
             ));
             blame(&u.name);
-        } else if is_angle(u) && (c.x[k] - c.x0[k]).abs() > RUNAWAY_TURNS * std::f64::consts::TAU
-        {
+        } else if is_angle(u) && (c.x[k] - c.x0[k]).abs() > RUNAWAY_TURNS * std::f64::consts::TAU {
             reasons.push(format!(
                 "{} ran through {:.3e} turns: the data keep it only modulo a turn, if at all",
                 u.name,
@@ -261,9 +260,19 @@ mod tests {
         // Two whole turns and 0.64 rad (a mount's rotation absorbed by a joint offset, as
         // on MUKCa's joint 7) is a move of 0.64 rad, not a degenerate fit.
         let turns = -2.0 * std::f64::consts::TAU + 0.64;
-        assert!(degeneracy(&DegeneracyCheck { x: &[0.5, turns, 0.2], ..base }).is_none());
+        assert!(
+            degeneracy(&DegeneracyCheck {
+                x: &[0.5, turns, 0.2],
+                ..base
+            })
+            .is_none()
+        );
         // Modulo a turn, a move beyond 1000 scales still counts: 0.64 rad on a 1e-4 rad scale.
-        let tight = [unknown("len", "mm", 1.0), unknown("ang", "rad", 1e-4), unknown("ok", "mm", 1.0)];
+        let tight = [
+            unknown("len", "mm", 1.0),
+            unknown("ang", "rad", 1e-4),
+            unknown("ok", "mm", 1.0),
+        ];
         let tight_scale = physical_scales(&tight);
         let d = degeneracy(&DegeneracyCheck {
             unknowns: &tight,

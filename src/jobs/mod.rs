@@ -316,7 +316,13 @@ mod tests {
         let e = job.run(&NoMonitor).unwrap_err();
         assert!(matches!(e, JobError::NonFinite { row: 2, .. }), "{e:?}");
         let m = e.to_string();
-        assert!(m.contains("row 2") && m.contains("`x`") && m.contains("inf"), "{m}");
-        assert!(!e.is_invalid_input(), "the inputs parsed; the computation failed");
+        assert!(
+            m.contains("row 2") && m.contains("`x`") && m.contains("inf"),
+            "{m}"
+        );
+        assert!(
+            !e.is_invalid_input(),
+            "the inputs parsed; the computation failed"
+        );
     }
 }

@@ -91,7 +91,9 @@ impl Rule {
         let mut prev = self.next_after(from)?;
         let mut best: Option<Duration> = None;
         for _ in 1..count {
-            let Some(n) = self.next_after(prev) else { break };
+            let Some(n) = self.next_after(prev) else {
+                break;
+            };
             let gap = (n - prev).to_std().unwrap_or(Duration::ZERO);
             best = Some(best.map_or(gap, |b| b.min(gap)));
             prev = n;

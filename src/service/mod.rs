@@ -25,7 +25,7 @@ pub use types::{
 pub use worker::Workers;
 
 use crate::jobs;
-use crate::store::{JobFilter, JobRecord, JobState, IdempotencyKey, NewJob, Store};
+use crate::store::{IdempotencyKey, JobFilter, JobRecord, JobState, NewJob, Store};
 
 /// Live state of a running job.
 #[derive(Debug)]

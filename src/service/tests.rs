@@ -53,7 +53,10 @@ async fn wait_state(svc: &Service, id: i64, state: JobState) {
         if now == state {
             return;
         }
-        assert!(!now.is_final(), "job {id} ended {now:?} while waiting for {state:?}");
+        assert!(
+            !now.is_final(),
+            "job {id} ended {now:?} while waiting for {state:?}"
+        );
         match tokio::time::timeout_at(deadline, events.recv()).await {
             Ok(Err(tokio::sync::broadcast::error::RecvError::Closed)) => {
                 panic!("the service stopped while job {id} waited for {state:?}")
@@ -155,7 +158,10 @@ async fn queued_and_running_jobs_can_be_cancelled() {
         .unwrap();
     // Wait until the slow job runs, then cancel both.
     wait_state(&svc, slow, JobState::Running).await;
-    assert_eq!(svc.cancel(queued, &who()).await.unwrap(), JobState::Cancelled);
+    assert_eq!(
+        svc.cancel(queued, &who()).await.unwrap(),
+        JobState::Cancelled
+    );
     assert_eq!(svc.cancel(slow, &who()).await.unwrap(), JobState::Running);
     let j = wait_final(&svc, slow).await;
     assert_eq!(j.state, JobState::Cancelled);

@@ -22,7 +22,9 @@ use rusqlite::{Connection, OpenFlags};
 
 pub use campaigns::{CellModel, StoreJournal};
 pub use datasets::DatasetInfo;
-pub use jobs::{JobFilter, JobRecord, JobState, LogLine, IdempotencyKey, NewJob, ProgressPoint, Recovered};
+pub use jobs::{
+    IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered,
+};
 pub use migrate::SCHEMA_VERSION;
 pub use results::{ArtefactInfo, StoredArtefact};
 pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};

@@ -192,5 +192,8 @@ fn the_data_folder_and_database_are_private_whatever_the_umask() {
         let p = entry.unwrap().path();
         assert_eq!(mode(&p), 0o600, "{} is readable by others", p.display());
     }
-    assert!(data.join("calibd.sqlite3-wal").exists(), "WAL file checked too");
+    assert!(
+        data.join("calibd.sqlite3-wal").exists(),
+        "WAL file checked too"
+    );
 }

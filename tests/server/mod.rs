@@ -59,11 +59,9 @@ pub async fn start(tweak: impl FnOnce(&mut Config)) -> TestServer {
             .await
             .unwrap();
     let s = stop.clone();
-    tokio::spawn(calibd::api::run(
-        listener,
-        state,
-        async move { s.cancelled().await },
-    ));
+    tokio::spawn(calibd::api::run(listener, state, async move {
+        s.cancelled().await
+    }));
     TestServer {
         url: format!("http://{addr}"),
         dir,

@@ -116,7 +116,10 @@ mod tests {
         assert_eq!(f.to_string(), "device-error@2");
         assert!("drop@0".parse::<FaultSpec>().is_err());
         assert!("melt@1".parse::<FaultSpec>().is_err());
-        assert_eq!("delay@3".parse::<FaultSpec>().unwrap().to_string(), "delay@3");
+        assert_eq!(
+            "delay@3".parse::<FaultSpec>().unwrap().to_string(),
+            "delay@3"
+        );
         let p = Faults::new(vec![f, "drop@4".parse().unwrap()]);
         let seen: Vec<_> = (0..5).map(|_| p.next()).collect();
         assert_eq!(

@@ -244,7 +244,11 @@ impl Session {
             return round(self.device, f, &ex.line, ex.want_reply, self.timeout).await;
         };
         if self.dirty {
-            let why = if fresh { "on connect" } else { "before a command" };
+            let why = if fresh {
+                "on connect"
+            } else {
+                "before a command"
+            };
             for (code, message) in self.drain(f, q).await? {
                 self.stale += 1;
                 tracing::warn!(

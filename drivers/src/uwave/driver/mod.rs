@@ -353,7 +353,11 @@ impl<C: Connect> Actor<C> {
     /// Closes the link after too many consecutive timeouts and opens it again.
     async fn reopen(&mut self) {
         let n = self.timeouts;
-        tracing::warn!(device = DEVICE, timeouts = n, "no reply: reopening the link");
+        tracing::warn!(
+            device = DEVICE,
+            timeouts = n,
+            "no reply: reopening the link"
+        );
         self.drop_link(&DriverError::Timeout {
             device: DEVICE,
             what: format!("{n} consecutive readings; reopening the link"),
