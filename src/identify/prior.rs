@@ -17,7 +17,7 @@
 //! standard deviations are the posterior ones, `sqrt(diag((J^T J / s^2 + lambda Sigma^-1)^-1))`
 //! (not rescaled by the fitted residual variance: the noise is taken as given).
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 use serde::Serialize;
 
 use super::trust::effect_sizes;
@@ -56,7 +56,9 @@ pub struct MapProblem<'a> {
 
 impl std::fmt::Debug for MapProblem<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MapProblem").field("rows", &self.rows).finish()
+        f.debug_struct("MapProblem")
+            .field("rows", &self.rows)
+            .finish()
     }
 }
 
@@ -190,7 +192,10 @@ pub fn solve_map(
             prior.sigma.len()
         )));
     }
-    if !(prior.noise.is_finite() && prior.noise > 0.0 && prior.weight.is_finite() && prior.weight >= 0.0)
+    if !(prior.noise.is_finite()
+        && prior.noise > 0.0
+        && prior.weight.is_finite()
+        && prior.weight >= 0.0)
     {
         return Err(IdentifyError::Model(format!(
             "prior noise {} and weight {} must be positive",
@@ -299,9 +304,18 @@ impl PriorSpec {
             }
         }
         let d = &self.default_std;
-        let length = d.length_mm.map(|v| positive("default_std.length_mm", v)).transpose()?;
-        let angle = d.angle_deg.map(|v| positive("default_std.angle_deg", v)).transpose()?;
-        let compliance = d.compliance.map(|v| positive("default_std.compliance", v)).transpose()?;
+        let length = d
+            .length_mm
+            .map(|v| positive("default_std.length_mm", v))
+            .transpose()?;
+        let angle = d
+            .angle_deg
+            .map(|v| positive("default_std.angle_deg", v))
+            .transpose()?;
+        let compliance = d
+            .compliance
+            .map(|v| positive("default_std.compliance", v))
+            .transpose()?;
         unknowns
             .iter()
             .enumerate()
@@ -402,6 +416,7 @@ pub fn choose_weight(
 mod tests {
     use super::*;
     use crate::util::NoMonitor;
+    use nalgebra::DVector;
 
     /// r = J x - b.
     struct Linear {
@@ -470,7 +485,10 @@ mod tests {
                 noise: 0.2,
                 weight,
             };
-            let p = Linear { j: j.clone(), b: b.clone() };
+            let p = Linear {
+                j: j.clone(),
+                b: b.clone(),
+            };
             let (sol, rep) = solve_map(
                 &p,
                 &unknowns(m),
