@@ -160,8 +160,8 @@ pub fn posterior_std(j: &DMatrix<f64>) -> Vec<f64> {
         .map(|v| if v > 0.0 { v } else { 1.0 })
         .collect();
     let mut js = j.clone();
-    for k in 0..m {
-        js.column_mut(k).unscale_mut(d[k]);
+    for (k, &dk) in d.iter().enumerate() {
+        js.column_mut(k).unscale_mut(dk);
     }
     let a = js.tr_mul(&js);
     match a.cholesky() {
