@@ -2,12 +2,14 @@
 //! Levenberg-Marquardt with column scaling ([`lm`]), rank detection by pivoted QR
 //! ([`rank`]), physical scales, effect sizes and degeneracy checks ([`trust`]), standard
 //! deviations and conditioning ([`uncertainty`]), the rank -> LM -> covariance pipeline
-//! with its report ([`solve`]), gauge freedoms held at their nominal combination
-//! ([`gauge`]) and robust losses by IRLS ([`robust`]). No I/O.
+//! with its report ([`solve`]), MAP with a Gaussian prior and a K-fold weight ([`prior`]),
+//! gauge freedoms held at their nominal combination ([`gauge`]) and robust losses by IRLS
+//! ([`robust`]). No I/O.
 
 mod bounds;
 pub mod gauge;
 pub mod lm;
+pub mod prior;
 pub mod problem;
 pub mod rank;
 pub mod robust;
@@ -17,6 +19,7 @@ pub mod uncertainty;
 
 pub use gauge::{Gauge, Gauged, null_directions};
 pub use lm::{LmOptions, LmReport, StopReason, levenberg_marquardt};
+pub use prior::{Prior, PriorReport, PriorSpec, solve_map};
 pub use problem::{Problem, Restricted};
 pub use rank::{Pivoting, RankReport, rank_revealing, rank_revealing_scaled};
 pub use robust::{Robust, RobustKind, RobustReport, solve_robust};

@@ -6,7 +6,7 @@ use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{ChainSpec, PlateSpec, SerialModel, load_model};
-use crate::identify::{Pivoting, Solution, SolveOptions, solve};
+use crate::identify::{Pivoting, Solution, SolveOptions};
 use crate::jobs::{Artefact, Inputs, JobError, Output, Prepared, Table, parse_spec};
 use crate::measure::{BallPlate, PointMeasurement, PointProblem, Target};
 use crate::model::{Chain, ParamId};
@@ -50,9 +50,15 @@ pub struct IdentifyOptions {
     /// value) is not observable and the parameter is held at nominal (default 0.01).
     #[serde(default)]
     pub effect_fraction: Option<f64>,
-    /// Seed of random choices (dispersion).
+    /// Seed of random choices (dispersion, the folds of `prior_weight: "cv"`).
     #[serde(default)]
     pub seed: Option<u64>,
+    /// Gaussian prior around the starting model: MAP instead of least squares.
+    #[serde(default)]
+    pub prior: Option<crate::identify::PriorSpec>,
+    /// Weight of the prior: a number (default 1) or "cv" (5-fold on the training set).
+    #[serde(default)]
+    pub prior_weight: Option<super::prior::PriorWeight>,
 }
 
 /// Everything an identification needs, validated.
@@ -136,14 +142,16 @@ pub fn parse_inputs(
             }
         }
     }
-    Ok(IdentifyInputs {
+    let inputs = IdentifyInputs {
         model,
         ids,
         plate,
         meas,
         validation,
         options,
-    })
+    };
+    super::prior::validate(&inputs)?;
+    Ok(inputs)
 }
 
 impl IdentifyInputs {
@@ -186,24 +194,7 @@ impl IdentifyInputs {
         subset: Option<&[usize]>,
         monitor: &dyn Monitor,
     ) -> Result<(PointProblem, Solution), JobError> {
-        let meas = match subset {
-            Some(s) => s.iter().map(|&i| self.meas[i].clone()).collect(),
-            None => self.meas.clone(),
-        };
-        let problem = PointProblem::new(
-            self.model.chain.clone(),
-            self.ids.clone(),
-            self.plate.clone(),
-            meas,
-        )?;
-        let x0 = problem.initial();
-        let sol = solve(
-            &problem,
-            &problem.unknowns(),
-            &x0,
-            &self.solve_options(&problem),
-            monitor,
-        )?;
+        let (problem, sol, _) = super::prior::identify(self, subset, monitor)?;
         Ok((problem, sol))
     }
 }
@@ -336,7 +327,7 @@ pub fn coincidence_report(
 impl Prepared for IdentifyJob {
     fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let inp = &self.inputs;
-        let (problem, sol) = inp.identify(None, monitor)?;
+        let (problem, sol, prior) = super::prior::identify(inp, None, monitor)?;
         let calibrated = problem.model(&sol.x);
         let unit = inp.model.length_unit();
         let norms = |r: &nalgebra::DVector<f64>| -> Vec<f64> {
@@ -349,6 +340,7 @@ impl Prepared for IdentifyJob {
             "parameters".into(),
             serde_json::to_value(&sol.params).unwrap_or(Value::Null),
         );
+        f.insert("prior".into(), json!(prior));
         f.insert("unidentifiable".into(), json!(sol.unidentifiable));
         f.insert(
             "dependencies".into(),

@@ -6,6 +6,7 @@ pub mod design;
 pub mod dispersion;
 pub mod fk;
 pub mod identify;
+pub mod prior;
 
 use serde::Deserialize;
 use serde_json::{Value, json};

@@ -1,0 +1,565 @@
+//! Maximum a posteriori identification: a Gaussian prior on some unknowns (mean = the
+//! start value, standard deviation `sigma_k`) added to the least-squares problem as extra
+//! residual rows, and a K-fold choice of the prior's weight.
+//!
+//! The MAP objective is `sum_i r_i^2 / s^2 + lambda * sum_k (x_k - mu_k)^2 / sigma_k^2`
+//! with `s` the measurement noise: [`MapProblem`] stacks the data rows divided by `s` and
+//! one row `sqrt(lambda) (x_k - mu_k) / sigma_k` per unknown with a prior, and [`solve_map`]
+//! runs the ordinary pipeline ([`super::solve`]) on it.
+//!
+//! Rank decision: rank detection, effect screening and the near-dependence check run on the
+//! stacked Jacobian, prior rows included. An unknown with a prior is therefore determined
+//! even when the data do not see it at all (the prior alone fixes it, and its posterior std
+//! says by how much); an unknown without a prior is judged on the data as before. The noise
+//! floor of that pipeline is 1 (the stacked rows are in noise units), so the singular values
+//! of `near_dependent` and the condition number of a MAP solution are in noise units too.
+//! Reported residuals, costs and effect sizes are the data's, in the problem's units; the
+//! standard deviations are the posterior ones, `sqrt(diag((J^T J / s^2 + lambda Sigma^-1)^-1))`
+//! (not rescaled by the fitted residual variance: the noise is taken as given).
+
+use nalgebra::DMatrix;
+use serde::Serialize;
+
+use super::trust::effect_sizes;
+use super::trust::physical_scales;
+use super::{IdentifyError, Problem, Solution, SolveOptions, Unknown, solve};
+use crate::util::Monitor;
+
+/// A Gaussian prior on some unknowns.
+#[derive(Debug, Clone)]
+pub struct Prior {
+    /// Prior standard deviation per unknown (internal units); `None` for no prior.
+    pub sigma: Vec<Option<f64>>,
+    /// Prior mean per unknown (internal units), usually the start values.
+    pub mean: Vec<f64>,
+    /// Measurement noise `s` (residual units) dividing the data residuals.
+    pub noise: f64,
+    /// Overall weight `lambda` of the prior term (1 = the plain MAP problem).
+    pub weight: f64,
+}
+
+impl Prior {
+    /// Indices of the unknowns that carry a prior.
+    pub fn rows(&self) -> Vec<usize> {
+        (0..self.sigma.len())
+            .filter(|&k| self.sigma[k].is_some_and(|s| s.is_finite() && s > 0.0))
+            .collect()
+    }
+}
+
+/// The stacked MAP problem: data rows divided by the noise, then the prior rows.
+pub struct MapProblem<'a> {
+    inner: &'a dyn Problem,
+    prior: &'a Prior,
+    rows: Vec<usize>,
+}
+
+impl std::fmt::Debug for MapProblem<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MapProblem")
+            .field("rows", &self.rows)
+            .finish()
+    }
+}
+
+impl<'a> MapProblem<'a> {
+    /// Stack `inner` and `prior`.
+    pub fn new(inner: &'a dyn Problem, prior: &'a Prior) -> Self {
+        Self {
+            inner,
+            prior,
+            rows: prior.rows(),
+        }
+    }
+}
+
+impl Problem for MapProblem<'_> {
+    fn residual_count(&self) -> usize {
+        self.inner.residual_count() + self.rows.len()
+    }
+    fn unknown_count(&self) -> usize {
+        self.inner.unknown_count()
+    }
+    fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError> {
+        let n = self.inner.residual_count();
+        self.inner.residuals(x, &mut r[..n])?;
+        for v in &mut r[..n] {
+            *v /= self.prior.noise;
+        }
+        let w = self.prior.weight.sqrt();
+        for (p, &k) in self.rows.iter().enumerate() {
+            let s = self.prior.sigma[k].unwrap_or(f64::INFINITY);
+            r[n + p] = w * (x[k] - self.prior.mean[k]) / s;
+        }
+        Ok(())
+    }
+    fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
+        let (n, m) = (self.inner.residual_count(), self.inner.unknown_count());
+        let mut jd = DMatrix::zeros(n, m);
+        self.inner.jacobian(x, &mut jd)?;
+        j.fill(0.0);
+        j.rows_mut(0, n).copy_from(&(jd / self.prior.noise));
+        let w = self.prior.weight.sqrt();
+        for (p, &k) in self.rows.iter().enumerate() {
+            j[(n + p, k)] = w / self.prior.sigma[k].unwrap_or(f64::INFINITY);
+        }
+        Ok(())
+    }
+}
+
+/// What the prior did, for the result (`mode`: `least_squares`, `map` or `map_cv`).
+#[derive(Debug, Clone, Serialize)]
+pub struct PriorReport {
+    /// `least_squares` (no prior), `map` (fixed weight) or `map_cv` (weight by K-fold).
+    pub mode: &'static str,
+    /// The weight `lambda` used (null for least squares).
+    pub weight: Option<f64>,
+    /// The noise `s` dividing the data residuals (residual units).
+    pub noise: Option<f64>,
+    /// Number of unknowns with a prior.
+    pub count: usize,
+    /// MAP objective at the solution (data and prior terms), if MAP.
+    pub objective: Option<f64>,
+    /// Prior term `lambda * sum (x_k - mu_k)^2 / sigma_k^2` at the solution, if MAP.
+    pub prior_cost: Option<f64>,
+    /// K-fold: per candidate weight, the held-out RMS error.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub k_fold_errors: Option<Vec<FoldError>>,
+}
+
+/// Held-out error of one candidate weight.
+#[derive(Debug, Clone, Serialize)]
+pub struct FoldError {
+    /// Candidate weight.
+    pub weight: f64,
+    /// RMS of the held-out residuals over all folds (residual units).
+    pub rms: f64,
+}
+
+impl PriorReport {
+    /// The report of a plain least-squares run.
+    pub fn least_squares() -> Self {
+        Self {
+            mode: "least_squares",
+            weight: None,
+            noise: None,
+            count: 0,
+            objective: None,
+            prior_cost: None,
+            k_fold_errors: None,
+        }
+    }
+}
+
+/// Posterior standard deviations of the columns of a stacked Jacobian (`sqrt(diag((J^T
+/// J)^-1))`, columns equilibrated before the inversion); NaN where singular.
+pub fn posterior_std(j: &DMatrix<f64>) -> Vec<f64> {
+    let m = j.ncols();
+    let d: Vec<f64> = (0..m)
+        .map(|k| j.column(k).norm())
+        .map(|v| if v > 0.0 { v } else { 1.0 })
+        .collect();
+    let mut js = j.clone();
+    for (k, &dk) in d.iter().enumerate() {
+        js.column_mut(k).unscale_mut(dk);
+    }
+    let a = js.tr_mul(&js);
+    match a.cholesky() {
+        Some(c) => {
+            let inv = c.inverse();
+            (0..m).map(|k| inv[(k, k)].max(0.0).sqrt() / d[k]).collect()
+        }
+        None => vec![f64::NAN; m],
+    }
+}
+
+/// Identify `unknowns` by MAP with `prior` (see the module documentation), through the
+/// ordinary pipeline on the stacked problem; the solution's residuals, costs, effect sizes
+/// and `weakly_observable` are then restated for the data alone, and its standard
+/// deviations are the posterior ones.
+pub fn solve_map(
+    problem: &dyn Problem,
+    unknowns: &[Unknown],
+    x0: &[f64],
+    prior: &Prior,
+    opts: &SolveOptions,
+    monitor: &dyn Monitor,
+) -> Result<(Solution, PriorReport), IdentifyError> {
+    let m = problem.unknown_count();
+    if prior.sigma.len() != m || prior.mean.len() != m {
+        return Err(IdentifyError::Model(format!(
+            "prior for {} unknowns, problem has {m}",
+            prior.sigma.len()
+        )));
+    }
+    if !(prior.noise.is_finite()
+        && prior.noise > 0.0
+        && prior.weight.is_finite()
+        && prior.weight >= 0.0)
+    {
+        return Err(IdentifyError::Model(format!(
+            "prior noise {} and weight {} must be positive",
+            prior.noise, prior.weight
+        )));
+    }
+    let mp = MapProblem::new(problem, prior);
+    let o = SolveOptions {
+        noise: Some(1.0),
+        ..opts.clone()
+    };
+    let mut sol = solve(&mp, unknowns, x0, &o, monitor)?;
+    let n = problem.residual_count();
+    let s = prior.noise;
+    let objective = sol.residuals.norm_squared();
+    let prior_cost = sol.residuals.rows(n, mp.rows.len()).norm_squared();
+    sol.residuals_before = sol.residuals_before.rows(0, n) * s;
+    sol.residuals = sol.residuals.rows(0, n) * s;
+    sol.cost_before = sol.residuals_before.norm_squared();
+    sol.cost_after = sol.residuals.norm_squared();
+    // Posterior std from the stacked Jacobian of the identified set at the solution.
+    let mut ja = DMatrix::zeros(mp.residual_count(), m);
+    mp.jacobian(&sol.x, &mut ja)?;
+    let jf = DMatrix::from_fn(ja.nrows(), sol.free.len(), |r, c| ja[(r, sol.free[c])]);
+    let std = posterior_std(&jf);
+    let dof = n.saturating_sub(sol.free.len());
+    sol.uncertainty.std = std.clone();
+    sol.uncertainty.dof = dof;
+    sol.uncertainty.sigma = (sol.cost_after / dof.max(1) as f64).sqrt();
+    // Effect sizes of the data alone, at the start.
+    let mut j0 = DMatrix::zeros(n, m);
+    problem.jacobian(x0, &mut j0)?;
+    let effect = effect_sizes(&j0, &physical_scales(unknowns));
+    sol.weakly_observable.clear();
+    for (k, p) in sol.params.iter_mut().enumerate() {
+        p.effect_size = effect[k];
+        if let Some(pos) = sol.free.iter().position(|&f| f == k) {
+            p.std = Some(std[pos] * unknowns[k].to_report);
+            if effect[k] < s {
+                sol.weakly_observable.push(p.name.clone());
+            }
+        }
+    }
+    Ok((
+        sol,
+        PriorReport {
+            mode: "map",
+            weight: Some(prior.weight),
+            noise: Some(s),
+            count: mp.rows.len(),
+            objective: Some(objective),
+            prior_cost: Some(prior_cost),
+            k_fold_errors: None,
+        },
+    ))
+}
+
+/// A prior as a job states it: per-name standard deviations in the reported (file) units,
+/// and/or defaults per kind of parameter.
+#[derive(Debug, Clone, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PriorSpec {
+    /// Standard deviation per unknown name, in that unknown's reported unit.
+    #[serde(default)]
+    pub std: std::collections::BTreeMap<String, f64>,
+    /// Defaults for the model parameters without an entry in `std`.
+    #[serde(default)]
+    pub default_std: DefaultStd,
+}
+
+/// Default prior standard deviations by kind of parameter.
+#[derive(Debug, Clone, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DefaultStd {
+    /// Lengths, mm (converted for models in metres).
+    #[serde(default)]
+    pub length_mm: Option<f64>,
+    /// Angles, deg.
+    #[serde(default)]
+    pub angle_deg: Option<f64>,
+    /// Joint compliances, deg/(N*m).
+    #[serde(default)]
+    pub compliance: Option<f64>,
+}
+
+impl PriorSpec {
+    /// Prior std per unknown in internal units. Per-name entries apply to any unknown (an
+    /// unknown name is an error naming it); the defaults only to the first `model_params`
+    /// unknowns (the model's parameters, not nuisance points such as unknown ball centres),
+    /// chosen by unit: `mm`/`m`, `deg`/`rad`, `deg/(N*m)`/`rad/(N*m)`.
+    pub fn sigmas(
+        &self,
+        unknowns: &[Unknown],
+        model_params: usize,
+    ) -> Result<Vec<Option<f64>>, String> {
+        let positive = |what: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(v)
+            } else {
+                Err(format!("{what}: {v} must be a positive number"))
+            }
+        };
+        for name in self.std.keys() {
+            if !unknowns.iter().any(|u| &u.name == name) {
+                return Err(format!("std.{name}: no such parameter to identify"));
+            }
+        }
+        let d = &self.default_std;
+        let length = d
+            .length_mm
+            .map(|v| positive("default_std.length_mm", v))
+            .transpose()?;
+        let angle = d
+            .angle_deg
+            .map(|v| positive("default_std.angle_deg", v))
+            .transpose()?;
+        let compliance = d
+            .compliance
+            .map(|v| positive("default_std.compliance", v))
+            .transpose()?;
+        unknowns
+            .iter()
+            .enumerate()
+            .map(|(k, u)| {
+                if let Some(&v) = self.std.get(&u.name) {
+                    return Ok(Some(positive(&format!("std.{}", u.name), v)? / u.to_report));
+                }
+                if k >= model_params {
+                    return Ok(None);
+                }
+                Ok(match u.unit.as_str() {
+                    "mm" => length,
+                    "m" => length.map(|v| v * 1e-3),
+                    "deg" | "rad" => angle.map(f64::to_radians),
+                    "deg/(N*m)" | "rad/(N*m)" => compliance.map(f64::to_radians),
+                    _ => None,
+                })
+            })
+            .collect()
+    }
+}
+
+/// Candidate weights of the K-fold choice.
+pub const CV_WEIGHTS: [f64; 5] = [0.01, 0.1, 1.0, 10.0, 100.0];
+
+/// K folds of `count` items: a seeded shuffle cut into `k` nearly equal parts.
+pub fn folds(count: usize, k: usize, seed: u64) -> Vec<Vec<usize>> {
+    let mut idx: Vec<usize> = (0..count).collect();
+    // SplitMix64-driven Fisher-Yates: reproducible without a dependency.
+    let mut state = seed;
+    let mut next = || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    };
+    for i in (1..count).rev() {
+        let j = (next() % (i as u64 + 1)) as usize;
+        idx.swap(i, j);
+    }
+    let k = k.clamp(1, count.max(1));
+    (0..k)
+        .map(|f| idx.iter().copied().skip(f).step_by(k).collect())
+        .collect()
+}
+
+/// Choose the weight among `weights` by K-fold cross-validation over `count` items (the
+/// training set only): `score(weight, train, test)` fits on `train` and returns the sum of
+/// squared held-out residuals and their count. The smallest held-out RMS wins (the first
+/// on ties); a fold whose fit fails scores infinity.
+pub fn choose_weight(
+    weights: &[f64],
+    count: usize,
+    k: usize,
+    seed: u64,
+    mut score: impl FnMut(f64, &[usize], &[usize]) -> Result<(f64, usize), IdentifyError>,
+) -> Result<(f64, Vec<FoldError>), IdentifyError> {
+    let parts = folds(count, k, seed);
+    let mut errors = Vec::with_capacity(weights.len());
+    for &w in weights {
+        let (mut sum, mut cnt) = (0.0, 0usize);
+        for (f, test) in parts.iter().enumerate() {
+            let train: Vec<usize> = parts
+                .iter()
+                .enumerate()
+                .filter(|(g, _)| *g != f)
+                .flat_map(|(_, p)| p.iter().copied())
+                .collect();
+            match score(w, &train, test) {
+                Ok((s, c)) => {
+                    sum += s;
+                    cnt += c;
+                }
+                Err(IdentifyError::Cancelled) => return Err(IdentifyError::Cancelled),
+                Err(_) => {
+                    sum = f64::INFINITY;
+                }
+            }
+        }
+        let rms = if cnt > 0 {
+            (sum / cnt as f64).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        errors.push(FoldError { weight: w, rms });
+    }
+    let best = errors
+        .iter()
+        .filter(|e| e.rms.is_finite())
+        .min_by(|a, b| a.rms.total_cmp(&b.rms))
+        .map(|e| e.weight)
+        .ok_or_else(|| IdentifyError::Model("every fold fit failed for every weight".into()))?;
+    Ok((best, errors))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::util::NoMonitor;
+    use nalgebra::DVector;
+
+    /// r = J x - b.
+    struct Linear {
+        j: DMatrix<f64>,
+        b: DVector<f64>,
+    }
+    impl Problem for Linear {
+        fn residual_count(&self) -> usize {
+            self.j.nrows()
+        }
+        fn unknown_count(&self) -> usize {
+            self.j.ncols()
+        }
+        fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError> {
+            let v = &self.j * DVector::from_column_slice(x) - &self.b;
+            r.copy_from_slice(v.as_slice());
+            Ok(())
+        }
+        fn jacobian(&self, _x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
+            j.copy_from(&self.j);
+            Ok(())
+        }
+    }
+
+    fn lcg(state: &mut u64) -> f64 {
+        *state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    fn unknowns(m: usize) -> Vec<Unknown> {
+        (0..m)
+            .map(|k| Unknown {
+                name: format!("x{k}"),
+                unit: "mm".into(),
+                to_report: 1.0,
+                nominal: 0.0,
+                plausible_range: 1.0,
+                lower: None,
+                upper: None,
+            })
+            .collect()
+    }
+
+    /// MAP with a prior equals the closed form on a linear problem: x = (J^T J / s^2 +
+    /// lambda Sigma^-1)^-1 (J^T b / s^2 + lambda Sigma^-1 mu), posterior std = sqrt(diag of
+    /// that inverse). One unknown has no prior; one column is nearly invisible in the data
+    /// (its prior determines it); a non-unit weight exercises lambda.
+    #[test]
+    fn map_with_a_prior_equals_the_closed_form_on_a_linear_problem() {
+        let (n, m) = (12, 5);
+        let mut st = 13u64;
+        let mut j = DMatrix::from_fn(n, m, |_, _| lcg(&mut st));
+        // Column 4: nearly invisible to the data (1e-9 of the others).
+        for r in 0..n {
+            j[(r, 4)] *= 1e-9;
+        }
+        let b = DVector::from_fn(n, |_, _| lcg(&mut st));
+        let mu: Vec<f64> = (0..m).map(|_| lcg(&mut st)).collect();
+        let sigma = vec![Some(0.3), None, Some(2.0), Some(0.05), Some(0.7)];
+        for &weight in &[1.0, 2.5] {
+            let prior = Prior {
+                sigma: sigma.clone(),
+                mean: mu.clone(),
+                noise: 0.2,
+                weight,
+            };
+            let p = Linear {
+                j: j.clone(),
+                b: b.clone(),
+            };
+            let (sol, rep) = solve_map(
+                &p,
+                &unknowns(m),
+                &mu,
+                &prior,
+                &SolveOptions::default(),
+                &NoMonitor,
+            )
+            .unwrap();
+            assert_eq!(rep.mode, "map");
+            assert_eq!(rep.count, 4);
+            assert_eq!(sol.free, vec![0, 1, 2, 3, 4], "{:?}", sol.unidentifiable);
+            let s2 = prior.noise * prior.noise;
+            let mut a = j.tr_mul(&j) / s2;
+            let mut rhs = j.tr_mul(&b) / s2;
+            for k in 0..m {
+                if let Some(sk) = sigma[k] {
+                    a[(k, k)] += weight / (sk * sk);
+                    rhs[k] += weight * mu[k] / (sk * sk);
+                }
+            }
+            let inv = a.try_inverse().unwrap();
+            let x = &inv * rhs;
+            for k in 0..m {
+                assert!(
+                    (sol.x[k] - x[k]).abs() < 1e-9 * x[k].abs().max(1.0),
+                    "x{k}: {} vs {}",
+                    sol.x[k],
+                    x[k]
+                );
+                let sd = inv[(k, k)].sqrt();
+                let got = sol.params[k].std.unwrap();
+                assert!((got - sd).abs() < 1e-9 * sd, "std{k}: {got} vs {sd}");
+            }
+            // Residuals and costs are the data's.
+            let r = &j * DVector::from_column_slice(&sol.x) - &b;
+            assert!((sol.cost_after - r.norm_squared()).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn a_spec_maps_names_and_defaults_to_internal_units() {
+        let mut u = unknowns(4);
+        u[1].unit = "deg".into();
+        u[1].to_report = 180.0 / std::f64::consts::PI;
+        u[2].unit = "deg/(N*m)".into();
+        u[2].to_report = 180.0 / std::f64::consts::PI;
+        let spec: PriorSpec = serde_json::from_value(serde_json::json!({
+            "std": {"x0": 0.5},
+            "default_std": {"length_mm": 1.0, "angle_deg": 0.5}
+        }))
+        .unwrap();
+        let s = spec.sigmas(&u, 3).unwrap();
+        assert_eq!(s[0], Some(0.5));
+        assert!((s[1].unwrap() - 0.5f64.to_radians()).abs() < 1e-15);
+        assert_eq!(s[2], None);
+        // Unknown 3 is a nuisance point: no default.
+        assert_eq!(s[3], None);
+        let bad: PriorSpec =
+            serde_json::from_value(serde_json::json!({"std": {"nope": 1.0}})).unwrap();
+        assert!(bad.sigmas(&u, 3).unwrap_err().contains("nope"));
+    }
+
+    #[test]
+    fn folds_partition_and_are_reproducible() {
+        let f = folds(23, 5, 7);
+        assert_eq!(f.len(), 5);
+        let mut all: Vec<usize> = f.iter().flatten().copied().collect();
+        all.sort_unstable();
+        assert_eq!(all, (0..23).collect::<Vec<_>>());
+        assert_eq!(f, folds(23, 5, 7));
+        assert_ne!(f, folds(23, 5, 8));
+    }
+}
