@@ -332,7 +332,12 @@ fn identify_with_a_prior_reports_map_and_the_k_fold_choice() {
     let w = p["weight"].as_f64().unwrap();
     let best = errors
         .iter()
-        .min_by(|a, b| a["rms"].as_f64().unwrap().total_cmp(&b["rms"].as_f64().unwrap()))
+        .min_by(|a, b| {
+            a["rms"]
+                .as_f64()
+                .unwrap()
+                .total_cmp(&b["rms"].as_f64().unwrap())
+        })
         .unwrap();
     assert_eq!(best["weight"].as_f64().unwrap(), w);
     for r in [&ls, &map, &cv] {
@@ -347,8 +352,15 @@ fn identify_with_a_prior_reports_map_and_the_k_fold_choice() {
     // The first 20 rows leave LS weakly determined (validation mean 1.231 mm); the prior
     // helps (MAP 1.165 mm, weight 1), the cross-validated weight (0.01, held-out RMS
     // 0.0079 mm against 0.0093 at weight 1) more (1.138 mm).
-    let val = |r: &calibd::jobs::Completed| r.result["validation"]["after"]["mean"].as_f64().unwrap();
-    assert!(val(&map) <= val(&ls) && val(&cv) <= val(&ls), "{} {} {}", val(&ls), val(&map), val(&cv));
+    let val =
+        |r: &calibd::jobs::Completed| r.result["validation"]["after"]["mean"].as_f64().unwrap();
+    assert!(
+        val(&map) <= val(&ls) && val(&cv) <= val(&ls),
+        "{} {} {}",
+        val(&ls),
+        val(&map),
+        val(&cv)
+    );
     assert_eq!(w, 0.01);
     // Refusals: a weight that is neither a number nor "cv", a weight without a prior, a
     // name that is not identified.
