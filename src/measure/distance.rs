@@ -142,11 +142,25 @@ impl DistanceProblem {
         frames.chain(self.ids.len()..self.unknown_count()).collect()
     }
 
-    /// Column order for priority rank detection: the parameters' priority classes, chain
-    /// order within a class, anchor and offset last.
+    /// Column order of rank detection (strict priority): anchor and offset first (the
+    /// measurement's own unknowns: without them no distance can be modelled), then the tool
+    /// frame, then the joint parameters by priority class ([`ParamId::priority`]) and chain
+    /// order, the base frame last. A distance to a free anchor cannot see the base frame
+    /// (it only moves the anchor in {0}), so the base parameters are the ones held, at
+    /// nominal, which keeps the anchor meaningful in {W} of the model.
     pub fn priority_order(&self) -> Vec<usize> {
-        let mut order: Vec<usize> = (0..self.unknown_count()).collect();
-        order.sort_by_key(|&k| (self.ids.get(k).map_or(u8::MAX, |id| id.priority()), k));
+        let n = self.ids.len();
+        let mut order: Vec<usize> = (n..self.unknown_count()).collect();
+        let mut chain: Vec<usize> = (0..n).collect();
+        chain.sort_by_key(|&k| {
+            let class = match self.ids[k] {
+                ParamId::Tool(_) => 0,
+                ParamId::Base(_) => 10,
+                id => 1 + id.priority(),
+            };
+            (class, k)
+        });
+        order.extend(chain);
         order
     }
 
