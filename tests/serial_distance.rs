@@ -105,7 +105,10 @@ fn twin_recovers_anchor_and_offset_and_validates_at_noise_level() {
         .filter(|n| n.starts_with("base.") || n.starts_with("anchor."))
         .count();
     assert!(held_frame >= 6, "{held:?}");
-    assert!(offset_err.abs() < 4.0 * offset_std + 1e-3, "{offset_err} vs {offset_std}");
+    assert!(
+        offset_err.abs() < 4.0 * offset_std + 1e-3,
+        "{offset_err} vs {offset_std}"
+    );
     assert!(anchor_err < 0.5, "{anchor_err}");
     // Noise 0.010 mm: the held-out RMS is at the noise level.
     assert!(after < 2.0 * NOISE_MM, "after {after}");
@@ -219,43 +222,90 @@ fn drawwire_acceptance() {
     let cal: Vec<&Vec<f64>> = idx[..n_cal].iter().map(|&i| &rows[i]).collect();
     let val: Vec<&Vec<f64>> = idx[n_cal..].iter().map(|&i| &rows[i]).collect();
     let file = DhFile::parse(calibd::twin::serial::IRB120_JSON).unwrap();
-    let doc = json!({
-        "kind": "serial.identify",
-        "model": "robots/irb120.json",
-        "measurements": to_json_rows(&header, &cal),
-        "validation": to_json_rows(&header, &val),
-        "options": {"identify": identify_names(&file)},
-    });
-    let r = run(&doc);
-    let before = r["validation"]["before"]["rms"].as_f64().unwrap();
-    let after = r["validation"]["after"]["rms"].as_f64().unwrap();
-    println!(
-        "draw-wire: {} calibration / {} held-out rows; held-out distance RMS nominal {before:.3} mm, \
-         calibrated {after:.3} mm; calibration residual RMS {:.3} -> {:.3} mm; status {}; \
-         unidentifiable {}; anchor {}; length_offset {}; warnings {}",
-        cal.len(),
-        val.len(),
-        r["residuals"]["before"]["rms"],
-        r["residuals"]["after"]["rms"],
-        r["convergence"]["status"],
-        r["unidentifiable"],
-        r["anchor"],
-        r["length_offset"],
-        r["warnings"],
-    );
-    let w = r["warnings"][0].as_str().unwrap();
-    assert!(w.contains("x, y, z"), "{w}");
-    println!("held-out medians: before {} after {}", r["validation"]["before"]["median"], r["validation"]["after"]["median"]);
-    println!("params: {}", r["parameters"]);
+    let fit = |names: Vec<String>| -> Value {
+        run(&json!({
+            "kind": "serial.identify",
+            "model": "robots/irb120.json",
+            "measurements": to_json_rows(&header, &cal),
+            "validation": to_json_rows(&header, &val),
+            "options": {"identify": names},
+        }))
+    };
+    let tool = ["tool.x", "tool.y", "tool.z"].map(String::from).to_vec();
+    let reduced: Vec<String> = [
+        "theta_offset2",
+        "theta_offset3",
+        "a2",
+        "a3",
+        "d4",
+        "alpha2",
+        "alpha3",
+        "beta2",
+    ]
+    .map(String::from)
+    .into_iter()
+    .chain(tool.clone())
+    .collect();
+    let mut held_out = Vec::new();
+    for (label, names) in [
+        ("tool only (nuisance)", tool.clone()),
+        ("reduced geometric + tool", reduced),
+        ("model list + tool", identify_names(&file)),
+    ] {
+        let r = fit(names);
+        let before = r["validation"]["before"]["rms"].as_f64().unwrap();
+        let after = r["validation"]["after"]["rms"].as_f64().unwrap();
+        println!(
+            "draw-wire [{label}]: {} calibration / {} held-out rows; held-out distance RMS \
+             nominal {before:.3} mm (median {:.3}), calibrated {after:.3} mm (median {:.3}); \
+             calibration residual RMS {:.3} -> {:.3} mm; status {}; unidentifiable {}; \
+             anchor {}; length_offset {}",
+            cal.len(),
+            val.len(),
+            r["validation"]["before"]["median"].as_f64().unwrap(),
+            r["validation"]["after"]["median"].as_f64().unwrap(),
+            r["residuals"]["before"]["rms"].as_f64().unwrap(),
+            r["residuals"]["after"]["rms"].as_f64().unwrap(),
+            r["convergence"]["status"],
+            r["unidentifiable"],
+            r["anchor"],
+            r["length_offset"],
+        );
+        let w = r["warnings"][0].as_str().unwrap();
+        assert!(w.contains("x, y, z"), "{w}");
+        held_out.push((before, after, r["convergence"]["status"].clone()));
+    }
+    // The nuisance-only fit (tool translation, anchor, offset) and the reduced geometric set
+    // both improve on the nominal model; the model's full list (31 parameters + tool) is
+    // not determined by these data (q4, q5 barely move) and runs away: reported, not asserted.
+    for (before, after, status) in &held_out[..2] {
+        assert!(after < before, "before {before} after {after}");
+        assert_eq!(status, "converged");
+    }
 
     // Row 951 (1-based data row, the header not counted): does a robust loss flag it?
     let chain = file.to_chain().unwrap();
-    let ids = identify_names(&file)
-        .iter()
-        .map(|n| chain.param_by_name(n).unwrap())
-        .collect();
+    let ids = [
+        "theta_offset2",
+        "theta_offset3",
+        "a2",
+        "a3",
+        "d4",
+        "alpha2",
+        "alpha3",
+        "beta2",
+        "tool.x",
+        "tool.y",
+        "tool.z",
+    ]
+    .iter()
+    .map(|n| chain.param_by_name(n).unwrap())
+    .collect();
     let col = |n: &str| header.iter().position(|h| h == n).unwrap();
-    let (l, qc) = (col("L"), (1..=6).map(|k| col(&format!("q{k}"))).collect::<Vec<_>>());
+    let (l, qc) = (
+        col("L"),
+        (1..=6).map(|k| col(&format!("q{k}"))).collect::<Vec<_>>(),
+    );
     let meas: Vec<DistanceMeasurement> = rows
         .iter()
         .map(|r| DistanceMeasurement {
@@ -296,4 +346,34 @@ fn drawwire_acceptance() {
         e[950].abs(),
         ls_abs[950],
     );
+    // Row 951 is fine as a distance measurement: not down-weighted by the robust loss.
+    assert!(e[950].abs() < rep.scale, "{}", e[950]);
+    // Its bad value is in the controller's x, y, z (z jumps by ~100 mm while the joints
+    // move by a degree): the same anchor fit on those columns as TCP positions makes it the
+    // largest residual by far.
+    let (xc, yc, zc) = (col("x"), col("y"), col("z"));
+    let pts: Vec<Vector3<f64>> = rows
+        .iter()
+        .map(|r| Vector3::new(r[xc], r[yc], r[zc]))
+        .collect();
+    let ls_len: Vec<f64> = rows.iter().map(|r| r[l]).collect();
+    let (a, l0) = calibd::measure::distance::fit_anchor(&pts, &ls_len);
+    let ec: Vec<f64> = pts
+        .iter()
+        .zip(&ls_len)
+        .map(|(p, l)| ((p - a).norm() + l0 - l).abs())
+        .collect();
+    let mut sorted = ec.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let argmax = (0..ec.len())
+        .max_by(|&i, &j| ec[i].total_cmp(&ec[j]))
+        .unwrap();
+    println!(
+        "controller x, y, z as TCP: median |e| {median:.3} mm; largest at row {} ({:.3} mm); row 951 {:.3} mm",
+        argmax + 1,
+        ec[argmax],
+        ec[950]
+    );
+    assert_eq!(argmax, 950);
 }

@@ -294,7 +294,10 @@ mod tests {
         let lim = [0.9, 0.8, 0.8, 1.5, 1.2, 2.0];
         let meas: Vec<DistanceMeasurement> = (0..30)
             .map(|_| {
-                let q: Vec<f64> = lim.iter().map(|l| l * (2.0 * rng.uniform() - 1.0)).collect();
+                let q: Vec<f64> = lim
+                    .iter()
+                    .map(|l| l * (2.0 * rng.uniform() - 1.0))
+                    .collect();
                 let p = twin.true_tcp(&q);
                 DistanceMeasurement {
                     length: (p - anchor).norm() - offset,

@@ -317,7 +317,9 @@ impl IdentifyInputs {
         } else {
             Err(JobError::invalid(
                 "measurements",
-                format!("{kind} does not support distance (L_mm) measurements; serial.identify does"),
+                format!(
+                    "{kind} does not support distance (L_mm) measurements; serial.identify does"
+                ),
             ))
         }
     }
@@ -551,7 +553,10 @@ fn solution_fields(f: &mut Map<String, Value>, sol: &Solution, unit: &str, toler
             "cost_nuisance_only": sol.nuisance_cost, "cost_unit": format!("{unit}^2"),
         }),
     );
-    f.insert("rank".into(), json!({"rank": sol.free.len(), "unknowns": sol.params.len(), "tolerance": tolerance}));
+    f.insert(
+        "rank".into(),
+        json!({"rank": sol.free.len(), "unknowns": sol.params.len(), "tolerance": tolerance}),
+    );
     f.insert(
         "condition_number".into(),
         json!(sol.uncertainty.condition_number),

@@ -187,7 +187,11 @@ impl SerialModel {
             .map(|(i, (q, row))| {
                 let l = row[c];
                 if !l.is_finite() {
-                    return Err(JobError::row(field, i + 1, format!("L_mm = {l} is not finite")));
+                    return Err(JobError::row(
+                        field,
+                        i + 1,
+                        format!("L_mm = {l} is not finite"),
+                    ));
                 }
                 Ok(crate::measure::DistanceMeasurement { q, length: l * k })
             })
