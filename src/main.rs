@@ -305,6 +305,11 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
             .with_context(|| format!("writing {}", p.display()))?,
         None => println!("{}", serde_json::to_string_pretty(&done.result)?),
     }
+    // Warnings of the result (e.g. unused table columns) also on stderr, never only buried
+    // in the JSON.
+    for w in done.result["warnings"].as_array().into_iter().flatten() {
+        eprintln!("warning: {}", w.as_str().unwrap_or_default());
+    }
     if let Some(dir) = artefacts {
         std::fs::create_dir_all(dir)?;
         for a in &done.artefacts {

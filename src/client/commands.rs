@@ -115,6 +115,9 @@ pub fn print_summary(r: &Value) {
     if let Some(rows) = r["poses"].as_array() {
         println!("{} poses", rows.len());
     }
+    for w in r["warnings"].as_array().into_iter().flatten() {
+        println!("warning: {}", w.as_str().unwrap_or_default());
+    }
 }
 
 /// `GET /v1/health` (no token needed) within `timeout`, straight to the daemon (no proxy):

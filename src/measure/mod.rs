@@ -3,6 +3,7 @@
 //! [`crate::identify::Problem`]; none does I/O.
 
 pub mod ballplate;
+pub mod distance;
 pub mod marker_fit;
 pub mod markers;
 pub mod mocap;
@@ -10,6 +11,7 @@ pub mod pcr;
 pub mod point;
 
 pub use ballplate::BallPlate;
+pub use distance::{DistanceMeasurement, DistanceProblem};
 pub use markers::{MarkerProblem, MarkerSample};
 pub use point::{PointMeasurement, PointProblem, Target};
 

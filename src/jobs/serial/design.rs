@@ -131,6 +131,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<DesignJob, JobError> 
         None,
         opts,
     )?;
+    inp.require_points("serial.design")?;
     if s.n == 0 || s.n > inp.meas.len() {
         return Err(JobError::invalid(
             "n",

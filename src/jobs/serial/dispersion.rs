@@ -57,6 +57,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<DispersionJob, JobErr
         Some(&s.validation),
         s.options,
     )?;
+    inp.require_points("serial.dispersion")?;
     if s.sizes.is_empty() {
         return Err(JobError::invalid("sizes", "give at least one set size"));
     }

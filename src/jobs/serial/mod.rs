@@ -172,6 +172,33 @@ impl SerialModel {
         Ok(out)
     }
 
+    /// Distance measurements from a table with joint columns and `L_mm` (model length unit).
+    pub fn distances(
+        &self,
+        field: &str,
+        t: &Table,
+    ) -> Result<Vec<crate::measure::DistanceMeasurement>, JobError> {
+        let q = self.joints(field, t)?;
+        let c = t.col(field, "L_mm")?;
+        // L_mm is in mm whatever the model's length unit.
+        let k = 1e-3 / self.chain.units.metre();
+        q.into_iter()
+            .zip(&t.rows)
+            .enumerate()
+            .map(|(i, (q, row))| {
+                let l = row[c];
+                if !l.is_finite() {
+                    return Err(JobError::row(
+                        field,
+                        i + 1,
+                        format!("L_mm = {l} is not finite"),
+                    ));
+                }
+                Ok(crate::measure::DistanceMeasurement { q, length: l * k })
+            })
+            .collect()
+    }
+
     /// Measurements from a table with joint columns and either `ball` (1-based) or x, y, z.
     pub fn measurements(
         &self,
