@@ -12,9 +12,9 @@
 use nalgebra::{DMatrix, Matrix4, Vector3, Vector4};
 
 use super::MeasureError;
-use super::point::plausible_range;
+use super::point::{frames_and_extras, length_unknown, plausible_range};
 use crate::identify::{IdentifyError, Problem, Unknown};
-use crate::model::{Chain, ParamId, Quantity};
+use crate::model::{Chain, ParamId};
 
 /// One distance measurement: joint values (rad) and the measured length (model length unit).
 #[derive(Debug, Clone, PartialEq)]
@@ -118,28 +118,14 @@ impl DistanceProblem {
             .collect();
         let x0 = self.initial();
         for (k, name) in DISTANCE_NUISANCE.iter().enumerate() {
-            out.push(Unknown {
-                name: (*name).into(),
-                unit: c.units.name(Quantity::Length).into(),
-                to_report: 1.0,
-                nominal: x0[self.ids.len() + k],
-                plausible_range: plausible_range(c, Quantity::Length),
-                lower: None,
-                upper: None,
-            });
+            out.push(length_unknown(c, (*name).into(), x0[self.ids.len() + k]));
         }
         out
     }
 
     /// Indices of the nuisance unknowns: base and tool frame parameters, anchor and offset.
     pub fn nuisance(&self) -> Vec<usize> {
-        let frames = self
-            .ids
-            .iter()
-            .enumerate()
-            .filter(|(_, id)| matches!(id, ParamId::Base(_) | ParamId::Tool(_)))
-            .map(|(k, _)| k);
-        frames.chain(self.ids.len()..self.unknown_count()).collect()
+        frames_and_extras(&self.ids, self.unknown_count())
     }
 
     /// Column order of rank detection (strict priority): anchor and offset first (the

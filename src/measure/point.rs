@@ -27,6 +27,31 @@ pub struct PointMeasurement {
     pub target: Target,
 }
 
+/// An unknown length of a measurement model beyond the chain's parameters (an unknown ball
+/// centre coordinate, a distance sensor's anchor or offset), in the chain's length unit.
+pub(crate) fn length_unknown(c: &Chain, name: String, nominal: f64) -> Unknown {
+    Unknown {
+        name,
+        unit: c.units.name(Quantity::Length).into(),
+        to_report: 1.0,
+        nominal,
+        plausible_range: plausible_range(c, Quantity::Length),
+        lower: None,
+        upper: None,
+    }
+}
+
+/// The nuisance unknowns of a measurement model: the base and tool frame parameters among
+/// `ids`, and every unknown after the chain's parameters (up to `count`).
+pub(crate) fn frames_and_extras(ids: &[ParamId], count: usize) -> Vec<usize> {
+    let frames = ids
+        .iter()
+        .enumerate()
+        .filter(|(_, id)| matches!(id, ParamId::Base(_) | ParamId::Tool(_)))
+        .map(|(k, _)| k);
+    frames.chain(ids.len()..count).collect()
+}
+
 /// Plausible ranges used for effect sizes: 1 mm, 0.5 deg, 0.005 deg/(N*m).
 pub fn plausible_range(chain: &Chain, q: Quantity) -> f64 {
     match q {
@@ -144,15 +169,11 @@ impl PointProblem {
         let x0 = self.initial();
         for (k, &b) in self.free_balls.iter().enumerate() {
             for (a, axis) in ["x", "y", "z"].iter().enumerate() {
-                out.push(Unknown {
-                    name: format!("ball{}.{axis}", b + 1),
-                    unit: c.units.name(Quantity::Length).into(),
-                    to_report: 1.0,
-                    nominal: x0[self.ids.len() + 3 * k + a],
-                    plausible_range: plausible_range(c, Quantity::Length),
-                    lower: None,
-                    upper: None,
-                });
+                out.push(length_unknown(
+                    c,
+                    format!("ball{}.{axis}", b + 1),
+                    x0[self.ids.len() + 3 * k + a],
+                ));
             }
         }
         out
@@ -161,13 +182,7 @@ impl PointProblem {
     /// Indices of the nuisance unknowns: base and tool frame parameters and unknown ball
     /// centres (what a fit of the frames alone would move).
     pub fn nuisance(&self) -> Vec<usize> {
-        let frames = self
-            .ids
-            .iter()
-            .enumerate()
-            .filter(|(_, id)| matches!(id, ParamId::Base(_) | ParamId::Tool(_)))
-            .map(|(k, _)| k);
-        frames.chain(self.ids.len()..self.unknown_count()).collect()
+        frames_and_extras(&self.ids, self.unknown_count())
     }
 
     /// Column order for priority rank detection: the parameters' priority classes
