@@ -12,7 +12,7 @@
 use nalgebra::{DMatrix, Matrix4, Vector3, Vector4};
 
 use super::MeasureError;
-use super::point::{frames_and_extras, length_unknown, plausible_range};
+use super::point::{chain_unknowns, frames_and_extras, length_unknown};
 use crate::identify::{IdentifyError, Problem, Unknown};
 use crate::model::{Chain, ParamId};
 
@@ -103,19 +103,7 @@ impl DistanceProblem {
     /// Names, units and ranges of the unknowns, in order.
     pub fn unknowns(&self) -> Vec<Unknown> {
         let c = &self.chain;
-        let mut out: Vec<Unknown> = self
-            .ids
-            .iter()
-            .map(|id| Unknown {
-                name: c.param_name(*id),
-                unit: c.units.name(id.quantity()).into(),
-                to_report: c.units.to_file(id.quantity()),
-                nominal: c.param(*id),
-                plausible_range: plausible_range(c, id.quantity()),
-                lower: None,
-                upper: None,
-            })
-            .collect();
+        let mut out = chain_unknowns(c, &self.ids);
         let x0 = self.initial();
         for (k, name) in DISTANCE_NUISANCE.iter().enumerate() {
             out.push(length_unknown(c, (*name).into(), x0[self.ids.len() + k]));

@@ -27,6 +27,21 @@ pub struct PointMeasurement {
     pub target: Target,
 }
 
+/// The unknowns of the chain parameters `ids`: name, file unit, nominal and plausible range.
+pub(crate) fn chain_unknowns(c: &Chain, ids: &[ParamId]) -> Vec<Unknown> {
+    ids.iter()
+        .map(|id| Unknown {
+            name: c.param_name(*id),
+            unit: c.units.name(id.quantity()).into(),
+            to_report: c.units.to_file(id.quantity()),
+            nominal: c.param(*id),
+            plausible_range: plausible_range(c, id.quantity()),
+            lower: None,
+            upper: None,
+        })
+        .collect()
+}
+
 /// An unknown length of a measurement model beyond the chain's parameters (an unknown ball
 /// centre coordinate, a distance sensor's anchor or offset), in the chain's length unit.
 pub(crate) fn length_unknown(c: &Chain, name: String, nominal: f64) -> Unknown {
@@ -153,19 +168,7 @@ impl PointProblem {
     /// Names, units and ranges of the unknowns, in order.
     pub fn unknowns(&self) -> Vec<Unknown> {
         let c = &self.chain;
-        let mut out: Vec<Unknown> = self
-            .ids
-            .iter()
-            .map(|id| Unknown {
-                name: c.param_name(*id),
-                unit: c.units.name(id.quantity()).into(),
-                to_report: c.units.to_file(id.quantity()),
-                nominal: c.param(*id),
-                plausible_range: plausible_range(c, id.quantity()),
-                lower: None,
-                upper: None,
-            })
-            .collect();
+        let mut out = chain_unknowns(c, &self.ids);
         let x0 = self.initial();
         for (k, &b) in self.free_balls.iter().enumerate() {
             for (a, axis) in ["x", "y", "z"].iter().enumerate() {

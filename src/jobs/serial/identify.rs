@@ -668,48 +668,14 @@ impl Prepared for IdentifyJob {
                 .collect()
         };
         let mut f = Map::new();
-        f.insert(
-            "parameters".into(),
-            serde_json::to_value(&sol.params).unwrap_or(Value::Null),
+        solution_fields(
+            &mut f,
+            &sol,
+            unit,
+            inp.solve_options(&problem).rank_tolerance,
         );
         f.insert("prior".into(), json!(prior));
-        f.insert("unidentifiable".into(), json!(sol.unidentifiable));
-        f.insert(
-            "dependencies".into(),
-            serde_json::to_value(&sol.dependencies).unwrap_or(Value::Null),
-        );
-        f.insert("weakly_observable".into(), json!(sol.weakly_observable));
-        f.insert(
-            "unobservable".into(),
-            serde_json::to_value(&sol.unobservable).unwrap_or(Value::Null),
-        );
-        f.insert(
-            "observability".into(),
-            json!({
-                "condition_number": sol.condition_number,
-                "near_dependent": sol.near_dependent,
-                "scaling": "physical: lengths 1 mm, angles 0.5 deg, compliances 0.005 deg/(N*m)",
-            }),
-        );
         f.insert("gauge_freedom".into(), json!(inp.plate.gauge));
-        f.insert(
-            "convergence".into(),
-            json!({
-                "stop_reason": sol.stop, "converged": sol.converged(), "status": sol.status(),
-                "degenerate": sol.degenerate, "iterations": sol.iterations,
-                "cost_before": sol.cost_before, "cost_after": sol.cost_after,
-                "cost_nuisance_only": sol.nuisance_cost, "cost_unit": format!("{unit}^2"),
-            }),
-        );
-        f.insert("rank".into(), json!({"rank": sol.free.len(), "unknowns": sol.params.len(), "tolerance": inp.solve_options(&problem).rank_tolerance}));
-        f.insert(
-            "condition_number".into(),
-            json!(sol.uncertainty.condition_number),
-        );
-        f.insert(
-            "residual_std".into(),
-            json!({"value": sol.uncertainty.sigma, "unit": unit, "dof": sol.uncertainty.dof}),
-        );
         f.insert(
             "residuals".into(),
             json!({
