@@ -30,6 +30,7 @@
 
 pub mod api;
 pub mod bench;
+pub mod campaigns;
 pub mod client;
 pub mod config;
 pub mod design;
@@ -39,12 +40,14 @@ pub mod jobs;
 pub mod lab;
 pub mod measure;
 pub mod model;
+pub mod offline;
 pub mod procedures;
 pub mod report;
 pub mod schedule;
 pub mod server;
 pub mod service;
 pub mod signal;
+pub mod sim;
 pub mod store;
 pub mod twin;
 pub mod util;

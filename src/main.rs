@@ -279,15 +279,16 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
             .worker_threads(2)
             .enable_all()
             .build()?;
-        let lab = rt.block_on(calibd::lab::Lab::simulated(
-            &calibd::lab::SimOptions::default(),
-        ))?;
-        let ctx = calibd::jobs::RunContext {
-            lab: Some(&lab),
-            journal: None,
-            runtime: Some(rt.handle()),
-        };
-        let r = prepared.run_in(&ctx, &monitor);
+        let lab = std::sync::Arc::new(rt.block_on(calibd::lab::Lab::simulated(
+            &calibd::sim::SimOptions::default(),
+        ))?);
+        let r = calibd::offline::run_on(
+            rt.handle(),
+            &prepared,
+            lab.clone(),
+            std::sync::Arc::new(calibd::procedures::MemoryJournal::default()),
+            &monitor,
+        );
         rt.block_on(lab.stop());
         r?
     };
@@ -398,8 +399,8 @@ fn main() -> Result<()> {
         }
         Command::Twin { which, out, seed } => write_twin(&which, &out, seed),
         Command::Kinds => {
-            for (k, d) in calibd::jobs::KINDS {
-                println!("{k:<20} {d}");
+            for k in calibd::jobs::KINDS {
+                println!("{:<20} {}", k.name, k.description);
             }
             Ok(())
         }

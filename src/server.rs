@@ -75,7 +75,7 @@ pub async fn start(
     let lab = match config.lab.as_str() {
         "none" => None,
         "sim" => {
-            let opts = crate::lab::SimOptions {
+            let opts = crate::sim::SimOptions {
                 seed: config.lab_seed,
                 ..Default::default()
             };

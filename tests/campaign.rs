@@ -8,7 +8,8 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use calibd::lab::{Lab, SimOptions};
+use calibd::lab::Lab;
+use calibd::sim::SimOptions;
 use calibd::procedures::JournalEntry;
 use calibd::schedule::{Clock, Scheduler};
 use calibd::service::{Origin, Service, ServiceConfig, Submitter};
@@ -221,8 +222,7 @@ async fn the_overnight_schedule_calibrates_and_only_an_improvement_replaces_the_
     // validation is already at the noise level, and its candidate is kept as rejected.
     let calibrated = d
         .lab
-        .trical
-        .as_ref()
+        .trical("irb120")
         .unwrap()
         .current_model()
         .to_chain()
@@ -261,7 +261,7 @@ async fn cell_centre_centres_on_a_ball_and_every_abort_says_why() {
     let opts = SimOptions::default();
     let stall = opts.trical.indicator_stall.clone();
     let lab = Lab::simulated(&opts).await.unwrap();
-    let cell = lab.trical.as_ref().unwrap();
+    let cell = lab.trical("irb120").unwrap();
     let chain = cell.current_model().to_chain().unwrap();
     let plate =
         calibd::measure::BallPlate::from_ballbar(cell.ballbar[0], cell.ballbar[1], cell.ballbar[2])
@@ -286,28 +286,23 @@ async fn cell_centre_centres_on_a_ball_and_every_abort_says_why() {
         |q| q[4].abs() > 0.2,
     )
     .remove(0);
-    let rt = tokio::runtime::Handle::current();
-    let run = move |doc: Value| {
-        let lab = &lab;
-        let rt = rt.clone();
-        std::thread::scope(|s| {
-            s.spawn(move || {
-                let job = calibd::jobs::prepare(&doc, &calibd::jobs::NoReferences).unwrap();
-                assert_eq!(job.devices(), ["irb120.rws", "irb120.uwave"]);
-                let ctx = calibd::jobs::RunContext {
-                    lab: Some(lab),
-                    journal: None,
-                    runtime: Some(&rt),
-                };
-                job.run_in(&ctx, &calibd::util::NoMonitor)
-            })
-            .join()
-            .unwrap()
-        })
+    let lab = Arc::new(lab);
+    let run = |doc: Value| {
+        let lab = lab.clone();
+        async move {
+            let job = calibd::jobs::prepare(&doc, &calibd::jobs::NoReferences).unwrap();
+            assert_eq!(job.devices(), ["irb120.rws", "irb120.uwave"]);
+            let cx = calibd::jobs::Cx::new(
+                lab,
+                Arc::new(calibd::procedures::MemoryJournal::default()),
+                Arc::new(calibd::util::NoMonitor),
+            );
+            job.run_in(cx).await
+        }
     };
     let q_deg: Vec<f64> = q.iter().map(|v| v.to_degrees()).collect();
     let doc = json!({"kind": "cell.centre", "q_deg": q_deg, "options": {"settle_ms": 20}});
-    let done = tokio::task::block_in_place(|| run(doc.clone())).unwrap();
+    let done = run(doc.clone()).await.unwrap();
     let r = &done.result;
     assert!(r["residual_mm"].as_f64().unwrap() < 0.010, "{r}");
     let first = &r["readings"][0];
@@ -317,7 +312,7 @@ async fn cell_centre_centres_on_a_ball_and_every_abort_says_why() {
     );
     // Far from every ball: the plungers are fully extended and the loop refuses to chase.
     let home = json!({"kind": "cell.centre", "q_deg": [0.0, 0.0, 0.0, 0.0, 30.0, 0.0]});
-    let e = tokio::task::block_in_place(|| run(home))
+    let e = run(home).await
         .unwrap_err()
         .to_string();
     assert!(e.contains("ball lost") && e.contains("6 mm limit"), "{e}");
@@ -325,7 +320,7 @@ async fn cell_centre_centres_on_a_ball_and_every_abort_says_why() {
     stall.store(true, Ordering::SeqCst);
     let mut slow = doc.clone();
     slow["options"]["reading_timeout_ms"] = json!(300);
-    let e = tokio::task::block_in_place(|| run(slow))
+    let e = run(slow).await
         .unwrap_err()
         .to_string();
     assert!(e.contains("no indicator reading within 300 ms"), "{e}");

@@ -7,11 +7,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use calibd::jobs::{NoReferences, RunContext};
-use calibd::lab::{Lab, SimMocapOptions, SimOptions};
-use calibd::procedures::mocap::{self, RecordOptions};
-use calibd::procedures::trical::Retry;
+use calibd::campaigns::engine::{Retry, recorded};
+use calibd::campaigns::mocap::{self, PostureSample, RecordOptions};
+use calibd::jobs::NoReferences;
+use calibd::lab::Lab;
 use calibd::procedures::{Journal, MemoryJournal};
+use calibd::sim::{SimMocapOptions, SimOptions};
 use calibd::twin::humanoid::left_arm_spec;
 use calibd::util::NoMonitor;
 use serde_json::json;
@@ -61,13 +62,16 @@ fn nocp_campaign_identifies_to_the_mocap_noise_level() {
     });
     let job = calibd::jobs::prepare(&doc, &NoReferences).expect("valid job");
     assert_eq!(job.devices(), vec!["talos.joints", "talos.qtm"]);
-    let ctx = RunContext {
-        lab: Some(&lab),
-        journal: None,
-        runtime: Some(rt.handle()),
-    };
+    let lab = Arc::new(lab);
     let t0 = Instant::now();
-    let done = job.run_in(&ctx, &NoMonitor).expect("campaign");
+    let done = calibd::offline::run_on(
+        rt.handle(),
+        &job,
+        lab.clone(),
+        Arc::new(MemoryJournal::default()),
+        &NoMonitor,
+    )
+    .expect("campaign");
     let wall = t0.elapsed().as_secs_f64();
     let r = &done.result;
     let c = &r["campaign"];
@@ -100,7 +104,7 @@ fn nocp_campaign_identifies_to_the_mocap_noise_level() {
 }
 
 fn plan(lab: &Lab) -> Vec<Vec<(String, f64)>> {
-    let cell = lab.mocap.as_ref().expect("mocap cell");
+    let cell = lab.mocap("talos").expect("mocap cell");
     (0..5)
         .map(|k| {
             cell.joints
@@ -117,7 +121,7 @@ fn plan(lab: &Lab) -> Vec<Vec<(String, f64)>> {
 }
 
 fn record(lab: &Lab, rt: &tokio::runtime::Runtime, j: &dyn Journal) -> Result<usize, String> {
-    let cell = lab.mocap.as_ref().expect("mocap cell");
+    let cell = lab.mocap("talos").expect("mocap cell");
     let opts = RecordOptions {
         settle: Duration::from_millis(50),
         window: Duration::from_secs_f64(RECORD_S),
@@ -153,12 +157,12 @@ fn interrupted_campaign_resumes_to_the_same_measurement_set() {
     assert_eq!(kept.len(), 2);
     let resumed = MemoryJournal::with(kept.clone());
     assert_eq!(record(&lab, &rt, &resumed), Ok(5));
-    let a = mocap::recorded(&full, 5).unwrap();
-    let b = mocap::recorded(&resumed, 5).unwrap();
+    let a: Vec<PostureSample> = recorded(&full, 0, 5).unwrap();
+    let b: Vec<PostureSample> = recorded(&resumed, 0, 5).unwrap();
     // The first two survive unchanged; nothing measured twice; same postures.
     assert_eq!(
         &b[..2],
-        &mocap::recorded(&MemoryJournal::with(kept), 5).unwrap()[..]
+        &recorded::<PostureSample>(&MemoryJournal::with(kept), 0, 5).unwrap()[..]
     );
     assert_eq!(
         a.iter().map(|s| s.index).collect::<Vec<_>>(),

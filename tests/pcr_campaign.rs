@@ -4,8 +4,11 @@
 //! and a campaign whose journal fails part-way resumes to the same measurement set as an
 //! uninterrupted run, never measuring a joint set twice.
 
-use calibd::jobs::{NoReferences, RunContext, prepare};
-use calibd::lab::{Lab, SimOptions};
+use std::sync::Arc;
+
+use calibd::jobs::{NoReferences, prepare};
+use calibd::lab::Lab;
+use calibd::sim::SimOptions;
 use calibd::procedures::{EntryStatus, Journal, JournalEntry, MemoryJournal};
 use calibd::util::NoMonitor;
 use serde_json::{Value, json};
@@ -22,18 +25,14 @@ fn runtime() -> tokio::runtime::Runtime {
 
 fn run(
     rt: &tokio::runtime::Runtime,
-    lab: &Lab,
+    lab: &Arc<Lab>,
     doc: &Value,
-    journal: &dyn Journal,
+    journal: &Arc<MemoryJournal>,
 ) -> Result<Value, calibd::jobs::JobError> {
     let job = prepare(doc, &NoReferences).expect("valid job");
     assert_eq!(job.devices(), vec!["pcr3pf.mcs2", "pcr3pf.microscope"]);
-    let ctx = RunContext {
-        lab: Some(lab),
-        journal: Some(journal),
-        runtime: Some(rt.handle()),
-    };
-    job.run_in(&ctx, &NoMonitor).map(|c| c.result)
+    let journal: Arc<dyn Journal> = journal.clone();
+    calibd::offline::run_on(rt.handle(), &job, lab.clone(), journal, &NoMonitor).map(|c| c.result)
 }
 
 fn num(v: &Value) -> f64 {
@@ -45,12 +44,13 @@ fn campaign_identifies_the_twin_to_its_noise_level_and_measures_accuracy() {
     let rt = runtime();
     let lab = rt
         .block_on(Lab::simulated(&SimOptions::default()))
+        .map(Arc::new)
         .expect("lab");
     let doc = json!({
         "kind": "cell.pcr_campaign", "poses": 48, "seed": 1, "validation_fraction": 0.25,
         "accuracy": {"trajectory": {"square": 0.002, "points_per_side": 3}, "repetitions": 3},
     });
-    let journal = MemoryJournal::default();
+    let journal = Arc::new(MemoryJournal::default());
     let t0 = std::time::Instant::now();
     let r = run(&rt, &lab, &doc, &journal).expect("campaign");
     eprintln!("campaign wall time {:.2} s", t0.elapsed().as_secs_f64());
@@ -83,7 +83,7 @@ fn campaign_identifies_the_twin_to_its_noise_level_and_measures_accuracy() {
     rt.block_on(lab.stop());
 }
 
-fn measured(j: &MemoryJournal) -> Vec<JournalEntry> {
+fn measured(j: &Arc<MemoryJournal>) -> Vec<JournalEntry> {
     j.entries().expect("entries")
 }
 
@@ -95,20 +95,22 @@ fn a_failed_journal_resumes_to_the_same_measurement_set() {
     // Uninterrupted.
     let lab = rt
         .block_on(Lab::simulated(&SimOptions::default()))
+        .map(Arc::new)
         .expect("lab");
-    let whole = MemoryJournal::default();
+    let whole = Arc::new(MemoryJournal::default());
     let r_whole = run(&rt, &lab, &doc, &whole).expect("uninterrupted");
     rt.block_on(lab.stop());
     // Interrupted after 7 measurements, then resumed (a fresh lab: a restart).
     let lab = rt
         .block_on(Lab::simulated(&SimOptions::default()))
+        .map(Arc::new)
         .expect("lab");
-    let broken = MemoryJournal::failing_after(7);
+    let broken = Arc::new(MemoryJournal::failing_after(7));
     let e = run(&rt, &lab, &doc, &broken).expect_err("the journal fails");
     assert!(e.to_string().contains("journal"), "{e}");
     let first = measured(&broken);
     assert_eq!(first.len(), 7);
-    let resumed = MemoryJournal::with(first.clone());
+    let resumed = Arc::new(MemoryJournal::with(first.clone()));
     let r_resumed = run(&rt, &lab, &doc, &resumed).expect("resumed");
     rt.block_on(lab.stop());
     let (a, b) = (measured(&whole), measured(&resumed));
@@ -156,10 +158,10 @@ fn microscope_faults_are_retried_and_a_dead_microscope_pauses_the_campaign() {
             at: 12,
         },
     ];
-    let lab = rt.block_on(Lab::simulated(&opts)).expect("lab");
+    let lab = rt.block_on(Lab::simulated(&opts)).map(Arc::new).expect("lab");
     let doc = json!({"kind": "cell.pcr_campaign", "poses": 16, "seed": 2, "validation_fraction": 0.0,
                      "options": {"retry": {"attempts": 3, "backoff_ms": 5}}});
-    let j = MemoryJournal::default();
+    let j = Arc::new(MemoryJournal::default());
     let r = run(&rt, &lab, &doc, &j).expect("campaign survives three faults");
     assert_eq!(r["campaign"]["recorded"], 16);
     // Each joint set is journalled once despite the retries.
@@ -173,8 +175,8 @@ fn microscope_faults_are_retried_and_a_dead_microscope_pauses_the_campaign() {
             at,
         })
         .collect();
-    let lab = rt.block_on(Lab::simulated(&opts)).expect("lab");
-    let j = MemoryJournal::default();
+    let lab = rt.block_on(Lab::simulated(&opts)).map(Arc::new).expect("lab");
+    let j = Arc::new(MemoryJournal::default());
     let e = run(&rt, &lab, &doc, &j).expect_err("paused");
     match e {
         calibd::jobs::JobError::Paused { index, reason } => {

@@ -47,7 +47,7 @@ async fn kinds(caller: Caller) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     let k: Vec<Value> = KINDS
         .iter()
-        .map(|(name, d)| json!({"kind": name, "description": d}))
+        .map(|k| json!({"kind": k.name, "description": k.description}))
         .collect();
     Ok(Json(json!({"kinds": k})))
 }

@@ -5,6 +5,7 @@
 //! schedules.
 
 pub mod cell;
+pub mod context;
 pub mod envelope;
 pub mod error;
 pub mod examples;
@@ -15,84 +16,21 @@ pub mod serial;
 pub mod table;
 
 use std::collections::BTreeMap;
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::Arc;
 
 use serde_json::{Map, Value};
 
+pub use context::Cx;
 pub use error::JobError;
 pub use input::{DirResolver, Inputs, NoReferences, Resolver};
 pub use table::Table;
 
 use crate::util::Monitor;
 
-/// Every job kind calibd runs offline, with a one-line description.
-pub const KINDS: &[(&str, &str)] = &[
-    (
-        "serial.fk",
-        "forward kinematics of a serial model over a joints table",
-    ),
-    (
-        "serial.identify",
-        "elasto-geometric identification of a serial arm from ball-centring or Cartesian measurements",
-    ),
-    (
-        "serial.design",
-        "DETMAX selection of n configurations from a pool, with observability indices",
-    ),
-    (
-        "serial.dispersion",
-        "dispersion of identification results over DETMAX-selected set sizes",
-    ),
-    (
-        "pcr.fk",
-        "forward kinematics of a 3-PF continuum robot over a joints table",
-    ),
-    (
-        "pcr.ik",
-        "inverse kinematics of a 3-PF continuum robot over a poses table",
-    ),
-    (
-        "pcr.sensitivity",
-        "sensitivity of the 3-PF platform pose to each parameter type (Table 2)",
-    ),
-    (
-        "pcr.identify",
-        "three-step identification of a 3-PF robot and its microscope extrinsics (Table 3)",
-    ),
-    (
-        "pcr.accuracy",
-        "ISO 9283 pose accuracy of a 3-PF robot on a square, a circle or poses (Table 4)",
-    ),
-    (
-        "humanoid.identify",
-        "whole-body elasto-geometric calibration of a humanoid from motion-capture markers",
-    ),
-    (
-        "humanoid.validate",
-        "marker RMSE of non-calibrated, geometric and full models on a validation session",
-    ),
-    (
-        "cell.centre",
-        "the centring loop on one ball of a ball-centring cell, from a joint configuration",
-    ),
-    (
-        "cell.trical_campaign",
-        "TriCal campaign on a cell: centre each (given or DETMAX) configuration, identify, validate",
-    ),
-    (
-        "cell.mocap_campaign",
-        "motion-capture campaign: play NOCP (or given) postures, record and pre-process markers, identify",
-    ),
-    (
-        "cell.pcr_campaign",
-        "3-PF campaign: Poisson-disc joint sets on the stages, microscope poses, pcr.identify, optional pcr.accuracy",
-    ),
-    (
-        "humanoid.design",
-        "optimal calibration postures (NOCP / COCP) for a marker layout, with trajectory",
-    ),
-];
 
-/// A file produced by a job besides its result JSON.
+/// A file produced by a job besides its result JSON (also what the store keeps and serves).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Artefact {
     /// File name, e.g. `calibrated_model.json`.
@@ -101,6 +39,17 @@ pub struct Artefact {
     pub media_type: String,
     /// Content.
     pub content: Vec<u8>,
+}
+
+impl Artefact {
+    /// A table as a CSV artefact.
+    pub fn csv(name: &str, t: &Table) -> Self {
+        Self {
+            name: name.into(),
+            media_type: "text/csv".into(),
+            content: t.to_csv().into_bytes(),
+        }
+    }
 }
 
 /// What a kind returns: its result fields, its main table and artefacts.
@@ -114,38 +63,55 @@ pub struct Output {
     pub artefacts: Vec<Artefact>,
 }
 
-/// What a job may use besides its inputs: the lab's devices, its own measurement journal
-/// (durable in the daemon, in memory offline) and the runtime the device drivers run on.
-/// Numerical kinds need none of it.
-#[derive(Clone, Copy, Default)]
-pub struct RunContext<'a> {
-    /// Devices, by cell.
-    pub lab: Option<&'a crate::lab::Lab>,
-    /// The job's measurement journal.
-    pub journal: Option<&'a dyn crate::procedures::Journal>,
-    /// The async runtime of the drivers (the job itself runs on a blocking thread).
-    pub runtime: Option<&'a tokio::runtime::Handle>,
+/// What a run produced: the kind's output and, for a campaign, the model it proposes for
+/// its cell (the service decides on it in the same transaction that stores the result).
+#[derive(Debug, Clone)]
+pub struct Produced {
+    /// The output.
+    pub output: Output,
+    /// The proposed model.
+    pub candidate: Option<crate::lab::Candidate>,
 }
 
-impl std::fmt::Debug for RunContext<'_> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("RunContext")
-            .field("lab", &self.lab.is_some())
-            .field("journal", &self.journal.is_some())
-            .field("runtime", &self.runtime.is_some())
-            .finish()
+impl From<Output> for Produced {
+    fn from(output: Output) -> Self {
+        Self {
+            output,
+            candidate: None,
+        }
     }
 }
 
-/// A validated job of one kind, ready to execute.
-pub trait Prepared: Send + Sync + std::fmt::Debug {
-    /// Execute it; long loops poll `monitor` for cancellation.
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError>;
+impl Output {
+    /// An output whose result fields are `result` serialised (a kind's typed result).
+    pub fn typed<T: serde::Serialize>(result: &T) -> Result<Self, JobError> {
+        match serde_json::to_value(result) {
+            Ok(Value::Object(fields)) => Ok(Self {
+                fields,
+                ..Default::default()
+            }),
+            Ok(other) => Err(JobError::Failed(format!(
+                "internal error: a result serialised to {other} instead of an object"
+            ))),
+            Err(e) => Err(JobError::Failed(format!(
+                "internal error: a result could not be serialised: {e}"
+            ))),
+        }
+    }
+}
 
-    /// Execute it with devices and a journal; the default ignores them.
-    fn execute_in(&self, ctx: &RunContext<'_>, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        let _ = ctx;
-        self.execute(monitor)
+/// The future a kind's run returns.
+pub type RunFuture = Pin<Box<dyn Future<Output = Result<Produced, JobError>> + Send>>;
+
+/// A validated job of one kind, ready to run: every kind, numerical or device-driven,
+/// implements this one trait. Numerical work goes to the blocking pool through
+/// [`Cx::compute`]; campaigns are async and await their devices.
+pub trait Kind: Send + Sync + std::fmt::Debug + 'static {
+    /// Names of the devices the job drives while it runs (none for numerical kinds). The
+    /// daemon's queue never runs two jobs that share a device, and only operators may
+    /// submit a job that drives one.
+    fn devices(&self) -> Vec<String> {
+        Vec::new()
     }
 
     /// Whether an interrupted or paused run can continue from its journal (campaigns).
@@ -153,13 +119,123 @@ pub trait Prepared: Send + Sync + std::fmt::Debug {
         false
     }
 
-    /// Names of the devices the job drives while it runs (none for numerical kinds). The
-    /// daemon's queue never runs two jobs that share a device, and only operators may
-    /// submit a job that drives one.
-    fn devices(&self) -> Vec<String> {
-        Vec::new()
-    }
+    /// Run the job in `cx`.
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture;
 }
+
+/// Run a numerical kind: `f` on the blocking pool with the context's monitor.
+pub fn computed<K: Kind>(
+    kind: Arc<K>,
+    cx: Cx,
+    f: fn(&K, &dyn Monitor) -> Result<Output, JobError>,
+) -> RunFuture {
+    Box::pin(async move { cx.compute(move |m| f(&kind, m)).await.map(Produced::from) })
+}
+
+/// One entry of the kind registry: name, description and how to validate a document.
+#[derive(Debug)]
+pub struct KindInfo {
+    /// The `kind` of job documents.
+    pub name: &'static str,
+    /// One line for `calibd kinds` and `GET /v1/kinds`.
+    pub description: &'static str,
+    prepare: fn(&Value, &Inputs<'_>) -> Result<Arc<dyn Kind>, JobError>,
+}
+
+/// Wrap a kind's `prepare` for the registry.
+macro_rules! kind {
+    ($name:literal, $desc:literal, $prepare:path) => {
+        KindInfo {
+            name: $name,
+            description: $desc,
+            prepare: |doc, inputs| Ok(Arc::new($prepare(doc, inputs)?) as Arc<dyn Kind>),
+        }
+    };
+}
+
+/// Every job kind calibd runs, with a one-line description.
+pub const KINDS: &[KindInfo] = &[
+    kind!(
+        "serial.fk",
+        "forward kinematics of a serial model over a joints table",
+        serial::fk::prepare
+    ),
+    kind!(
+        "serial.identify",
+        "elasto-geometric identification of a serial arm from ball-centring or Cartesian measurements",
+        serial::identify::prepare
+    ),
+    kind!(
+        "serial.design",
+        "DETMAX selection of n configurations from a pool, with observability indices",
+        serial::design::prepare
+    ),
+    kind!(
+        "serial.dispersion",
+        "dispersion of identification results over DETMAX-selected set sizes",
+        serial::dispersion::prepare
+    ),
+    kind!(
+        "pcr.fk",
+        "forward kinematics of a 3-PF continuum robot over a joints table",
+        pcr::fk::prepare
+    ),
+    kind!(
+        "pcr.ik",
+        "inverse kinematics of a 3-PF continuum robot over a poses table",
+        pcr::ik::prepare
+    ),
+    kind!(
+        "pcr.sensitivity",
+        "sensitivity of the 3-PF platform pose to each parameter type (Table 2)",
+        pcr::sensitivity::prepare
+    ),
+    kind!(
+        "pcr.identify",
+        "three-step identification of a 3-PF robot and its microscope extrinsics (Table 3)",
+        pcr::identify::prepare
+    ),
+    kind!(
+        "pcr.accuracy",
+        "ISO 9283 pose accuracy of a 3-PF robot on a square, a circle or poses (Table 4)",
+        pcr::accuracy::prepare
+    ),
+    kind!(
+        "humanoid.identify",
+        "whole-body elasto-geometric calibration of a humanoid from motion-capture markers",
+        humanoid::identify::prepare
+    ),
+    kind!(
+        "humanoid.validate",
+        "marker RMSE of non-calibrated, geometric and full models on a validation session",
+        humanoid::validate::prepare
+    ),
+    kind!(
+        "cell.centre",
+        "the centring loop on one ball of a ball-centring cell, from a joint configuration",
+        cell::centre::prepare
+    ),
+    kind!(
+        "cell.trical_campaign",
+        "TriCal campaign on a cell: centre each (given or DETMAX) configuration, identify, validate",
+        cell::trical::prepare
+    ),
+    kind!(
+        "cell.mocap_campaign",
+        "motion-capture campaign: play NOCP (or given) postures, record and pre-process markers, identify",
+        cell::mocap::prepare
+    ),
+    kind!(
+        "cell.pcr_campaign",
+        "3-PF campaign: Poisson-disc joint sets on the stages, microscope poses, pcr.identify, optional pcr.accuracy",
+        cell::pcr::prepare
+    ),
+    kind!(
+        "humanoid.design",
+        "optimal calibration postures (NOCP / COCP) for a marker layout, with trajectory",
+        humanoid::design::prepare
+    ),
+];
 
 /// A validated job.
 #[derive(Debug)]
@@ -168,7 +244,7 @@ pub struct Job {
     pub kind: String,
     /// SHA-256 of the job document and of each input, by field name.
     pub inputs_sha256: BTreeMap<String, String>,
-    prepared: Box<dyn Prepared>,
+    prepared: Arc<dyn Kind>,
 }
 
 /// A finished job: the result JSON (envelope + fields) and what else it produced.
@@ -180,6 +256,8 @@ pub struct Completed {
     pub main_table: Option<Table>,
     /// Artefacts.
     pub artefacts: Vec<Artefact>,
+    /// The model proposed for a cell, if any.
+    pub candidate: Option<crate::lab::Candidate>,
 }
 
 /// Validate a job document; references (file names, dataset ids) go through `resolver`.
@@ -193,25 +271,11 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         .ok_or_else(|| JobError::invalid("kind", "missing or not a string"))?
         .to_string();
     let inputs = Inputs::new(resolver);
-    let prepared: Box<dyn Prepared> = match kind.as_str() {
-        "serial.fk" => Box::new(serial::fk::prepare(doc, &inputs)?),
-        "serial.identify" => Box::new(serial::identify::prepare(doc, &inputs)?),
-        "serial.design" => Box::new(serial::design::prepare(doc, &inputs)?),
-        "serial.dispersion" => Box::new(serial::dispersion::prepare(doc, &inputs)?),
-        "pcr.fk" => Box::new(pcr::fk::prepare(doc, &inputs)?),
-        "pcr.ik" => Box::new(pcr::ik::prepare(doc, &inputs)?),
-        "pcr.sensitivity" => Box::new(pcr::sensitivity::prepare(doc, &inputs)?),
-        "pcr.identify" => Box::new(pcr::identify::prepare(doc, &inputs)?),
-        "pcr.accuracy" => Box::new(pcr::accuracy::prepare(doc, &inputs)?),
-        "humanoid.identify" => Box::new(humanoid::identify::prepare(doc, &inputs)?),
-        "humanoid.validate" => Box::new(humanoid::validate::prepare(doc, &inputs)?),
-        "humanoid.design" => Box::new(humanoid::design::prepare(doc, &inputs)?),
-        "cell.centre" => Box::new(cell::centre::prepare(doc)?),
-        "cell.trical_campaign" => Box::new(cell::trical::prepare(doc, &inputs)?),
-        "cell.mocap_campaign" => Box::new(cell::mocap::prepare(doc, &inputs)?),
-        "cell.pcr_campaign" => Box::new(cell::pcr::prepare(doc, &inputs)?),
-        other => return Err(JobError::UnknownKind(other.to_string())),
-    };
+    let info = KINDS
+        .iter()
+        .find(|k| k.name == kind)
+        .ok_or_else(|| JobError::UnknownKind(kind.clone()))?;
+    let prepared = (info.prepare)(doc, &inputs)?;
     let mut inputs_sha256 = inputs.into_hashes();
     inputs_sha256.insert(
         "job".into(),
@@ -225,7 +289,7 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
 }
 
 impl Job {
-    /// Devices the job drives (see [`Prepared::devices`]).
+    /// Devices the job drives (see [`Kind::devices`]).
     pub fn devices(&self) -> Vec<String> {
         self.prepared.devices()
     }
@@ -235,19 +299,19 @@ impl Job {
         self.prepared.resumable()
     }
 
-    /// Run the job and wrap its output in the result envelope.
+    /// Run the job from synchronous code (`calibd run`, tests, benches) on a private
+    /// runtime, with an empty lab and a journal in memory (see [`crate::offline`]).
     pub fn run(&self, monitor: &dyn Monitor) -> Result<Completed, JobError> {
-        self.run_in(&RunContext::default(), monitor)
+        crate::offline::run(self, Arc::new(crate::lab::Lab::empty()), monitor)
     }
 
-    /// Run the job with devices and a journal.
-    pub fn run_in(
-        &self,
-        ctx: &RunContext<'_>,
-        monitor: &dyn Monitor,
-    ) -> Result<Completed, JobError> {
+    /// Run the job in `cx` and wrap its output in the result envelope.
+    pub async fn run_in(&self, cx: Cx) -> Result<Completed, JobError> {
         let started = chrono::Utc::now();
-        let out = self.prepared.execute_in(ctx, monitor)?;
+        let Produced {
+            output: out,
+            candidate,
+        } = self.prepared.clone().run(cx).await?;
         if let Some((row, column, value)) =
             out.main_table.as_ref().and_then(Table::first_non_finite)
         {
@@ -270,6 +334,7 @@ impl Job {
             result,
             main_table: out.main_table,
             artefacts: out.artefacts,
+            candidate,
         })
     }
 }
@@ -294,7 +359,7 @@ mod tests {
     #[derive(Debug)]
     struct Overflowing;
 
-    impl Prepared for Overflowing {
+    impl Overflowing {
         fn execute(&self, _: &dyn Monitor) -> Result<Output, JobError> {
             let mut t = Table::new(&["x", "y"]);
             t.push(vec![1.0, 2.0]);
@@ -306,12 +371,18 @@ mod tests {
         }
     }
 
+    impl Kind for Overflowing {
+        fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+            computed(self, cx, Self::execute)
+        }
+    }
+
     #[test]
     fn a_result_that_is_not_finite_fails_the_job_naming_row_and_column() {
         let job = Job {
             kind: "test.overflow".into(),
             inputs_sha256: BTreeMap::new(),
-            prepared: Box::new(Overflowing),
+            prepared: Arc::new(Overflowing),
         };
         let e = job.run(&NoMonitor).unwrap_err();
         assert!(matches!(e, JobError::NonFinite { row: 2, .. }), "{e:?}");

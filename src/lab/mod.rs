@@ -1,26 +1,28 @@
-//! The lab: the cells calibd drives, each a set of device handles (driver actors) behind
-//! the procedure traits. [`Lab::simulated`] builds the simulated lab: the digital twins
-//! behind the mock device servers' simulate mode on loopback, reached over the real
-//! protocols exactly as the daemon would reach the real instruments.
+//! The lab: a map of named cells, each with its devices (driver actors behind the
+//! procedure traits), its current model and its acceptance rule. A lab is built from a
+//! description ([`connect`]); where the devices are — real instruments or the simulation's
+//! mock servers on loopback (`crate::sim`) — is the description's business, not the lab's.
 
 pub mod adapters;
-pub mod mocap;
-pub mod pcr;
-pub mod pcr_adapters;
-pub mod qtm_stream;
-pub mod trical;
+pub mod cells;
+pub mod connect;
+pub mod decision;
 
-use calibd_drivers::mock::RunningMock;
+use std::collections::BTreeMap;
+use std::future::Future;
+use std::pin::Pin;
 
-pub use mocap::{MocapCell, SimMocapOptions};
-pub use pcr::{PcrCell, SimPcrOptions};
-pub use trical::{SimTricalOptions, TricalCell};
+pub use cells::{Cell, CellModel, MocapCell, PcrCell, TricalCell};
+pub use connect::{BallCentringCell, CellLink, MocapCellLink, PcrCellLink, RwsLink, UwaveLink};
+pub use decision::{Acceptance, Candidate, Decision, Evidence};
 
-/// Why a lab could not be started.
+use crate::jobs::JobError;
+
+/// Why a lab could not be built.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum LabError {
-    /// A mock device server did not start.
+    /// A simulated device did not start.
     #[error("simulated {device}: {message}")]
     Mock {
         /// Which device.
@@ -28,105 +30,168 @@ pub enum LabError {
         /// What went wrong.
         message: String,
     },
+    /// Two cells share a name.
+    #[error("two cells are named `{0}`")]
+    DuplicateCell(String),
 }
 
-/// Settings of the simulated lab.
-#[derive(Debug, Clone)]
-pub struct SimOptions {
-    /// Seed of the twins' true parameters and sensor noise.
-    pub seed: u64,
-    /// The TriCal cell.
-    pub trical: SimTricalOptions,
-    /// The humanoid motion-capture cell.
-    pub mocap: SimMocapOptions,
-    /// The 3-PF cell.
-    pub pcr: SimPcrOptions,
+/// Something that must live as long as the lab and stop with it (the simulation's mock
+/// servers).
+pub trait Attached: Send + Sync {
+    /// Addresses it serves on, for operators and tests.
+    fn addresses(&self) -> Vec<String>;
+    /// Stop it.
+    fn stop(self: Box<Self>) -> Pin<Box<dyn Future<Output = ()> + Send>>;
 }
 
-impl Default for SimOptions {
-    fn default() -> Self {
-        Self {
-            seed: 7,
-            trical: SimTricalOptions::default(),
-            mocap: SimMocapOptions::default(),
-            pcr: SimPcrOptions::default(),
-        }
-    }
-}
-
-/// The lab's cells and the simulated devices behind them (if any).
+/// The lab's cells by name.
+#[derive(Default)]
 pub struct Lab {
-    /// The ball-centring cell of the serial arm.
-    pub trical: Option<TricalCell>,
-    /// The humanoid motion-capture cell.
-    pub mocap: Option<MocapCell>,
-    /// The 3-PF robot under its microscope.
-    pub pcr: Option<PcrCell>,
-    mocks: Vec<RunningMock>,
+    cells: BTreeMap<String, Cell>,
+    attached: std::sync::Mutex<Vec<Box<dyn Attached>>>,
 }
 
 impl std::fmt::Debug for Lab {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Lab")
-            .field("trical", &self.trical.as_ref().map(|c| &c.name))
-            .field("mocap", &self.mocap.as_ref().map(|c| &c.name))
-            .field("pcr", &self.pcr.as_ref().map(|c| &c.name))
-            .field("mocks", &self.mocks.len())
+            .field("cells", &self.cells.values().collect::<Vec<_>>())
+            .field("attached", &self.mock_addresses())
             .finish()
+    }
+}
+
+/// The acceptance rule of each cell kind.
+pub fn acceptance(cell: &Cell) -> Acceptance {
+    match cell {
+        // Below 2 um a difference is indistinguishable from the centring noise (10 um).
+        Cell::BallCentring(_) => Acceptance {
+            min_relative_gain: 0.1,
+            min_gain: 0.002,
+            unit: "mm",
+        },
+        // The microscope resolves about 0.1 um on the platform.
+        Cell::Pcr(_) => Acceptance {
+            min_relative_gain: 0.1,
+            min_gain: 1e-7,
+            unit: "m",
+        },
+        // A tenth of a millimetre of marker RMSE, the capture system's noise level.
+        Cell::Mocap(_) => Acceptance {
+            min_relative_gain: 0.1,
+            min_gain: 0.1,
+            unit: "mm",
+        },
     }
 }
 
 impl Lab {
     /// A lab without cells (numerical jobs only).
     pub fn empty() -> Self {
-        Self {
-            trical: None,
-            mocap: None,
-            pcr: None,
-            mocks: Vec::new(),
+        Self::default()
+    }
+
+    /// Add a cell.
+    pub fn insert(&mut self, cell: Cell) -> Result<(), LabError> {
+        let name = cell.name().to_string();
+        if self.cells.contains_key(&name) {
+            return Err(LabError::DuplicateCell(name));
+        }
+        self.cells.insert(name, cell);
+        Ok(())
+    }
+
+    /// Keep `a` alive with the lab and stop it in [`Lab::stop`].
+    pub fn attach(&mut self, a: Box<dyn Attached>) {
+        self.attached
+            .get_mut()
+            .unwrap_or_else(|p| p.into_inner())
+            .push(a);
+    }
+
+    /// The cells, by name.
+    pub fn cells(&self) -> impl Iterator<Item = &Cell> {
+        self.cells.values()
+    }
+
+    /// The cell `name`.
+    pub fn cell(&self, name: &str) -> Option<&Cell> {
+        self.cells.get(name)
+    }
+
+    fn missing(&self, name: &str, what: &str) -> JobError {
+        let have: Vec<&str> = self.cells.keys().map(String::as_str).collect();
+        JobError::invalid(
+            "cell",
+            if have.is_empty() {
+                format!("this daemon drives no lab: there is no {what} `{name}`")
+            } else {
+                format!(
+                    "no {what} `{name}` in this lab (it has: {})",
+                    have.join(", ")
+                )
+            },
+        )
+    }
+
+    /// The ball-centring cell `name`.
+    pub fn trical(&self, name: &str) -> Result<&TricalCell, JobError> {
+        match self.cells.get(name) {
+            Some(Cell::BallCentring(c)) => Ok(c),
+            _ => Err(self.missing(name, "ball-centring cell")),
         }
     }
 
-    /// Start the simulated lab on loopback. Must be called inside a tokio runtime: the mock
-    /// servers and the driver actors are tasks on it.
-    pub async fn simulated(opts: &SimOptions) -> Result<Self, LabError> {
-        let (cell, mut mocks) = trical::simulated(opts.seed, &opts.trical).await?;
-        let (mocap, qtm) = mocap::simulated(opts.seed, &opts.mocap).await?;
-        mocks.push(qtm);
-        let (pcr, more) = pcr::simulated(opts.seed, &opts.pcr).await?;
-        mocks.extend(more);
-        Ok(Self {
-            trical: Some(cell),
-            mocap: Some(mocap),
-            pcr: Some(pcr),
-            mocks,
-        })
+    /// The 3-PF cell `name`.
+    pub fn pcr(&self, name: &str) -> Result<&PcrCell, JobError> {
+        match self.cells.get(name) {
+            Some(Cell::Pcr(c)) => Ok(c),
+            _ => Err(self.missing(name, "3-PF cell")),
+        }
     }
 
-    /// Names of every device of every cell (for the device panel and the queue's locks).
+    /// The motion-capture cell `name`.
+    pub fn mocap(&self, name: &str) -> Result<&MocapCell, JobError> {
+        match self.cells.get(name) {
+            Some(Cell::Mocap(c)) => Ok(c),
+            _ => Err(self.missing(name, "motion-capture cell")),
+        }
+    }
+
+    /// Decide on a candidate by its cell's acceptance rule (rejected if the cell is gone).
+    pub fn decide(&self, c: &Candidate) -> Decision {
+        match self.cells.get(&c.cell) {
+            Some(cell) => acceptance(cell).decide(c),
+            None => Decision {
+                cell: c.cell.clone(),
+                accepted: false,
+                reason: format!("this lab has no cell `{}` any more", c.cell),
+                validation: c.validation.clone(),
+                model: c.model.to_json(),
+            },
+        }
+    }
+
+    /// Names of every device of every cell (device panel, queue locks).
     pub fn device_names(&self) -> Vec<String> {
-        let mut v = Vec::new();
-        if let Some(c) = &self.trical {
-            v.extend(c.devices.iter().cloned());
-        }
-        if let Some(c) = &self.mocap {
-            v.extend(c.devices.iter().cloned());
-        }
-        if let Some(c) = &self.pcr {
-            v.extend(c.devices.iter().cloned());
-        }
-        v
+        self.cells().flat_map(|c| c.devices().to_vec()).collect()
     }
 
-    /// Addresses of the simulated devices (`device -> address`), for operators and tests.
+    /// Addresses of attached simulated devices.
     pub fn mock_addresses(&self) -> Vec<String> {
-        self.mocks.iter().map(|m| m.addr.clone()).collect()
+        self.attached
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .iter()
+            .flat_map(|a| a.addresses())
+            .collect()
     }
 
-    /// Stop the simulated devices.
-    pub async fn stop(self) {
-        for m in self.mocks {
-            m.stop().await;
+    /// Stop what is attached (the simulation's mock servers); the cells stay, their
+    /// devices unreachable.
+    pub async fn stop(&self) {
+        let attached = std::mem::take(&mut *self.attached.lock().unwrap_or_else(|p| p.into_inner()));
+        for a in attached {
+            a.stop().await;
         }
     }
 }

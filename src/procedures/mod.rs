@@ -1,4 +1,5 @@
-//! Procedures that drive devices: the centring loop and, later, whole campaigns. They see
+//! Procedures that drive devices: the centring loop, the motion envelope and the journal;
+//! whole campaigns are in [`crate::campaigns`]. They see
 //! devices only through the small traits of [`devices`], implemented by the driver actors and
 //! by the in-memory fakes of [`fakes`].
 
@@ -7,9 +8,6 @@ pub mod devices;
 pub mod envelope;
 pub mod fakes;
 pub mod journal;
-pub mod mocap;
-pub mod pcr;
-pub mod trical;
 
 pub use centring::{Centred, CentringError, CentringOptions, centre};
 pub use devices::{

@@ -47,8 +47,7 @@ struct Shared {
     events: broadcast::Sender<Event>,
     progress_tx: mpsc::UnboundedSender<Event>,
     shutdown: CancellationToken,
-    lab: Option<Arc<crate::lab::Lab>>,
-    runtime: tokio::runtime::Handle,
+    lab: Arc<crate::lab::Lab>,
 }
 
 /// Handle to the job service; cheap to clone.
@@ -90,11 +89,9 @@ impl Service {
         lab: Option<Arc<crate::lab::Lab>>,
         shutdown: CancellationToken,
     ) -> Result<(Service, worker::Workers), ServiceError> {
-        if let Some(l) = &lab {
-            for d in l.device_names() {
-                if !config.devices.contains(&d) {
-                    config.devices.push(d);
-                }
+        for d in lab.iter().flat_map(|l| l.device_names()) {
+            if !config.devices.contains(&d) {
+                config.devices.push(d);
             }
         }
         let (events, _) = broadcast::channel(4096);
@@ -109,8 +106,7 @@ impl Service {
                 events,
                 progress_tx,
                 shutdown,
-                lab,
-                runtime: tokio::runtime::Handle::current(),
+                lab: lab.unwrap_or_default(),
             }),
         };
         cells::load_current_models(&svc).await;

@@ -1,6 +1,7 @@
 //! The worker pool: `workers` tasks each take the next runnable job from the queue and run
-//! it on tokio's blocking pool (never on the async runtime), then store the result, its
-//! plots and the final state in one transaction. A sink task turns progress reports into
+//! it as a task with its context (numerical work goes to the blocking pool through
+//! [`jobs::Cx::compute`]), then store the result, its plots, the cell's model decision and
+//! the final state in one transaction. A sink task turns progress reports into
 //! live state, SSE events and the stored progress history.
 
 use std::collections::HashMap;
@@ -14,7 +15,8 @@ use tokio::task::JoinHandle;
 use super::events::JobMonitor;
 use super::{Entry, Event, Running, Service, StoreResolver, lock};
 use crate::jobs::{self, JobError};
-use crate::store::{JobState, StoredArtefact};
+use crate::store::JobState;
+use tracing::Instrument;
 
 /// The running worker tasks; [`Workers::join`] waits for them after shutdown.
 #[derive(Debug)]
@@ -82,7 +84,7 @@ async fn next(svc: &Service) -> Entry {
 
 /// What became of a job.
 enum Outcome {
-    Succeeded(serde_json::Value),
+    Succeeded(Option<crate::lab::Decision>),
     Ended(JobState, Option<String>),
 }
 
@@ -155,17 +157,26 @@ async fn run_one(svc: &Service, entry: Entry) {
     });
     let t0 = Instant::now();
     let span = tracing::info_span!("job", id, kind = %job.kind);
-    let tx = svc.shared.progress_tx.clone();
-    let flag = cancel.clone();
-    let job2 = job.clone();
-    let st = store.clone();
+    let monitor = Arc::new(JobMonitor::new(id, svc.shared.progress_tx.clone(), cancel.clone()));
+    let journal: Arc<dyn crate::procedures::Journal> = if job.resumable() {
+        Arc::new(crate::store::StoreJournal {
+            store: store.clone(),
+            job: id,
+        })
+    } else {
+        Arc::new(crate::procedures::MemoryJournal::default())
+    };
+    let cx = jobs::Cx::new(svc.shared.lab.clone(), journal, monitor);
     let svc2 = svc.clone();
-    let mut handle = tokio::task::spawn_blocking(move || {
-        let _g = span.enter();
-        tracing::info!("started");
-        let monitor = JobMonitor::new(id, tx, flag);
-        execute(&svc2, &st, id, &job2, &monitor)
-    });
+    let job2 = job.clone();
+    let mut handle = tokio::spawn(
+        async move {
+            tracing::info!("started");
+            let r = job2.run_in(cx).await;
+            conclude(&svc2, id, r).await
+        }
+        .instrument(span),
+    );
     let stop = svc.shared.shutdown.clone();
     let joined = tokio::select! {
         r = &mut handle => r,
@@ -181,8 +192,10 @@ async fn run_one(svc: &Service, entry: Entry) {
         )
     });
     let (state, error) = match outcome {
-        Outcome::Succeeded(result) => {
-            super::cells::after_success(svc, id, &job.kind, &result).await;
+        Outcome::Succeeded(decision) => {
+            if let Some(d) = decision {
+                super::cells::adopt(svc, id, &d);
+            }
             (JobState::Succeeded, None)
         }
         Outcome::Ended(s, e) => (s, e),
@@ -208,48 +221,32 @@ async fn run_one(svc: &Service, entry: Entry) {
     );
 }
 
-/// Run the job on this (blocking) thread and store a successful result.
-fn execute(
+/// Store a run's outcome: a result with its plots, and the cell's model decision, all in
+/// the transaction that marks the job succeeded.
+async fn conclude(
     svc: &Service,
-    store: &crate::store::Store,
     id: i64,
-    job: &jobs::Job,
-    monitor: &JobMonitor,
+    run: Result<jobs::Completed, JobError>,
 ) -> Outcome {
-    let journal = crate::store::StoreJournal {
-        store: store.clone(),
-        job: id,
-    };
-    let ctx = jobs::RunContext {
-        lab: svc.shared.lab.as_deref(),
-        journal: job
-            .resumable()
-            .then_some(&journal as &dyn crate::procedures::Journal),
-        runtime: Some(&svc.shared.runtime),
-    };
-    match job.run_in(&ctx, monitor) {
+    match run {
         Ok(done) => {
-            let mut artefacts: Vec<StoredArtefact> = done
-                .artefacts
-                .iter()
-                .map(|a| StoredArtefact {
-                    name: a.name.clone(),
-                    media_type: a.media_type.clone(),
-                    content: a.content.clone(),
-                })
-                .collect();
-            for p in crate::report::plots(&done.result, &done.artefacts) {
+            let mut artefacts = done.artefacts;
+            for p in crate::report::plots(&done.result, &artefacts) {
                 if !artefacts.iter().any(|a| a.name == p.name) {
-                    artefacts.push(StoredArtefact {
-                        name: p.name,
-                        media_type: p.media_type,
-                        content: p.content,
-                    });
+                    artefacts.push(p);
                 }
             }
+            let decision = done.candidate.as_ref().map(|c| svc.shared.lab.decide(c));
             let csv = done.main_table.as_ref().map(|t| t.to_csv());
-            match store.finish_job(id, &done.result, csv.as_deref(), &artefacts) {
-                Ok(true) => Outcome::Succeeded(done.result),
+            let st = svc.shared.store.clone();
+            let d = decision.clone();
+            let stored = tokio::task::spawn_blocking(move || {
+                st.finish_job(id, &done.result, csv.as_deref(), &artefacts, d.as_ref())
+            })
+            .await
+            .unwrap_or_else(|e| Err(crate::store::StoreError::Internal(e.to_string())));
+            match stored {
+                Ok(true) => Outcome::Succeeded(decision),
                 Ok(false) => Outcome::Ended(
                     JobState::Failed,
                     Some("the job was no longer running".into()),

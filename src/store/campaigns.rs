@@ -8,6 +8,7 @@ use serde_json::Value;
 
 use super::jobs::log_tx;
 use super::{Store, StoreError, now};
+use crate::lab::Decision;
 use crate::procedures::{EntryStatus, Journal, JournalEntry};
 
 /// A cell model as stored.
@@ -154,44 +155,34 @@ impl Store {
             Ok(out)
         })
     }
+}
 
-    /// Record a candidate model of `cell`: accepted (it becomes `current`, the previous
-    /// current one `superseded`) or rejected, with the reason and the validation figures.
-    pub fn record_cell_model(
-        &self,
-        cell: &str,
-        job_id: Option<i64>,
-        accepted: bool,
-        reason: &str,
-        validation: &Value,
-        model: &Value,
-    ) -> Result<i64, StoreError> {
-        self.write(|c| {
-            let tx = c.transaction()?;
-            if accepted {
-                tx.execute(
-                    "UPDATE cell_models SET state = 'superseded' WHERE cell = ?1 AND state = 'current'",
-                    [cell],
-                )?;
-            }
-            tx.execute(
-                "INSERT INTO cell_models (cell, job_id, state, reason, validation, model, at) \
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
-                params![
-                    cell,
-                    job_id,
-                    if accepted { "current" } else { "rejected" },
-                    reason,
-                    validation.to_string(),
-                    model.to_string(),
-                    now()
-                ],
-            )?;
-            let id = tx.last_insert_rowid();
-            tx.commit()?;
-            Ok(id)
-        })
+/// Insert a decision into the cell's model history within `tx`.
+pub(super) fn insert_cell_model(
+    tx: &rusqlite::Transaction<'_>,
+    job_id: Option<i64>,
+    d: &Decision,
+) -> Result<i64, StoreError> {
+    if d.accepted {
+        tx.execute(
+            "UPDATE cell_models SET state = 'superseded' WHERE cell = ?1 AND state = 'current'",
+            [&d.cell],
+        )?;
     }
+    tx.execute(
+        "INSERT INTO cell_models (cell, job_id, state, reason, validation, model, at) \
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+        params![
+            d.cell,
+            job_id,
+            if d.accepted { "current" } else { "rejected" },
+            d.reason,
+            d.validation.to_string(),
+            d.model.to_string(),
+            now()
+        ],
+    )?;
+    Ok(tx.last_insert_rowid())
 }
 
 /// The measurement journal of one job, in the store: an append returns once committed.

@@ -26,7 +26,7 @@ pub use jobs::{
     IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered,
 };
 pub use migrate::SCHEMA_VERSION;
-pub use results::{ArtefactInfo, StoredArtefact};
+pub use results::ArtefactInfo;
 pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};
 
 /// Why a storage operation failed.
@@ -66,6 +66,9 @@ pub enum StoreError {
     /// A record with this name or id already exists.
     #[error("store: {0} already exists")]
     Conflict(String),
+    /// The task doing the storage failed (it panicked).
+    #[error("store: internal error: {0}")]
+    Internal(String),
 }
 
 /// Handle to the database; cheap to clone.

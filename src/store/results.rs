@@ -5,17 +5,8 @@ use serde::Serialize;
 use serde_json::Value;
 
 use super::{Store, StoreError, jobs::JobState, now};
-
-/// An artefact to store.
-#[derive(Debug, Clone, PartialEq)]
-pub struct StoredArtefact {
-    /// File name.
-    pub name: String,
-    /// Media type.
-    pub media_type: String,
-    /// Content.
-    pub content: Vec<u8>,
-}
+use crate::jobs::Artefact;
+use crate::lab::Decision;
 
 /// An artefact's description (no content).
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -29,14 +20,16 @@ pub struct ArtefactInfo {
 }
 
 impl Store {
-    /// Store a running job's result and artefacts and mark it `succeeded`, all in one
-    /// transaction. False (and nothing written) if the job was not running.
+    /// Store a running job's result, artefacts and its cell's model decision and mark it
+    /// `succeeded`, all in one transaction. False (and nothing written) if the job was not
+    /// running.
     pub fn finish_job(
         &self,
         id: i64,
         result: &Value,
         main_table_csv: Option<&str>,
-        artefacts: &[StoredArtefact],
+        artefacts: &[Artefact],
+        decision: Option<&Decision>,
     ) -> Result<bool, StoreError> {
         let text = serde_json::to_string(result)?;
         self.write(|c| {
@@ -57,6 +50,22 @@ impl Store {
                 tx.execute(
                     "INSERT INTO artefacts (job_id, name, media_type, content) VALUES (?1, ?2, ?3, ?4)",
                     params![id, a.name, a.media_type, a.content],
+                )?;
+            }
+            if let Some(d) = decision {
+                super::campaigns::insert_cell_model(&tx, Some(id), d)?;
+                tx.execute(
+                    "INSERT INTO logs (job_id, at, level, message) VALUES (?1, ?2, 'info', ?3)",
+                    params![
+                        id,
+                        now(),
+                        format!(
+                            "cell {}: model {}: {}",
+                            d.cell,
+                            if d.accepted { "accepted" } else { "rejected" },
+                            d.reason
+                        )
+                    ],
                 )?;
             }
             tx.execute(
@@ -111,13 +120,13 @@ impl Store {
     }
 
     /// One artefact with its content.
-    pub fn artefact(&self, id: i64, name: &str) -> Result<Option<StoredArtefact>, StoreError> {
+    pub fn artefact(&self, id: i64, name: &str) -> Result<Option<Artefact>, StoreError> {
         self.read(|c| {
             Ok(c.query_row(
                 "SELECT name, media_type, content FROM artefacts WHERE job_id = ?1 AND name = ?2",
                 params![id, name],
                 |r| {
-                    Ok(StoredArtefact {
+                    Ok(Artefact {
                         name: r.get(0)?,
                         media_type: r.get(1)?,
                         content: r.get(2)?,

@@ -34,7 +34,7 @@ fn job_life_and_result_in_one_piece() {
         (r.state, r.progress, r.stage.as_deref()),
         (JobState::Running, 0.5, Some("fk"))
     );
-    let art = StoredArtefact {
+    let art = crate::jobs::Artefact {
         name: "poses.csv".into(),
         media_type: "text/csv".into(),
         content: b"x\n1\n".to_vec(),
@@ -44,7 +44,8 @@ fn job_life_and_result_in_one_piece() {
             id,
             &json!({"kind": "serial.fk", "poses": []}),
             Some("x\n"),
-            &[art.clone()]
+            &[art.clone()],
+            None
         )
         .unwrap()
     );
@@ -56,7 +57,7 @@ fn job_life_and_result_in_one_piece() {
     assert_eq!(s.main_table_csv(id).unwrap().as_deref(), Some("x\n"));
     // A final job does not change state again, and a second result is refused.
     assert!(!s.end_job(id, JobState::Failed, Some("late")).unwrap());
-    assert!(!s.finish_job(id, &json!({}), None, &[]).unwrap());
+    assert!(!s.finish_job(id, &json!({}), None, &[], None).unwrap());
     let logs: Vec<String> = s.logs(id).unwrap().into_iter().map(|l| l.message).collect();
     assert_eq!(logs, ["submitted by test", "started", "succeeded"]);
     assert_eq!(s.progress_history(id).unwrap().len(), 1);
@@ -72,7 +73,7 @@ fn recovery_marks_running_jobs_interrupted_and_returns_queued_ones() {
         let c = s.insert_job(&job("serial.fk")).unwrap();
         s.start_job(a).unwrap();
         s.start_job(c).unwrap();
-        s.finish_job(c, &json!({"ok": true}), None, &[]).unwrap();
+        s.finish_job(c, &json!({"ok": true}), None, &[], None).unwrap();
         (a, b, c)
     };
     let s = Store::open(dir.path()).unwrap();

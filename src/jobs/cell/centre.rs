@@ -2,10 +2,12 @@
 //! iterations, step size and reading time, and every abort says why.
 
 use serde::Deserialize;
-use serde_json::{Map, json};
 
-use super::{CentringSpec, default_cell, trical_cell, trical_devices};
-use crate::jobs::{JobError, Output, Prepared, RunContext, Table, parse_spec};
+
+use std::sync::Arc;
+
+use super::{CentringSpec, default_cell, trical_devices};
+use crate::jobs::{Cx, JobError, Kind, Output, RunFuture, Table, parse_spec};
 use crate::procedures::{CentringError, centre};
 use crate::util::Monitor;
 
@@ -30,7 +32,7 @@ pub struct CentreJob {
 }
 
 /// Validate a `cell.centre` job.
-pub fn prepare(doc: &serde_json::Value) -> Result<CentreJob, JobError> {
+pub fn prepare(doc: &serde_json::Value, _: &crate::jobs::Inputs<'_>) -> Result<CentreJob, JobError> {
     let s: Spec = parse_spec(doc)?;
     if let Some((k, v)) = s.q_deg.iter().enumerate().find(|(_, v)| !v.is_finite()) {
         return Err(JobError::invalid(
@@ -46,15 +48,20 @@ pub fn prepare(doc: &serde_json::Value) -> Result<CentreJob, JobError> {
     })
 }
 
-impl Prepared for CentreJob {
-    fn execute(&self, _monitor: &dyn Monitor) -> Result<Output, JobError> {
-        Err(JobError::NeedsLab {
-            kind: "cell.centre".into(),
-        })
+impl Kind for CentreJob {
+    fn devices(&self) -> Vec<String> {
+        trical_devices(&self.cell)
     }
 
-    fn execute_in(&self, ctx: &RunContext<'_>, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        let (cell, rt) = trical_cell(ctx, "cell.centre", &self.cell)?;
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        Box::pin(async move { self.centre(&cx).await.map(Into::into) })
+    }
+}
+
+impl CentreJob {
+    async fn centre(&self, cx: &Cx) -> Result<Output, JobError> {
+        let monitor: &dyn Monitor = cx;
+        let cell = cx.lab().trical(&self.cell)?;
         let opts = self.centring.options("options", cell)?;
         if let Some((j, v, l)) = cell.current_model().to_chain()?.limit_violation(&self.q) {
             return Err(JobError::invalid(
@@ -68,14 +75,8 @@ impl Prepared for CentreJob {
             ));
         }
         monitor.progress(0.0, "centring");
-        let c = rt
-            .block_on(centre(
-                &*cell.robot,
-                &*cell.indicators,
-                &self.q,
-                &opts,
-                monitor,
-            ))
+        let c = centre(&*cell.robot, &*cell.indicators, &self.q, &opts, monitor)
+            .await
             .map_err(|e| match e {
                 CentringError::Cancelled => JobError::Cancelled,
                 other => JobError::Failed(format!("centring aborted: {other}")),
@@ -85,23 +86,29 @@ impl Prepared for CentreJob {
             let n = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
             t.push(vec![i as f64, r[0], r[1], r[2], n]);
         }
-        let mut f = Map::new();
-        f.insert("cell".into(), json!(self.cell));
-        f.insert(
-            "q_deg".into(),
-            json!(c.q.iter().map(|v| v.to_degrees()).collect::<Vec<_>>()),
-        );
-        f.insert("iterations".into(), json!(c.iterations));
-        f.insert("residual_mm".into(), json!(c.residual_mm));
-        f.insert("readings".into(), t.to_json_rows());
-        Ok(Output {
-            fields: f,
-            main_table: Some(t),
-            artefacts: vec![],
-        })
+        let mut out = Output::typed(&Centred {
+            cell: self.cell.clone(),
+            q_deg: c.q.iter().map(|v| v.to_degrees()).collect(),
+            iterations: c.iterations,
+            residual_mm: c.residual_mm,
+            readings: t.to_json_rows(),
+        })?;
+        out.main_table = Some(t);
+        Ok(out)
     }
+}
 
-    fn devices(&self) -> Vec<String> {
-        trical_devices(&self.cell)
-    }
+/// The result of `cell.centre`.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Centred {
+    /// The cell.
+    pub cell: String,
+    /// Joints at the end of the loop (deg).
+    pub q_deg: Vec<f64>,
+    /// Corrective moves.
+    pub iterations: usize,
+    /// Final |r| (mm).
+    pub residual_mm: f64,
+    /// Every reading of the loop (rows of the main table).
+    pub readings: serde_json::Value,
 }

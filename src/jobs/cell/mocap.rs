@@ -4,22 +4,21 @@
 //! then `humanoid.identify` on what was recorded. Resumable: what the journal holds is
 //! never measured again.
 
-use std::time::{Duration, Instant};
+use std::sync::Arc;
+use std::time::Duration;
 
 use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde_json::Value;
 
+use super::calls::{design_nocp, identify_humanoid};
+use crate::campaigns::engine::{Identified, Retry};
+use crate::campaigns::mocap::{PostureSample, RecordOptions};
 use crate::jobs::humanoid::PreprocessSpec;
-use crate::jobs::{
-    Artefact, Inputs, JobError, NoReferences, Output, Prepared, RunContext, Table, parse_spec,
-};
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, parse_spec};
 use crate::lab::MocapCell;
-use crate::procedures::mocap::{self, PostureSample, RecordOptions};
-use crate::procedures::trical::{CampaignError, Retry};
-use crate::procedures::{Journal, MemoryJournal};
-use crate::util::{Monitor, SubMonitor};
+use crate::model::humanoid::MarkerDef;
+use crate::util::Monitor;
 
-const KIND: &str = "cell.mocap_campaign";
 
 /// `postures.nocp`: the `humanoid.design` fields that are not the cell's own.
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -86,7 +85,7 @@ enum Postures {
 /// A validated `cell.mocap_campaign` job.
 #[derive(Debug)]
 pub struct MocapCampaignJob {
-    cell: String,
+    pub(crate) cell: String,
     postures: Postures,
     options: Options,
 }
@@ -136,66 +135,69 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<MocapCampaignJob, Job
     })
 }
 
-/// The motion-capture cell `name` of the context's lab.
-fn mocap_cell<'a>(
-    ctx: &RunContext<'a>,
-    name: &str,
-) -> Result<(&'a MocapCell, &'a tokio::runtime::Handle), JobError> {
-    let (Some(lab), Some(rt)) = (ctx.lab, ctx.runtime) else {
-        return Err(JobError::NeedsLab { kind: KIND.into() });
-    };
-    match &lab.mocap {
-        Some(c) if c.name == name => Ok((c, rt)),
-        _ => Err(JobError::invalid(
-            "cell",
-            format!("this lab has no motion-capture cell `{name}`"),
-        )),
-    }
-}
-
-fn markers_json(cell: &MocapCell) -> Value {
-    Value::Array(
-        cell.markers
-            .iter()
-            .map(|m| json!({"name": m.name, "link": m.link, "initial": [m.initial.x, m.initial.y, m.initial.z]}))
-            .collect(),
-    )
+/// What a motion-capture campaign uses of its cell: a snapshot, so that the numerical
+/// steps can run on the blocking pool.
+#[derive(Debug, Clone)]
+pub struct MocapSetup {
+    /// The cell's current model (URDF text).
+    pub urdf: String,
+    /// Root link of the measured chain.
+    pub root_link: String,
+    /// Measured joints, in the robot interface's order.
+    pub joints: Vec<String>,
+    /// Joint limits (rad).
+    pub limits: Vec<[f64; 2]>,
+    /// Markers with their guessed positions.
+    pub markers: Vec<MarkerDef>,
 }
 
 impl MocapCampaignJob {
-    /// The postures (named joint values, rad): the NOCP design of the cell, or the table.
-    fn plan(
+    /// The snapshot of `cell` the campaign works with.
+    pub(crate) fn setup(&self, cell: &MocapCell) -> MocapSetup {
+        MocapSetup {
+            urdf: cell.current_model(),
+            root_link: cell.root_link.clone(),
+            joints: cell.joints.clone(),
+            limits: cell.limits.clone(),
+            markers: cell.markers.clone(),
+        }
+    }
+
+    /// Device-fault retries.
+    pub(crate) fn retry(&self) -> Retry {
+        Retry {
+            attempts: self.options.retry_attempts,
+            backoff: Duration::from_millis(self.options.retry_backoff_ms),
+        }
+    }
+
+    /// `humanoid.identify` on the averaged postures.
+    pub(crate) fn identify(
         &self,
-        cell: &MocapCell,
+        cell: &MocapSetup,
+        samples: &Table,
+        monitor: &dyn Monitor,
+    ) -> Result<Identified<String>, JobError> {
+        identify_humanoid(cell, samples, self.options.identify.as_ref(), monitor)
+    }
+
+    /// The postures (named joint values, rad): the NOCP design of the cell, or the table.
+    pub(crate) fn plan(
+        &self,
+        cell: &MocapSetup,
         monitor: &dyn Monitor,
     ) -> Result<Vec<Vec<(String, f64)>>, JobError> {
         let (table, field) = match &self.postures {
             Postures::Table(t) => (t.clone(), "postures"),
             Postures::Nocp(n) => {
-                let mut doc = json!({
-                    "kind": "humanoid.design",
-                    "urdf": cell.urdf,
-                    "root_link": cell.root_link,
-                    "joints": cell.joints,
-                    "markers": markers_json(cell),
-                    "base": {"mode": "identify"},
-                    "seed": n.seed,
-                });
-                if let Some(c) = &n.constraints {
-                    doc["constraints"] = c.clone();
-                }
-                if let Some(k) = n.n {
-                    doc["n"] = json!(k);
-                }
-                if let Some(o) = &n.options {
-                    doc["options"] = o.clone();
-                }
-                let job =
-                    crate::jobs::humanoid::design::prepare(&doc, &Inputs::new(&NoReferences))?;
-                let out = job.execute(monitor)?;
-                let t = out.main_table.ok_or_else(|| {
-                    JobError::Failed("the NOCP design returned no postures".into())
-                })?;
+                let t = design_nocp(
+                    cell,
+                    n.constraints.as_ref(),
+                    n.seed,
+                    n.n,
+                    n.options.as_ref(),
+                    monitor,
+                )?;
                 (t, "postures.nocp")
             }
         };
@@ -223,7 +225,7 @@ impl MocapCampaignJob {
         Ok(plan)
     }
 
-    fn record_options(&self) -> RecordOptions {
+    pub(crate) fn record_options(&self) -> RecordOptions {
         RecordOptions {
             settle: Duration::from_secs_f64(self.options.settle_s),
             window: Duration::from_secs_f64(self.options.record_s),
@@ -239,7 +241,7 @@ impl MocapCampaignJob {
 
 /// The journalled samples as a `humanoid.identify` samples table (joints, then markers;
 /// NaN where a marker had no stable sample).
-fn samples_table(cell: &MocapCell, rec: &[PostureSample]) -> Table {
+pub fn samples_table(cell: &MocapSetup, rec: &[PostureSample]) -> Table {
     let mut cols: Vec<String> = vec!["posture".into()];
     cols.extend(cell.joints.iter().cloned());
     for m in &cell.markers {
@@ -264,21 +266,7 @@ fn samples_table(cell: &MocapCell, rec: &[PostureSample]) -> Table {
     t
 }
 
-fn campaign_error(e: CampaignError) -> JobError {
-    match e {
-        CampaignError::Paused { index, reason } => JobError::Paused { index, reason },
-        CampaignError::Cancelled => JobError::Cancelled,
-        CampaignError::Journal(m) => JobError::Failed(format!(
-            "the measurement journal failed: {m}; nothing more is measured"
-        )),
-    }
-}
-
-impl Prepared for MocapCampaignJob {
-    fn execute(&self, _monitor: &dyn Monitor) -> Result<Output, JobError> {
-        Err(JobError::NeedsLab { kind: KIND.into() })
-    }
-
+impl Kind for MocapCampaignJob {
     fn resumable(&self) -> bool {
         true
     }
@@ -290,94 +278,7 @@ impl Prepared for MocapCampaignJob {
         ]
     }
 
-    fn execute_in(&self, ctx: &RunContext<'_>, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        let t0 = Instant::now();
-        let (cell, rt) = mocap_cell(ctx, &self.cell)?;
-        let plan = self.plan(cell, &SubMonitor::new(monitor, 0.0, 0.05))?;
-        let design_s = t0.elapsed().as_secs_f64();
-        let local = MemoryJournal::default();
-        let journal: &dyn Journal = ctx.journal.unwrap_or(&local);
-        let retry = Retry {
-            attempts: self.options.retry_attempts,
-            backoff: Duration::from_millis(self.options.retry_backoff_ms),
-        };
-        let t_meas = Instant::now();
-        let sum = rt
-            .block_on(mocap::run(
-                &*cell.robot,
-                &*cell.stream,
-                &plan,
-                journal,
-                &self.record_options(),
-                &retry,
-                &SubMonitor::new(monitor, 0.05, 0.9),
-            ))
-            .map_err(campaign_error)?;
-        let measuring_s = t_meas.elapsed().as_secs_f64();
-        let rec = mocap::recorded(journal, plan.len())
-            .map_err(|m| JobError::Failed(format!("journal: {m}")))?;
-        if rec.len() < 3 {
-            return Err(JobError::Failed(format!(
-                "only {} of {} postures were recorded: too few to identify ({} skipped; see the journal)",
-                rec.len(),
-                plan.len(),
-                sum.skipped
-            )));
-        }
-        let table = samples_table(cell, &rec);
-        let mut samples = table.to_json_rows();
-        if let Some(rows) = samples.as_array_mut() {
-            for r in rows.iter_mut().filter_map(Value::as_object_mut) {
-                r.remove("posture");
-            }
-        }
-        let mut doc = json!({
-            "kind": "humanoid.identify",
-            "urdf": cell.urdf,
-            "samples": samples,
-            "root_link": cell.root_link,
-            "joints": cell.joints,
-            "markers": markers_json(cell),
-            "base": {"mode": "identify"},
-        });
-        if let Some(o) = &self.options.identify {
-            doc["options"] = o.clone();
-        }
-        let t_id = Instant::now();
-        let id = crate::jobs::humanoid::identify::prepare(&doc, &Inputs::new(&NoReferences))?;
-        let mut out = id.execute(&SubMonitor::new(monitor, 0.9, 1.0))?;
-        let identify_s = t_id.elapsed().as_secs_f64();
-        let mean = |f: fn(&PostureSample) -> usize| {
-            rec.iter().map(|s| f(s) as f64).sum::<f64>() / rec.len() as f64
-        };
-        out.fields.insert("cell".into(), json!(self.cell));
-        let mut c = Map::new();
-        for (k, v) in [
-            ("planned", json!(plan.len())),
-            ("recorded", json!(sum.recorded)),
-            ("skipped", json!(sum.skipped)),
-            ("mean_frames_per_posture", json!(mean(|s| s.frames))),
-            ("mean_stable_samples", json!(mean(|s| s.stable))),
-            ("design_s", json!(design_s)),
-            ("measuring_s", json!(measuring_s)),
-            ("identify_s", json!(identify_s)),
-            ("wall_time_s", json!(t0.elapsed().as_secs_f64())),
-            (
-                "journal_entries",
-                json!(journal.entries().map(|e| e.len()).unwrap_or(0)),
-            ),
-        ] {
-            c.insert(k.into(), v);
-        }
-        out.fields.insert("campaign".into(), Value::Object(c));
-        out.fields
-            .insert("measurements".into(), table.to_json_rows());
-        out.artefacts.push(Artefact {
-            name: "measurements.csv".into(),
-            media_type: "text/csv".into(),
-            content: table.to_csv().into_bytes(),
-        });
-        out.main_table = Some(table);
-        Ok(out)
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        Box::pin(crate::campaigns::mocap::campaign(self, cx))
     }
 }

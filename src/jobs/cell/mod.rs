@@ -1,7 +1,8 @@
-//! Kinds that drive the lab's devices (`cell.*`): they need a [`RunContext`] with a lab,
-//! run their device procedures on the drivers' runtime from the job's blocking thread, and
-//! journal every measurement before the next move.
+//! Kinds that drive the lab's devices (`cell.*`): what each job document asks for, checked
+//! before anything moves; the campaigns themselves are in [`crate::campaigns`], async tasks
+//! over the cell's devices that journal every measurement before the next move.
 
+pub mod calls;
 pub mod centre;
 pub mod mocap;
 pub mod pcr;
@@ -11,7 +12,8 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::{JobError, RunContext};
+use super::JobError;
+use crate::campaigns::engine::Retry;
 use crate::lab::TricalCell;
 use crate::procedures::CentringOptions;
 
@@ -101,31 +103,6 @@ impl CentringSpec {
     }
 }
 
-/// The TriCal cell `name` of the context's lab.
-pub fn trical_cell<'a>(
-    ctx: &RunContext<'a>,
-    kind: &str,
-    name: &str,
-) -> Result<(&'a TricalCell, &'a tokio::runtime::Handle), JobError> {
-    let (Some(lab), Some(rt)) = (ctx.lab, ctx.runtime) else {
-        return Err(JobError::NeedsLab { kind: kind.into() });
-    };
-    match &lab.trical {
-        Some(c) if c.name == name => Ok((c, rt)),
-        Some(c) => Err(JobError::invalid(
-            "cell",
-            format!(
-                "no ball-centring cell `{name}` in this lab (it has `{}`)",
-                c.name
-            ),
-        )),
-        None => Err(JobError::invalid(
-            "cell",
-            format!("this lab has no ball-centring cell (asked for `{name}`)"),
-        )),
-    }
-}
-
 /// Devices of the TriCal cell `name` (queue locks: the campaign holds both).
 pub fn trical_devices(name: &str) -> Vec<String> {
     vec![format!("{name}.rws"), format!("{name}.uwave")]
@@ -144,10 +121,20 @@ pub struct RetrySpec {
 
 impl Default for RetrySpec {
     fn default() -> Self {
-        let r = crate::procedures::trical::Retry::default();
+        let r = Retry::default();
         Self {
             attempts: r.attempts,
             backoff_ms: r.backoff.as_millis() as u64,
+        }
+    }
+}
+
+impl RetrySpec {
+    /// The engine's retry policy.
+    pub fn retry(&self) -> Retry {
+        Retry {
+            attempts: self.attempts,
+            backoff: Duration::from_millis(self.backoff_ms),
         }
     }
 }

@@ -4,24 +4,22 @@
 //! held-out configurations centred the same way, whose ball centres the calibrated model
 //! must hit. Resumable: what the journal holds is never measured again.
 
-use std::time::Instant;
+use std::sync::Arc;
 
 use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde_json::Value;
 
-use super::{CentringSpec, RetrySpec, default_cell, trical_cell, trical_devices};
+use super::calls::{identify_balls, select_for_plate};
+use super::{CentringSpec, RetrySpec, default_cell, trical_devices};
+use crate::campaigns::engine::Identified;
+use crate::campaigns::trical::{Planned, Recorded};
 use crate::design::balls::ball_pool;
 use crate::jobs::serial::identify::IdentifyOptions;
-use crate::jobs::{
-    Artefact, Inputs, JobError, NoReferences, Output, Prepared, RunContext, Table, parse_spec,
-};
-use crate::lab::TricalCell;
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, parse_spec};
 use crate::measure::BallPlate;
 use crate::model::Chain;
 use crate::model::dh::DhFile;
-use crate::procedures::trical::{self, CampaignError, Planned, Recorded, Retry};
-use crate::procedures::{Journal, MemoryJournal};
-use crate::util::{Monitor, SubMonitor};
+use crate::util::Monitor;
 
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -53,9 +51,9 @@ fn validation_seed() -> u64 {
 
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-struct Options {
-    centring: CentringSpec,
-    retry: RetrySpec,
+pub(crate) struct Options {
+    pub(crate) centring: CentringSpec,
+    pub(crate) retry: RetrySpec,
     identify: Option<Value>,
 }
 
@@ -81,13 +79,13 @@ struct Spec {
 /// A validated `cell.trical_campaign` job.
 #[derive(Debug)]
 pub struct CampaignJob {
-    cell: String,
-    model: Option<DhFile>,
+    pub(crate) cell: String,
+    pub(crate) model: Option<DhFile>,
     /// Given configurations: joints (deg) and 0-based ball.
     configurations: Option<Vec<(Vec<f64>, usize)>>,
     design: Option<DesignSpec>,
     validation: Option<ValidationSpec>,
-    options: Options,
+    pub(crate) options: Options,
 }
 
 /// Validate a `cell.trical_campaign` job.
@@ -250,35 +248,21 @@ fn short_tour(mut rest: Vec<Planned>) -> Vec<Planned> {
     out
 }
 
-fn rows(plan: &[Planned]) -> Value {
-    Value::Array(
-        plan.iter()
-            .map(|p| {
-                let mut m = Map::new();
-                for (k, v) in p.q.iter().enumerate() {
-                    m.insert(format!("q{}", k + 1), json!(v.to_degrees()));
-                }
-                m.insert("ball".into(), json!(p.ball + 1));
-                Value::Object(m)
-            })
-            .collect(),
-    )
-}
-
-fn ballbar_spec(cell: &TricalCell) -> Value {
-    json!({"d12": cell.ballbar[0], "d13": cell.ballbar[1], "d23": cell.ballbar[2]})
-}
-
 impl CampaignJob {
-    /// The measurement plan: given configurations, or DETMAX on a pool.
-    fn plan(
+    /// The measurement plan (given configurations, or DETMAX on a pool) and the held-out
+    /// validation configurations, each ordered for short joint travel.
+    pub(crate) fn plan(
         &self,
         file: &DhFile,
-        chain: &Chain,
-        cell: &TricalCell,
-        plate: &BallPlate,
+        ballbar: [f64; 3],
         monitor: &dyn Monitor,
-    ) -> Result<Vec<Planned>, JobError> {
+    ) -> Result<(Vec<Planned>, Vec<Planned>), JobError> {
+        let plate = &BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2])?;
+        let chain = file.to_chain()?;
+        let vplan = match &self.validation {
+            Some(v) => short_tour(pool(&chain, plate, v.per_ball, v.seed)),
+            None => Vec::new(),
+        };
         if let Some(c) = &self.configurations {
             let mut out = Vec::new();
             for (i, (q, ball)) in c.iter().enumerate() {
@@ -298,12 +282,12 @@ impl CampaignJob {
                 }
                 out.push(Planned { q, ball: *ball });
             }
-            return Ok(out);
+            return Ok((out, vplan));
         }
         let Some(d) = &self.design else {
             return Err(JobError::invalid("design", "missing"));
         };
-        let candidates = pool(chain, plate, d.pool_per_ball, d.seed);
+        let candidates = pool(&chain, plate, d.pool_per_ball, d.seed);
         let n = d.per_ball * plate.len();
         if candidates.len() < n {
             return Err(JobError::Failed(format!(
@@ -311,69 +295,50 @@ impl CampaignJob {
                 candidates.len()
             )));
         }
-        let doc = json!({
-            "kind": "serial.design",
-            "model": serde_json::to_value(file).unwrap_or(Value::Null),
-            "pool": rows(&candidates),
-            "n": n,
-            "ball_plate": ballbar_spec(cell),
-            "options": {"seed": d.seed},
-        });
-        let job = crate::jobs::serial::design::prepare(&doc, &Inputs::new(&NoReferences))?;
-        let out = job.execute(monitor)?;
-        let selected: Vec<usize> = out
-            .fields
-            .get("selected")
-            .and_then(|v| serde_json::from_value(v.clone()).ok())
-            .ok_or_else(|| JobError::Failed("the DETMAX selection returned no indices".into()))?;
-        Ok(short_tour(
-            selected
-                .into_iter()
-                .filter_map(|i| candidates.get(i).cloned())
-                .collect(),
+        let pool: Vec<(Vec<f64>, usize)> =
+            candidates.iter().map(|p| (p.q.clone(), p.ball)).collect();
+        let selected = select_for_plate(file, &pool, ballbar, n, d.seed, monitor)?;
+        Ok((
+            short_tour(
+                selected
+                    .into_iter()
+                    .filter_map(|i| candidates.get(i).cloned())
+                    .collect(),
+            ),
+            vplan,
         ))
     }
-}
 
-fn campaign_error(e: CampaignError) -> JobError {
-    match e {
-        CampaignError::Paused { index, reason } => JobError::Paused { index, reason },
-        CampaignError::Cancelled => JobError::Cancelled,
-        CampaignError::Journal(m) => JobError::Failed(format!(
-            "the measurement journal failed: {m}; nothing more is measured"
-        )),
+    /// `serial.identify` on the centred configurations, validated on the held-out ones.
+    pub(crate) fn identify(
+        &self,
+        file: &DhFile,
+        ballbar: [f64; 3],
+        rec: &[Recorded],
+        vrec: &[Recorded],
+        monitor: &dyn Monitor,
+    ) -> Result<Identified<DhFile>, JobError> {
+        let plate = BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2])?;
+        let meas: Vec<(Vec<f64>, usize)> = rec.iter().map(|r| (r.q.clone(), r.ball)).collect();
+        let validation: Vec<(Vec<f64>, [f64; 3])> = vrec
+            .iter()
+            .filter_map(|r| {
+                let c = plate.centres.get(r.ball).copied().flatten()?;
+                Some((r.q.clone(), [c.x, c.y, c.z]))
+            })
+            .collect();
+        identify_balls(
+            file,
+            &meas,
+            ballbar,
+            &validation,
+            self.options.identify.as_ref(),
+            monitor,
+        )
     }
 }
 
-fn recorded_table(rec: &[Recorded]) -> Table {
-    let mut t = Table::new(&[
-        "index",
-        "ball",
-        "q1",
-        "q2",
-        "q3",
-        "q4",
-        "q5",
-        "q6",
-        "residual_mm",
-        "moves",
-    ]);
-    for r in rec {
-        let mut row = vec![r.index as f64, (r.ball + 1) as f64];
-        row.extend(r.q.iter().map(|v| v.to_degrees()));
-        row.extend([r.residual_mm, r.iterations as f64]);
-        t.push(row);
-    }
-    t
-}
-
-impl Prepared for CampaignJob {
-    fn execute(&self, _monitor: &dyn Monitor) -> Result<Output, JobError> {
-        Err(JobError::NeedsLab {
-            kind: "cell.trical_campaign".into(),
-        })
-    }
-
+impl Kind for CampaignJob {
     fn resumable(&self) -> bool {
         true
     }
@@ -382,144 +347,7 @@ impl Prepared for CampaignJob {
         trical_devices(&self.cell)
     }
 
-    fn execute_in(&self, ctx: &RunContext<'_>, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        let t0 = Instant::now();
-        let (cell, rt) = trical_cell(ctx, "cell.trical_campaign", &self.cell)?;
-        let file = self.model.clone().unwrap_or_else(|| cell.current_model());
-        let chain = file.to_chain()?;
-        let plate = BallPlate::from_ballbar(cell.ballbar[0], cell.ballbar[1], cell.ballbar[2])?;
-        let copts = self.options.centring.options("options.centring", cell)?;
-        let retry = Retry {
-            attempts: self.options.retry.attempts,
-            backoff: std::time::Duration::from_millis(self.options.retry.backoff_ms),
-        };
-        let plan = self.plan(
-            &file,
-            &chain,
-            cell,
-            &plate,
-            &SubMonitor::new(monitor, 0.0, 0.02),
-        )?;
-        let vplan = match &self.validation {
-            Some(v) => short_tour(pool(&chain, &plate, v.per_ball, v.seed)),
-            None => Vec::new(),
-        };
-        let local = MemoryJournal::default();
-        let journal: &dyn Journal = ctx.journal.unwrap_or(&local);
-        let total = (plan.len() + vplan.len()).max(1) as f64;
-        let t_meas = Instant::now();
-        let m1 = SubMonitor::new(monitor, 0.02, 0.02 + 0.9 * plan.len() as f64 / total);
-        let s1 = rt
-            .block_on(trical::run(
-                &*cell.robot,
-                &*cell.indicators,
-                &plan,
-                0,
-                journal,
-                &copts,
-                &retry,
-                &m1,
-            ))
-            .map_err(campaign_error)?;
-        let m2 = SubMonitor::new(monitor, 0.02 + 0.9 * plan.len() as f64 / total, 0.92);
-        let s2 = rt
-            .block_on(trical::run(
-                &*cell.robot,
-                &*cell.indicators,
-                &vplan,
-                plan.len(),
-                journal,
-                &copts,
-                &retry,
-                &m2,
-            ))
-            .map_err(campaign_error)?;
-        let measuring_s = t_meas.elapsed().as_secs_f64();
-        let rec = trical::recorded(journal, 0, plan.len())
-            .map_err(|m| JobError::Failed(format!("journal: {m}")))?;
-        let vrec = trical::recorded(journal, plan.len(), vplan.len())
-            .map_err(|m| JobError::Failed(format!("journal: {m}")))?;
-        if rec.len() < 10 {
-            return Err(JobError::Failed(format!(
-                "only {} of {} configurations were centred: too few to identify ({} skipped; see the journal)",
-                rec.len(),
-                plan.len(),
-                s1.skipped
-            )));
-        }
-        let meas: Vec<Planned> = rec
-            .iter()
-            .map(|r| Planned {
-                q: r.q.clone(),
-                ball: r.ball,
-            })
-            .collect();
-        let mut doc = json!({
-            "kind": "serial.identify",
-            "model": serde_json::to_value(&file).unwrap_or(Value::Null),
-            "measurements": rows(&meas),
-            "ball_plate": ballbar_spec(cell),
-        });
-        if let Some(o) = &self.options.identify {
-            doc["options"] = o.clone();
-        }
-        if !vrec.is_empty() {
-            let v: Vec<Value> = vrec
-                .iter()
-                .filter_map(|r| {
-                    let c = plate.centres.get(r.ball).copied().flatten()?;
-                    let mut m = Map::new();
-                    for (k, x) in r.q.iter().enumerate() {
-                        m.insert(format!("q{}", k + 1), json!(x.to_degrees()));
-                    }
-                    m.insert("x".into(), json!(c.x));
-                    m.insert("y".into(), json!(c.y));
-                    m.insert("z".into(), json!(c.z));
-                    Some(Value::Object(m))
-                })
-                .collect();
-            doc["validation"] = Value::Array(v);
-        }
-        let t_id = Instant::now();
-        let id = crate::jobs::serial::identify::prepare(&doc, &Inputs::new(&NoReferences))?;
-        let mut out = id.execute(&SubMonitor::new(monitor, 0.92, 1.0))?;
-        let identify_s = t_id.elapsed().as_secs_f64();
-        let measurements = recorded_table(&rec);
-        let validation = recorded_table(&vrec);
-        out.fields.insert("cell".into(), json!(self.cell));
-        out.fields.insert("campaign".into(), json!({
-            "planned": plan.len(),
-            "recorded": s1.recorded,
-            "skipped": s1.skipped,
-            "validation_planned": vplan.len(),
-            "validation_recorded": s2.recorded,
-            "validation_skipped": s2.skipped,
-            "mean_moves": rec.iter().map(|r| r.iterations as f64).sum::<f64>() / rec.len() as f64,
-            "max_residual_mm": rec.iter().map(|r| r.residual_mm).fold(0.0, f64::max),
-            "measuring_s": measuring_s,
-            "identify_s": identify_s,
-            "wall_time_s": t0.elapsed().as_secs_f64(),
-            "journal_entries": journal.entries().map(|e| e.len()).unwrap_or(0),
-        }));
-        out.fields.insert(
-            "start_model".into(),
-            serde_json::to_value(&file).unwrap_or(Value::Null),
-        );
-        out.fields
-            .insert("measurements".into(), measurements.to_json_rows());
-        out.artefacts.push(Artefact {
-            name: "measurements.csv".into(),
-            media_type: "text/csv".into(),
-            content: measurements.to_csv().into_bytes(),
-        });
-        if !vrec.is_empty() {
-            out.artefacts.push(Artefact {
-                name: "validation_measurements.csv".into(),
-                media_type: "text/csv".into(),
-                content: validation.to_csv().into_bytes(),
-            });
-        }
-        out.main_table = Some(measurements);
-        Ok(out)
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        Box::pin(crate::campaigns::trical::campaign(self, cx))
     }
 }

@@ -4,6 +4,8 @@
 //! joint travel short and joined by quintic segments. Optionally compared with DETMAX over a
 //! random feasible pool and with COCP from random starts (the paper's Fig. 6).
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
@@ -12,7 +14,7 @@ use crate::design::humanoid::{ConstraintOptions, HumanoidPostures, compare_basel
 use crate::design::ocp::{NocpOptions, OptimOptions, cocp, nocp};
 use crate::design::playback::{order_postures, sample_trajectory, travel};
 use crate::design::postures::PostureSet;
-use crate::jobs::{Artefact, Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::jobs::{Artefact, Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
 use crate::measure::marker_fit::Groups;
 use crate::model::srdf::disabled_collisions;
 use crate::util::{Monitor, Rng, SubMonitor};
@@ -245,8 +247,15 @@ fn no_room(what: &str) -> JobError {
     ))
 }
 
-impl Prepared for DesignJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for DesignJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl DesignJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let mut pm = self.postures.clone();
         let mut rng = Rng::new(self.seed);
         monitor.progress(0.0, "feasible pool");

@@ -5,6 +5,8 @@
 //! comparison when elasticity is modelled, optional k-fold cross-validation, and the
 //! calibrated URDF.
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
@@ -12,7 +14,7 @@ use super::samples::{SampleSet, load_samples};
 use super::{
     BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, load_model, marker_table, params_json,
 };
-use crate::jobs::{Artefact, Inputs, JobError, Output, Prepared, parse_spec};
+use crate::jobs::{Artefact, Inputs, JobError, Output, Kind, Cx, RunFuture, computed, parse_spec};
 use crate::measure::marker_fit::{
     FitOptions, Groups, MarkerFit, fit, fit_frames, structural_count,
 };
@@ -223,8 +225,15 @@ fn cross_validate(
     }))
 }
 
-impl Prepared for IdentifyJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for IdentifyJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl IdentifyJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let samples = &self.set.samples;
         let cv_share = if self.options.cross_validation.is_some() {
             0.5

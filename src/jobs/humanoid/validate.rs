@@ -4,6 +4,8 @@
 //! and marker positions are re-identified on the validation session with the joint
 //! parameters held, because markers are re-mounted between sessions.
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
@@ -12,7 +14,7 @@ use super::{
     BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, apply_parameters, load_model,
     marker_table,
 };
-use crate::jobs::{Inputs, JobError, Output, Prepared, parse_spec};
+use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, parse_spec};
 use crate::measure::marker_fit::{FitOptions, fit_frames};
 use crate::measure::markers::marker_rmse;
 use crate::model::humanoid::{HParam, Humanoid};
@@ -128,8 +130,15 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<ValidateJob, JobError
     })
 }
 
-impl Prepared for ValidateJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for ValidateJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl ValidateJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let samples = &self.set.samples;
         let mut overall = [0.0; 3];
         let mut per: Vec<Vec<Option<f64>>> = Vec::new();

@@ -5,13 +5,15 @@
 //! pose and their max, mean and min (the paper's Table 4). The reached poses come from a
 //! measurements table, or from a digital twin of the robot for simulation.
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{PcrModel, load_model, poses};
 use crate::design::trajectory::{circle, square};
 use crate::geometry::Pose2;
-use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
 use crate::measure::pcr::accuracy::{pose_accuracy, summarise};
 use crate::measure::pcr::{PcrMeasurement, measured_pose};
 use crate::model::pcr::PcrFile;
@@ -186,8 +188,15 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<AccuracyJob, JobError
     })
 }
 
-impl Prepared for AccuracyJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for AccuracyJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl AccuracyJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let robot = &self.model.robot;
         let control = super::ik::solve_rows(robot, &self.commanded, "trajectory", monitor)?;
         let ext = self.model.file.extrinsics;

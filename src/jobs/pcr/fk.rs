@@ -1,11 +1,13 @@
 //! `pcr.fk`: platform poses (x, y, theta in {W}, SI) of the 3-PF model over a joints table,
 //! solved row after row with warm starts (continuation from home when a warm start fails).
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{LoadSpec, PcrModel, load_model, pose_table, si_units};
-use crate::jobs::{Inputs, JobError, Output, Prepared, parse_spec};
+use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
 use crate::util::Monitor;
 
@@ -78,8 +80,15 @@ pub fn solve_rows(
     Ok(out)
 }
 
-impl Prepared for FkJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for FkJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl FkJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let sols = solve_rows(&self.robot, &self.q, "joints", monitor)?;
         let poses: Vec<_> = sols.iter().map(|e| e.pose).collect();
         let table = pose_table(&poses);

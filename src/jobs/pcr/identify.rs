@@ -2,11 +2,13 @@
 //! extrinsics from measurements (q1, q2, q3, and the readings x, y, theta), with the
 //! paper's Table 3 on the calibration and validation sets and the calibrated model file.
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{PcrModel, load_model};
-use crate::jobs::{Artefact, Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::jobs::{Artefact, Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
 use crate::measure::pcr::steps::{CalibrationOptions, Step, calibrated_file, default_steps};
 use crate::measure::pcr::{PcrMeasurement, identify_steps};
 use crate::util::{Monitor, Summary};
@@ -155,8 +157,15 @@ fn stats(v: &[f64]) -> Value {
     serde_json::to_value(Summary::of(v, "m")).unwrap_or(Value::Null)
 }
 
-impl Prepared for IdentifyJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for IdentifyJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl IdentifyJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let cal = identify_steps(
             &self.model.robot,
             &self.model.file,

@@ -1,12 +1,14 @@
 //! `pcr.ik`: joint values (q1, q2, q3 in m) that bring the platform of the 3-PF model to
 //! each pose of a table, solved row after row with warm starts.
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value};
 
 use super::{LoadSpec, PcrModel, load_model, poses, si_units};
 use crate::geometry::Pose2;
-use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
 use crate::util::Monitor;
 
@@ -81,8 +83,15 @@ pub fn joint_table(sols: &[Equilibrium]) -> Table {
     t
 }
 
-impl Prepared for IkJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for IkJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl IkJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let sols = solve_rows(&self.robot, &self.poses, "poses", monitor)?;
         let table = joint_table(&sols);
         let mut fields = Map::new();

@@ -2,11 +2,13 @@
 //! of x, y and theta with respect to each parameter type over a set of configurations
 //! (default: the 26 central configurations).
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{PcrModel, load_model};
-use crate::jobs::{Inputs, JobError, Output, Prepared, parse_spec};
+use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, parse_spec};
 use crate::model::pcr::sensitivity::{central_configurations, default_steps, sensitivity};
 use crate::util::Monitor;
 
@@ -67,8 +69,15 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<SensitivityJob, JobEr
     })
 }
 
-impl Prepared for SensitivityJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for SensitivityJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl SensitivityJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let steps = default_steps(&self.model.file.uncertainty);
         let rows = sensitivity(&self.model.robot, &self.configs, &steps, monitor)
             .map_err(|e| JobError::Failed(e.to_string()))?;

@@ -1,6 +1,8 @@
 //! `serial.design`: choose `n` configurations of a pool by DETMAX on the identification
 //! Jacobian of the nominal model, and report O1..O5 of the selection and of the pool.
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
@@ -8,7 +10,7 @@ use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs};
 use super::{ChainSpec, PlateSpec};
 use crate::design::{DetmaxOptions, Indices, Pool, detmax, indices};
 use crate::identify::{Problem, rank_revealing};
-use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
 use crate::measure::PointProblem;
 use crate::util::Monitor;
 
@@ -151,8 +153,15 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<DesignJob, JobError> 
     })
 }
 
-impl Prepared for DesignJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for DesignJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl DesignJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let dp = DesignPool::new(&self.inputs)?;
         if 3 * self.n < dp.kept.len() {
             return Err(JobError::invalid(

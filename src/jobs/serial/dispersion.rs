@@ -3,6 +3,8 @@
 //! size, and the spread of every parameter at the largest size (the paper's Figs. 8-9,
 //! Table 7). Repetitions run on all cores.
 
+use std::sync::Arc;
+
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -13,7 +15,7 @@ use super::design::DesignPool;
 use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, position_errors};
 use super::{ChainSpec, PlateSpec};
 use crate::design::{DetmaxOptions, detmax};
-use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
 use crate::util::stats::{Quartiles, mean};
 use crate::util::{Monitor, Summary};
 
@@ -176,8 +178,15 @@ fn study(
     Ok((runs, failures.load(Ordering::Relaxed)))
 }
 
-impl Prepared for DispersionJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for DispersionJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl DispersionJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let inp = &self.inputs;
         let (runs, failures) = study(inp, &self.sizes, self.repetitions, self.seed, monitor)?;
         let unit = inp.model.length_unit();

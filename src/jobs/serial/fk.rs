@@ -1,13 +1,15 @@
 //! `serial.fk`: TCP poses (x, y, z, a, b, c in {W}) of a serial model over a joints table,
 //! with the static deflection of the model's compliances.
 
+use std::sync::Arc;
+
 use std::collections::BTreeMap;
 
 use serde::Deserialize;
 use serde_json::{Value, json};
 
 use super::{ChainSpec, SerialModel, load_model};
-use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
 use crate::model::Quantity;
 use crate::util::Monitor;
 
@@ -72,8 +74,15 @@ fn pose(c: &crate::model::Chain, q: &[f64]) -> [f64; 6] {
     c.tcp(q, Some(&tau)).to_xyzabc()
 }
 
-impl Prepared for FkJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for FkJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl FkJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let c = &self.model.chain;
         let k = c.units.to_file(Quantity::Angle);
         let mut poses = Table::new(&["x", "y", "z", "a", "b", "c"]);

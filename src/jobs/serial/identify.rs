@@ -10,12 +10,14 @@
 //! reported as unused; `L_mm` together with `ball` is refused as ambiguous. Every column a
 //! table has and the job does not read is named in the result's `warnings`.
 
+use std::sync::Arc;
+
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{ChainSpec, PlateSpec, SerialModel, load_model};
 use crate::identify::{Pivoting, Solution, SolveOptions, solve};
-use crate::jobs::{Artefact, Inputs, JobError, Output, Prepared, Table, parse_spec};
+use crate::jobs::{Artefact, Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
 use crate::measure::distance::distance_errors;
 use crate::measure::{
     BallPlate, DistanceMeasurement, DistanceProblem, PointMeasurement, PointProblem, Target,
@@ -653,8 +655,15 @@ impl IdentifyJob {
     }
 }
 
-impl Prepared for IdentifyJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+impl Kind for IdentifyJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl IdentifyJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
         let inp = &self.inputs;
         if !inp.distances.is_empty() {
             return self.execute_distance(monitor);

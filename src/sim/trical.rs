@@ -1,65 +1,20 @@
-//! The TriCal cell: an IRB 120 on an IRC5 (RWS) with the three-indicator centring device
-//! (U-WAVE-R), its ball plate and its motion envelope. In the simulated lab the cell's twin
-//! ([`SimulatedCell`]) drives the RWS mock's arm and the U-WAVE mock's indicators.
+//! The simulated TriCal cell: an IRB 120 twin ([`SimulatedCell`]) behind an RWS mock's arm
+//! on a loopback port and a U-WAVE mock's indicators on a pseudo-terminal, described as a
+//! [`BallCentringCell`] like a real cell.
 
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
 
 use calibd_drivers::mock::{self, Faults, MockArgs, MockDevice, RunningMock};
 use calibd_drivers::rws::mock::ArmModel;
-use calibd_drivers::rws::{RwsConfig, RwsHandle};
+use calibd_drivers::uwave::AxisMap;
 use calibd_drivers::uwave::mock::IndicatorModel;
-use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle};
-use calibd_drivers::{Backoff, TcpConnector};
 
-use super::LabError;
-use super::adapters::{RwsRobot, UwaveIndicators};
-use crate::model::dh::DhFile;
-use crate::procedures::{Envelope, Indicators, MotionLimiter, Robot};
+use crate::lab::{BallCentringCell, CellLink, LabError, RwsLink, UwaveLink};
 use crate::twin::SerialTwin;
 use crate::twin::cell::{INDICATOR_HALF_RANGE_MM, SimulatedCell};
 
 /// Reading of an indicator at the tool-axis zero (mid-travel of the 12.7 mm ID-C112XB).
 pub const INDICATOR_ZERO_MM: f64 = INDICATOR_HALF_RANGE_MM;
-
-/// A ball-centring cell as campaigns see it.
-pub struct TricalCell {
-    /// Cell name (jobs name it in `cell`).
-    pub name: String,
-    /// The arm, behind the cell's motion envelope.
-    pub robot: Arc<dyn Robot>,
-    /// The centring device.
-    pub indicators: Arc<dyn Indicators>,
-    /// The cell's current model (nominal until a calibration is accepted).
-    pub model: Mutex<DhFile>,
-    /// Ballbar distances d12, d13, d23 of the plate (mm).
-    pub ballbar: [f64; 3],
-    /// The envelope the procedures enforce.
-    pub envelope: Envelope,
-    /// Device names (queue locks).
-    pub devices: Vec<String>,
-}
-
-impl std::fmt::Debug for TricalCell {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("TricalCell")
-            .field("name", &self.name)
-            .field("devices", &self.devices)
-            .finish()
-    }
-}
-
-impl TricalCell {
-    /// The current model.
-    pub fn current_model(&self) -> DhFile {
-        self.model.lock().unwrap_or_else(|p| p.into_inner()).clone()
-    }
-
-    /// Make `m` the current model.
-    pub fn set_model(&self, m: DhFile) {
-        *self.model.lock().unwrap_or_else(|p| p.into_inner()) = m;
-    }
-}
 
 /// Settings of the simulated TriCal cell.
 #[derive(Debug, Clone)]
@@ -160,25 +115,14 @@ fn mock_err(device: &str, e: impl std::fmt::Display) -> LabError {
 }
 
 /// Start the simulated TriCal cell: the twin (true parameters from `seed`), an RWS mock on
-/// a loopback port and a U-WAVE mock on a pseudo-terminal, and driver actors connected to
-/// them.
-pub(super) async fn simulated(
+/// a loopback port and a U-WAVE mock on a pseudo-terminal; returns the cell's description.
+pub(super) async fn start(
     seed: u64,
     o: &SimTricalOptions,
-) -> Result<(TricalCell, Vec<RunningMock>), LabError> {
+) -> Result<(CellLink, Vec<RunningMock>), LabError> {
     let twin = SerialTwin::irb120(seed);
     let file = twin.file.clone();
     let ballbar = twin.ballbar;
-    let limits: Vec<[f64; 2]> = twin
-        .nominal
-        .actuated()
-        .iter()
-        .map(|&j| {
-            twin.nominal.joints[j]
-                .limits
-                .unwrap_or([-std::f64::consts::PI, std::f64::consts::PI])
-        })
-        .collect();
     let cell: Shared = Arc::new(Mutex::new(SimulatedCell::new(twin, seed ^ 0x5eed)));
     let rws_args = MockArgs::new(MockDevice::Abb);
     let arm = TwinArm {
@@ -207,55 +151,27 @@ pub(super) async fn simulated(
         Faults::default(),
     ))
     .map_err(|e| mock_err("uwave", e))?;
-    let backoff = Backoff {
-        initial: Duration::from_millis(50),
-        max: Duration::from_millis(500),
-        ..Backoff::default()
-    };
-    let rws = RwsHandle::connect(
-        TcpConnector::new(rws_mock.addr.clone()),
-        RwsConfig {
-            host: rws_mock.addr.clone(),
-            timeout: Duration::from_secs(2),
-            move_timeout: Duration::from_secs(20),
-            poll: Duration::from_millis(5),
-            max_joint_step_deg: o.max_joint_step_deg,
-            backoff: backoff.clone(),
-            ..RwsConfig::default()
-        },
-    );
     let axis = |c| AxisMap {
         channel: c,
         sign: 1.0,
         zero_mm: INDICATOR_ZERO_MM,
     };
-    let uwave = UwaveHandle::connect(
-        SerialConnector {
+    let link = BallCentringCell {
+        name: "irb120".into(),
+        rws: RwsLink {
+            address: rws_mock.addr.clone(),
+            user: rws_args.user.clone(),
+            password: rws_args.password.clone(),
+        },
+        uwave: UwaveLink {
             path: uw_mock.addr.clone(),
             baud: 57_600,
-            recorder: None,
-        },
-        UwaveConfig {
-            timeout: Duration::from_millis(500),
             axes: [axis(0), axis(1), axis(2)],
-            backoff,
-            ..UwaveConfig::default()
         },
-    );
-    let envelope = Envelope {
-        limits,
-        max_joint_step: o.max_joint_step_deg.to_radians(),
+        ballbar,
+        model: file,
+        max_joint_step_deg: o.max_joint_step_deg,
         max_tool_step_mm: 6.5,
     };
-    let robot = MotionLimiter::new(RwsRobot::new(rws, "irb120.rws"), envelope.clone());
-    let cell = TricalCell {
-        name: "irb120".into(),
-        robot: Arc::new(robot),
-        indicators: Arc::new(UwaveIndicators::new(uwave, "irb120.uwave")),
-        model: Mutex::new(file),
-        ballbar,
-        envelope,
-        devices: vec!["irb120.rws".into(), "irb120.uwave".into()],
-    };
-    Ok((cell, vec![rws_mock, uw_mock]))
+    Ok((CellLink::BallCentring(link), vec![rws_mock, uw_mock]))
 }

@@ -7,7 +7,7 @@ use std::time::Duration;
 use calibd_drivers::qtm::{QtmHandle, StreamTransport};
 use tokio::sync::broadcast::error::RecvError;
 
-use super::adapters::device_error;
+use super::serial::device_error;
 use crate::procedures::{DeviceError, DeviceFuture, MarkerFrames, MarkerStream};
 
 /// Longest wait for the next frame while recording.

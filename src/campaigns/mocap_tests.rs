@@ -129,7 +129,7 @@ async fn averages_stable_samples_to_well_below_the_frame_noise() {
         .await
         .unwrap();
     assert_eq!((sum.recorded, sum.skipped, sum.planned), (5, 0, 5));
-    let rec = recorded(&j, 5).unwrap();
+    let rec: Vec<PostureSample> = engine::recorded(&j, 0, 5).unwrap();
     for (k, p) in rec.iter().enumerate() {
         let m = p.markers["m"].unwrap();
         // 0.3 mm frame noise; 10 kept samples of a 5 Hz low-pass at 100 Hz: the mean is within

@@ -5,51 +5,15 @@
 //! is the true pose at the settled joints, read with noise).
 
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
 
 use calibd_drivers::microscope::mock::PoseModel;
-use calibd_drivers::microscope::{MicroscopeConfig, MicroscopeHandle};
 use calibd_drivers::mock::{self, FaultSpec, Faults, RunningMock};
-use calibd_drivers::smaract::Mcs2Handle;
 use calibd_drivers::smaract::mock::StageModel;
-use calibd_drivers::{Backoff, StageConfig, TcpConnector};
 
-use super::LabError;
-use super::pcr_adapters::{Microscope, SmaractStages};
-use crate::model::pcr::{Equilibrium, PcrFile};
-use crate::procedures::{LinearStages, PoseSensor};
+use crate::lab::{CellLink, LabError, PcrCellLink};
+use crate::model::pcr::Equilibrium;
 use crate::twin::PcrTwin;
 use crate::util::Rng;
-
-/// A 3-PF cell as campaigns see it.
-pub struct PcrCell {
-    /// Cell name (jobs name it in `cell`).
-    pub name: String,
-    /// The three stages (joints q1..q3, m).
-    pub stages: Arc<dyn LinearStages>,
-    /// The microscope.
-    pub microscope: Arc<dyn PoseSensor>,
-    /// The cell's current model (nominal until a calibration is accepted).
-    pub model: Mutex<PcrFile>,
-    /// Device names (queue locks).
-    pub devices: Vec<String>,
-}
-
-impl std::fmt::Debug for PcrCell {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("PcrCell")
-            .field("name", &self.name)
-            .field("devices", &self.devices)
-            .finish()
-    }
-}
-
-impl PcrCell {
-    /// The current model.
-    pub fn current_model(&self) -> PcrFile {
-        self.model.lock().unwrap_or_else(|p| p.into_inner()).clone()
-    }
-}
 
 /// Settings of the simulated 3-PF cell.
 #[derive(Debug, Clone)]
@@ -159,10 +123,10 @@ fn mock_err(device: &str, e: impl std::fmt::Display) -> LabError {
 
 /// Start the simulated 3-PF cell: the twin (true parameters from `seed`), an MCS2 mock and
 /// a microscope mock on loopback ports, and driver actors connected to them.
-pub(super) async fn simulated(
+pub(super) async fn start(
     seed: u64,
     o: &SimPcrOptions,
-) -> Result<(PcrCell, Vec<RunningMock>), LabError> {
+) -> Result<(CellLink, Vec<RunningMock>), LabError> {
     let twin = PcrTwin::nominal(seed).map_err(|e| mock_err("pcr twin", e))?;
     let file = twin.file.clone();
     let lim = file.limits();
@@ -200,33 +164,12 @@ pub(super) async fn simulated(
     )
     .await
     .map_err(|e| mock_err("microscope", e))?;
-    let backoff = Backoff {
-        initial: Duration::from_millis(50),
-        max: Duration::from_millis(500),
-        ..Backoff::default()
-    };
-    let mcs2 = Mcs2Handle::connect(
-        TcpConnector::new(stage_mock.addr.clone()),
-        StageConfig {
-            timeout: Duration::from_secs(1),
-            move_timeout: Duration::from_secs(10),
-            poll: Duration::from_millis(2),
-            backoff,
-        },
-    );
-    let scope = MicroscopeHandle::connect(
-        TcpConnector::new(scope_mock.addr.clone()),
-        MicroscopeConfig {
-            timeout: Duration::from_secs(1),
-            backoff,
-        },
-    );
-    let cell = PcrCell {
+    let link = PcrCellLink {
         name: "pcr3pf".into(),
-        stages: Arc::new(SmaractStages::new(Arc::new(mcs2), [0, 1, 2], "pcr3pf.mcs2")),
-        microscope: Arc::new(Microscope::new(scope, "pcr3pf.microscope")),
-        model: Mutex::new(file),
-        devices: vec!["pcr3pf.mcs2".into(), "pcr3pf.microscope".into()],
+        mcs2: stage_mock.addr.clone(),
+        channels: [0, 1, 2],
+        microscope: scope_mock.addr.clone(),
+        model: file,
     };
-    Ok((cell, vec![stage_mock, scope_mock]))
+    Ok((CellLink::Pcr(link), vec![stage_mock, scope_mock]))
 }

@@ -8,46 +8,12 @@ use std::time::Duration;
 
 use calibd_drivers::mock::{self, Faults, MockArgs, MockDevice, RunningMock};
 use calibd_drivers::qtm::mock::MarkerModel;
-use calibd_drivers::qtm::{QtmConfig, QtmHandle};
-use calibd_drivers::{Backoff, TcpConnector};
 
-use super::LabError;
-use super::qtm_stream::QtmStream;
+use crate::lab::{CellLink, LabError, MocapCellLink};
 use crate::design::playback::quintic;
-use crate::model::humanoid::{BaseMode, MarkerDef};
-use crate::procedures::{DeviceError, DeviceFuture, JointRobot, MarkerStream};
+use crate::model::humanoid::BaseMode;
+use crate::procedures::{DeviceError, DeviceFuture, JointRobot};
 use crate::twin::humanoid::{HumanoidTwin, TALOS_URDF, left_arm_spec};
-
-/// A motion-capture cell as campaigns see it.
-pub struct MocapCell {
-    /// Cell name (jobs name it in `cell`).
-    pub name: String,
-    /// The robot's joint interface.
-    pub robot: Arc<dyn JointRobot>,
-    /// The motion-capture stream.
-    pub stream: Arc<dyn MarkerStream>,
-    /// The robot's URDF text (the nominal model).
-    pub urdf: String,
-    /// Root link of the measured chain (the waist).
-    pub root_link: String,
-    /// The measured joints, in the robot interface's order.
-    pub joints: Vec<String>,
-    /// Joint limits (rad), same order.
-    pub limits: Vec<[f64; 2]>,
-    /// The markers on the robot with their guessed positions.
-    pub markers: Vec<MarkerDef>,
-    /// Device names (queue locks).
-    pub devices: Vec<String>,
-}
-
-impl std::fmt::Debug for MocapCell {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MocapCell")
-            .field("name", &self.name)
-            .field("devices", &self.devices)
-            .finish()
-    }
-}
 
 /// Settings of the simulated motion-capture cell.
 #[derive(Debug, Clone)]
@@ -208,10 +174,10 @@ fn mock_err(device: &str, e: impl std::fmt::Display) -> LabError {
 /// Start the simulated motion-capture cell: the TALOS twin (true errors from `seed`), its
 /// joint interface, a QTM RT mock on a loopback port streaming the twin's markers, and a
 /// QTM driver actor connected to it.
-pub(super) async fn simulated(
+pub(super) async fn start(
     seed: u64,
     o: &SimMocapOptions,
-) -> Result<(MocapCell, RunningMock), LabError> {
+) -> Result<(CellLink, RunningMock), LabError> {
     let mut spec = left_arm_spec(false);
     spec.base = BaseMode::Identify;
     let twin = HumanoidTwin::new(spec, seed).map_err(|e| mock_err("talos twin", e))?;
@@ -244,18 +210,6 @@ pub(super) async fn simulated(
     )
     .await
     .map_err(|e| mock_err("qtm", e))?;
-    let qtm = QtmHandle::connect(
-        TcpConnector::new(qtm_mock.addr.clone()),
-        QtmConfig {
-            timeout: Duration::from_secs(2),
-            backoff: Backoff {
-                initial: Duration::from_millis(50),
-                max: Duration::from_millis(500),
-                ..Backoff::default()
-            },
-            ..QtmConfig::default()
-        },
-    );
     let robot = SimJointRobot {
         room,
         names: names.clone(),
@@ -264,16 +218,16 @@ pub(super) async fn simulated(
         failing: o.failing_moves.clone(),
         moving: tokio::sync::Mutex::new(()),
     };
-    let cell = MocapCell {
+    let link = MocapCellLink {
         name: "talos".into(),
-        robot: Arc::new(robot),
-        stream: Arc::new(QtmStream::new(qtm, "talos.qtm")),
+        joints: Arc::new(robot),
+        joints_device: ROBOT.into(),
+        qtm: qtm_mock.addr.clone(),
         urdf: TALOS_URDF.to_string(),
         root_link,
-        joints: names,
+        joint_names: names,
         limits,
         markers,
-        devices: vec![ROBOT.into(), "talos.qtm".into()],
     };
-    Ok((cell, qtm_mock))
+    Ok((CellLink::Mocap(link), qtm_mock))
 }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use calibd_drivers::Stage;
 use calibd_drivers::microscope::MicroscopeHandle;
 
-use super::adapters::device_error;
+use super::serial::device_error;
 use crate::procedures::{DeviceError, DeviceFuture, LinearStages, PoseSensor};
 
 /// Picometres per metre.

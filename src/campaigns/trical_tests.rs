@@ -3,6 +3,7 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 use super::*;
 use crate::design::balls::ball_pool;
@@ -46,7 +47,7 @@ async fn campaign(
     cell: &SharedCell,
     plan: &[Planned],
     journal: &dyn Journal,
-) -> Result<CampaignSummary, CampaignError> {
+) -> Result<Summary, CampaignError> {
     let retry = Retry {
         attempts: 3,
         backoff: Duration::from_millis(1),
@@ -74,7 +75,7 @@ async fn campaign_then_identification_reaches_the_noise_level() {
         .unwrap();
     assert_eq!(s.recorded + s.skipped, 60);
     assert!(s.recorded >= 57, "{s:?}");
-    let rec = recorded(&journal, 0, plan.len()).unwrap();
+    let rec: Vec<Recorded> = engine::recorded(&journal, 0, plan.len()).unwrap();
     // Every recorded configuration has the true TCP within epsilon (+ indicator noise) of its ball.
     for m in &rec {
         let e = (twin.true_tcp(&m.q) - twin.plate.centres[m.ball].unwrap()).norm();
@@ -138,8 +139,8 @@ async fn an_interrupted_campaign_resumes_to_the_same_measurements() {
         .await
         .unwrap();
     let (a, b) = (
-        recorded(&full, 0, plan.len()).unwrap(),
-        recorded(&resumed, 0, plan.len()).unwrap(),
+        engine::recorded::<Recorded>(&full, 0, plan.len()).unwrap(),
+        engine::recorded::<Recorded>(&resumed, 0, plan.len()).unwrap(),
     );
     assert_eq!(a.len(), b.len());
     assert_eq!(

@@ -1,0 +1,9 @@
+//! Measurement campaigns: the [`engine`] owns the loop every campaign repeats (journal skip
+//! on resume, retry with back-off, pause with reason, cancel before every move, progress
+//! and ETA); each campaign supplies its plan and a "measure one" [`engine::Step`], then
+//! calls the numerical kinds through typed functions on the blocking pool.
+
+pub mod engine;
+pub mod mocap;
+pub mod pcr;
+pub mod trical;

@@ -1,0 +1,156 @@
+//! Model decisions: a campaign proposes its calibrated model as a [`Candidate`] with the
+//! evidence of a validation (an error before and after); the cell's [`Acceptance`] rule
+//! makes it the current model or records it as rejected, with the reason. The service
+//! writes the decision in the same transaction as the job's final state.
+
+use serde_json::Value;
+
+use super::CellModel;
+
+/// Validation evidence: a mean error of the starting and of the calibrated model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evidence {
+    /// What was measured, e.g. "validation mean position error".
+    pub what: String,
+    /// Error of the model the campaign started from.
+    pub before: f64,
+    /// Error of the calibrated model.
+    pub after: f64,
+    /// Unit of both (`mm`, `m`).
+    pub unit: &'static str,
+}
+
+/// A calibrated model proposed for a cell.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Candidate {
+    /// The cell.
+    pub cell: String,
+    /// The calibrated model.
+    pub model: CellModel,
+    /// Validation figures, if the campaign validated.
+    pub evidence: Option<Evidence>,
+    /// The validation document kept in the cell's history.
+    pub validation: Value,
+}
+
+/// When a candidate replaces a cell's model: it must gain more than `min_relative_gain`
+/// of the starting error and more than `min_gain` (below it a difference is measurement
+/// noise).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Acceptance {
+    /// Smallest relative gain (0.1 = 10 %).
+    pub min_relative_gain: f64,
+    /// Smallest absolute gain, in `unit`.
+    pub min_gain: f64,
+    /// Unit of `min_gain` (the evidence must be in the same unit).
+    pub unit: &'static str,
+}
+
+/// The decision on a candidate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decision {
+    /// The cell.
+    pub cell: String,
+    /// Whether the candidate became the current model.
+    pub accepted: bool,
+    /// Why, with the figures.
+    pub reason: String,
+    /// The validation document.
+    pub validation: Value,
+    /// The model, as stored.
+    pub model: Value,
+}
+
+impl Acceptance {
+    /// Decide on `c`.
+    pub fn decide(&self, c: &Candidate) -> Decision {
+        let (accepted, reason) = match &c.evidence {
+            Some(e) if e.unit != self.unit => (
+                false,
+                format!(
+                    "the validation is in {} but the cell's rule is in {}",
+                    e.unit, self.unit
+                ),
+            ),
+            Some(e) if !(e.before.is_finite() && e.after.is_finite()) => (
+                false,
+                format!("{}: not a number ({} -> {})", e.what, e.before, e.after),
+            ),
+            Some(e) if e.before - e.after > (self.min_relative_gain * e.before).max(self.min_gain) => (
+                true,
+                format!(
+                    "{} improved from {:.4} {u} (starting model) to {:.4} {u}",
+                    e.what,
+                    e.before,
+                    e.after,
+                    u = e.unit
+                ),
+            ),
+            Some(e) => (
+                false,
+                format!(
+                    "validation did not improve enough: {} {:.4} {u} against {:.4} {u} for the starting model (a candidate must gain more than {:.0} % and {} {u})",
+                    e.what,
+                    e.after,
+                    e.before,
+                    100.0 * self.min_relative_gain,
+                    self.min_gain,
+                    u = e.unit
+                ),
+            ),
+            None => (
+                false,
+                "the campaign had no validation pass: nothing shows the model is better".into(),
+            ),
+        };
+        Decision {
+            cell: c.cell.clone(),
+            accepted,
+            reason,
+            validation: c.validation.clone(),
+            model: c.model.to_json(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn candidate(before: f64, after: f64) -> Candidate {
+        Candidate {
+            cell: "c".into(),
+            model: CellModel::Humanoid("<robot/>".into()),
+            evidence: Some(Evidence {
+                what: "validation mean error".into(),
+                before,
+                after,
+                unit: "mm",
+            }),
+            validation: Value::Null,
+        }
+    }
+
+    #[test]
+    fn a_gain_must_beat_both_the_relative_and_the_absolute_threshold() {
+        let rule = Acceptance {
+            min_relative_gain: 0.1,
+            min_gain: 0.002,
+            unit: "mm",
+        };
+        assert!(rule.decide(&candidate(0.100, 0.050)).accepted);
+        // 5 % is below 10 %.
+        assert!(!rule.decide(&candidate(0.100, 0.095)).accepted);
+        // 50 % of a tiny error is below the absolute threshold.
+        assert!(!rule.decide(&candidate(0.003, 0.0015)).accepted);
+        let mut c = candidate(0.1, 0.01);
+        c.evidence = None;
+        let d = rule.decide(&c);
+        assert!(!d.accepted && d.reason.contains("no validation"), "{d:?}");
+        let mut c = candidate(0.1, 0.01);
+        if let Some(e) = c.evidence.as_mut() {
+            e.unit = "m";
+        }
+        assert!(!rule.decide(&c).accepted);
+    }
+}
