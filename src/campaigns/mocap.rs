@@ -8,14 +8,14 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::engine::{self, CampaignError, Retry, Step, StepError, Summary};
+use super::results::{MocapCampaign, MocapStats};
 use crate::jobs::cell::mocap::{MocapCampaignJob, samples_table};
 use crate::jobs::{Artefact, Cx, JobError, Output, Produced};
 use crate::lab::{Candidate, CellModel, Evidence};
-use crate::measure::mocap::{MocapOptions, preprocess};
+use crate::measure::mocap::{MocapOptions, average_stable};
 use crate::procedures::{DeviceError, JointRobot, Journal, MarkerFrames, MarkerStream};
 use crate::util::Monitor;
 
@@ -58,45 +58,13 @@ pub enum PostureError {
     Unstable(String),
 }
 
-/// Average the stable samples of one recording window; the pre-processing is the one of
-/// `humanoid.*` raw recordings.
+/// Average the stable samples of one recording window (see
+/// [`crate::measure::mocap::average_stable`]).
 pub fn reduce(
     rec: &MarkerFrames,
     opts: &MocapOptions,
 ) -> Result<(BTreeMap<String, Option<[f64; 3]>>, usize), PostureError> {
-    let tracks: Vec<Vec<Option<Vector3<f64>>>> = (0..rec.labels.len())
-        .map(|m| {
-            rec.frames
-                .iter()
-                .map(|f| f.get(m).copied().flatten().map(Vector3::from))
-                .collect()
-        })
-        .collect();
-    let stable = preprocess(&rec.t_s, &tracks, None, opts)
-        .map_err(|e| PostureError::Unstable(e.to_string()))?;
-    let Some(kept) = stable.postures.iter().max_by_key(|p| p.len()) else {
-        return Err(PostureError::Unstable(format!(
-            "{} frames, none stable for {} samples",
-            rec.t_s.len(),
-            opts.min_stable
-        )));
-    };
-    let mut out = BTreeMap::new();
-    let mut most = 0;
-    for (m, label) in rec.labels.iter().enumerate() {
-        let pts: Vec<Vector3<f64>> = kept
-            .iter()
-            .filter(|&&s| stable.keep[m][s])
-            .filter_map(|&s| stable.filtered[m][s])
-            .collect();
-        most = most.max(pts.len());
-        let mean = (!pts.is_empty()).then(|| {
-            let c = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
-            [c.x, c.y, c.z]
-        });
-        out.insert(label.clone(), mean);
-    }
-    Ok((out, most))
+    average_stable(&rec.labels, &rec.t_s, &rec.frames, opts).map_err(PostureError::Unstable)
 }
 
 async fn measure(
@@ -195,45 +163,6 @@ pub async fn run(
     engine::run(&step, plan, 0, journal, retry, monitor).await
 }
 
-/// Figures of a motion-capture campaign.
-#[derive(Debug, Clone, Serialize)]
-pub struct CampaignStats {
-    /// Postures planned.
-    pub planned: usize,
-    /// Postures recorded (including earlier runs).
-    pub recorded: usize,
-    /// Postures skipped (refused by the robot).
-    pub skipped: usize,
-    /// Mean frames per recording window.
-    pub mean_frames_per_posture: f64,
-    /// Mean stable samples averaged per posture.
-    pub mean_stable_samples: f64,
-    /// Time designing the postures (s).
-    pub design_s: f64,
-    /// Time measuring (s).
-    pub measuring_s: f64,
-    /// Time identifying (s).
-    pub identify_s: f64,
-    /// Whole campaign (s).
-    pub wall_time_s: f64,
-    /// Journal entries.
-    pub journal_entries: usize,
-}
-
-/// The result of a `cell.mocap_campaign`.
-#[derive(Debug, Clone, Serialize)]
-pub struct MocapCampaign {
-    /// The `humanoid.identify` result.
-    #[serde(flatten)]
-    pub calibration: serde_json::Map<String, serde_json::Value>,
-    /// The cell.
-    pub cell: String,
-    /// Campaign figures.
-    pub campaign: CampaignStats,
-    /// The averaged postures (rows of the main table).
-    pub measurements: serde_json::Value,
-}
-
 /// Run a `cell.mocap_campaign`: postures, record, identify, propose.
 pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, JobError> {
     let t0 = Instant::now();
@@ -291,7 +220,7 @@ pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, Jo
     let result = MocapCampaign {
         calibration: identified.fields,
         cell: job.cell.clone(),
-        campaign: CampaignStats {
+        campaign: MocapStats {
             planned: plan.len(),
             recorded: sum.recorded,
             skipped: sum.skipped,

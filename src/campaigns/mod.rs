@@ -6,4 +6,5 @@
 pub mod engine;
 pub mod mocap;
 pub mod pcr;
+pub mod results;
 pub mod trical;

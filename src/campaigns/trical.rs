@@ -9,6 +9,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::engine::{self, CampaignError, Retry, Step, StepError, Summary};
+use super::results::{TricalCampaign, TricalStats};
 use crate::jobs::cell::trical::CampaignJob;
 use crate::jobs::{Artefact, Cx, JobError, Output, Produced, Table};
 use crate::lab::{Candidate, CellModel, Evidence};
@@ -187,7 +188,7 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
     };
     let identify_s = t_id.elapsed().as_secs_f64();
     let measurements = recorded_table(&rec);
-    let stats = CampaignStats {
+    let stats = TricalStats {
         planned: plan.len(),
         recorded: s1.recorded,
         skipped: s1.skipped,
@@ -231,51 +232,6 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
         output: out,
         candidate: Some(candidate),
     })
-}
-
-/// Figures of a TriCal campaign's measuring.
-#[derive(Debug, Clone, Serialize)]
-pub struct CampaignStats {
-    /// Configurations planned for the identification.
-    pub planned: usize,
-    /// Centred (including earlier runs).
-    pub recorded: usize,
-    /// Skipped (ball lost, not converged).
-    pub skipped: usize,
-    /// Held-out configurations planned.
-    pub validation_planned: usize,
-    /// Held-out configurations centred.
-    pub validation_recorded: usize,
-    /// Held-out configurations skipped.
-    pub validation_skipped: usize,
-    /// Mean corrective moves per configuration.
-    pub mean_moves: f64,
-    /// Largest final residual (mm).
-    pub max_residual_mm: f64,
-    /// Time measuring (s).
-    pub measuring_s: f64,
-    /// Time identifying (s).
-    pub identify_s: f64,
-    /// Whole campaign (s).
-    pub wall_time_s: f64,
-    /// Journal entries.
-    pub journal_entries: usize,
-}
-
-/// The result of a `cell.trical_campaign`: the identification's result and the campaign's.
-#[derive(Debug, Clone, Serialize)]
-pub struct TricalCampaign {
-    /// The `serial.identify` result on the centred configurations.
-    #[serde(flatten)]
-    pub calibration: serde_json::Map<String, serde_json::Value>,
-    /// The cell.
-    pub cell: String,
-    /// Measuring figures.
-    pub campaign: CampaignStats,
-    /// The model the campaign started from.
-    pub start_model: crate::model::dh::DhFile,
-    /// The centred configurations (rows of the main table).
-    pub measurements: serde_json::Value,
 }
 
 #[cfg(test)]

@@ -229,6 +229,50 @@ pub fn preprocess(
     })
 }
 
+/// Average each marker over the longest stable stretch of one recording window (the
+/// pre-processing of `humanoid.*` raw recordings): per label its mean position (`None`
+/// when it had no stable sample), and the most samples averaged for one marker.
+#[allow(clippy::type_complexity)]
+pub fn average_stable(
+    labels: &[String],
+    t_s: &[f64],
+    frames: &[Vec<Option<[f64; 3]>>],
+    opts: &MocapOptions,
+) -> Result<(std::collections::BTreeMap<String, Option<[f64; 3]>>, usize), String> {
+    let tracks: Vec<Vec<Option<Vector3<f64>>>> = (0..labels.len())
+        .map(|m| {
+            frames
+                .iter()
+                .map(|f| f.get(m).copied().flatten().map(Vector3::from))
+                .collect()
+        })
+        .collect();
+    let stable = preprocess(t_s, &tracks, None, opts).map_err(|e| e.to_string())?;
+    let Some(kept) = stable.postures.iter().max_by_key(|p| p.len()) else {
+        return Err(format!(
+            "{} frames, none stable for {} samples",
+            t_s.len(),
+            opts.min_stable
+        ));
+    };
+    let mut out = std::collections::BTreeMap::new();
+    let mut most = 0;
+    for (m, label) in labels.iter().enumerate() {
+        let pts: Vec<Vector3<f64>> = kept
+            .iter()
+            .filter(|&&s| stable.keep[m][s])
+            .filter_map(|&s| stable.filtered[m][s])
+            .collect();
+        most = most.max(pts.len());
+        let mean = (!pts.is_empty()).then(|| {
+            let c = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+            [c.x, c.y, c.z]
+        });
+        out.insert(label.clone(), mean);
+    }
+    Ok((out, most))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

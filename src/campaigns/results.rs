@@ -1,0 +1,134 @@
+//! The typed results of the three campaigns: the identification's result (flattened, as
+//! `serial.identify`, `pcr.identify` and `humanoid.identify` report it), the cell, and the
+//! figures of the measuring.
+
+use serde::Serialize;
+use serde_json::{Map, Value};
+
+/// Figures of a TriCal campaign's measuring.
+#[derive(Debug, Clone, Serialize)]
+pub struct TricalStats {
+    /// Configurations planned for the identification.
+    pub planned: usize,
+    /// Centred (including earlier runs).
+    pub recorded: usize,
+    /// Skipped (ball lost, not converged).
+    pub skipped: usize,
+    /// Held-out configurations planned.
+    pub validation_planned: usize,
+    /// Held-out configurations centred.
+    pub validation_recorded: usize,
+    /// Held-out configurations skipped.
+    pub validation_skipped: usize,
+    /// Mean corrective moves per configuration.
+    pub mean_moves: f64,
+    /// Largest final residual (mm).
+    pub max_residual_mm: f64,
+    /// Time measuring (s).
+    pub measuring_s: f64,
+    /// Time identifying (s).
+    pub identify_s: f64,
+    /// Whole campaign (s).
+    pub wall_time_s: f64,
+    /// Journal entries.
+    pub journal_entries: usize,
+}
+
+/// The result of a `cell.trical_campaign`: the identification's result and the campaign's.
+#[derive(Debug, Clone, Serialize)]
+pub struct TricalCampaign {
+    /// The `serial.identify` result on the centred configurations.
+    #[serde(flatten)]
+    pub calibration: Map<String, Value>,
+    /// The cell.
+    pub cell: String,
+    /// Measuring figures.
+    pub campaign: TricalStats,
+    /// The model the campaign started from.
+    pub start_model: crate::model::dh::DhFile,
+    /// The centred configurations (rows of the main table).
+    pub measurements: Value,
+}
+
+/// Figures of a 3-PF campaign's measuring.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrStats {
+    /// Joint sets planned (calibration + validation).
+    pub planned: usize,
+    /// Calibration joint sets measured.
+    pub calibration: usize,
+    /// Validation joint sets measured.
+    pub validation: usize,
+    /// Measured (including earlier runs).
+    pub recorded: usize,
+    /// Skipped (outside the envelope).
+    pub skipped: usize,
+    /// Accuracy poses measured.
+    pub accuracy_measurements: usize,
+    /// Seed of the Poisson-disc plan.
+    pub seed: u64,
+    /// Time measuring (s).
+    pub measuring_s: f64,
+    /// Time identifying (s).
+    pub identify_s: f64,
+    /// Whole campaign (s).
+    pub wall_time_s: f64,
+    /// Journal entries.
+    pub journal_entries: usize,
+}
+
+/// The result of a `cell.pcr_campaign`.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrCampaign {
+    /// The `pcr.identify` result.
+    #[serde(flatten)]
+    pub calibration: Map<String, Value>,
+    /// The `pcr.accuracy` result of the identified model, if asked for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accuracy: Option<Map<String, Value>>,
+    /// The cell.
+    pub cell: String,
+    /// Measuring figures.
+    pub campaign: PcrStats,
+    /// The calibration and validation joint sets (rows of the main table).
+    pub measurements: Value,
+}
+
+/// Figures of a motion-capture campaign.
+#[derive(Debug, Clone, Serialize)]
+pub struct MocapStats {
+    /// Postures planned.
+    pub planned: usize,
+    /// Postures recorded (including earlier runs).
+    pub recorded: usize,
+    /// Postures skipped (refused by the robot).
+    pub skipped: usize,
+    /// Mean frames per recording window.
+    pub mean_frames_per_posture: f64,
+    /// Mean stable samples averaged per posture.
+    pub mean_stable_samples: f64,
+    /// Time designing the postures (s).
+    pub design_s: f64,
+    /// Time measuring (s).
+    pub measuring_s: f64,
+    /// Time identifying (s).
+    pub identify_s: f64,
+    /// Whole campaign (s).
+    pub wall_time_s: f64,
+    /// Journal entries.
+    pub journal_entries: usize,
+}
+
+/// The result of a `cell.mocap_campaign`.
+#[derive(Debug, Clone, Serialize)]
+pub struct MocapCampaign {
+    /// The `humanoid.identify` result.
+    #[serde(flatten)]
+    pub calibration: Map<String, Value>,
+    /// The cell.
+    pub cell: String,
+    /// Campaign figures.
+    pub campaign: MocapStats,
+    /// The averaged postures (rows of the main table).
+    pub measurements: Value,
+}
