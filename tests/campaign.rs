@@ -9,10 +9,10 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use calibd::lab::Lab;
-use calibd::sim::SimOptions;
 use calibd::procedures::JournalEntry;
 use calibd::schedule::{Clock, Scheduler};
 use calibd::service::{Origin, Service, ServiceConfig, Submitter};
+use calibd::sim::SimOptions;
 use calibd::store::{JobState, MissedPolicy, NewSchedule, Store};
 use chrono::TimeZone;
 use serde_json::{Value, json};
@@ -312,17 +312,13 @@ async fn cell_centre_centres_on_a_ball_and_every_abort_says_why() {
     );
     // Far from every ball: the plungers are fully extended and the loop refuses to chase.
     let home = json!({"kind": "cell.centre", "q_deg": [0.0, 0.0, 0.0, 0.0, 30.0, 0.0]});
-    let e = run(home).await
-        .unwrap_err()
-        .to_string();
+    let e = run(home).await.unwrap_err().to_string();
     assert!(e.contains("ball lost") && e.contains("6 mm limit"), "{e}");
     // A silent receiver: the reading timeout names itself.
     stall.store(true, Ordering::SeqCst);
     let mut slow = doc.clone();
     slow["options"]["reading_timeout_ms"] = json!(300);
-    let e = run(slow).await
-        .unwrap_err()
-        .to_string();
+    let e = run(slow).await.unwrap_err().to_string();
     assert!(e.contains("no indicator reading within 300 ms"), "{e}");
     // Outside the envelope: refused before anything moves.
     let e = calibd::jobs::prepare(

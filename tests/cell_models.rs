@@ -70,8 +70,14 @@ async fn pcr_and_mocap_campaigns_become_their_cells_current_models() {
         }},
         "options": {"settle_s": 0.05, "record_s": 0.5}
     });
-    let p = svc.submit(pcr, 0, operator(), Origin::default()).await.unwrap();
-    let m = svc.submit(mocap, 0, operator(), Origin::default()).await.unwrap();
+    let p = svc
+        .submit(pcr, 0, operator(), Origin::default())
+        .await
+        .unwrap();
+    let m = svc
+        .submit(mocap, 0, operator(), Origin::default())
+        .await
+        .unwrap();
     for id in [p, m] {
         let j = until_final(&svc, id).await;
         assert_eq!(j.state, JobState::Succeeded, "job {id}: {:?}", j.error);
@@ -93,8 +99,9 @@ async fn pcr_and_mocap_campaigns_become_their_cells_current_models() {
         );
         let rule = &c["acceptance"];
         assert!(
-            b - a > (rule["min_relative_gain"].as_f64().unwrap() * b)
-                .max(rule["min_gain"].as_f64().unwrap()),
+            b - a
+                > (rule["min_relative_gain"].as_f64().unwrap() * b)
+                    .max(rule["min_gain"].as_f64().unwrap()),
             "{name}: {b} -> {a} does not pass {rule}"
         );
         // The decision was written with the result: it is in the job's result too.
@@ -107,7 +114,10 @@ async fn pcr_and_mocap_campaigns_become_their_cells_current_models() {
     let pcr_model: calibd::model::pcr::PcrFile =
         serde_json::from_value(cell(&cells, "pcr3pf")["models"][0]["model"].clone()).unwrap();
     assert_eq!(lab.pcr("pcr3pf").unwrap().current_model(), pcr_model);
-    let urdf = cell(&cells, "talos")["models"][0]["model"].as_str().unwrap().to_string();
+    let urdf = cell(&cells, "talos")["models"][0]["model"]
+        .as_str()
+        .unwrap()
+        .to_string();
     assert_eq!(lab.mocap("talos").unwrap().current_model(), urdf);
     assert_ne!(urdf, calibd::twin::humanoid::TALOS_URDF);
     stop.cancel();

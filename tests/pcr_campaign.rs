@@ -8,8 +8,8 @@ use std::sync::Arc;
 
 use calibd::jobs::{NoReferences, prepare};
 use calibd::lab::Lab;
-use calibd::sim::SimOptions;
 use calibd::procedures::{EntryStatus, Journal, JournalEntry, MemoryJournal};
+use calibd::sim::SimOptions;
 use calibd::util::NoMonitor;
 use serde_json::{Value, json};
 
@@ -158,7 +158,10 @@ fn microscope_faults_are_retried_and_a_dead_microscope_pauses_the_campaign() {
             at: 12,
         },
     ];
-    let lab = rt.block_on(Lab::simulated(&opts)).map(Arc::new).expect("lab");
+    let lab = rt
+        .block_on(Lab::simulated(&opts))
+        .map(Arc::new)
+        .expect("lab");
     let doc = json!({"kind": "cell.pcr_campaign", "poses": 16, "seed": 2, "validation_fraction": 0.0,
                      "options": {"retry": {"attempts": 3, "backoff_ms": 5}}});
     let j = Arc::new(MemoryJournal::default());
@@ -175,7 +178,10 @@ fn microscope_faults_are_retried_and_a_dead_microscope_pauses_the_campaign() {
             at,
         })
         .collect();
-    let lab = rt.block_on(Lab::simulated(&opts)).map(Arc::new).expect("lab");
+    let lab = rt
+        .block_on(Lab::simulated(&opts))
+        .map(Arc::new)
+        .expect("lab");
     let j = Arc::new(MemoryJournal::default());
     let e = run(&rt, &lab, &doc, &j).expect_err("paused");
     match e {

@@ -270,3 +270,29 @@ pub struct Identified<M> {
     /// Artefacts.
     pub artefacts: Vec<crate::jobs::Artefact>,
 }
+
+/// Wrap up a campaign: its typed result as the output, the identification's artefacts, the
+/// measurement table (main table and `measurements.csv`), one more table if any, and the
+/// model it proposes for its cell.
+pub fn conclude<R: Serialize>(
+    result: &R,
+    artefacts: Vec<crate::jobs::Artefact>,
+    measurements: crate::jobs::Table,
+    more: Option<(&str, crate::jobs::Table)>,
+    candidate: crate::lab::Candidate,
+) -> Result<crate::jobs::Produced, JobError> {
+    use crate::jobs::Artefact;
+    let mut output = crate::jobs::Output::typed(result)?;
+    output.artefacts = artefacts;
+    output
+        .artefacts
+        .push(Artefact::csv("measurements.csv", &measurements));
+    if let Some((name, t)) = more {
+        output.artefacts.push(Artefact::csv(name, &t));
+    }
+    output.main_table = Some(measurements);
+    Ok(crate::jobs::Produced {
+        output,
+        candidate: Some(candidate),
+    })
+}

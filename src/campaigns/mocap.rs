@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use super::engine::{self, CampaignError, Retry, Step, StepError, Summary};
 use super::results::{MocapCampaign, MocapStats};
 use crate::jobs::cell::mocap::{MocapCampaignJob, samples_table};
-use crate::jobs::{Artefact, Cx, JobError, Output, Produced};
+use crate::jobs::{Cx, JobError, Produced};
 use crate::lab::{Candidate, CellModel, Evidence};
 use crate::measure::mocap::{MocapOptions, average_stable};
 use crate::procedures::{DeviceError, JointRobot, Journal, MarkerFrames, MarkerStream};
@@ -234,14 +234,7 @@ pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, Jo
         },
         measurements: table.to_json_rows(),
     };
-    let mut out = Output::typed(&result)?;
-    out.artefacts = identified.artefacts;
-    out.artefacts.push(Artefact::csv("measurements.csv", &table));
-    out.main_table = Some(table);
-    Ok(Produced {
-        output: out,
-        candidate: Some(candidate),
-    })
+    engine::conclude(&result, identified.artefacts, table, None, candidate)
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use crate::jobs::cell::pcr::PcrCampaignJob;
-use crate::jobs::{Artefact, Cx, JobError, Output, Produced, Table};
+use crate::jobs::{Cx, JobError, Produced, Table};
 use crate::lab::{Candidate, CellModel, Evidence};
 
 use super::engine::{self, CampaignError, Retry, Step, StepError, Summary};
@@ -149,9 +149,21 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
         options: &opts,
     };
     let journal = cx.journal();
-    let (meas_end, id_end) = if job.accuracy.is_some() { (0.6, 0.7) } else { (0.85, 1.0) };
+    let (meas_end, id_end) = if job.accuracy.is_some() {
+        (0.6, 0.7)
+    } else {
+        (0.85, 1.0)
+    };
     let t_meas = Instant::now();
-    let s = engine::run(&step, &plan, 0, journal, &opts.retry, &cx.phase(0.0, meas_end)).await?;
+    let s = engine::run(
+        &step,
+        &plan,
+        0,
+        journal,
+        &opts.retry,
+        &cx.phase(0.0, meas_end),
+    )
+    .await?;
     let measuring_s = t_meas.elapsed().as_secs_f64();
     let cal: Vec<PcrRecorded> = engine::recorded(journal, 0, n_cal)?;
     let val: Vec<PcrRecorded> = engine::recorded(journal, n_cal, plan.len() - n_cal)?;
@@ -177,8 +189,15 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
             cx.compute(move |m| job.accuracy_plan(&model, m)).await?
         };
         let offset = plan.len();
-        engine::run(&step, &control, offset, journal, &opts.retry, &cx.phase(id_end, 0.95))
-            .await?;
+        engine::run(
+            &step,
+            &control,
+            offset,
+            journal,
+            &opts.retry,
+            &cx.phase(id_end, 0.95),
+        )
+        .await?;
         acc_rec = engine::recorded(journal, offset, control.len())?;
         if acc_rec.len() != control.len() {
             return Err(JobError::Failed(format!(
@@ -226,18 +245,13 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
         },
         measurements: measurements.to_json_rows(),
     };
-    let mut out = Output::typed(&result)?;
-    out.artefacts = identified.artefacts;
-    out.artefacts.push(Artefact::csv("measurements.csv", &measurements));
-    if !acc_rec.is_empty() {
-        out.artefacts
-            .push(Artefact::csv("accuracy_measurements.csv", &table(&acc_rec)));
-    }
-    out.main_table = Some(measurements);
-    Ok(Produced {
-        output: out,
-        candidate: Some(candidate),
-    })
+    engine::conclude(
+        &result,
+        identified.artefacts,
+        measurements,
+        (!acc_rec.is_empty()).then(|| ("accuracy_measurements.csv", table(&acc_rec))),
+        candidate,
+    )
 }
 
 #[cfg(test)]

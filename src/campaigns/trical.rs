@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use super::engine::{self, CampaignError, Retry, Step, StepError, Summary};
 use super::results::{TricalCampaign, TricalStats};
 use crate::jobs::cell::trical::CampaignJob;
-use crate::jobs::{Artefact, Cx, JobError, Output, Produced, Table};
+use crate::jobs::{Cx, JobError, Produced, Table};
 use crate::lab::{Candidate, CellModel, Evidence};
 use crate::procedures::centring::{CentringError, CentringOptions, centre};
 use crate::procedures::{DeviceError, Indicators, Journal, Robot};
@@ -165,8 +165,15 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
         options: &copts,
     };
     let s1 = engine::run(&step, &plan, 0, journal, &retry, &cx.phase(0.02, split)).await?;
-    let s2 = engine::run(&step, &vplan, plan.len(), journal, &retry, &cx.phase(split, 0.92))
-        .await?;
+    let s2 = engine::run(
+        &step,
+        &vplan,
+        plan.len(),
+        journal,
+        &retry,
+        &cx.phase(split, 0.92),
+    )
+    .await?;
     let measuring_s = t_meas.elapsed().as_secs_f64();
     let rec: Vec<Recorded> = engine::recorded(journal, 0, plan.len())?;
     let vrec: Vec<Recorded> = engine::recorded(journal, plan.len(), vplan.len())?;
@@ -220,18 +227,13 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
         start_model: file,
         measurements: measurements.to_json_rows(),
     };
-    let mut out = Output::typed(&result)?;
-    out.artefacts = calibration.artefacts;
-    out.artefacts.push(Artefact::csv("measurements.csv", &measurements));
-    if !vrec.is_empty() {
-        out.artefacts
-            .push(Artefact::csv("validation_measurements.csv", &recorded_table(&vrec)));
-    }
-    out.main_table = Some(measurements);
-    Ok(Produced {
-        output: out,
-        candidate: Some(candidate),
-    })
+    engine::conclude(
+        &result,
+        calibration.artefacts,
+        measurements,
+        (!vrec.is_empty()).then(|| ("validation_measurements.csv", recorded_table(&vrec))),
+        candidate,
+    )
 }
 
 #[cfg(test)]

@@ -32,11 +32,7 @@ impl std::fmt::Debug for Cx {
 
 impl Cx {
     /// A context over `lab`, writing measurements to `journal` and progress to `monitor`.
-    pub fn new(
-        lab: Arc<Lab>,
-        journal: Arc<dyn Journal>,
-        monitor: Arc<dyn Monitor + Send>,
-    ) -> Self {
+    pub fn new(lab: Arc<Lab>, journal: Arc<dyn Journal>, monitor: Arc<dyn Monitor + Send>) -> Self {
         Self {
             lab,
             journal,

@@ -29,7 +29,6 @@ pub use table::Table;
 
 use crate::util::Monitor;
 
-
 /// A file produced by a job besides its result JSON (also what the store keeps and serves).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Artefact {

@@ -11,6 +11,31 @@ use crate::procedures::{
     Envelope, Indicators, JointRobot, LinearStages, MarkerStream, PoseSensor, Robot,
 };
 
+/// `Debug` (name and devices) and `current_model` of a cell type.
+macro_rules! cell_common {
+    ($cell:ident, $field:ident, $model:ty) => {
+        impl std::fmt::Debug for $cell {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.debug_struct(stringify!($cell))
+                    .field("name", &self.name)
+                    .field("devices", &self.devices)
+                    .finish_non_exhaustive()
+            }
+        }
+
+        impl $cell {
+            /// The current model.
+            pub fn current_model(&self) -> $model {
+                current(&self.$field)
+            }
+        }
+    };
+}
+
+cell_common!(TricalCell, model, DhFile);
+cell_common!(PcrCell, model, PcrFile);
+cell_common!(MocapCell, urdf, String);
+
 fn current<T: Clone>(m: &Mutex<T>) -> T {
     m.lock().unwrap_or_else(|p| p.into_inner()).clone()
 }
@@ -37,22 +62,6 @@ pub struct TricalCell {
     pub devices: Vec<String>,
 }
 
-impl std::fmt::Debug for TricalCell {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("TricalCell")
-            .field("name", &self.name)
-            .field("devices", &self.devices)
-            .finish_non_exhaustive()
-    }
-}
-
-impl TricalCell {
-    /// The current model.
-    pub fn current_model(&self) -> DhFile {
-        current(&self.model)
-    }
-}
-
 /// A 3-PF cell: the continuum robot on three stages (MCS2) under a microscope.
 pub struct PcrCell {
     /// Cell name.
@@ -65,22 +74,6 @@ pub struct PcrCell {
     pub model: Mutex<PcrFile>,
     /// Device names (queue locks).
     pub devices: Vec<String>,
-}
-
-impl std::fmt::Debug for PcrCell {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("PcrCell")
-            .field("name", &self.name)
-            .field("devices", &self.devices)
-            .finish_non_exhaustive()
-    }
-}
-
-impl PcrCell {
-    /// The current model.
-    pub fn current_model(&self) -> PcrFile {
-        current(&self.model)
-    }
 }
 
 /// A motion-capture cell: a humanoid's joint interface in a QTM room.
@@ -103,22 +96,6 @@ pub struct MocapCell {
     pub markers: Vec<MarkerDef>,
     /// Device names (queue locks).
     pub devices: Vec<String>,
-}
-
-impl std::fmt::Debug for MocapCell {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MocapCell")
-            .field("name", &self.name)
-            .field("devices", &self.devices)
-            .finish_non_exhaustive()
-    }
-}
-
-impl MocapCell {
-    /// The current model (URDF text).
-    pub fn current_model(&self) -> String {
-        current(&self.urdf)
-    }
 }
 
 /// A model of one cell kind.

@@ -76,16 +76,20 @@ impl Acceptance {
                 false,
                 format!("{}: not a number ({} -> {})", e.what, e.before, e.after),
             ),
-            Some(e) if e.before - e.after > (self.min_relative_gain * e.before).max(self.min_gain) => (
-                true,
-                format!(
-                    "{} improved from {:.4} {u} (starting model) to {:.4} {u}",
-                    e.what,
-                    e.before,
-                    e.after,
-                    u = e.unit
-                ),
-            ),
+            Some(e)
+                if e.before - e.after > (self.min_relative_gain * e.before).max(self.min_gain) =>
+            {
+                (
+                    true,
+                    format!(
+                        "{} improved from {:.4} {u} (starting model) to {:.4} {u}",
+                        e.what,
+                        e.before,
+                        e.after,
+                        u = e.unit
+                    ),
+                )
+            }
             Some(e) => (
                 false,
                 format!(

@@ -189,7 +189,8 @@ impl Lab {
     /// Stop what is attached (the simulation's mock servers); the cells stay, their
     /// devices unreachable.
     pub async fn stop(&self) {
-        let attached = std::mem::take(&mut *self.attached.lock().unwrap_or_else(|p| p.into_inner()));
+        let attached =
+            std::mem::take(&mut *self.attached.lock().unwrap_or_else(|p| p.into_inner()));
         for a in attached {
             a.stop().await;
         }

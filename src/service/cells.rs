@@ -35,7 +35,9 @@ pub(super) async fn load_current_models(svc: &Service) {
         };
         match cell.parse_model(&m.model).and_then(|f| cell.set_model(f)) {
             Ok(()) => tracing::info!(cell = cell.name(), model = m.id, "current model loaded"),
-            Err(e) => tracing::error!(cell = cell.name(), error = %e, "stored current model unreadable; using the nominal model"),
+            Err(e) => {
+                tracing::error!(cell = cell.name(), error = %e, "stored current model unreadable; using the nominal model")
+            }
         }
     }
 }

@@ -157,7 +157,11 @@ async fn run_one(svc: &Service, entry: Entry) {
     });
     let t0 = Instant::now();
     let span = tracing::info_span!("job", id, kind = %job.kind);
-    let monitor = Arc::new(JobMonitor::new(id, svc.shared.progress_tx.clone(), cancel.clone()));
+    let monitor = Arc::new(JobMonitor::new(
+        id,
+        svc.shared.progress_tx.clone(),
+        cancel.clone(),
+    ));
     let journal: Arc<dyn crate::procedures::Journal> = if job.resumable() {
         Arc::new(crate::store::StoreJournal {
             store: store.clone(),
@@ -223,11 +227,7 @@ async fn run_one(svc: &Service, entry: Entry) {
 
 /// Store a run's outcome: a result with its plots, and the cell's model decision, all in
 /// the transaction that marks the job succeeded.
-async fn conclude(
-    svc: &Service,
-    id: i64,
-    run: Result<jobs::Completed, JobError>,
-) -> Outcome {
+async fn conclude(svc: &Service, id: i64, run: Result<jobs::Completed, JobError>) -> Outcome {
     match run {
         Ok(done) => {
             let mut artefacts = done.artefacts;

@@ -9,8 +9,8 @@ use std::time::Duration;
 use calibd_drivers::mock::{self, Faults, MockArgs, MockDevice, RunningMock};
 use calibd_drivers::qtm::mock::MarkerModel;
 
-use crate::lab::{CellLink, LabError, MocapCellLink};
 use crate::design::playback::quintic;
+use crate::lab::{CellLink, LabError, MocapCellLink};
 use crate::model::humanoid::BaseMode;
 use crate::procedures::{DeviceError, DeviceFuture, JointRobot};
 use crate::twin::humanoid::{HumanoidTwin, TALOS_URDF, left_arm_spec};

@@ -14,7 +14,7 @@ use calibd_drivers::mock::RunningMock;
 
 pub use mocap::SimMocapOptions;
 pub use pcr::SimPcrOptions;
-pub use trical::{SimTricalOptions, INDICATOR_ZERO_MM};
+pub use trical::{INDICATOR_ZERO_MM, SimTricalOptions};
 
 use crate::lab::{Attached, Lab, LabError};
 

@@ -73,7 +73,8 @@ fn recovery_marks_running_jobs_interrupted_and_returns_queued_ones() {
         let c = s.insert_job(&job("serial.fk")).unwrap();
         s.start_job(a).unwrap();
         s.start_job(c).unwrap();
-        s.finish_job(c, &json!({"ok": true}), None, &[], None).unwrap();
+        s.finish_job(c, &json!({"ok": true}), None, &[], None)
+            .unwrap();
         (a, b, c)
     };
     let s = Store::open(dir.path()).unwrap();

@@ -154,8 +154,8 @@ pub fn identify_pcr(
     if let Some(o) = options {
         doc["options"] = o.clone();
     }
-    let out = crate::jobs::pcr::identify::prepare(&doc, &Inputs::new(&NoReferences))?
-        .execute(monitor)?;
+    let out =
+        crate::jobs::pcr::identify::prepare(&doc, &Inputs::new(&NoReferences))?.execute(monitor)?;
     identified(out)
 }
 
@@ -175,9 +175,11 @@ pub fn accuracy_pcr(
         "repetitions": repetitions,
         "reached": pcr_rows(reached),
     });
-    Ok(crate::jobs::pcr::accuracy::prepare(&doc, &Inputs::new(&NoReferences))?
-        .execute(monitor)?
-        .fields)
+    Ok(
+        crate::jobs::pcr::accuracy::prepare(&doc, &Inputs::new(&NoReferences))?
+            .execute(monitor)?
+            .fields,
+    )
 }
 
 fn markers_json(cell: &super::mocap::MocapSetup) -> Value {

@@ -3,7 +3,6 @@
 
 use serde::Deserialize;
 
-
 use std::sync::Arc;
 
 use super::{CentringSpec, default_cell, trical_devices};
@@ -32,7 +31,10 @@ pub struct CentreJob {
 }
 
 /// Validate a `cell.centre` job.
-pub fn prepare(doc: &serde_json::Value, _: &crate::jobs::Inputs<'_>) -> Result<CentreJob, JobError> {
+pub fn prepare(
+    doc: &serde_json::Value,
+    _: &crate::jobs::Inputs<'_>,
+) -> Result<CentreJob, JobError> {
     let s: Spec = parse_spec(doc)?;
     if let Some((k, v)) = s.q_deg.iter().enumerate().find(|(_, v)| !v.is_finite()) {
         return Err(JobError::invalid(

@@ -19,7 +19,6 @@ use crate::lab::MocapCell;
 use crate::model::humanoid::MarkerDef;
 use crate::util::Monitor;
 
-
 /// `postures.nocp`: the `humanoid.design` fields that are not the cell's own.
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]

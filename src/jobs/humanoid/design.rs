@@ -14,7 +14,9 @@ use crate::design::humanoid::{ConstraintOptions, HumanoidPostures, compare_basel
 use crate::design::ocp::{NocpOptions, OptimOptions, cocp, nocp};
 use crate::design::playback::{order_postures, sample_trajectory, travel};
 use crate::design::postures::PostureSet;
-use crate::jobs::{Artefact, Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
+use crate::jobs::{
+    Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
+};
 use crate::measure::marker_fit::Groups;
 use crate::model::srdf::disabled_collisions;
 use crate::util::{Monitor, Rng, SubMonitor};

@@ -14,7 +14,7 @@ use super::samples::{SampleSet, load_samples};
 use super::{
     BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, load_model, marker_table, params_json,
 };
-use crate::jobs::{Artefact, Inputs, JobError, Output, Kind, Cx, RunFuture, computed, parse_spec};
+use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
 use crate::measure::marker_fit::{
     FitOptions, Groups, MarkerFit, fit, fit_frames, structural_count,
 };

@@ -14,7 +14,7 @@ use super::{
     BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, apply_parameters, load_model,
     marker_table,
 };
-use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
 use crate::measure::marker_fit::{FitOptions, fit_frames};
 use crate::measure::markers::marker_rmse;
 use crate::model::humanoid::{HParam, Humanoid};

@@ -13,7 +13,7 @@ use serde_json::{Map, Value, json};
 use super::{PcrModel, load_model, poses};
 use crate::design::trajectory::{circle, square};
 use crate::geometry::Pose2;
-use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
 use crate::measure::pcr::accuracy::{pose_accuracy, summarise};
 use crate::measure::pcr::{PcrMeasurement, measured_pose};
 use crate::model::pcr::PcrFile;

@@ -7,7 +7,7 @@ use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{LoadSpec, PcrModel, load_model, pose_table, si_units};
-use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
 use crate::util::Monitor;
 

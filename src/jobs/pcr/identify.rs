@@ -8,7 +8,9 @@ use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{PcrModel, load_model};
-use crate::jobs::{Artefact, Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
+use crate::jobs::{
+    Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
+};
 use crate::measure::pcr::steps::{CalibrationOptions, Step, calibrated_file, default_steps};
 use crate::measure::pcr::{PcrMeasurement, identify_steps};
 use crate::util::{Monitor, Summary};

@@ -8,7 +8,7 @@ use serde_json::{Map, Value};
 
 use super::{LoadSpec, PcrModel, load_model, poses, si_units};
 use crate::geometry::Pose2;
-use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
 use crate::util::Monitor;
 

@@ -8,7 +8,7 @@ use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use super::{PcrModel, load_model};
-use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
 use crate::model::pcr::sensitivity::{central_configurations, default_steps, sensitivity};
 use crate::util::Monitor;
 

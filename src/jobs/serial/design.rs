@@ -10,7 +10,7 @@ use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs};
 use super::{ChainSpec, PlateSpec};
 use crate::design::{DetmaxOptions, Indices, Pool, detmax, indices};
 use crate::identify::{Problem, rank_revealing};
-use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
 use crate::measure::PointProblem;
 use crate::util::Monitor;
 

@@ -15,7 +15,7 @@ use super::design::DesignPool;
 use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, position_errors};
 use super::{ChainSpec, PlateSpec};
 use crate::design::{DetmaxOptions, detmax};
-use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
 use crate::util::stats::{Quartiles, mean};
 use crate::util::{Monitor, Summary};
 

@@ -9,7 +9,7 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 use super::{ChainSpec, SerialModel, load_model};
-use crate::jobs::{Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
 use crate::model::Quantity;
 use crate::util::Monitor;
 

@@ -17,7 +17,9 @@ use serde_json::{Map, Value, json};
 
 use super::{ChainSpec, PlateSpec, SerialModel, load_model};
 use crate::identify::{Pivoting, Solution, SolveOptions, solve};
-use crate::jobs::{Artefact, Inputs, JobError, Output, Kind, Cx, RunFuture, computed, Table, parse_spec};
+use crate::jobs::{
+    Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
+};
 use crate::measure::distance::distance_errors;
 use crate::measure::{
     BallPlate, DistanceMeasurement, DistanceProblem, PointMeasurement, PointProblem, Target,
