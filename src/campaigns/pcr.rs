@@ -11,9 +11,9 @@ use crate::jobs::cell::pcr::PcrCampaignJob;
 use crate::jobs::{Cx, JobError, Produced, Table};
 use crate::lab::{Candidate, CellModel, Evidence};
 
-use super::engine::{self, CampaignError, Retry, Step, StepError, Summary};
+use super::engine::{self, Retry, Step, StepError};
 use super::results::{PcrCampaign, PcrStats};
-use crate::procedures::{DeviceError, Journal, LinearStages, PoseSensor};
+use crate::procedures::{DeviceError, LinearStages, PoseSensor};
 use crate::util::Monitor;
 
 /// One recorded measurement.
@@ -95,25 +95,6 @@ impl Step for StagesAndScope<'_> {
             z,
         })
     }
-}
-
-/// Measure every joint set of `plan` not yet in the journal; plan entry `k` is journal
-/// index `offset + k`.
-pub async fn run(
-    stages: &dyn LinearStages,
-    scope: &dyn PoseSensor,
-    plan: &[[f64; 3]],
-    offset: usize,
-    journal: &dyn Journal,
-    opts: &PcrOptions,
-    monitor: &dyn Monitor,
-) -> Result<Summary, CampaignError> {
-    let step = StagesAndScope {
-        stages,
-        scope,
-        options: opts,
-    };
-    engine::run(&step, plan, offset, journal, &opts.retry, monitor).await
 }
 
 fn table(rec: &[PcrRecorded]) -> Table {

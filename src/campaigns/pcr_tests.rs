@@ -1,4 +1,6 @@
 use super::*;
+use crate::campaigns::engine::{CampaignError, Summary};
+use crate::procedures::Journal;
 use crate::procedures::{EntryStatus, MemoryJournal};
 use crate::util::NoMonitor;
 use std::sync::Mutex;
@@ -92,4 +94,23 @@ async fn faults_are_retried_then_pause_and_the_envelope_skips() {
         .expect_err("paused");
     assert!(matches!(e, CampaignError::Paused { index: 0, .. }), "{e}");
     assert!(j2.entries().expect("entries").is_empty());
+}
+
+/// Measure every joint set of `plan` not yet in the journal; plan entry `k` is journal
+/// index `offset + k`.
+async fn run(
+    stages: &dyn LinearStages,
+    scope: &dyn PoseSensor,
+    plan: &[[f64; 3]],
+    offset: usize,
+    journal: &dyn Journal,
+    opts: &PcrOptions,
+    monitor: &dyn Monitor,
+) -> Result<Summary, CampaignError> {
+    let step = StagesAndScope {
+        stages,
+        scope,
+        options: opts,
+    };
+    engine::run(&step, plan, offset, journal, &opts.retry, monitor).await
 }
