@@ -2,6 +2,28 @@
 //! ([`crate::procedures::devices`]), with driver errors mapped to device errors that name
 //! the device.
 
+/// A device adapter that is a driver handle and the device's name (used in errors).
+macro_rules! named_adapter {
+    ($(#[$doc:meta])* $name:ident, $handle:ty) => {
+        $(#[$doc])*
+        #[derive(Debug, Clone)]
+        pub struct $name {
+            handle: $handle,
+            name: String,
+        }
+
+        impl $name {
+            /// Wrap a driver handle; `name` is the device name in errors.
+            pub fn new(handle: $handle, name: impl Into<String>) -> Self {
+                Self {
+                    handle,
+                    name: name.into(),
+                }
+            }
+        }
+    };
+}
+
 pub mod pcr;
 pub mod qtm;
 pub mod serial;

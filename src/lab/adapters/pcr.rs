@@ -91,22 +91,11 @@ impl LinearStages for SmaractStages {
     }
 }
 
-/// The microscope over `calibd-pose/1`.
-#[derive(Debug, Clone)]
-pub struct Microscope {
-    handle: MicroscopeHandle,
-    name: String,
-}
-
-impl Microscope {
-    /// Wrap a driver handle; `name` is the device name in errors.
-    pub fn new(handle: MicroscopeHandle, name: impl Into<String>) -> Self {
-        Self {
-            handle,
-            name: name.into(),
-        }
-    }
-}
+named_adapter!(
+    /// The microscope over `calibd-pose/1`.
+    Microscope,
+    MicroscopeHandle
+);
 
 impl PoseSensor for Microscope {
     fn read_pose(&self) -> DeviceFuture<'_, [f64; 3]> {

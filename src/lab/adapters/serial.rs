@@ -151,22 +151,12 @@ impl Robot for RwsRobot {
     }
 }
 
-/// Three indicators read through a U-WAVE-R receiver.
-#[derive(Debug, Clone)]
-pub struct UwaveIndicators {
-    handle: UwaveHandle,
-    name: String,
-}
-
-impl UwaveIndicators {
-    /// Wrap a driver handle (its axis map turns readings into tool-axis offsets).
-    pub fn new(handle: UwaveHandle, name: impl Into<String>) -> Self {
-        Self {
-            handle,
-            name: name.into(),
-        }
-    }
-}
+named_adapter!(
+    /// Three indicators read through a U-WAVE-R receiver (the handle's axis map turns
+    /// readings into tool-axis offsets).
+    UwaveIndicators,
+    UwaveHandle
+);
 
 impl Indicators for UwaveIndicators {
     fn read(&self) -> DeviceFuture<'_, [f64; 3]> {
