@@ -1,12 +1,13 @@
 //! `pcr.fk`: platform poses (x, y, theta in {W}, SI) of the 3-PF model over a joints table,
 //! solved row after row with warm starts (continuation from home when a warm start fails).
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
-use super::{LoadSpec, PcrModel, load_model, pose_table, si_units};
-use crate::jobs::{Inputs, JobError, Output, Prepared, parse_spec};
+use super::{LoadSpec, PcrModel, SI, SiUnits, load_model, pose_table};
+use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -78,35 +79,87 @@ pub fn solve_rows(
     Ok(out)
 }
 
-impl Prepared for FkJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+/// Unit of the limb wrenches.
+#[derive(Debug, Clone, Serialize)]
+pub struct WrenchUnit {
+    /// `N`.
+    pub force: &'static str,
+    /// `N*m`.
+    pub moment: &'static str,
+}
+
+/// One limb's proximal wrench.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Wrench {
+    /// Force x (N).
+    pub nx: f64,
+    /// Force y (N).
+    pub ny: f64,
+    /// Moment (N*m).
+    pub m: f64,
+}
+
+/// `wrenches` of `pcr.fk`: per joints row, the three limbs' wrenches.
+#[derive(Debug, Clone, Serialize)]
+pub struct Wrenches {
+    /// Units.
+    pub unit: WrenchUnit,
+    /// Per row, per limb.
+    pub rows: Vec<Vec<Wrench>>,
+}
+
+/// The result of `pcr.fk`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrPoses {
+    /// SI units.
+    pub units: SiUnits,
+    /// x, y, theta per joints row (also the main table).
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub poses: Table,
+    /// Limb wrenches, when asked.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wrenches: Option<Wrenches>,
+}
+
+impl FkJob {
+    /// Solve the forward kinematics: the typed result, the poses also as the main table.
+    pub fn poses(&self, monitor: &dyn Monitor) -> Result<Run<PcrPoses>, JobError> {
         let sols = solve_rows(&self.robot, &self.q, "joints", monitor)?;
         let poses: Vec<_> = sols.iter().map(|e| e.pose).collect();
         let table = pose_table(&poses);
-        let mut fields = Map::new();
-        fields.insert("units".into(), si_units());
-        fields.insert("poses".into(), table.to_json_rows());
-        if self.wrenches {
-            let w: Vec<Value> = sols
+        let wrenches = self.wrenches.then(|| Wrenches {
+            unit: WrenchUnit {
+                force: "N",
+                moment: "N*m",
+            },
+            rows: sols
                 .iter()
                 .map(|e| {
-                    json!(
-                        e.wrenches
-                            .iter()
-                            .map(|w| json!({"nx": w[0], "ny": w[1], "m": w[2]}))
-                            .collect::<Vec<_>>()
-                    )
+                    e.wrenches
+                        .iter()
+                        .map(|w| Wrench {
+                            nx: w[0],
+                            ny: w[1],
+                            m: w[2],
+                        })
+                        .collect()
                 })
-                .collect();
-            fields.insert(
-                "wrenches".into(),
-                json!({"unit": {"force": "N", "moment": "N*m"}, "rows": w}),
-            );
-        }
-        Ok(Output {
-            fields,
+                .collect(),
+        });
+        Ok(Run {
+            result: PcrPoses {
+                units: SI,
+                poses: table.clone(),
+                wrenches,
+            },
             main_table: Some(table),
             artefacts: vec![],
         })
+    }
+}
+
+impl Prepared for FkJob {
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.poses(monitor)?.into_output()
     }
 }

@@ -2,13 +2,17 @@
 //! extrinsics from measurements (q1, q2, q3, and the readings x, y, theta), with the
 //! paper's Table 3 on the calibration and validation sets and the calibrated model file.
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
 
 use super::{PcrModel, load_model};
+use crate::identify::ParamReport;
+use crate::identify::solve::Dependency;
 use crate::jobs::{Artefact, Inputs, JobError, Output, Prepared, Table, parse_spec};
 use crate::measure::pcr::steps::{CalibrationOptions, Step, calibrated_file, default_steps};
-use crate::measure::pcr::{PcrMeasurement, identify_steps};
+use crate::measure::pcr::{PcrMeasurement, StepReport, Table3, identify_steps};
+use crate::model::pcr::PcrFile;
+use crate::report::Run;
 use crate::util::{Monitor, Summary};
 
 #[derive(Debug, Deserialize)]
@@ -124,7 +128,19 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IdentifyJob, JobError
     let model = load_model(inputs, &spec.model)?;
     let t = inputs.table("measurements", &spec.measurements)?;
     let measurements = model.measurements("measurements", &t)?;
-    // 34 unknowns, 3 residuals per measurement; the gauges leave 26 to determine.
+    check_count(&measurements)?;
+    let validation = match &spec.validation {
+        Some(v) => {
+            let t = inputs.table("validation", v)?;
+            Some(model.measurements("validation", &t)?)
+        }
+        None => None,
+    };
+    IdentifyJob::new(model, measurements, validation, &spec.options)
+}
+
+/// 34 unknowns, 3 residuals per measurement; the gauges leave 26 to determine.
+fn check_count(measurements: &[PcrMeasurement]) -> Result<(), JobError> {
     if 3 * measurements.len() < 34 {
         return Err(JobError::invalid(
             "measurements",
@@ -134,29 +150,138 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IdentifyJob, JobError
             ),
         ));
     }
-    let validation = match &spec.validation {
-        Some(v) => {
-            let t = inputs.table("validation", v)?;
-            Some(model.measurements("validation", &t)?)
+    Ok(())
+}
+
+/// Joint limits of typed measurements (the table path checks them while parsing).
+fn check_joints(
+    field: &str,
+    model: &PcrModel,
+    measurements: &[PcrMeasurement],
+) -> Result<(), JobError> {
+    for (i, m) in measurements.iter().enumerate() {
+        model
+            .robot
+            .check_joints(&m.q)
+            .map_err(|e| JobError::row(field, i + 1, e.to_string()))?;
+    }
+    Ok(())
+}
+
+/// One identified unknown of `pcr.identify`: the solver's report and its bounds.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrParameter {
+    /// Estimate, nominal, standard deviation, ...
+    #[serde(flatten)]
+    pub report: ParamReport,
+    /// Lower bound (nominal - bound_sigmas * uncertainty).
+    pub lower: f64,
+    /// Upper bound.
+    pub upper: f64,
+    /// Whether the estimate ended on a bound.
+    pub bound_hit: bool,
+}
+
+/// `residual_std` of `pcr.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrResidualStd {
+    /// Value (m).
+    pub value: f64,
+    /// `m`.
+    pub unit: &'static str,
+    /// Degrees of freedom.
+    pub dof: usize,
+    /// Weight of angle residuals (m/rad).
+    pub angle_weight: f64,
+    /// `m/rad`.
+    pub angle_weight_unit: &'static str,
+}
+
+/// `convergence` of `pcr.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrConvergence {
+    /// Every step converged.
+    pub converged: bool,
+    /// Iterations over all steps.
+    pub iterations: usize,
+}
+
+/// Position errors (m) before and after on the validation set.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrValidation {
+    /// Nominal model.
+    pub before: Summary,
+    /// Identified model.
+    pub after: Summary,
+}
+
+/// The result of `pcr.identify`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrCalibration {
+    /// Every unknown with its bounds.
+    pub parameters: Vec<PcrParameter>,
+    /// Unknowns held at nominal.
+    pub unidentifiable: Vec<String>,
+    /// Dependencies of the held unknowns.
+    pub dependencies: Vec<Dependency>,
+    /// How the gauge is fixed.
+    pub gauge: &'static str,
+    /// Per step.
+    pub steps: Vec<StepReport>,
+    /// The paper's Table 3.
+    pub model_error: Table3,
+    /// Residual standard deviation.
+    pub residual_std: PcrResidualStd,
+    /// Condition number.
+    pub condition_number: f64,
+    /// Convergence.
+    pub convergence: PcrConvergence,
+    /// Validation errors (when a validation set was given).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub validation: Option<PcrValidation>,
+    /// The calibrated model file.
+    pub calibrated_model: PcrFile,
+}
+
+impl IdentifyJob {
+    /// A `pcr.identify` job from typed inputs (the campaign's entry point; the JSON path
+    /// calls it too): the model, at least 12 measurements, optional validation, options.
+    pub fn new(
+        model: PcrModel,
+        measurements: Vec<PcrMeasurement>,
+        validation: Option<Vec<PcrMeasurement>>,
+        options: &IdentifyOptions,
+    ) -> Result<IdentifyJob, JobError> {
+        check_joints("measurements", &model, &measurements)?;
+        check_count(&measurements)?;
+        if let Some(v) = &validation {
+            check_joints("validation", &model, v)?;
         }
-        None => None,
-    };
-    let options = calibration_options(&spec.options)?;
-    Ok(IdentifyJob {
-        model,
-        measurements,
-        validation,
-        options,
-    })
-}
+        let options = calibration_options(options)?;
+        Ok(IdentifyJob {
+            model,
+            measurements,
+            validation,
+            options,
+        })
+    }
 
-/// `{mean, median, std, max, unit}` (plus count, min, rms) of errors in metres.
-fn stats(v: &[f64]) -> Value {
-    serde_json::to_value(Summary::of(v, "m")).unwrap_or(Value::Null)
-}
+    /// A `pcr.identify` job from a parsed model file.
+    pub fn from_file(
+        file: PcrFile,
+        measurements: Vec<PcrMeasurement>,
+        validation: Option<Vec<PcrMeasurement>>,
+        options: &IdentifyOptions,
+    ) -> Result<IdentifyJob, JobError> {
+        let robot = file
+            .robot()
+            .map_err(|e| JobError::invalid("model", e.to_string()))?;
+        IdentifyJob::new(PcrModel { file, robot }, measurements, validation, options)
+    }
 
-impl Prepared for IdentifyJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    /// Run the three-step identification: the typed result and its artefacts (calibrated
+    /// model, `model_errors.csv`); no main table.
+    pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<PcrCalibration>, JobError> {
         let cal = identify_steps(
             &self.model.robot,
             &self.model.file,
@@ -174,59 +299,22 @@ impl Prepared for IdentifyJob {
             .chain(self.model.file.uncertainty.extrinsics())
             .collect();
         let b = self.options.bound_sigmas;
-        let params: Vec<Value> = cal
+        let parameters: Vec<PcrParameter> = cal
             .params
             .iter()
             .zip(&u)
-            .map(|(p, uk)| {
-                let mut v = serde_json::to_value(p).unwrap_or(Value::Null);
-                if let Value::Object(m) = &mut v {
-                    m.insert("lower".into(), json!(p.nominal - b * uk));
-                    m.insert("upper".into(), json!(p.nominal + b * uk));
-                    m.insert("bound_hit".into(), json!(p.at_bound.is_some()));
-                }
-                v
+            .map(|(p, uk)| PcrParameter {
+                report: p.clone(),
+                lower: p.nominal - b * uk,
+                upper: p.nominal + b * uk,
+                bound_hit: p.at_bound.is_some(),
             })
             .collect();
-        let mut f = Map::new();
-        f.insert("parameters".into(), Value::Array(params));
-        f.insert("unidentifiable".into(), json!(cal.unidentifiable));
-        f.insert(
-            "dependencies".into(),
-            serde_json::to_value(&cal.dependencies).unwrap_or(Value::Null),
-        );
         let gauge = if self.options.hold_unidentifiable {
             "hold: the unidentifiable parameters (columns of the uncertainty-scaled Jacobian that duplicate others) are held at nominal themselves"
         } else {
             "min_norm: each unidentifiable combination of parameters (a column of the uncertainty-scaled Jacobian that duplicates others: a rigid motion of the clamps with the sensor or pattern frame, E without load, a common scale of the diameters) is held at nominal: the identified change has no component along the null space, measured in standard uncertainties"
         };
-        f.insert("gauge".into(), json!(gauge));
-        f.insert(
-            "steps".into(),
-            serde_json::to_value(&cal.steps).unwrap_or(Value::Null),
-        );
-        f.insert(
-            "model_error".into(),
-            serde_json::to_value(&cal.table3).unwrap_or(Value::Null),
-        );
-        f.insert(
-            "residual_std".into(),
-            json!({"value": cal.uncertainty.sigma, "unit": "m", "dof": cal.uncertainty.dof, "angle_weight": self.model.file.repeatability.position / self.model.file.repeatability.orientation, "angle_weight_unit": "m/rad"}),
-        );
-        f.insert(
-            "condition_number".into(),
-            json!(cal.uncertainty.condition_number),
-        );
-        f.insert(
-            "convergence".into(),
-            json!({"converged": cal.steps.iter().all(|s| s.stop_reason.converged()), "iterations": cal.steps.iter().map(|s| s.iterations).sum::<usize>()}),
-        );
-        if let Some([before, after]) = &cal.validation_errors {
-            f.insert(
-                "validation".into(),
-                json!({"before": stats(before), "after": stats(after)}),
-            );
-        }
         let mut file = calibrated_file(&self.model.file, &cal.x);
         file.calibration = Some(json!({
             "method": "pcr.identify",
@@ -235,9 +323,6 @@ impl Prepared for IdentifyJob {
             "steps": cal.steps.iter().map(|s| s.name.clone()).collect::<Vec<_>>(),
             "unidentifiable_held_at_nominal": cal.unidentifiable,
         }));
-        let model_value =
-            serde_json::to_value(&file).map_err(|e| JobError::Failed(e.to_string()))?;
-        f.insert("calibrated_model".into(), model_value.clone());
         let mut res = Table::new(&["measurement", "e_p_nominal", "e_p_identified"]);
         for (i, (a, b)) in cal.calibration_errors[0]
             .iter()
@@ -246,6 +331,8 @@ impl Prepared for IdentifyJob {
         {
             res.push(vec![(i + 1) as f64, *a, *b]);
         }
+        let model_value =
+            serde_json::to_value(&file).map_err(|e| JobError::Failed(e.to_string()))?;
         let artefacts = vec![
             Artefact {
                 name: "calibrated_model.json".into(),
@@ -258,10 +345,45 @@ impl Prepared for IdentifyJob {
                 content: res.to_csv().into_bytes(),
             },
         ];
-        Ok(Output {
-            fields: f,
+        let result = PcrCalibration {
+            parameters,
+            unidentifiable: cal.unidentifiable.clone(),
+            dependencies: cal.dependencies.clone(),
+            gauge,
+            convergence: PcrConvergence {
+                converged: cal.steps.iter().all(|s| s.stop_reason.converged()),
+                iterations: cal.steps.iter().map(|s| s.iterations).sum::<usize>(),
+            },
+            steps: cal.steps,
+            model_error: cal.table3,
+            residual_std: PcrResidualStd {
+                value: cal.uncertainty.sigma,
+                unit: "m",
+                dof: cal.uncertainty.dof,
+                angle_weight: self.model.file.repeatability.position
+                    / self.model.file.repeatability.orientation,
+                angle_weight_unit: "m/rad",
+            },
+            condition_number: cal.uncertainty.condition_number,
+            validation: cal
+                .validation_errors
+                .as_ref()
+                .map(|[before, after]| PcrValidation {
+                    before: Summary::of(before, "m"),
+                    after: Summary::of(after, "m"),
+                }),
+            calibrated_model: file,
+        };
+        Ok(Run {
+            result,
             main_table: None,
             artefacts,
         })
+    }
+}
+
+impl Prepared for IdentifyJob {
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.calibrate(monitor)?.into_output()
     }
 }

@@ -1,13 +1,14 @@
 //! `pcr.ik`: joint values (q1, q2, q3 in m) that bring the platform of the 3-PF model to
 //! each pose of a table, solved row after row with warm starts.
 
-use serde::Deserialize;
-use serde_json::{Map, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
-use super::{LoadSpec, PcrModel, load_model, poses, si_units};
+use super::{LoadSpec, PcrModel, SI, SiUnits, load_model, poses};
 use crate::geometry::Pose2;
 use crate::jobs::{Inputs, JobError, Output, Prepared, Table, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -81,17 +82,34 @@ pub fn joint_table(sols: &[Equilibrium]) -> Table {
     t
 }
 
-impl Prepared for IkJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+/// The result of `pcr.ik`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrJoints {
+    /// SI units.
+    pub units: SiUnits,
+    /// Joints per pose (also the main table).
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub joints: Table,
+}
+
+impl IkJob {
+    /// Solve the inverse kinematics: the typed result, the joints also as the main table.
+    pub fn joints(&self, monitor: &dyn Monitor) -> Result<Run<PcrJoints>, JobError> {
         let sols = solve_rows(&self.robot, &self.poses, "poses", monitor)?;
         let table = joint_table(&sols);
-        let mut fields = Map::new();
-        fields.insert("units".into(), si_units());
-        fields.insert("joints".into(), table.to_json_rows());
-        Ok(Output {
-            fields,
+        Ok(Run {
+            result: PcrJoints {
+                units: SI,
+                joints: table.clone(),
+            },
             main_table: Some(table),
             artefacts: vec![],
         })
+    }
+}
+
+impl Prepared for IkJob {
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.joints(monitor)?.into_output()
     }
 }

@@ -2,12 +2,15 @@
 //! of x, y and theta with respect to each parameter type over a set of configurations
 //! (default: the 26 central configurations).
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
 use super::{PcrModel, load_model};
 use crate::jobs::{Inputs, JobError, Output, Prepared, parse_spec};
-use crate::model::pcr::sensitivity::{central_configurations, default_steps, sensitivity};
+use crate::model::pcr::sensitivity::{
+    SensitivityRow, central_configurations, default_steps, sensitivity,
+};
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -67,31 +70,52 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<SensitivityJob, JobEr
     })
 }
 
-impl Prepared for SensitivityJob {
-    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+/// `configurations` of `pcr.sensitivity`.
+#[derive(Debug, Clone, Serialize)]
+pub struct SensitivityConfigurations {
+    /// Number of joint sets.
+    pub count: usize,
+    /// Whether they are the default central set.
+    pub default_central_set: bool,
+}
+
+/// The result of `pcr.sensitivity` (Table 2): serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrSensitivity {
+    /// The configurations.
+    pub configurations: SensitivityConfigurations,
+    /// Per parameter type.
+    pub sensitivity: Vec<SensitivityRow>,
+    /// How it was computed.
+    pub method: &'static str,
+}
+
+impl SensitivityJob {
+    /// Compute the sensitivities: the typed result; no table or artefact.
+    pub fn sensitivities(&self, monitor: &dyn Monitor) -> Result<Run<PcrSensitivity>, JobError> {
         let steps = default_steps(&self.model.file.uncertainty);
         let rows = sensitivity(&self.model.robot, &self.configs, &steps, monitor)
             .map_err(|e| JobError::Failed(e.to_string()))?;
         if monitor.is_cancelled() {
             return Err(JobError::Cancelled);
         }
-        let mut fields = Map::new();
-        fields.insert(
-            "configurations".into(),
-            json!({"count": self.configs.len(), "default_central_set": self.default_set}),
-        );
-        fields.insert(
-            "sensitivity".into(),
-            serde_json::to_value(&rows).unwrap_or(Value::Null),
-        );
-        fields.insert(
-            "method".into(),
-            json!("central finite differences of the forward kinematics, step 1 % of the model's standard uncertainty; per parameter type the largest magnitude over configurations and limbs"),
-        );
-        Ok(Output {
-            fields,
+        Ok(Run {
+            result: PcrSensitivity {
+                configurations: SensitivityConfigurations {
+                    count: self.configs.len(),
+                    default_central_set: self.default_set,
+                },
+                sensitivity: rows,
+                method: "central finite differences of the forward kinematics, step 1 % of the model's standard uncertainty; per parameter type the largest magnitude over configurations and limbs",
+            },
             main_table: None,
             artefacts: vec![],
         })
+    }
+}
+
+impl Prepared for SensitivityJob {
+    fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.sensitivities(monitor)?.into_output()
     }
 }
