@@ -251,7 +251,19 @@ pub fn load_model(
     elastic: &ElasticSpec,
 ) -> Result<LoadedModel, JobError> {
     let text = inputs.text("urdf", urdf)?;
-    let urdf = UrdfModel::parse(&text)?;
+    load_model_text(&text, root_link, joints, markers, base, elastic)
+}
+
+/// [`load_model`] from URDF text: the typed entry point of the humanoid kinds.
+pub fn load_model_text(
+    text: &str,
+    root_link: &str,
+    joints: &[String],
+    markers: &[MarkerSpec],
+    base: &BaseSpec,
+    elastic: &ElasticSpec,
+) -> Result<LoadedModel, JobError> {
+    let urdf = UrdfModel::parse(text)?;
     if joints.is_empty() {
         return Err(JobError::invalid("joints", "at least one joint is needed"));
     }
