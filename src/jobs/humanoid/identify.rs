@@ -569,3 +569,90 @@ impl Prepared for IdentifyJob {
         self.calibrate(monitor)?.into_output()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::jobs::DirResolver;
+    use crate::util::monitor::NoMonitor;
+    use serde_json::json;
+
+    /// The result fields of `examples/humanoid_identify_twin.json` (elastic, no robust
+    /// loss, no cross-validation) as the hand-built map of 7e62456 had them.
+    const FIELDS: &[&str] = &[
+        "base_parameter_breakdown",
+        "base_parameter_count",
+        "calibrated_model",
+        "calibrated_urdf",
+        "calibrated_urdf_note",
+        "condition_number",
+        "convergence",
+        "dependencies",
+        "frames_only",
+        "geometric_only",
+        "identifiability",
+        "markers",
+        "parameters",
+        "residual_std_mm",
+        "rmse_after_mm",
+        "rmse_before_mm",
+        "samples",
+        "unidentifiable",
+        "weakly_observable",
+    ];
+
+    #[test]
+    fn the_typed_result_serialises_to_the_fields_of_before() {
+        let dir = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples"));
+        let doc: Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join("humanoid_identify_twin.json")).unwrap(),
+        )
+        .unwrap();
+        let job = prepare(&doc, &Inputs::new(&DirResolver { dir: dir.clone() })).unwrap();
+        let run = job.calibrate(&NoMonitor).unwrap();
+        let out = run.clone().into_output().unwrap();
+        let mut keys: Vec<&str> = out.fields.keys().map(String::as_str).collect();
+        keys.sort_unstable();
+        assert_eq!(keys, FIELDS);
+        assert!(
+            out.fields["identifiability"]
+                .as_object()
+                .unwrap()
+                .contains_key("structural_rank_1e-8")
+        );
+        assert_eq!(
+            out.fields["calibrated_model"],
+            json!(run.result.calibrated_model)
+        );
+        // The typed constructor (URDF text, a samples table) gives the same result.
+        let s: Spec = parse_spec(&doc).unwrap();
+        let urdf = std::fs::read_to_string(dir.join(s.urdf.as_str().unwrap())).unwrap();
+        let csv = std::fs::read_to_string(dir.join(s.samples.as_str().unwrap())).unwrap();
+        // Occlusions are empty cells: NaN in a typed table.
+        let mut lines = csv.lines();
+        let columns: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+        let rows = lines
+            .filter(|l| !l.trim().is_empty())
+            .map(|l| {
+                l.split(',')
+                    .map(|c| c.trim().parse().unwrap_or(f64::NAN))
+                    .collect()
+            })
+            .collect();
+        let table = Table { columns, rows };
+        let typed = IdentifyJob::new(
+            &urdf,
+            &s.root_link,
+            &s.joints,
+            &s.markers,
+            &s.base,
+            table,
+            &s.column_map,
+            s.options,
+        )
+        .unwrap();
+        let b = typed.calibrate(&NoMonitor).unwrap().into_output().unwrap();
+        assert_eq!(out.fields["parameters"], b.fields["parameters"]);
+        assert_eq!(out.fields["rmse_after_mm"], b.fields["rmse_after_mm"]);
+    }
+}

@@ -387,3 +387,74 @@ impl Prepared for IdentifyJob {
         self.calibrate(monitor)?.into_output()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::jobs::DirResolver;
+    use crate::util::monitor::NoMonitor;
+
+    /// The result fields of `examples/pcr_identify.json` (with validation) as the
+    /// hand-built map of 7e62456 had them.
+    const FIELDS: &[&str] = &[
+        "calibrated_model",
+        "condition_number",
+        "convergence",
+        "dependencies",
+        "gauge",
+        "model_error",
+        "parameters",
+        "residual_std",
+        "steps",
+        "unidentifiable",
+        "validation",
+    ];
+
+    #[test]
+    fn the_typed_result_serialises_to_the_fields_of_before() {
+        let dir = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples"));
+        let doc: Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("pcr_identify.json")).unwrap())
+                .unwrap();
+        let job = prepare(&doc, &Inputs::new(&DirResolver { dir })).unwrap();
+        let run = job.calibrate(&NoMonitor).unwrap();
+        let out = run.clone().into_output().unwrap();
+        let mut keys: Vec<&str> = out.fields.keys().map(String::as_str).collect();
+        keys.sort_unstable();
+        assert_eq!(keys, FIELDS);
+        let p = out.fields["parameters"][0].as_object().unwrap();
+        assert!(
+            ["lower", "upper", "bound_hit", "name", "value"]
+                .iter()
+                .all(|k| p.contains_key(*k))
+        );
+        let v = run.result.validation.as_ref().unwrap();
+        assert_eq!(
+            out.fields["validation"]["after"]["mean"],
+            json!(v.after.mean)
+        );
+        assert_eq!(
+            out.fields["calibrated_model"],
+            serde_json::to_value(&run.result.calibrated_model).unwrap()
+        );
+        // The typed constructor gives the same result.
+        let typed = IdentifyJob::from_file(
+            job.model.file.clone(),
+            job.measurements.clone(),
+            job.validation.clone(),
+            &IdentifyOptions {
+                steps: Some(vec![
+                    vec!["extrinsics".into()],
+                    ["extrinsics", "l", "gamma", "alpha", "Ax", "Ay", "Bx", "By"]
+                        .map(String::from)
+                        .to_vec(),
+                    vec!["all".into()],
+                ]),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let b = typed.calibrate(&NoMonitor).unwrap().into_output().unwrap();
+        assert_eq!(out.fields, b.fields);
+    }
+}

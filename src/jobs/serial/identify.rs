@@ -1121,3 +1121,109 @@ impl Prepared for IdentifyJob {
         self.calibrate(monitor)?.into_output()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::jobs::{DirResolver, Inputs};
+    use crate::util::monitor::NoMonitor;
+
+    /// The result fields of `examples/serial_identify.json` (ball plate, Cartesian
+    /// validation) as the hand-built map of 7e62456 had them.
+    const FIELDS: &[&str] = &[
+        "ball_distances",
+        "balls",
+        "calibrated_model",
+        "condition_number",
+        "convergence",
+        "dependencies",
+        "gauge_freedom",
+        "observability",
+        "parameters",
+        "prior",
+        "rank",
+        "residual_std",
+        "residuals",
+        "unidentifiable",
+        "unobservable",
+        "validation",
+        "weakly_observable",
+    ];
+
+    fn example() -> IdentifyJob {
+        let dir = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples"));
+        let doc: Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join("serial_identify.json")).unwrap(),
+        )
+        .unwrap();
+        prepare(&doc, &Inputs::new(&DirResolver { dir })).unwrap()
+    }
+
+    #[test]
+    fn the_typed_result_serialises_to_the_fields_of_before() {
+        let run = example().calibrate(&NoMonitor).unwrap();
+        let out = run.clone().into_output().unwrap();
+        let mut keys: Vec<&str> = out.fields.keys().map(String::as_str).collect();
+        keys.sort_unstable();
+        assert_eq!(keys, FIELDS);
+        let conv = out.fields["convergence"].as_object().unwrap();
+        let mut ck: Vec<&str> = conv.keys().map(String::as_str).collect();
+        ck.sort_unstable();
+        assert_eq!(
+            ck,
+            [
+                "converged",
+                "cost_after",
+                "cost_before",
+                "cost_nuisance_only",
+                "cost_unit",
+                "degenerate",
+                "iterations",
+                "status",
+                "stop_reason"
+            ]
+        );
+        // The typed fields the campaigns read.
+        let v = run.result.validation.as_ref().unwrap();
+        assert_eq!(
+            out.fields["validation"]["after"]["mean"],
+            json!(v.after.mean)
+        );
+        assert!(v.after.mean < v.before.mean);
+        assert!(matches!(
+            run.result.calibrated_model,
+            SerialModelFile::Dh(_)
+        ));
+        // The kind draws its own plots.
+        let names: Vec<&str> = run.artefacts.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "calibrated_model.json",
+                "residuals.csv",
+                "errors_per_configuration.svg",
+                "error_histogram.svg"
+            ]
+        );
+    }
+
+    #[test]
+    fn the_typed_constructor_gives_the_result_of_the_json_path() {
+        let json = example();
+        let inp = json.inputs();
+        let crate::jobs::serial::Source::Dh(file) = &inp.model.source else {
+            panic!("a DH model")
+        };
+        let typed = IdentifyJob::from_dh(
+            file.clone(),
+            inp.meas.clone(),
+            [200.012, 199.987, 200.003],
+            inp.validation.clone(),
+            inp.options.clone(),
+        )
+        .unwrap();
+        let a = json.calibrate(&NoMonitor).unwrap().into_output().unwrap();
+        let b = typed.calibrate(&NoMonitor).unwrap().into_output().unwrap();
+        assert_eq!(a.fields, b.fields);
+    }
+}
