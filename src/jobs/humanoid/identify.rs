@@ -519,7 +519,7 @@ impl IdentifyJob {
             dependencies: sol.dependencies.clone(),
             weakly_observable: sol.weakly_observable.clone(),
             convergence: HumanoidConvergence {
-                stop_reason: sol.stop.clone(),
+                stop_reason: sol.stop,
                 converged: sol.converged(),
                 status: sol.status(),
                 degenerate: sol.degenerate.clone(),

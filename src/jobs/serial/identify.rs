@@ -614,6 +614,7 @@ pub fn coincidence_report(
 /// serialises as the DH JSON object, or as the URDF text.
 #[derive(Debug, Clone, Serialize)]
 #[serde(untagged)]
+#[allow(clippy::large_enum_variant)]
 pub enum SerialModelFile {
     /// A DH model file.
     Dh(DhFile),
@@ -846,7 +847,7 @@ fn solution_result(
             scaling: "physical: lengths 1 mm, angles 0.5 deg, compliances 0.005 deg/(N*m)",
         },
         convergence: Convergence {
-            stop_reason: sol.stop.clone(),
+            stop_reason: sol.stop,
             converged: sol.converged(),
             status: sol.status(),
             degenerate: sol.degenerate.clone(),
