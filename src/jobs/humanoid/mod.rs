@@ -168,6 +168,13 @@ pub struct CrossValidationSpec {
 }
 
 impl FitSpec {
+    /// Parse `options` given as JSON (a campaign's `options.identify`), naming the field.
+    pub fn from_value(v: &Value) -> Result<FitSpec, JobError> {
+        serde_path_to_error::deserialize(v).map_err(|e| {
+            JobError::invalid(format!("options.{}", e.path()), e.into_inner().to_string())
+        })
+    }
+
     /// Groups of joint parameters to identify (geometric part).
     pub fn groups(&self) -> Result<Groups, JobError> {
         let mut g = Groups::ALL;

@@ -60,6 +60,15 @@ pub struct IdentifyJob {
     options: CalibrationOptions,
 }
 
+impl IdentifyOptions {
+    /// Parse `options` given as JSON (a campaign's `options.identify`), naming the field.
+    pub fn from_value(v: &Value) -> Result<IdentifyOptions, JobError> {
+        serde_path_to_error::deserialize(v).map_err(|e| {
+            JobError::invalid(format!("options.{}", e.path()), e.into_inner().to_string())
+        })
+    }
+}
+
 /// Turn job options into calibration options (errors name the option).
 pub fn calibration_options(o: &IdentifyOptions) -> Result<CalibrationOptions, JobError> {
     let mut c = CalibrationOptions::default();
