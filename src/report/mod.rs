@@ -5,12 +5,98 @@
 
 pub mod svg;
 
+use serde::Serialize;
 use serde_json::Value;
 
-use crate::jobs::{Artefact, Table};
+use crate::jobs::{Artefact, JobError, Output, Table};
 use svg::{COLOURS, Chart};
 
-/// The plots for a result, as `image/svg+xml` artefacts.
+/// A kind's typed result with its main table and artefacts (plots included): what the
+/// campaigns and the service read instead of the JSON fields.
+#[derive(Debug, Clone)]
+pub struct Run<T> {
+    /// The typed result; its serialisation is the job's result fields.
+    pub result: T,
+    /// The table `calibd run --out FILE.csv` writes.
+    pub main_table: Option<Table>,
+    /// Artefacts (files, CSV tables, SVG plots).
+    pub artefacts: Vec<Artefact>,
+}
+
+impl<T: Serialize> Run<T> {
+    /// The job output: the result serialised as the fields map, the table and artefacts.
+    pub fn into_output(self) -> Result<Output, JobError> {
+        let fields = match serde_json::to_value(&self.result)
+            .map_err(|e| JobError::Failed(format!("serialising the result: {e}")))?
+        {
+            Value::Object(m) => m,
+            other => {
+                return Err(JobError::Failed(format!(
+                    "the result serialised to {other}, not an object"
+                )));
+            }
+        };
+        Ok(Output {
+            fields,
+            main_table: self.main_table,
+            artefacts: self.artefacts,
+        })
+    }
+}
+
+/// Serialise a table as JSON rows (`{column: value}` objects, non-finite as null): a
+/// `serialize_with` helper for typed results that carry a table.
+pub fn json_rows<S: serde::Serializer>(t: &Table, s: S) -> Result<S::Ok, S::Error> {
+    t.to_json_rows().serialize(s)
+}
+
+/// Plots of per-measurement errors before and after calibration (bars per configuration
+/// and a histogram), as SVG artefacts; kinds with residuals call it on their own errors.
+pub fn calibration_plots(before: &[f64], after: &[f64], unit: &str) -> Vec<Artefact> {
+    vec![
+        svg_artefact(
+            "errors_per_configuration.svg",
+            per_configuration(before, after, unit),
+        ),
+        svg_artefact("error_histogram.svg", histogram(before, after, unit, 20)),
+    ]
+}
+
+/// One set size of a dispersion study, as the plots read it: quartiles (min, q1, median,
+/// q3, max) of the mean and std of the validation error.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DispersionBox {
+    /// Configurations in the calibration set.
+    pub n: f64,
+    /// Quartiles of the mean validation error.
+    pub mean_error: [f64; 5],
+    /// Quartiles of the std of the validation error.
+    pub std_error: [f64; 5],
+}
+
+/// Box plots of a dispersion study (mean and std of the validation error per set size),
+/// as SVG artefacts; none when there is no size.
+pub fn dispersion_plots(sizes: &[DispersionBox], unit: &str) -> Vec<Artefact> {
+    if sizes.is_empty() {
+        return Vec::new();
+    }
+    let mean: Vec<(f64, [f64; 5])> = sizes.iter().map(|s| (s.n, s.mean_error)).collect();
+    let std: Vec<(f64, [f64; 5])> = sizes.iter().map(|s| (s.n, s.std_error)).collect();
+    vec![
+        svg_artefact(
+            "dispersion_mean_error.svg",
+            boxplots(&mean, "Mean validation error", unit),
+        ),
+        svg_artefact(
+            "dispersion_std_error.svg",
+            boxplots(&std, "Std of validation error", unit),
+        ),
+    ]
+}
+
+/// The plots for a finished result read back from its JSON and artefacts: kept for the
+/// service worker until kinds' own plots replace it; a thin wrapper over
+/// [`calibration_plots`] and [`dispersion_plots`].
 pub fn plots(result: &Value, artefacts: &[Artefact]) -> Vec<Artefact> {
     let mut out = Vec::new();
     let unit = result
@@ -26,14 +112,7 @@ pub fn plots(result: &Value, artefacts: &[Artefact]) -> Vec<Artefact> {
         if let (Ok(b), Ok(a)) = (t.col("", "before"), t.col("", "after")) {
             let before: Vec<f64> = t.rows.iter().map(|r| r[b]).collect();
             let after: Vec<f64> = t.rows.iter().map(|r| r[a]).collect();
-            out.push(svg_artefact(
-                "errors_per_configuration.svg",
-                per_configuration(&before, &after, unit),
-            ));
-            out.push(svg_artefact(
-                "error_histogram.svg",
-                histogram(&before, &after, unit, 20),
-            ));
+            out.extend(calibration_plots(&before, &after, unit));
         }
     }
     if let Some(sizes) = result.get("sizes").and_then(Value::as_array) {
@@ -42,7 +121,9 @@ pub fn plots(result: &Value, artefacts: &[Artefact]) -> Vec<Artefact> {
             .and_then(|s| s.get("unit"))
             .and_then(Value::as_str)
             .unwrap_or("mm");
-        for (field, name, title) in [
+        let field = |s: &Value, f: &str| s.get(f).and_then(quartiles);
+        // Each plot keeps the sizes that have its field (as before).
+        for (f, name, title) in [
             (
                 "mean_error",
                 "dispersion_mean_error.svg",
@@ -56,7 +137,7 @@ pub fn plots(result: &Value, artefacts: &[Artefact]) -> Vec<Artefact> {
         ] {
             let boxes: Vec<(f64, [f64; 5])> = sizes
                 .iter()
-                .filter_map(|s| Some((s.get("n")?.as_f64()?, quartiles(s.get(field)?)?)))
+                .filter_map(|s| Some((s.get("n")?.as_f64()?, field(s, f)?)))
                 .collect();
             if !boxes.is_empty() {
                 out.push(svg_artefact(name, boxplots(&boxes, title, unit)));

@@ -6,11 +6,11 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
-use super::{BaseSpec, ElasticSpec, LoadedModel, MarkerSpec, load_model};
-use crate::design::humanoid::{ConstraintOptions, HumanoidPostures, compare_baselines};
+use super::{BaseSpec, ElasticSpec, LoadedModel, MarkerSpec, load_model_text};
+use crate::design::humanoid::{Comparison, ConstraintOptions, HumanoidPostures, compare_baselines};
 use crate::design::ocp::{NocpOptions, OptimOptions, cocp, nocp};
 use crate::design::playback::{order_postures, sample_trajectory, travel};
 use crate::design::postures::PostureSet;
@@ -19,6 +19,7 @@ use crate::jobs::{
 };
 use crate::measure::marker_fit::Groups;
 use crate::model::srdf::disabled_collisions;
+use crate::report::Run;
 use crate::util::{Monitor, Rng, SubMonitor};
 
 #[derive(Debug, Deserialize)]
@@ -60,9 +61,11 @@ fn default_radius() -> f64 {
     0.04
 }
 
-#[derive(Debug, Default, Deserialize)]
+/// `constraints` of `humanoid.design` (end-effector box, collision spheres, SRDF,
+/// torque and collision checks).
+#[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct ConstraintSpec {
+pub struct ConstraintSpec {
     #[serde(default)]
     ee_box: Option<BoxSpec>,
     #[serde(default)]
@@ -78,7 +81,7 @@ struct ConstraintSpec {
     collision: Option<bool>,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct BoxSpec {
     link: String,
@@ -88,9 +91,10 @@ struct BoxSpec {
     max: [f64; 3],
 }
 
-#[derive(Debug, Default, Deserialize)]
+/// `options` of `humanoid.design`.
+#[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct DesignOptions {
+pub struct DesignOptions {
     #[serde(default)]
     block: Option<usize>,
     #[serde(default)]
@@ -113,7 +117,7 @@ struct DesignOptions {
     compare: Option<CompareSpec>,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CompareSpec {
     #[serde(default)]
@@ -160,87 +164,199 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<DesignJob, JobError> 
             });
         }
     }
+    check_markers(&markers)?;
+    let urdf = inputs.text("urdf", &s.urdf)?;
+    DesignJob::new(
+        inputs,
+        &urdf,
+        &s.root_link,
+        &s.joints,
+        markers,
+        &s.base,
+        &s.constraints,
+        s.seed,
+        s.n,
+        &s.options,
+    )
+}
+
+fn check_markers(markers: &[MarkerSpec]) -> Result<(), JobError> {
     if markers.is_empty() {
         return Err(JobError::invalid("markers", "give `markers` or `clusters`"));
     }
-    let loaded = load_model(
-        inputs,
-        &s.urdf,
-        &s.root_link,
-        &s.joints,
-        &markers,
-        &s.base,
-        &s.options.elastic,
-    )?;
-    let c = &s.constraints;
-    let mut opts = ConstraintOptions {
-        sphere_radius: positive("constraints.sphere_radius_m", c.sphere_radius_m, 0.05)?,
-        torque: c.torque.unwrap_or(true),
-        collision: c.collision.unwrap_or(true),
-        ..Default::default()
-    };
-    for (link, list) in &c.spheres {
-        for (i, v) in list.iter().enumerate() {
-            if !(v[3] > 0.0) || v.iter().any(|x| !x.is_finite()) {
+    Ok(())
+}
+
+/// Parse a JSON field into a typed spec, naming the offending path under `field`.
+fn parse_field<T: serde::de::DeserializeOwned>(field: &str, v: &Value) -> Result<T, JobError> {
+    serde_path_to_error::deserialize(v)
+        .map_err(|e| JobError::invalid(format!("{field}.{}", e.path()), e.into_inner().to_string()))
+}
+
+impl ConstraintSpec {
+    /// Parse `constraints` given as JSON (a campaign's), naming the offending field.
+    pub fn from_value(v: &Value) -> Result<ConstraintSpec, JobError> {
+        parse_field("constraints", v)
+    }
+}
+
+impl DesignOptions {
+    /// Parse `options` given as JSON (a campaign's), naming the offending field.
+    pub fn from_value(v: &Value) -> Result<DesignOptions, JobError> {
+        parse_field("options", v)
+    }
+}
+
+impl DesignJob {
+    /// A `humanoid.design` job from typed inputs (the mocap campaign's entry point; the
+    /// JSON path calls it too): URDF text, root link, joints, markers, base mode,
+    /// constraints, seed, `n` (COCP) or none (NOCP), options. `inputs` resolves a file
+    /// reference in `constraints.srdf` (`Inputs::new(&NoReferences)` for inline SRDF).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        inputs: &Inputs<'_>,
+        urdf: &str,
+        root_link: &str,
+        joints: &[String],
+        markers: Vec<MarkerSpec>,
+        base: &BaseSpec,
+        constraints: &ConstraintSpec,
+        seed: u64,
+        n: Option<usize>,
+        options: &DesignOptions,
+    ) -> Result<DesignJob, JobError> {
+        check_markers(&markers)?;
+        let loaded = load_model_text(urdf, root_link, joints, &markers, base, &options.elastic)?;
+        let c = constraints;
+        let mut opts = ConstraintOptions {
+            sphere_radius: positive("constraints.sphere_radius_m", c.sphere_radius_m, 0.05)?,
+            torque: c.torque.unwrap_or(true),
+            collision: c.collision.unwrap_or(true),
+            ..Default::default()
+        };
+        for (link, list) in &c.spheres {
+            for (i, v) in list.iter().enumerate() {
+                if !(v[3] > 0.0) || v.iter().any(|x| !x.is_finite()) {
+                    return Err(JobError::invalid(
+                        format!("constraints.spheres.{link}[{i}]"),
+                        "needs [x, y, z, r] with r > 0 (m)",
+                    ));
+                }
+                opts.spheres
+                    .push((link.clone(), [v[0], v[1], v[2]].into(), v[3]));
+            }
+        }
+        if let Some(srdf) = &c.srdf {
+            let text = inputs.text("constraints.srdf", srdf)?;
+            opts.disabled = disabled_collisions(&text)?;
+        }
+        if let Some(b) = &c.ee_box {
+            if (0..3).any(|k| !(b.min[k] < b.max[k])) {
                 return Err(JobError::invalid(
-                    format!("constraints.spheres.{link}[{i}]"),
-                    "needs [x, y, z, r] with r > 0 (m)",
+                    "constraints.ee_box",
+                    "needs min < max on every axis (m)",
                 ));
             }
-            opts.spheres
-                .push((link.clone(), [v[0], v[1], v[2]].into(), v[3]));
+            opts.ee_box = Some((b.link.clone(), b.point.into(), b.min.into(), b.max.into()));
         }
-    }
-    if let Some(srdf) = &c.srdf {
-        let text = inputs.text("constraints.srdf", srdf)?;
-        opts.disabled = disabled_collisions(&text)?;
-    }
-    if let Some(b) = &c.ee_box {
-        if (0..3).any(|k| !(b.min[k] < b.max[k])) {
-            return Err(JobError::invalid(
-                "constraints.ee_box",
-                "needs min < max on every axis (m)",
-            ));
+        let free = Groups::ALL.select(&loaded.model);
+        let postures = HumanoidPostures::new(&loaded.urdf, loaded.model.clone(), free, &opts)?;
+        let o = options;
+        let d = NocpOptions::default();
+        let nocp = NocpOptions {
+            block: o.block.unwrap_or(d.block).max(1),
+            epsilon: positive("options.epsilon", o.epsilon, d.epsilon)?,
+            max_postures: o.max_postures.unwrap_or(d.max_postures),
+            seed,
+            optim: OptimOptions {
+                iterations: o
+                    .optim_iterations
+                    .unwrap_or(OptimOptions::default().iterations),
+                ..Default::default()
+            },
+            tries: d.tries,
+        };
+        if let Some(n) = n {
+            if n == 0 {
+                return Err(JobError::invalid("n", "must be at least 1"));
+            }
         }
-        opts.ee_box = Some((b.link.clone(), b.point.into(), b.min.into(), b.max.into()));
+        Ok(DesignJob {
+            loaded,
+            postures,
+            seed,
+            n,
+            nocp,
+            base_pool: o.base_pool.unwrap_or(1000).max(1),
+            rank_tolerance: positive("options.rank_tolerance", o.rank_tolerance, 1e-8)?,
+            segment_s: positive("options.segment_s", o.segment_s, 5.0)?,
+            rate_hz: positive("options.sample_rate_hz", o.sample_rate_hz, 10.0)?,
+            compare: o
+                .compare
+                .as_ref()
+                .map(|c| (c.detmax_pool.unwrap_or(500), c.random_starts.unwrap_or(3))),
+        })
     }
-    let free = Groups::ALL.select(&loaded.model);
-    let postures = HumanoidPostures::new(&loaded.urdf, loaded.model.clone(), free, &opts)?;
-    let o = &s.options;
-    let d = NocpOptions::default();
-    let nocp = NocpOptions {
-        block: o.block.unwrap_or(d.block).max(1),
-        epsilon: positive("options.epsilon", o.epsilon, d.epsilon)?,
-        max_postures: o.max_postures.unwrap_or(d.max_postures),
-        seed: s.seed,
-        optim: OptimOptions {
-            iterations: o
-                .optim_iterations
-                .unwrap_or(OptimOptions::default().iterations),
-            ..Default::default()
-        },
-        tries: d.tries,
-    };
-    if let Some(n) = s.n {
-        if n == 0 {
-            return Err(JobError::invalid("n", "must be at least 1"));
-        }
-    }
-    Ok(DesignJob {
-        loaded,
-        postures,
-        seed: s.seed,
-        n: s.n,
-        nocp,
-        base_pool: o.base_pool.unwrap_or(1000).max(1),
-        rank_tolerance: positive("options.rank_tolerance", o.rank_tolerance, 1e-8)?,
-        segment_s: positive("options.segment_s", o.segment_s, 5.0)?,
-        rate_hz: positive("options.sample_rate_hz", o.sample_rate_hz, 10.0)?,
-        compare: o
-            .compare
-            .as_ref()
-            .map(|c| (c.detmax_pool.unwrap_or(500), c.random_starts.unwrap_or(3))),
-    })
+}
+
+/// One step of the O1 history (`o1_start` only for COCP).
+#[derive(Debug, Clone, Serialize)]
+pub struct O1Step {
+    /// Postures in the set.
+    pub postures: usize,
+    /// O1 of the set.
+    pub o1: f64,
+    /// O1 of the random start (COCP).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub o1_start: Option<f64>,
+}
+
+/// `trajectory` of `humanoid.design`: the quintic playback of the ordered postures.
+#[derive(Debug, Clone, Serialize)]
+pub struct PostureTrajectory {
+    /// Duration of one segment (s).
+    pub segment_s: f64,
+    /// Total duration (s).
+    pub duration_s: f64,
+    /// Joint travel in the chosen order (rad).
+    pub travel_rad: f64,
+    /// Joint travel in the design's order (rad).
+    pub travel_unordered_rad: f64,
+    /// Sampling rate of `trajectory.csv` (Hz).
+    pub sample_rate_hz: f64,
+}
+
+/// The result of `humanoid.design`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct HumanoidDesign {
+    /// The ordered postures (`posture` 1-based, then the joints in rad; the main table).
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub postures: Table,
+    /// Number of postures.
+    pub posture_count: usize,
+    /// O1 of the set.
+    pub o1: f64,
+    /// O1 per step.
+    pub o1_history: Vec<O1Step>,
+    /// Whether NOCP stopped on the plateau rule.
+    pub plateau: bool,
+    /// `nocp plateau` or `cocp with n postures`.
+    pub rule: &'static str,
+    /// Base parameters.
+    pub base_parameter_count: usize,
+    /// Their names.
+    pub base_parameters: Vec<String>,
+    /// Parameters no posture set can identify.
+    pub unidentifiable: Vec<String>,
+    /// Size of the base-parameter pool.
+    pub base_pool: usize,
+    /// Playback.
+    pub trajectory: PostureTrajectory,
+    /// Collision sphere pairs checked.
+    pub collision_sphere_pairs: usize,
+    /// DETMAX and random-start baselines (when asked).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub comparison: Option<Comparison>,
 }
 
 fn no_room(what: &str) -> JobError {
@@ -249,15 +365,10 @@ fn no_room(what: &str) -> JobError {
     ))
 }
 
-impl Kind for DesignJob {
-    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
 impl DesignJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    /// Design the postures: the typed result (the postures are also the main table) and
+    /// `trajectory.csv`.
+    pub fn design(&self, monitor: &dyn Monitor) -> Result<Run<HumanoidDesign>, JobError> {
         let mut pm = self.postures.clone();
         let mut rng = Rng::new(self.seed);
         monitor.progress(0.0, "feasible pool");
@@ -296,7 +407,11 @@ impl DesignJob {
                 let rep = cocp(&pm, &mut set, &self.nocp.optim, 4 * n, &main)?;
                 (
                     set,
-                    vec![json!({"postures": n, "o1": rep.o1, "o1_start": rep.o1_start})],
+                    vec![O1Step {
+                        postures: n,
+                        o1: rep.o1,
+                        o1_start: Some(rep.o1_start),
+                    }],
                     false,
                 )
             }
@@ -305,7 +420,11 @@ impl DesignJob {
                 let h = r
                     .history
                     .iter()
-                    .map(|s| json!({"postures": s.postures, "o1": s.o1}))
+                    .map(|s| O1Step {
+                        postures: s.postures,
+                        o1: s.o1,
+                        o1_start: None,
+                    })
                     .collect();
                 (r.set, h, r.plateau)
             }
@@ -330,48 +449,50 @@ impl DesignJob {
             row.extend(q);
             traj.push(row);
         }
-        let mut f = Map::new();
-        f.insert("postures".into(), table.to_json_rows());
-        f.insert("posture_count".into(), json!(count));
-        f.insert("o1".into(), json!(set.o1()));
-        f.insert("o1_history".into(), json!(history));
-        f.insert("plateau".into(), json!(plateau));
-        f.insert(
-            "rule".into(),
-            json!(match self.n {
+        let comparison = match self.compare {
+            Some((pool_n, starts)) => {
+                let sub = SubMonitor::new(monitor, 0.6, 0.95);
+                Some(
+                    compare_baselines(
+                        &pm,
+                        &set,
+                        pool_n,
+                        starts,
+                        self.seed,
+                        &self.nocp.optim,
+                        &sub,
+                    )?
+                    .ok_or_else(|| no_room("the comparison pools"))?,
+                )
+            }
+            None => None,
+        };
+        let result = HumanoidDesign {
+            postures: table.clone(),
+            posture_count: count,
+            o1: set.o1(),
+            o1_history: history,
+            plateau,
+            rule: match self.n {
                 Some(_) => "cocp with n postures",
                 None => "nocp plateau",
-            }),
-        );
-        f.insert("base_parameter_count".into(), json!(pm.cols.len()));
-        f.insert("base_parameters".into(), json!(names(&pm.cols)));
-        f.insert("unidentifiable".into(), json!(unidentifiable));
-        f.insert("base_pool".into(), json!(self.base_pool));
-        f.insert(
-            "trajectory".into(),
-            json!({
-                "segment_s": self.segment_s, "duration_s": self.segment_s * count.saturating_sub(1) as f64,
-                "travel_rad": travel(&set.postures, &order, None),
-                "travel_unordered_rad": travel(&set.postures, &identity, None),
-                "sample_rate_hz": self.rate_hz,
-            }),
-        );
-        f.insert(
-            "collision_sphere_pairs".into(),
-            json!(pm.constraints.pairs.len()),
-        );
-        if let Some((pool_n, starts)) = self.compare {
-            let sub = SubMonitor::new(monitor, 0.6, 0.95);
-            let c =
-                compare_baselines(&pm, &set, pool_n, starts, self.seed, &self.nocp.optim, &sub)?
-                    .ok_or_else(|| no_room("the comparison pools"))?;
-            f.insert(
-                "comparison".into(),
-                serde_json::to_value(&c).unwrap_or(Value::Null),
-            );
-        }
-        Ok(Output {
-            fields: f,
+            },
+            base_parameter_count: pm.cols.len(),
+            base_parameters: names(&pm.cols),
+            unidentifiable,
+            base_pool: self.base_pool,
+            trajectory: PostureTrajectory {
+                segment_s: self.segment_s,
+                duration_s: self.segment_s * count.saturating_sub(1) as f64,
+                travel_rad: travel(&set.postures, &order, None),
+                travel_unordered_rad: travel(&set.postures, &identity, None),
+                sample_rate_hz: self.rate_hz,
+            },
+            collision_sphere_pairs: pm.constraints.pairs.len(),
+            comparison,
+        };
+        Ok(Run {
+            result,
             main_table: Some(table),
             artefacts: vec![Artefact {
                 name: "trajectory.csv".into(),
@@ -379,5 +500,18 @@ impl DesignJob {
                 content: traj.to_csv().into_bytes(),
             }],
         })
+    }
+}
+
+impl Kind for DesignJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl DesignJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.design(monitor)?.into_output()
     }
 }

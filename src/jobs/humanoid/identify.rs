@@ -7,20 +7,23 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
-use super::samples::{SampleSet, load_samples};
-use super::{
-    BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, load_model, marker_table, params_json,
+use super::samples::{SampleSet, load_samples, samples_from_table};
+use super::{BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, load_model, load_model_text};
+use crate::identify::solve::Dependency;
+use crate::identify::{Degeneracy, ParamReport, RobustKind, StopReason};
+use crate::jobs::{
+    Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
 };
-use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
 use crate::measure::marker_fit::{
     FitOptions, Groups, MarkerFit, fit, fit_frames, structural_count,
 };
 use crate::measure::markers::{MarkerSample, marker_rmse};
 use crate::model::JointField;
 use crate::model::humanoid::{HParam, Humanoid};
+use crate::report::Run;
 use crate::util::{Monitor, Rng, SubMonitor};
 
 #[derive(Debug, Deserialize)]
@@ -71,26 +74,62 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IdentifyJob, JobError
         &loaded,
         s.options.preprocess.as_ref(),
     )?;
-    if let Some(cv) = &s.options.cross_validation {
-        if cv.folds < 2 || cv.folds > set.samples.len() {
-            return Err(JobError::invalid(
-                "options.cross_validation.folds",
-                format!(
-                    "{} folds for {} samples: use 2..={}",
-                    cv.folds,
-                    set.samples.len(),
-                    set.samples.len()
-                ),
-            ));
-        }
+    IdentifyJob::from_samples(loaded, set, s.options)
+}
+
+impl IdentifyJob {
+    /// A `humanoid.identify` job from typed inputs (the mocap campaign's entry point): URDF
+    /// text, root link, joints, markers, base mode, the samples table (joint columns by
+    /// URDF name, `<marker>_x/_y/_z` with occlusions as NaN) and the parsed options.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        urdf: &str,
+        root_link: &str,
+        joints: &[String],
+        markers: &[MarkerSpec],
+        base: &BaseSpec,
+        samples: Table,
+        column_map: &ColumnMap,
+        options: FitSpec,
+    ) -> Result<IdentifyJob, JobError> {
+        let loaded = load_model_text(urdf, root_link, joints, markers, base, &options.elastic)?;
+        let set = samples_from_table(
+            "samples",
+            samples,
+            column_map,
+            &loaded,
+            options.preprocess.as_ref(),
+        )?;
+        IdentifyJob::from_samples(loaded, set, options)
     }
-    Ok(IdentifyJob {
-        groups: s.options.groups()?,
-        fit: s.options.fit_options()?,
-        loaded,
-        set,
-        options: s.options,
-    })
+
+    /// The last validation step shared by the JSON and the typed constructors.
+    fn from_samples(
+        loaded: LoadedModel,
+        set: SampleSet,
+        options: FitSpec,
+    ) -> Result<IdentifyJob, JobError> {
+        if let Some(cv) = &options.cross_validation {
+            if cv.folds < 2 || cv.folds > set.samples.len() {
+                return Err(JobError::invalid(
+                    "options.cross_validation.folds",
+                    format!(
+                        "{} folds for {} samples: use 2..={}",
+                        cv.folds,
+                        set.samples.len(),
+                        set.samples.len()
+                    ),
+                ));
+            }
+        }
+        Ok(IdentifyJob {
+            groups: options.groups()?,
+            fit: options.fit_options()?,
+            loaded,
+            set,
+            options,
+        })
+    }
 }
 
 /// The three fits of a calibration: frames only, geometric only (when elastic), full.
@@ -150,7 +189,7 @@ pub fn calibrate(
 }
 
 /// Number of identified parameters by kind.
-fn breakdown(f: &MarkerFit) -> Value {
+fn breakdown(f: &MarkerFit) -> Breakdown {
     let (mut joints, mut compliance, mut base, mut markers) = (0, 0, 0, 0);
     for &k in &f.solution.free {
         match f.model.params[f.problem.free()[k]] {
@@ -160,18 +199,194 @@ fn breakdown(f: &MarkerFit) -> Value {
             HParam::Marker(..) => markers += 1,
         }
     }
-    json!({"joint_geometry": joints, "compliance": compliance, "base": base, "markers": markers})
+    Breakdown {
+        joint_geometry: joints,
+        compliance,
+        base,
+        markers,
+    }
 }
 
-fn fit_report(f: &MarkerFit) -> Value {
-    json!({
-        "parameters": params_json(&f.solution.params),
-        "unidentifiable": f.solution.unidentifiable,
-        "base_parameter_count": f.solution.free.len(),
-        "condition_number": f.solution.uncertainty.condition_number,
-        "rmse_after_mm": f.rmse * 1e3,
-        "per_marker_rmse_mm": f.per_marker.iter().map(|v| v.map(|x| x * 1e3)).collect::<Vec<_>>(),
-    })
+fn fit_report(f: &MarkerFit) -> FitReport {
+    FitReport {
+        parameters: f.solution.params.clone(),
+        unidentifiable: f.solution.unidentifiable.clone(),
+        base_parameter_count: f.solution.free.len(),
+        condition_number: f.solution.uncertainty.condition_number,
+        rmse_after_mm: f.rmse * 1e3,
+        per_marker_rmse_mm: f.per_marker.iter().map(|v| v.map(|x| x * 1e3)).collect(),
+    }
+}
+
+/// Identified parameters by kind (`base_parameter_breakdown`).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Breakdown {
+    /// Joint placement errors and offsets.
+    pub joint_geometry: usize,
+    /// Joint and base compliances.
+    pub compliance: usize,
+    /// Base frame.
+    pub base: usize,
+    /// Marker positions.
+    pub markers: usize,
+}
+
+/// One fit's summary (`frames_only`, `geometric_only`).
+#[derive(Debug, Clone, Serialize)]
+pub struct FitReport {
+    /// Every unknown.
+    pub parameters: Vec<ParamReport>,
+    /// Unknowns held.
+    pub unidentifiable: Vec<String>,
+    /// Identified unknowns.
+    pub base_parameter_count: usize,
+    /// Condition number.
+    pub condition_number: f64,
+    /// Marker RMSE after the fit (mm).
+    pub rmse_after_mm: f64,
+    /// Per marker (mm; null when never seen).
+    pub per_marker_rmse_mm: Vec<Option<f64>>,
+}
+
+/// `identifiability` of `humanoid.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct Identifiability {
+    /// Relative tolerance of the rank detection.
+    pub rank_tolerance: f64,
+    /// Identified unknowns.
+    pub identified: usize,
+    /// Structural rank at 1e-8.
+    #[serde(rename = "structural_rank_1e-8")]
+    pub structural_rank: usize,
+    /// Unknowns.
+    pub unknowns: usize,
+}
+
+/// Marker RMSE before and after calibration (mm; null when never seen).
+#[derive(Debug, Clone, Serialize)]
+pub struct MarkerRmse {
+    /// Marker name.
+    pub name: String,
+    /// Its link.
+    pub link: String,
+    /// Non-calibrated model.
+    pub rmse_before_mm: Option<f64>,
+    /// Calibrated model.
+    pub rmse_after_mm: Option<f64>,
+}
+
+/// `convergence` of `humanoid.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct HumanoidConvergence {
+    /// Why the solver stopped.
+    pub stop_reason: StopReason,
+    /// Whether it converged.
+    pub converged: bool,
+    /// Status.
+    pub status: &'static str,
+    /// Degeneracy, if any.
+    pub degenerate: Option<Degeneracy>,
+    /// Iterations.
+    pub iterations: usize,
+    /// Cost at the start.
+    pub cost_before: f64,
+    /// Cost at the end.
+    pub cost_after: f64,
+    /// `m^2`.
+    pub cost_unit: &'static str,
+    /// Rank tolerance.
+    pub rank_tolerance: f64,
+}
+
+/// `robust` of `humanoid.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct RobustSummary {
+    /// The loss.
+    pub loss: RobustKind,
+    /// Scale (mm).
+    pub scale_mm: f64,
+    /// Reweighting rounds.
+    pub rounds: usize,
+    /// Markers with weight below 0.5.
+    pub downweighted_markers: usize,
+    /// Marker measurements.
+    pub marker_measurements: usize,
+}
+
+/// One fold of the cross-validation.
+#[derive(Debug, Clone, Serialize)]
+pub struct FoldReport {
+    /// Samples predicted.
+    pub held_out_samples: usize,
+    /// RMSE of the frames-only model (mm).
+    pub rmse_nominal_mm: f64,
+    /// RMSE of the calibrated model (mm).
+    pub rmse_calibrated_mm: f64,
+}
+
+/// `cross_validation` of `humanoid.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct CrossValidation {
+    /// Folds.
+    pub folds: usize,
+    /// Shuffle seed.
+    pub seed: u64,
+    /// Overall RMSE of the frames-only models (mm).
+    pub rmse_nominal_mm: f64,
+    /// Overall RMSE of the calibrated models (mm).
+    pub rmse_calibrated_mm: f64,
+    /// Per fold.
+    pub per_fold: Vec<FoldReport>,
+}
+
+/// The result of `humanoid.identify`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct HumanoidCalibration {
+    /// Every unknown of the full fit.
+    pub parameters: Vec<ParamReport>,
+    /// Unknowns held.
+    pub unidentifiable: Vec<String>,
+    /// Identified unknowns.
+    pub base_parameter_count: usize,
+    /// By kind.
+    pub base_parameter_breakdown: Breakdown,
+    /// Rank detection.
+    pub identifiability: Identifiability,
+    /// Condition number.
+    pub condition_number: f64,
+    /// Marker RMSE of the non-calibrated model (mm).
+    pub rmse_before_mm: f64,
+    /// Marker RMSE of the calibrated model (mm).
+    pub rmse_after_mm: f64,
+    /// Per marker.
+    pub markers: Vec<MarkerRmse>,
+    /// Dependencies of the held unknowns.
+    pub dependencies: Vec<Dependency>,
+    /// Weakly observable unknowns.
+    pub weakly_observable: Vec<String>,
+    /// Convergence.
+    pub convergence: HumanoidConvergence,
+    /// Residual standard deviation (mm).
+    pub residual_std_mm: f64,
+    /// Robust loss report.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robust: Option<RobustSummary>,
+    /// Frames-only fit.
+    pub frames_only: FitReport,
+    /// Geometric-only fit (elastic models).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub geometric_only: Option<FitReport>,
+    /// The samples used and dropped (left as JSON: read by people, not code).
+    pub samples: Value,
+    /// Cross-validation.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cross_validation: Option<CrossValidation>,
+    /// The calibrated URDF text.
+    pub calibrated_urdf: String,
+    /// The calibrated model (the same URDF text).
+    pub calibrated_model: String,
+    /// What the URDF holds.
+    pub calibrated_urdf_note: &'static str,
 }
 
 /// k-fold cross-validation: each fold's samples are predicted by the models fitted on the
@@ -180,7 +395,7 @@ fn cross_validate(
     job: &IdentifyJob,
     folds: usize,
     monitor: &dyn Monitor,
-) -> Result<Value, JobError> {
+) -> Result<CrossValidation, JobError> {
     let n = job.set.samples.len();
     let mut order: Vec<usize> = (0..n).collect();
     Rng::new(job.options.seed).shuffle(&mut order);
@@ -214,26 +429,25 @@ fn cross_validate(
         sq_n += a * a * m as f64;
         sq_c += b * b * m as f64;
         count += m;
-        per_fold.push(json!({"held_out_samples": test.len(), "rmse_nominal_mm": a * 1e3, "rmse_calibrated_mm": b * 1e3}));
+        per_fold.push(FoldReport {
+            held_out_samples: test.len(),
+            rmse_nominal_mm: a * 1e3,
+            rmse_calibrated_mm: b * 1e3,
+        });
     }
-    Ok(json!({
-        "folds": folds,
-        "seed": job.options.seed,
-        "rmse_nominal_mm": (sq_n / count.max(1) as f64).sqrt() * 1e3,
-        "rmse_calibrated_mm": (sq_c / count.max(1) as f64).sqrt() * 1e3,
-        "per_fold": per_fold,
-    }))
-}
-
-impl Kind for IdentifyJob {
-    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
+    Ok(CrossValidation {
+        folds,
+        seed: job.options.seed,
+        rmse_nominal_mm: (sq_n / count.max(1) as f64).sqrt() * 1e3,
+        rmse_calibrated_mm: (sq_c / count.max(1) as f64).sqrt() * 1e3,
+        per_fold,
+    })
 }
 
 impl IdentifyJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    /// Run the calibration: the typed result and its artefacts (calibrated URDF,
+    /// `marker_residuals.csv`); no main table.
+    pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<HumanoidCalibration>, JobError> {
         let samples = &self.set.samples;
         let cv_share = if self.options.cross_validation.is_some() {
             0.5
@@ -249,75 +463,29 @@ impl IdentifyJob {
         )?;
         let full = &cal.full;
         let sol = &full.solution;
-        let mut f = Map::new();
-        f.insert("parameters".into(), params_json(&sol.params));
-        f.insert("unidentifiable".into(), json!(sol.unidentifiable));
-        f.insert("base_parameter_count".into(), json!(sol.free.len()));
-        f.insert("base_parameter_breakdown".into(), breakdown(full));
-        f.insert(
-            "identifiability".into(),
-            json!({
-                "rank_tolerance": self.fit.rank_tolerance,
-                "identified": sol.free.len(),
-                "structural_rank_1e-8": structural_count(full, 1e-8)?,
-                "unknowns": full.problem.free().len(),
-            }),
-        );
-        f.insert(
-            "condition_number".into(),
-            json!(sol.uncertainty.condition_number),
-        );
-        f.insert("rmse_before_mm".into(), json!(cal.frames.rmse * 1e3));
-        f.insert("rmse_after_mm".into(), json!(full.rmse * 1e3));
-        f.insert(
-            "markers".into(),
-            marker_table(
-                &full.model,
-                &[
-                    ("rmse_before_mm", &cal.frames.per_marker),
-                    ("rmse_after_mm", &full.per_marker),
-                ],
-            ),
-        );
-        f.insert(
-            "dependencies".into(),
-            serde_json::to_value(&sol.dependencies).unwrap_or(Value::Null),
-        );
-        f.insert("weakly_observable".into(), json!(sol.weakly_observable));
-        f.insert(
-            "convergence".into(),
-            json!({
-                "stop_reason": sol.stop, "converged": sol.converged(), "status": sol.status(), "degenerate": sol.degenerate, "iterations": sol.iterations,
-                "cost_before": sol.cost_before, "cost_after": sol.cost_after, "cost_unit": "m^2",
-                "rank_tolerance": self.fit.rank_tolerance,
-            }),
-        );
-        f.insert("residual_std_mm".into(), json!(sol.uncertainty.sigma * 1e3));
-        if let Some(r) = &sol.robust {
-            f.insert("robust".into(), json!({"loss": r.kind, "scale_mm": r.scale * 1e3, "rounds": r.rounds, "downweighted_markers": r.downweighted, "marker_measurements": r.groups}));
-        }
-        f.insert("frames_only".into(), fit_report(&cal.frames));
-        if let Some(g) = &cal.geometric {
-            f.insert("geometric_only".into(), fit_report(g));
-        }
-        f.insert("samples".into(), self.set.report());
-        if let Some(cv) = &self.options.cross_validation {
-            let sub = SubMonitor::new(monitor, 0.5, 1.0);
-            f.insert(
-                "cross_validation".into(),
-                cross_validate(self, cv.folds, &sub)?,
-            );
-        }
+        let markers = full
+            .model
+            .markers
+            .iter()
+            .enumerate()
+            .map(|(m, d)| MarkerRmse {
+                name: d.name.clone(),
+                link: d.link.clone(),
+                rmse_before_mm: cal.frames.per_marker[m].map(|v| v * 1e3),
+                rmse_after_mm: full.per_marker[m].map(|v| v * 1e3),
+            })
+            .collect();
+        let cross_validation = match &self.options.cross_validation {
+            Some(cv) => {
+                let sub = SubMonitor::new(monitor, 0.5, 1.0);
+                Some(cross_validate(self, cv.folds, &sub)?)
+            }
+            None => None,
+        };
         let text = self
             .loaded
             .urdf
             .write_calibrated_chains(full.model.chains())?;
-        f.insert("calibrated_urdf".into(), json!(text));
-        f.insert("calibrated_model".into(), json!(text));
-        f.insert(
-            "calibrated_urdf_note".into(),
-            json!("placement errors and offsets are folded into each joint's <origin>; compliances, the base frame and the marker positions are in `parameters`"),
-        );
         let mut csv = String::from("row,marker,error_before_mm,error_after_mm\n");
         let before = cal.frames.model.clone();
         for (k, s) in samples.iter().enumerate() {
@@ -337,8 +505,52 @@ impl IdentifyJob {
                 }
             }
         }
-        Ok(Output {
-            fields: f,
+        let result = HumanoidCalibration {
+            parameters: sol.params.clone(),
+            unidentifiable: sol.unidentifiable.clone(),
+            base_parameter_count: sol.free.len(),
+            base_parameter_breakdown: breakdown(full),
+            identifiability: Identifiability {
+                rank_tolerance: self.fit.rank_tolerance,
+                identified: sol.free.len(),
+                structural_rank: structural_count(full, 1e-8)?,
+                unknowns: full.problem.free().len(),
+            },
+            condition_number: sol.uncertainty.condition_number,
+            rmse_before_mm: cal.frames.rmse * 1e3,
+            rmse_after_mm: full.rmse * 1e3,
+            markers,
+            dependencies: sol.dependencies.clone(),
+            weakly_observable: sol.weakly_observable.clone(),
+            convergence: HumanoidConvergence {
+                stop_reason: sol.stop,
+                converged: sol.converged(),
+                status: sol.status(),
+                degenerate: sol.degenerate.clone(),
+                iterations: sol.iterations,
+                cost_before: sol.cost_before,
+                cost_after: sol.cost_after,
+                cost_unit: "m^2",
+                rank_tolerance: self.fit.rank_tolerance,
+            },
+            residual_std_mm: sol.uncertainty.sigma * 1e3,
+            robust: sol.robust.as_ref().map(|r| RobustSummary {
+                loss: r.kind,
+                scale_mm: r.scale * 1e3,
+                rounds: r.rounds,
+                downweighted_markers: r.downweighted,
+                marker_measurements: r.groups,
+            }),
+            frames_only: fit_report(&cal.frames),
+            geometric_only: cal.geometric.as_ref().map(fit_report),
+            samples: self.set.report(),
+            cross_validation,
+            calibrated_urdf: text.clone(),
+            calibrated_model: text.clone(),
+            calibrated_urdf_note: "placement errors and offsets are folded into each joint's <origin>; compliances, the base frame and the marker positions are in `parameters`",
+        };
+        Ok(Run {
+            result,
             main_table: None,
             artefacts: vec![
                 Artefact {
@@ -353,5 +565,105 @@ impl IdentifyJob {
                 },
             ],
         })
+    }
+}
+
+impl Kind for IdentifyJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl IdentifyJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.calibrate(monitor)?.into_output()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::jobs::DirResolver;
+    use crate::util::monitor::NoMonitor;
+    use serde_json::json;
+
+    /// The result fields of `examples/humanoid_identify_twin.json` (elastic, no robust
+    /// loss, no cross-validation) as the hand-built map of 7e62456 had them.
+    const FIELDS: &[&str] = &[
+        "base_parameter_breakdown",
+        "base_parameter_count",
+        "calibrated_model",
+        "calibrated_urdf",
+        "calibrated_urdf_note",
+        "condition_number",
+        "convergence",
+        "dependencies",
+        "frames_only",
+        "geometric_only",
+        "identifiability",
+        "markers",
+        "parameters",
+        "residual_std_mm",
+        "rmse_after_mm",
+        "rmse_before_mm",
+        "samples",
+        "unidentifiable",
+        "weakly_observable",
+    ];
+
+    #[test]
+    fn the_typed_result_serialises_to_the_fields_of_before() {
+        let dir = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples"));
+        let doc: Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join("humanoid_identify_twin.json")).unwrap(),
+        )
+        .unwrap();
+        let job = prepare(&doc, &Inputs::new(&DirResolver { dir: dir.clone() })).unwrap();
+        let run = job.calibrate(&NoMonitor).unwrap();
+        let out = run.clone().into_output().unwrap();
+        let mut keys: Vec<&str> = out.fields.keys().map(String::as_str).collect();
+        keys.sort_unstable();
+        assert_eq!(keys, FIELDS);
+        assert!(
+            out.fields["identifiability"]
+                .as_object()
+                .unwrap()
+                .contains_key("structural_rank_1e-8")
+        );
+        assert_eq!(
+            out.fields["calibrated_model"],
+            json!(run.result.calibrated_model)
+        );
+        // The typed constructor (URDF text, a samples table) gives the same result.
+        let s: Spec = parse_spec(&doc).unwrap();
+        let urdf = std::fs::read_to_string(dir.join(s.urdf.as_str().unwrap())).unwrap();
+        let csv = std::fs::read_to_string(dir.join(s.samples.as_str().unwrap())).unwrap();
+        // Occlusions are empty cells: NaN in a typed table.
+        let mut lines = csv.lines();
+        let columns: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+        let rows = lines
+            .filter(|l| !l.trim().is_empty())
+            .map(|l| {
+                l.split(',')
+                    .map(|c| c.trim().parse().unwrap_or(f64::NAN))
+                    .collect()
+            })
+            .collect();
+        let table = Table { columns, rows };
+        let typed = IdentifyJob::new(
+            &urdf,
+            &s.root_link,
+            &s.joints,
+            &s.markers,
+            &s.base,
+            table,
+            &s.column_map,
+            s.options,
+        )
+        .unwrap();
+        let b = typed.calibrate(&NoMonitor).unwrap().into_output().unwrap();
+        assert_eq!(out.fields["parameters"], b.fields["parameters"]);
+        assert_eq!(out.fields["rmse_after_mm"], b.fields["rmse_after_mm"]);
     }
 }

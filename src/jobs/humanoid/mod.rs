@@ -168,6 +168,13 @@ pub struct CrossValidationSpec {
 }
 
 impl FitSpec {
+    /// Parse `options` given as JSON (a campaign's `options.identify`), naming the field.
+    pub fn from_value(v: &Value) -> Result<FitSpec, JobError> {
+        serde_path_to_error::deserialize(v).map_err(|e| {
+            JobError::invalid(format!("options.{}", e.path()), e.into_inner().to_string())
+        })
+    }
+
     /// Groups of joint parameters to identify (geometric part).
     pub fn groups(&self) -> Result<Groups, JobError> {
         let mut g = Groups::ALL;
@@ -251,7 +258,19 @@ pub fn load_model(
     elastic: &ElasticSpec,
 ) -> Result<LoadedModel, JobError> {
     let text = inputs.text("urdf", urdf)?;
-    let urdf = UrdfModel::parse(&text)?;
+    load_model_text(&text, root_link, joints, markers, base, elastic)
+}
+
+/// [`load_model`] from URDF text: the typed entry point of the humanoid kinds.
+pub fn load_model_text(
+    text: &str,
+    root_link: &str,
+    joints: &[String],
+    markers: &[MarkerSpec],
+    base: &BaseSpec,
+    elastic: &ElasticSpec,
+) -> Result<LoadedModel, JobError> {
+    let urdf = UrdfModel::parse(text)?;
     if joints.is_empty() {
         return Err(JobError::invalid("joints", "at least one joint is needed"));
     }

@@ -77,7 +77,26 @@ pub fn load_samples(
             .iter()
             .any(|n| marker_columns(n).iter().any(|m| m == &c))
     };
-    let mut table: Table = inputs.table_with_gaps(field, value, &is_point)?;
+    let table: Table = inputs.table_with_gaps(field, value, &is_point)?;
+    samples_from_table(field, table, column_map, loaded, pre)
+}
+
+/// Validate the samples of an already parsed table (occlusions as NaN cells): the typed
+/// entry point of `humanoid.identify`, and the second half of [`load_samples`].
+pub fn samples_from_table(
+    field: &str,
+    mut table: Table,
+    column_map: &ColumnMap,
+    loaded: &LoadedModel,
+    pre: Option<&PreprocessSpec>,
+) -> Result<SampleSet, JobError> {
+    let model = &loaded.model;
+    let point_names: Vec<&str> = model
+        .markers
+        .iter()
+        .map(|m| m.name.as_str())
+        .chain(loaded.cluster.iter().map(String::as_str))
+        .collect();
     for (from, to) in column_map {
         let k = table
             .columns

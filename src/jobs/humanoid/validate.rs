@@ -6,14 +6,11 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
 use super::samples::{SampleSet, load_samples};
-use super::{
-    BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, apply_parameters, load_model,
-    marker_table,
-};
+use super::{BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, apply_parameters, load_model};
 use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
 use crate::measure::marker_fit::{FitOptions, fit_frames};
 use crate::measure::markers::marker_rmse;
@@ -57,6 +54,24 @@ pub struct ValidateJob {
     fit: FitOptions,
 }
 
+/// The parts of a `humanoid.identify` result that validation reads back (the parameter
+/// lists stay JSON here: [`apply_parameters`] validates them line by line).
+#[derive(Debug, Default, Deserialize)]
+struct CalibratedDoc {
+    #[serde(default)]
+    parameters: Option<Value>,
+    #[serde(default)]
+    frames_only: Option<FitParameters>,
+    #[serde(default)]
+    geometric_only: Option<FitParameters>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+struct FitParameters {
+    #[serde(default)]
+    parameters: Option<Value>,
+}
+
 /// Validate a `humanoid.validate` job.
 pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<ValidateJob, JobError> {
     let s: Spec = parse_spec(doc)?;
@@ -83,8 +98,9 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<ValidateJob, JobError
         &loaded,
         s.options.preprocess.as_ref(),
     )?;
-    let cal = inputs.json("calibrated", &s.calibrated)?;
-    let full_params = cal.get("parameters").ok_or_else(|| {
+    let cal: CalibratedDoc =
+        serde_json::from_value(inputs.json("calibrated", &s.calibrated)?).unwrap_or_default();
+    let full_params = cal.parameters.as_ref().ok_or_else(|| {
         JobError::invalid(
             "calibrated",
             "has no `parameters`: give a humanoid.identify result",
@@ -99,20 +115,20 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<ValidateJob, JobError
     };
     let mut ncm = loaded.model.clone();
     if !s.refit_frames {
-        let frames = cal.pointer("/frames_only/parameters").ok_or_else(|| {
+        let frames = cal.frames_only.and_then(|f| f.parameters).ok_or_else(|| {
             JobError::invalid(
                 "calibrated",
                 "has no `frames_only.parameters` (needed when refit_frames is false)",
             )
         })?;
-        apply_parameters(&mut ncm, "calibrated.frames_only.parameters", frames, keep)?;
+        apply_parameters(&mut ncm, "calibrated.frames_only.parameters", &frames, keep)?;
     }
     let mut full = loaded.model.clone();
     apply_parameters(&mut full, "calibrated.parameters", full_params, keep)?;
-    let (gcm, gcm_source) = match cal.pointer("/geometric_only/parameters") {
+    let (gcm, gcm_source) = match cal.geometric_only.and_then(|g| g.parameters) {
         Some(g) => {
             let mut m = loaded.model.clone();
-            apply_parameters(&mut m, "calibrated.geometric_only.parameters", g, keep)?;
+            apply_parameters(&mut m, "calibrated.geometric_only.parameters", &g, keep)?;
             (m, "geometric_only")
         }
         None => (
@@ -130,15 +146,46 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<ValidateJob, JobError
     })
 }
 
-impl Kind for ValidateJob {
-    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
+/// Marker RMSE of the three models (mm; null when never seen).
+#[derive(Debug, Clone, Serialize)]
+pub struct MarkerValidation {
+    /// Marker name.
+    pub name: String,
+    /// Its link.
+    pub link: String,
+    /// Non-calibrated model.
+    pub rmse_ncm_mm: Option<f64>,
+    /// Geometric calibration.
+    pub rmse_gcm_mm: Option<f64>,
+    /// Full calibration.
+    pub rmse_fcm_mm: Option<f64>,
+}
+
+/// The result of `humanoid.validate`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct HumanoidValidation {
+    /// Marker RMSE of the non-calibrated model (mm).
+    pub rmse_ncm_mm: f64,
+    /// ... of the geometric calibration (mm).
+    pub rmse_gcm_mm: f64,
+    /// ... of the full calibration (mm).
+    pub rmse_fcm_mm: f64,
+    /// Per marker.
+    pub markers: Vec<MarkerValidation>,
+    /// Whether base frame and markers were refitted on the session.
+    pub refit_frames: bool,
+    /// Where the geometric model came from.
+    pub gcm_source: &'static str,
+    /// The samples used and dropped (left as JSON: read by people, not code).
+    pub samples: Value,
 }
 
 impl ValidateJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    /// Compare the three models on the session: the typed result; no table or artefact.
+    pub fn validate(
+        &self,
+        monitor: &dyn Monitor,
+    ) -> Result<crate::report::Run<HumanoidValidation>, JobError> {
         let samples = &self.set.samples;
         let mut overall = [0.0; 3];
         let mut per: Vec<Vec<Option<f64>>> = Vec::new();
@@ -153,28 +200,46 @@ impl ValidateJob {
             overall[k] = rmse;
             per.push(pm);
         }
-        let mut f = Map::new();
-        f.insert("rmse_ncm_mm".into(), json!(overall[0] * 1e3));
-        f.insert("rmse_gcm_mm".into(), json!(overall[1] * 1e3));
-        f.insert("rmse_fcm_mm".into(), json!(overall[2] * 1e3));
-        f.insert(
-            "markers".into(),
-            marker_table(
-                &self.loaded.model,
-                &[
-                    ("rmse_ncm_mm", &per[0]),
-                    ("rmse_gcm_mm", &per[1]),
-                    ("rmse_fcm_mm", &per[2]),
-                ],
-            ),
-        );
-        f.insert("refit_frames".into(), json!(self.refit));
-        f.insert("gcm_source".into(), json!(self.gcm_source));
-        f.insert("samples".into(), self.set.report());
-        Ok(Output {
-            fields: f,
+        let mm = |v: Option<f64>| v.map(|x| x * 1e3);
+        let markers = self
+            .loaded
+            .model
+            .markers
+            .iter()
+            .enumerate()
+            .map(|(m, d)| MarkerValidation {
+                name: d.name.clone(),
+                link: d.link.clone(),
+                rmse_ncm_mm: mm(per[0][m]),
+                rmse_gcm_mm: mm(per[1][m]),
+                rmse_fcm_mm: mm(per[2][m]),
+            })
+            .collect();
+        Ok(crate::report::Run {
+            result: HumanoidValidation {
+                rmse_ncm_mm: overall[0] * 1e3,
+                rmse_gcm_mm: overall[1] * 1e3,
+                rmse_fcm_mm: overall[2] * 1e3,
+                markers,
+                refit_frames: self.refit,
+                gcm_source: self.gcm_source,
+                samples: self.set.report(),
+            },
             main_table: None,
             artefacts: Vec::new(),
         })
+    }
+}
+
+impl Kind for ValidateJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl ValidateJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.validate(monitor)?.into_output()
     }
 }

@@ -7,16 +7,17 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
 
 use super::{PcrModel, load_model, poses};
 use crate::design::trajectory::{circle, square};
 use crate::geometry::Pose2;
 use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
-use crate::measure::pcr::accuracy::{pose_accuracy, summarise};
+use crate::measure::pcr::accuracy::{AccuracySummary, pose_accuracy, summarise};
 use crate::measure::pcr::{PcrMeasurement, measured_pose};
 use crate::model::pcr::PcrFile;
+use crate::report::Run;
 use crate::twin::PcrTwin;
 use crate::util::{Monitor, Rng};
 
@@ -91,7 +92,10 @@ pub struct AccuracyJob {
     source: Source,
 }
 
-pub(crate) fn trajectory(inputs: &Inputs<'_>, v: &Value) -> Result<(String, Vec<Pose2>), JobError> {
+/// Parse a `trajectory` field (a square, a circle or a poses table): its name and the
+/// commanded poses; campaigns validate their trajectory with it before calling
+/// [`AccuracyJob::reached`].
+pub fn trajectory(inputs: &Inputs<'_>, v: &Value) -> Result<(String, Vec<Pose2>), JobError> {
     let field = "trajectory";
     if !v.is_object() {
         let t = inputs.table(field, v)?;
@@ -152,19 +156,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<AccuracyJob, JobError
         (Some(r), None) => {
             let t = inputs.table("reached", &r)?;
             let m = model.measurements("reached", &t)?;
-            let want = commanded.len() * spec.repetitions;
-            if m.len() != want {
-                return Err(JobError::invalid(
-                    "reached",
-                    format!(
-                        "has {} rows; {} poses x {} repetitions need {want}, grouped by pose",
-                        m.len(),
-                        commanded.len(),
-                        spec.repetitions
-                    ),
-                ));
-            }
-            Source::Reached(m)
+            return AccuracyJob::reached(model, name, commanded, spec.repetitions, m);
         }
         (None, Some(tw)) => {
             let file = PcrFile::from_value(inputs.json("twin.model", &tw.model)?)?;
@@ -188,15 +180,120 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<AccuracyJob, JobError
     })
 }
 
-impl Kind for AccuracyJob {
-    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
+/// `trajectory` of a `pcr.accuracy` result.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrajectoryInfo {
+    /// `square 0.002 m`, `circle ...` or `poses`.
+    pub name: String,
+    /// Commanded poses.
+    pub poses: usize,
+    /// Repetitions per pose.
+    pub repetitions: usize,
+}
+
+/// Units of the `per_pose` columns.
+#[derive(Debug, Clone, Serialize)]
+pub struct AccuracyUnits {
+    /// m.
+    pub x: &'static str,
+    /// m.
+    pub y: &'static str,
+    /// rad.
+    pub theta: &'static str,
+    /// m.
+    pub q: &'static str,
+    /// m.
+    pub ap_p: &'static str,
+    /// rad.
+    pub ap_theta: &'static str,
+    /// m.
+    pub rp: &'static str,
+}
+
+/// One commanded pose: its joints by inverse kinematics and its accuracy.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct PoseRow {
+    /// Commanded x (m).
+    pub x: f64,
+    /// Commanded y (m).
+    pub y: f64,
+    /// Commanded theta (rad).
+    pub theta: f64,
+    /// Joint 1 (m).
+    pub q1: f64,
+    /// Joint 2 (m).
+    pub q2: f64,
+    /// Joint 3 (m).
+    pub q3: f64,
+    /// AP_P (m).
+    pub ap_p: f64,
+    /// AP_theta (rad).
+    pub ap_theta: f64,
+    /// RP (m).
+    pub rp: f64,
+}
+
+/// The result of `pcr.accuracy` (the paper's Table 4): serialises to the job's fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrAccuracy {
+    /// The trajectory.
+    pub trajectory: TrajectoryInfo,
+    /// `reached table` or `digital twin`.
+    pub source: &'static str,
+    /// Units of `per_pose`.
+    pub units: AccuracyUnits,
+    /// Per commanded pose (also the main table).
+    pub per_pose: Vec<PoseRow>,
+    /// Max, mean, min over the poses.
+    pub summary: AccuracySummary,
 }
 
 impl AccuracyJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    /// A `pcr.accuracy` job on measured poses (the campaign's entry point; the JSON path
+    /// calls it too): the model used for control, the trajectory (name, commanded poses),
+    /// repetitions and the reached measurements grouped by pose.
+    pub fn reached(
+        model: PcrModel,
+        name: String,
+        commanded: Vec<Pose2>,
+        repetitions: usize,
+        reached: Vec<PcrMeasurement>,
+    ) -> Result<AccuracyJob, JobError> {
+        if commanded.is_empty() {
+            return Err(JobError::invalid("trajectory", "has no pose"));
+        }
+        if repetitions == 0 {
+            return Err(JobError::invalid("repetitions", "must be at least 1"));
+        }
+        for (i, m) in reached.iter().enumerate() {
+            model
+                .robot
+                .check_joints(&m.q)
+                .map_err(|e| JobError::row("reached", i + 1, e.to_string()))?;
+        }
+        let want = commanded.len() * repetitions;
+        if reached.len() != want {
+            return Err(JobError::invalid(
+                "reached",
+                format!(
+                    "has {} rows; {} poses x {} repetitions need {want}, grouped by pose",
+                    reached.len(),
+                    commanded.len(),
+                    repetitions
+                ),
+            ));
+        }
+        Ok(AccuracyJob {
+            model,
+            name,
+            commanded,
+            repetitions,
+            source: Source::Reached(reached),
+        })
+    }
+
+    /// Run it: the typed result, with the per-pose table as the main table.
+    pub fn evaluate(&self, monitor: &dyn Monitor) -> Result<Run<PcrAccuracy>, JobError> {
         let robot = &self.model.robot;
         let control = super::ik::solve_rows(robot, &self.commanded, "trajectory", monitor)?;
         let ext = self.model.file.extrinsics;
@@ -234,33 +331,71 @@ impl AccuracyJob {
         let mut t = Table::new(&[
             "x", "y", "theta", "q1", "q2", "q3", "ap_p", "ap_theta", "rp",
         ]);
+        let mut per_pose = Vec::with_capacity(acc.len());
         for ((c, e), a) in self.commanded.iter().zip(&control).zip(&acc) {
+            let row = PoseRow {
+                x: c.x,
+                y: c.y,
+                theta: c.theta,
+                q1: e.q[0],
+                q2: e.q[1],
+                q3: e.q[2],
+                ap_p: a.ap_p,
+                ap_theta: a.ap_theta,
+                rp: a.rp,
+            };
             t.push(vec![
-                c.x, c.y, c.theta, e.q[0], e.q[1], e.q[2], a.ap_p, a.ap_theta, a.rp,
+                row.x,
+                row.y,
+                row.theta,
+                row.q1,
+                row.q2,
+                row.q3,
+                row.ap_p,
+                row.ap_theta,
+                row.rp,
             ]);
+            per_pose.push(row);
         }
-        let mut f = Map::new();
-        f.insert(
-            "trajectory".into(),
-            json!({"name": self.name, "poses": self.commanded.len(), "repetitions": r}),
-        );
-        f.insert(
-            "source".into(),
-            json!(match self.source {
+        let result = PcrAccuracy {
+            trajectory: TrajectoryInfo {
+                name: self.name.clone(),
+                poses: self.commanded.len(),
+                repetitions: r,
+            },
+            source: match self.source {
                 Source::Reached(_) => "reached table",
                 Source::Twin(..) => "digital twin",
-            }),
-        );
-        f.insert("units".into(), json!({"x": "m", "y": "m", "theta": "rad", "q": "m", "ap_p": "m", "ap_theta": "rad", "rp": "m"}));
-        f.insert("per_pose".into(), t.to_json_rows());
-        f.insert(
-            "summary".into(),
-            serde_json::to_value(summarise(&acc)).unwrap_or(Value::Null),
-        );
-        Ok(Output {
-            fields: f,
+            },
+            units: AccuracyUnits {
+                x: "m",
+                y: "m",
+                theta: "rad",
+                q: "m",
+                ap_p: "m",
+                ap_theta: "rad",
+                rp: "m",
+            },
+            per_pose,
+            summary: summarise(&acc),
+        };
+        Ok(Run {
+            result,
             main_table: Some(t),
             artefacts: vec![],
         })
+    }
+}
+
+impl Kind for AccuracyJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl AccuracyJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.evaluate(monitor)?.into_output()
     }
 }

@@ -3,12 +3,13 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
-use super::{LoadSpec, PcrModel, load_model, pose_table, si_units};
-use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
+use super::{LoadSpec, PcrModel, SI, SiUnits, load_model, pose_table};
+use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -80,6 +81,85 @@ pub fn solve_rows(
     Ok(out)
 }
 
+/// Unit of the limb wrenches.
+#[derive(Debug, Clone, Serialize)]
+pub struct WrenchUnit {
+    /// `N`.
+    pub force: &'static str,
+    /// `N*m`.
+    pub moment: &'static str,
+}
+
+/// One limb's proximal wrench.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Wrench {
+    /// Force x (N).
+    pub nx: f64,
+    /// Force y (N).
+    pub ny: f64,
+    /// Moment (N*m).
+    pub m: f64,
+}
+
+/// `wrenches` of `pcr.fk`: per joints row, the three limbs' wrenches.
+#[derive(Debug, Clone, Serialize)]
+pub struct Wrenches {
+    /// Units.
+    pub unit: WrenchUnit,
+    /// Per row, per limb.
+    pub rows: Vec<Vec<Wrench>>,
+}
+
+/// The result of `pcr.fk`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrPoses {
+    /// SI units.
+    pub units: SiUnits,
+    /// x, y, theta per joints row (also the main table).
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub poses: Table,
+    /// Limb wrenches, when asked.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wrenches: Option<Wrenches>,
+}
+
+impl FkJob {
+    /// Solve the forward kinematics: the typed result, the poses also as the main table.
+    pub fn poses(&self, monitor: &dyn Monitor) -> Result<Run<PcrPoses>, JobError> {
+        let sols = solve_rows(&self.robot, &self.q, "joints", monitor)?;
+        let poses: Vec<_> = sols.iter().map(|e| e.pose).collect();
+        let table = pose_table(&poses);
+        let wrenches = self.wrenches.then(|| Wrenches {
+            unit: WrenchUnit {
+                force: "N",
+                moment: "N*m",
+            },
+            rows: sols
+                .iter()
+                .map(|e| {
+                    e.wrenches
+                        .iter()
+                        .map(|w| Wrench {
+                            nx: w[0],
+                            ny: w[1],
+                            m: w[2],
+                        })
+                        .collect()
+                })
+                .collect(),
+        });
+        Ok(Run {
+            result: PcrPoses {
+                units: SI,
+                poses: table.clone(),
+                wrenches,
+            },
+            main_table: Some(table),
+            artefacts: vec![],
+        })
+    }
+}
+
 impl Kind for FkJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
         computed(self, cx, Self::execute)
@@ -89,33 +169,6 @@ impl Kind for FkJob {
 impl FkJob {
     /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
     pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        let sols = solve_rows(&self.robot, &self.q, "joints", monitor)?;
-        let poses: Vec<_> = sols.iter().map(|e| e.pose).collect();
-        let table = pose_table(&poses);
-        let mut fields = Map::new();
-        fields.insert("units".into(), si_units());
-        fields.insert("poses".into(), table.to_json_rows());
-        if self.wrenches {
-            let w: Vec<Value> = sols
-                .iter()
-                .map(|e| {
-                    json!(
-                        e.wrenches
-                            .iter()
-                            .map(|w| json!({"nx": w[0], "ny": w[1], "m": w[2]}))
-                            .collect::<Vec<_>>()
-                    )
-                })
-                .collect();
-            fields.insert(
-                "wrenches".into(),
-                json!({"unit": {"force": "N", "moment": "N*m"}, "rows": w}),
-            );
-        }
-        Ok(Output {
-            fields,
-            main_table: Some(table),
-            artefacts: vec![],
-        })
+        self.poses(monitor)?.into_output()
     }
 }

@@ -4,15 +4,19 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
 
 use super::{PcrModel, load_model};
+use crate::identify::ParamReport;
+use crate::identify::solve::Dependency;
 use crate::jobs::{
     Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
 };
 use crate::measure::pcr::steps::{CalibrationOptions, Step, calibrated_file, default_steps};
-use crate::measure::pcr::{PcrMeasurement, identify_steps};
+use crate::measure::pcr::{PcrMeasurement, StepReport, Table3, identify_steps};
+use crate::model::pcr::PcrFile;
+use crate::report::Run;
 use crate::util::{Monitor, Summary};
 
 #[derive(Debug, Deserialize)]
@@ -58,6 +62,15 @@ pub struct IdentifyJob {
     measurements: Vec<PcrMeasurement>,
     validation: Option<Vec<PcrMeasurement>>,
     options: CalibrationOptions,
+}
+
+impl IdentifyOptions {
+    /// Parse `options` given as JSON (a campaign's `options.identify`), naming the field.
+    pub fn from_value(v: &Value) -> Result<IdentifyOptions, JobError> {
+        serde_path_to_error::deserialize(v).map_err(|e| {
+            JobError::invalid(format!("options.{}", e.path()), e.into_inner().to_string())
+        })
+    }
 }
 
 /// Turn job options into calibration options (errors name the option).
@@ -128,7 +141,19 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IdentifyJob, JobError
     let model = load_model(inputs, &spec.model)?;
     let t = inputs.table("measurements", &spec.measurements)?;
     let measurements = model.measurements("measurements", &t)?;
-    // 34 unknowns, 3 residuals per measurement; the gauges leave 26 to determine.
+    check_count(&measurements)?;
+    let validation = match &spec.validation {
+        Some(v) => {
+            let t = inputs.table("validation", v)?;
+            Some(model.measurements("validation", &t)?)
+        }
+        None => None,
+    };
+    IdentifyJob::new(model, measurements, validation, &spec.options)
+}
+
+/// 34 unknowns, 3 residuals per measurement; the gauges leave 26 to determine.
+fn check_count(measurements: &[PcrMeasurement]) -> Result<(), JobError> {
     if 3 * measurements.len() < 34 {
         return Err(JobError::invalid(
             "measurements",
@@ -138,36 +163,138 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IdentifyJob, JobError
             ),
         ));
     }
-    let validation = match &spec.validation {
-        Some(v) => {
-            let t = inputs.table("validation", v)?;
-            Some(model.measurements("validation", &t)?)
-        }
-        None => None,
-    };
-    let options = calibration_options(&spec.options)?;
-    Ok(IdentifyJob {
-        model,
-        measurements,
-        validation,
-        options,
-    })
+    Ok(())
 }
 
-/// `{mean, median, std, max, unit}` (plus count, min, rms) of errors in metres.
-fn stats(v: &[f64]) -> Value {
-    serde_json::to_value(Summary::of(v, "m")).unwrap_or(Value::Null)
-}
-
-impl Kind for IdentifyJob {
-    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
+/// Joint limits of typed measurements (the table path checks them while parsing).
+fn check_joints(
+    field: &str,
+    model: &PcrModel,
+    measurements: &[PcrMeasurement],
+) -> Result<(), JobError> {
+    for (i, m) in measurements.iter().enumerate() {
+        model
+            .robot
+            .check_joints(&m.q)
+            .map_err(|e| JobError::row(field, i + 1, e.to_string()))?;
     }
+    Ok(())
+}
+
+/// One identified unknown of `pcr.identify`: the solver's report and its bounds.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrParameter {
+    /// Estimate, nominal, standard deviation, ...
+    #[serde(flatten)]
+    pub report: ParamReport,
+    /// Lower bound (nominal - bound_sigmas * uncertainty).
+    pub lower: f64,
+    /// Upper bound.
+    pub upper: f64,
+    /// Whether the estimate ended on a bound.
+    pub bound_hit: bool,
+}
+
+/// `residual_std` of `pcr.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrResidualStd {
+    /// Value (m).
+    pub value: f64,
+    /// `m`.
+    pub unit: &'static str,
+    /// Degrees of freedom.
+    pub dof: usize,
+    /// Weight of angle residuals (m/rad).
+    pub angle_weight: f64,
+    /// `m/rad`.
+    pub angle_weight_unit: &'static str,
+}
+
+/// `convergence` of `pcr.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrConvergence {
+    /// Every step converged.
+    pub converged: bool,
+    /// Iterations over all steps.
+    pub iterations: usize,
+}
+
+/// Position errors (m) before and after on the validation set.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrValidation {
+    /// Nominal model.
+    pub before: Summary,
+    /// Identified model.
+    pub after: Summary,
+}
+
+/// The result of `pcr.identify`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrCalibration {
+    /// Every unknown with its bounds.
+    pub parameters: Vec<PcrParameter>,
+    /// Unknowns held at nominal.
+    pub unidentifiable: Vec<String>,
+    /// Dependencies of the held unknowns.
+    pub dependencies: Vec<Dependency>,
+    /// How the gauge is fixed.
+    pub gauge: &'static str,
+    /// Per step.
+    pub steps: Vec<StepReport>,
+    /// The paper's Table 3.
+    pub model_error: Table3,
+    /// Residual standard deviation.
+    pub residual_std: PcrResidualStd,
+    /// Condition number.
+    pub condition_number: f64,
+    /// Convergence.
+    pub convergence: PcrConvergence,
+    /// Validation errors (when a validation set was given).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub validation: Option<PcrValidation>,
+    /// The calibrated model file.
+    pub calibrated_model: PcrFile,
 }
 
 impl IdentifyJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    /// A `pcr.identify` job from typed inputs (the campaign's entry point; the JSON path
+    /// calls it too): the model, at least 12 measurements, optional validation, options.
+    pub fn new(
+        model: PcrModel,
+        measurements: Vec<PcrMeasurement>,
+        validation: Option<Vec<PcrMeasurement>>,
+        options: &IdentifyOptions,
+    ) -> Result<IdentifyJob, JobError> {
+        check_joints("measurements", &model, &measurements)?;
+        check_count(&measurements)?;
+        if let Some(v) = &validation {
+            check_joints("validation", &model, v)?;
+        }
+        let options = calibration_options(options)?;
+        Ok(IdentifyJob {
+            model,
+            measurements,
+            validation,
+            options,
+        })
+    }
+
+    /// A `pcr.identify` job from a parsed model file.
+    pub fn from_file(
+        file: PcrFile,
+        measurements: Vec<PcrMeasurement>,
+        validation: Option<Vec<PcrMeasurement>>,
+        options: &IdentifyOptions,
+    ) -> Result<IdentifyJob, JobError> {
+        let robot = file
+            .robot()
+            .map_err(|e| JobError::invalid("model", e.to_string()))?;
+        IdentifyJob::new(PcrModel { file, robot }, measurements, validation, options)
+    }
+
+    /// Run the three-step identification: the typed result and its artefacts (calibrated
+    /// model, `model_errors.csv`); no main table.
+    pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<PcrCalibration>, JobError> {
         let cal = identify_steps(
             &self.model.robot,
             &self.model.file,
@@ -185,59 +312,22 @@ impl IdentifyJob {
             .chain(self.model.file.uncertainty.extrinsics())
             .collect();
         let b = self.options.bound_sigmas;
-        let params: Vec<Value> = cal
+        let parameters: Vec<PcrParameter> = cal
             .params
             .iter()
             .zip(&u)
-            .map(|(p, uk)| {
-                let mut v = serde_json::to_value(p).unwrap_or(Value::Null);
-                if let Value::Object(m) = &mut v {
-                    m.insert("lower".into(), json!(p.nominal - b * uk));
-                    m.insert("upper".into(), json!(p.nominal + b * uk));
-                    m.insert("bound_hit".into(), json!(p.at_bound.is_some()));
-                }
-                v
+            .map(|(p, uk)| PcrParameter {
+                report: p.clone(),
+                lower: p.nominal - b * uk,
+                upper: p.nominal + b * uk,
+                bound_hit: p.at_bound.is_some(),
             })
             .collect();
-        let mut f = Map::new();
-        f.insert("parameters".into(), Value::Array(params));
-        f.insert("unidentifiable".into(), json!(cal.unidentifiable));
-        f.insert(
-            "dependencies".into(),
-            serde_json::to_value(&cal.dependencies).unwrap_or(Value::Null),
-        );
         let gauge = if self.options.hold_unidentifiable {
             "hold: the unidentifiable parameters (columns of the uncertainty-scaled Jacobian that duplicate others) are held at nominal themselves"
         } else {
             "min_norm: each unidentifiable combination of parameters (a column of the uncertainty-scaled Jacobian that duplicates others: a rigid motion of the clamps with the sensor or pattern frame, E without load, a common scale of the diameters) is held at nominal: the identified change has no component along the null space, measured in standard uncertainties"
         };
-        f.insert("gauge".into(), json!(gauge));
-        f.insert(
-            "steps".into(),
-            serde_json::to_value(&cal.steps).unwrap_or(Value::Null),
-        );
-        f.insert(
-            "model_error".into(),
-            serde_json::to_value(&cal.table3).unwrap_or(Value::Null),
-        );
-        f.insert(
-            "residual_std".into(),
-            json!({"value": cal.uncertainty.sigma, "unit": "m", "dof": cal.uncertainty.dof, "angle_weight": self.model.file.repeatability.position / self.model.file.repeatability.orientation, "angle_weight_unit": "m/rad"}),
-        );
-        f.insert(
-            "condition_number".into(),
-            json!(cal.uncertainty.condition_number),
-        );
-        f.insert(
-            "convergence".into(),
-            json!({"converged": cal.steps.iter().all(|s| s.stop_reason.converged()), "iterations": cal.steps.iter().map(|s| s.iterations).sum::<usize>()}),
-        );
-        if let Some([before, after]) = &cal.validation_errors {
-            f.insert(
-                "validation".into(),
-                json!({"before": stats(before), "after": stats(after)}),
-            );
-        }
         let mut file = calibrated_file(&self.model.file, &cal.x);
         file.calibration = Some(json!({
             "method": "pcr.identify",
@@ -246,9 +336,6 @@ impl IdentifyJob {
             "steps": cal.steps.iter().map(|s| s.name.clone()).collect::<Vec<_>>(),
             "unidentifiable_held_at_nominal": cal.unidentifiable,
         }));
-        let model_value =
-            serde_json::to_value(&file).map_err(|e| JobError::Failed(e.to_string()))?;
-        f.insert("calibrated_model".into(), model_value.clone());
         let mut res = Table::new(&["measurement", "e_p_nominal", "e_p_identified"]);
         for (i, (a, b)) in cal.calibration_errors[0]
             .iter()
@@ -257,6 +344,8 @@ impl IdentifyJob {
         {
             res.push(vec![(i + 1) as f64, *a, *b]);
         }
+        let model_value =
+            serde_json::to_value(&file).map_err(|e| JobError::Failed(e.to_string()))?;
         let artefacts = vec![
             Artefact {
                 name: "calibrated_model.json".into(),
@@ -269,10 +358,123 @@ impl IdentifyJob {
                 content: res.to_csv().into_bytes(),
             },
         ];
-        Ok(Output {
-            fields: f,
+        let result = PcrCalibration {
+            parameters,
+            unidentifiable: cal.unidentifiable.clone(),
+            dependencies: cal.dependencies.clone(),
+            gauge,
+            convergence: PcrConvergence {
+                converged: cal.steps.iter().all(|s| s.stop_reason.converged()),
+                iterations: cal.steps.iter().map(|s| s.iterations).sum::<usize>(),
+            },
+            steps: cal.steps,
+            model_error: cal.table3,
+            residual_std: PcrResidualStd {
+                value: cal.uncertainty.sigma,
+                unit: "m",
+                dof: cal.uncertainty.dof,
+                angle_weight: self.model.file.repeatability.position
+                    / self.model.file.repeatability.orientation,
+                angle_weight_unit: "m/rad",
+            },
+            condition_number: cal.uncertainty.condition_number,
+            validation: cal
+                .validation_errors
+                .as_ref()
+                .map(|[before, after]| PcrValidation {
+                    before: Summary::of(before, "m"),
+                    after: Summary::of(after, "m"),
+                }),
+            calibrated_model: file,
+        };
+        Ok(Run {
+            result,
             main_table: None,
             artefacts,
         })
+    }
+}
+
+impl Kind for IdentifyJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl IdentifyJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.calibrate(monitor)?.into_output()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::jobs::DirResolver;
+    use crate::util::monitor::NoMonitor;
+
+    /// The result fields of `examples/pcr_identify.json` (with validation) as the
+    /// hand-built map of 7e62456 had them.
+    const FIELDS: &[&str] = &[
+        "calibrated_model",
+        "condition_number",
+        "convergence",
+        "dependencies",
+        "gauge",
+        "model_error",
+        "parameters",
+        "residual_std",
+        "steps",
+        "unidentifiable",
+        "validation",
+    ];
+
+    #[test]
+    fn the_typed_result_serialises_to_the_fields_of_before() {
+        let dir = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples"));
+        let doc: Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("pcr_identify.json")).unwrap())
+                .unwrap();
+        let job = prepare(&doc, &Inputs::new(&DirResolver { dir })).unwrap();
+        let run = job.calibrate(&NoMonitor).unwrap();
+        let out = run.clone().into_output().unwrap();
+        let mut keys: Vec<&str> = out.fields.keys().map(String::as_str).collect();
+        keys.sort_unstable();
+        assert_eq!(keys, FIELDS);
+        let p = out.fields["parameters"][0].as_object().unwrap();
+        assert!(
+            ["lower", "upper", "bound_hit", "name", "value"]
+                .iter()
+                .all(|k| p.contains_key(*k))
+        );
+        let v = run.result.validation.as_ref().unwrap();
+        assert_eq!(
+            out.fields["validation"]["after"]["mean"],
+            json!(v.after.mean)
+        );
+        assert_eq!(
+            out.fields["calibrated_model"],
+            serde_json::to_value(&run.result.calibrated_model).unwrap()
+        );
+        // The typed constructor gives the same result.
+        let typed = IdentifyJob::from_file(
+            job.model.file.clone(),
+            job.measurements.clone(),
+            job.validation.clone(),
+            &IdentifyOptions {
+                steps: Some(vec![
+                    vec!["extrinsics".into()],
+                    ["extrinsics", "l", "gamma", "alpha", "Ax", "Ay", "Bx", "By"]
+                        .map(String::from)
+                        .to_vec(),
+                    vec!["all".into()],
+                ]),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let b = typed.calibrate(&NoMonitor).unwrap().into_output().unwrap();
+        assert_eq!(out.fields, b.fields);
     }
 }

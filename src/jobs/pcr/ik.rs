@@ -3,13 +3,14 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
-use super::{LoadSpec, PcrModel, load_model, poses, si_units};
+use super::{LoadSpec, PcrModel, SI, SiUnits, load_model, poses};
 use crate::geometry::Pose2;
 use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -83,6 +84,32 @@ pub fn joint_table(sols: &[Equilibrium]) -> Table {
     t
 }
 
+/// The result of `pcr.ik`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrJoints {
+    /// SI units.
+    pub units: SiUnits,
+    /// Joints per pose (also the main table).
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub joints: Table,
+}
+
+impl IkJob {
+    /// Solve the inverse kinematics: the typed result, the joints also as the main table.
+    pub fn joints(&self, monitor: &dyn Monitor) -> Result<Run<PcrJoints>, JobError> {
+        let sols = solve_rows(&self.robot, &self.poses, "poses", monitor)?;
+        let table = joint_table(&sols);
+        Ok(Run {
+            result: PcrJoints {
+                units: SI,
+                joints: table.clone(),
+            },
+            main_table: Some(table),
+            artefacts: vec![],
+        })
+    }
+}
+
 impl Kind for IkJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
         computed(self, cx, Self::execute)
@@ -92,15 +119,6 @@ impl Kind for IkJob {
 impl IkJob {
     /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
     pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        let sols = solve_rows(&self.robot, &self.poses, "poses", monitor)?;
-        let table = joint_table(&sols);
-        let mut fields = Map::new();
-        fields.insert("units".into(), si_units());
-        fields.insert("joints".into(), table.to_json_rows());
-        Ok(Output {
-            fields,
-            main_table: Some(table),
-            artefacts: vec![],
-        })
+        self.joints(monitor)?.into_output()
     }
 }

@@ -109,6 +109,21 @@ pub fn pose_table(poses: &[Pose2]) -> Table {
     t
 }
 
+/// `units` of the 3-PF kinds' tables: SI (`{"length": "m", "angle": "rad"}`).
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct SiUnits {
+    /// `m`.
+    pub length: &'static str,
+    /// `rad`.
+    pub angle: &'static str,
+}
+
+/// The SI units.
+pub const SI: SiUnits = SiUnits {
+    length: "m",
+    angle: "rad",
+};
+
 /// `{"length": "m", "angle": "rad"}`.
 pub fn si_units() -> Value {
     serde_json::json!({"length": "m", "angle": "rad"})

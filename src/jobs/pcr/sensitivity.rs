@@ -4,12 +4,15 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
 use super::{PcrModel, load_model};
 use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
-use crate::model::pcr::sensitivity::{central_configurations, default_steps, sensitivity};
+use crate::model::pcr::sensitivity::{
+    SensitivityRow, central_configurations, default_steps, sensitivity,
+};
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -69,6 +72,50 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<SensitivityJob, JobEr
     })
 }
 
+/// `configurations` of `pcr.sensitivity`.
+#[derive(Debug, Clone, Serialize)]
+pub struct SensitivityConfigurations {
+    /// Number of joint sets.
+    pub count: usize,
+    /// Whether they are the default central set.
+    pub default_central_set: bool,
+}
+
+/// The result of `pcr.sensitivity` (Table 2): serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct PcrSensitivity {
+    /// The configurations.
+    pub configurations: SensitivityConfigurations,
+    /// Per parameter type.
+    pub sensitivity: Vec<SensitivityRow>,
+    /// How it was computed.
+    pub method: &'static str,
+}
+
+impl SensitivityJob {
+    /// Compute the sensitivities: the typed result; no table or artefact.
+    pub fn sensitivities(&self, monitor: &dyn Monitor) -> Result<Run<PcrSensitivity>, JobError> {
+        let steps = default_steps(&self.model.file.uncertainty);
+        let rows = sensitivity(&self.model.robot, &self.configs, &steps, monitor)
+            .map_err(|e| JobError::Failed(e.to_string()))?;
+        if monitor.is_cancelled() {
+            return Err(JobError::Cancelled);
+        }
+        Ok(Run {
+            result: PcrSensitivity {
+                configurations: SensitivityConfigurations {
+                    count: self.configs.len(),
+                    default_central_set: self.default_set,
+                },
+                sensitivity: rows,
+                method: "central finite differences of the forward kinematics, step 1 % of the model's standard uncertainty; per parameter type the largest magnitude over configurations and limbs",
+            },
+            main_table: None,
+            artefacts: vec![],
+        })
+    }
+}
+
 impl Kind for SensitivityJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
         computed(self, cx, Self::execute)
@@ -78,29 +125,6 @@ impl Kind for SensitivityJob {
 impl SensitivityJob {
     /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
     pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        let steps = default_steps(&self.model.file.uncertainty);
-        let rows = sensitivity(&self.model.robot, &self.configs, &steps, monitor)
-            .map_err(|e| JobError::Failed(e.to_string()))?;
-        if monitor.is_cancelled() {
-            return Err(JobError::Cancelled);
-        }
-        let mut fields = Map::new();
-        fields.insert(
-            "configurations".into(),
-            json!({"count": self.configs.len(), "default_central_set": self.default_set}),
-        );
-        fields.insert(
-            "sensitivity".into(),
-            serde_json::to_value(&rows).unwrap_or(Value::Null),
-        );
-        fields.insert(
-            "method".into(),
-            json!("central finite differences of the forward kinematics, step 1 % of the model's standard uncertainty; per parameter type the largest magnitude over configurations and limbs"),
-        );
-        Ok(Output {
-            fields,
-            main_table: None,
-            artefacts: vec![],
-        })
+        self.sensitivities(monitor)?.into_output()
     }
 }

@@ -3,15 +3,16 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
-use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs};
-use super::{ChainSpec, PlateSpec};
+use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, point_inputs};
+use super::{ChainSpec, PlateSpec, SerialModel};
 use crate::design::{DetmaxOptions, Indices, Pool, detmax, indices};
 use crate::identify::{Problem, rank_revealing};
 use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
-use crate::measure::PointProblem;
+use crate::measure::{BallPlate, PointMeasurement, PointProblem};
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -30,17 +31,22 @@ struct Spec {
     options: DesignOptions,
 }
 
-#[derive(Debug, Default, Deserialize)]
+/// `options` of `serial.design`.
+#[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct DesignOptions {
+pub struct DesignOptions {
+    /// Seed of DETMAX's random start.
     #[serde(default)]
-    seed: u64,
+    pub seed: u64,
+    /// Parameters to identify (default: the model's list).
     #[serde(default)]
-    identify: Option<Vec<String>>,
+    pub identify: Option<Vec<String>>,
+    /// Relative tolerance of the rank detection (default 1e-8).
     #[serde(default)]
-    rank_tolerance: Option<f64>,
+    pub rank_tolerance: Option<f64>,
+    /// DETMAX excursion limit (default 6).
     #[serde(default)]
-    max_excursion: Option<usize>,
+    pub max_excursion: Option<usize>,
 }
 
 /// The design view of a pool: identifiable columns of the nominal Jacobian, scaled.
@@ -107,11 +113,7 @@ pub struct DesignJob {
 /// Validate a `serial.design` job.
 pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<DesignJob, JobError> {
     let s: Spec = parse_spec(doc)?;
-    let opts = IdentifyOptions {
-        identify: s.options.identify.clone(),
-        rank_tolerance: s.options.rank_tolerance,
-        ..Default::default()
-    };
+    let opts = identify_options(&s.options);
     // A pool without targets is treated as Cartesian points: the Jacobian does not depend
     // on where fixed targets are.
     let mut pool_value = s.pool.clone();
@@ -133,35 +135,115 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<DesignJob, JobError> 
         None,
         opts,
     )?;
-    inp.require_points("serial.design")?;
-    if s.n == 0 || s.n > inp.meas.len() {
-        return Err(JobError::invalid(
-            "n",
-            format!(
-                "{} must be between 1 and the pool size {}",
-                s.n,
-                inp.meas.len()
-            ),
-        ));
-    }
-    Ok(DesignJob {
-        inputs: inp,
-        pool_table: table,
-        n: s.n,
-        seed: s.options.seed,
-        max_excursion: s.options.max_excursion.unwrap_or(6),
-    })
+    DesignJob::from_inputs(inp, table, s.n, &s.options)
 }
 
-impl Kind for DesignJob {
-    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
+/// Identification options of a design (the parameters and the rank tolerance).
+fn identify_options(o: &DesignOptions) -> IdentifyOptions {
+    IdentifyOptions {
+        identify: o.identify.clone(),
+        rank_tolerance: o.rank_tolerance,
+        ..Default::default()
     }
+}
+
+/// O1..O5 of the selection and of the whole pool.
+#[derive(Debug, Clone, Serialize)]
+pub struct DesignObservability {
+    /// Of the selection.
+    pub selection: Indices,
+    /// Of the pool.
+    pub pool: Indices,
+}
+
+/// log det of the information matrix at DETMAX's start and end.
+#[derive(Debug, Clone, Serialize)]
+pub struct LogDet {
+    /// Random start.
+    pub start: f64,
+    /// Selection.
+    pub selection: f64,
+}
+
+/// The result of `serial.design`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct SerialDesign {
+    /// Selected pool rows (0-based).
+    pub selected: Vec<usize>,
+    /// Always 0.
+    pub row_index_base: usize,
+    /// Configurations selected.
+    pub n: usize,
+    /// DETMAX seed.
+    pub seed: u64,
+    /// Observability indices.
+    pub observability: DesignObservability,
+    /// log det at start and end.
+    pub log_det: LogDet,
+    /// DETMAX exchanges.
+    pub exchanges: usize,
+    /// Identifiable parameters the design optimises for.
+    pub parameters: Vec<String>,
+    /// Parameters the whole pool cannot identify.
+    pub unidentifiable: Vec<String>,
+    /// The selected pool rows (also the main table).
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub rows: Table,
 }
 
 impl DesignJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    /// A `serial.design` job from typed inputs (the TriCal campaign's entry point): the
+    /// model, the pool as point measurements (radians; ball or Cartesian targets), the ball
+    /// plate for ball targets, `n` and the options.
+    pub fn new(
+        model: SerialModel,
+        pool: Vec<PointMeasurement>,
+        plate: Option<BallPlate>,
+        n: usize,
+        options: &DesignOptions,
+    ) -> Result<DesignJob, JobError> {
+        let dof = model.chain.dof();
+        let table = super::measurement_table(&pool, dof);
+        let inp = point_inputs(
+            model,
+            pool,
+            plate,
+            None,
+            Vec::new(),
+            identify_options(options),
+        )?;
+        DesignJob::from_inputs(inp, table, n, options)
+    }
+
+    /// The checks shared by the JSON and the typed constructors.
+    fn from_inputs(
+        inp: IdentifyInputs,
+        pool_table: Table,
+        n: usize,
+        options: &DesignOptions,
+    ) -> Result<DesignJob, JobError> {
+        inp.require_points("serial.design")?;
+        if n == 0 || n > inp.meas.len() {
+            return Err(JobError::invalid(
+                "n",
+                format!(
+                    "{} must be between 1 and the pool size {}",
+                    n,
+                    inp.meas.len()
+                ),
+            ));
+        }
+        Ok(DesignJob {
+            inputs: inp,
+            pool_table,
+            n,
+            seed: options.seed,
+            max_excursion: options.max_excursion.unwrap_or(6),
+        })
+    }
+
+    /// Run DETMAX: the typed result with the selected rows as the main table.
+    pub fn design(&self, monitor: &dyn Monitor) -> Result<Run<SerialDesign>, JobError> {
         let dp = DesignPool::new(&self.inputs)?;
         if 3 * self.n < dp.kept.len() {
             return Err(JobError::invalid(
@@ -191,27 +273,55 @@ impl DesignJob {
         for &i in &sel.selected {
             rows.push(self.pool_table.rows[i].clone());
         }
-        let mut f = Map::new();
-        f.insert("selected".into(), json!(sel.selected));
-        f.insert("row_index_base".into(), json!(0));
-        f.insert("n".into(), json!(self.n));
-        f.insert("seed".into(), json!(self.seed));
-        f.insert(
-            "observability".into(),
-            json!({"selection": dp.indices(&sel.selected), "pool": dp.indices(&all)}),
-        );
-        f.insert(
-            "log_det".into(),
-            json!({"start": sel.log_det_start, "selection": sel.log_det}),
-        );
-        f.insert("exchanges".into(), json!(sel.exchanges));
-        f.insert("parameters".into(), json!(dp.kept));
-        f.insert("unidentifiable".into(), json!(dp.unidentifiable));
-        f.insert("rows".into(), rows.to_json_rows());
-        Ok(Output {
-            fields: f,
+        let result = SerialDesign {
+            observability: DesignObservability {
+                selection: dp.indices(&sel.selected),
+                pool: dp.indices(&all),
+            },
+            selected: sel.selected,
+            row_index_base: 0,
+            n: self.n,
+            seed: self.seed,
+            log_det: LogDet {
+                start: sel.log_det_start,
+                selection: sel.log_det,
+            },
+            exchanges: sel.exchanges,
+            parameters: dp.kept,
+            unidentifiable: dp.unidentifiable,
+            rows: rows.clone(),
+        };
+        Ok(Run {
+            result,
             main_table: Some(rows),
             artefacts: vec![],
         })
+    }
+}
+
+/// DETMAX selection of `n` configurations of `pool` (typed `serial.design`): the selected
+/// indices into `pool`, for campaigns that only need the choice.
+pub fn select(
+    model: SerialModel,
+    pool: Vec<PointMeasurement>,
+    plate: Option<BallPlate>,
+    n: usize,
+    options: &DesignOptions,
+    monitor: &dyn Monitor,
+) -> Result<Vec<usize>, JobError> {
+    let job = DesignJob::new(model, pool, plate, n, options)?;
+    Ok(job.design(monitor)?.result.selected)
+}
+
+impl Kind for DesignJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl DesignJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.design(monitor)?.into_output()
     }
 }

@@ -8,14 +8,15 @@ use std::sync::Arc;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
 use super::design::DesignPool;
 use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, position_errors};
 use super::{ChainSpec, PlateSpec};
 use crate::design::{DetmaxOptions, detmax};
 use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
+use crate::report::{DispersionBox, dispersion_plots};
 use crate::util::stats::{Quartiles, mean};
 use crate::util::{Monitor, Summary};
 
@@ -178,15 +179,88 @@ fn study(
     Ok((runs, failures.load(Ordering::Relaxed)))
 }
 
-impl Kind for DispersionJob {
-    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
+/// One set size of a dispersion study.
+#[derive(Debug, Clone, Serialize)]
+pub struct DispersionSize {
+    /// Configurations in the calibration set.
+    pub n: usize,
+    /// Converged identifications.
+    pub identifications: usize,
+    /// Quartiles of the mean validation error.
+    pub mean_error: Quartiles,
+    /// Quartiles of the std of the validation error.
+    pub std_error: Quartiles,
+    /// Length unit.
+    pub unit: String,
+}
+
+/// Spread of one identified parameter at the largest set size.
+#[derive(Debug, Clone, Serialize)]
+pub struct ParameterDispersion {
+    /// Parameter name.
+    pub name: String,
+    /// Report unit.
+    pub unit: String,
+    /// Nominal value.
+    pub nominal: f64,
+    /// Mean over the identifications.
+    pub mean: f64,
+    /// Standard deviation.
+    pub std: f64,
+    /// Smallest.
+    pub min: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+/// `parameters_at_largest_size` of `serial.dispersion`.
+#[derive(Debug, Clone, Serialize)]
+pub struct LargestSize {
+    /// The largest size.
+    pub n: usize,
+    /// Per parameter (empty when no identification converged there).
+    pub parameters: Vec<ParameterDispersion>,
+}
+
+/// The result of `serial.dispersion`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct DispersionResult {
+    /// Per set size with converged identifications.
+    pub sizes: Vec<DispersionSize>,
+    /// Repetitions per size.
+    pub repetitions: usize,
+    /// Converged identifications.
+    pub identifications: usize,
+    /// Failed (or not converged) ones.
+    pub failures: usize,
+    /// Parameter spread at the largest size.
+    pub parameters_at_largest_size: LargestSize,
+    /// Seed.
+    pub seed: u64,
+}
+
+impl DispersionResult {
+    /// The box-plot view of the sizes, for [`crate::report::dispersion_plots`].
+    pub fn boxes(&self) -> Vec<DispersionBox> {
+        let q = |q: &Quartiles| [q.min, q.q1, q.median, q.q3, q.max];
+        self.sizes
+            .iter()
+            .map(|s| DispersionBox {
+                n: s.n as f64,
+                mean_error: q(&s.mean_error),
+                std_error: q(&s.std_error),
+            })
+            .collect()
     }
 }
 
 impl DispersionJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    /// Run the study: the typed result, the quartile table as the main table, and the box
+    /// plots as SVG artefacts.
+    pub fn study(
+        &self,
+        monitor: &dyn Monitor,
+    ) -> Result<crate::report::Run<DispersionResult>, JobError> {
         let inp = &self.inputs;
         let (runs, failures) = study(inp, &self.sizes, self.repetitions, self.seed, monitor)?;
         let unit = inp.model.length_unit();
@@ -214,7 +288,13 @@ impl DispersionJob {
             table.push(vec![
                 n as f64, m.min, m.q1, m.median, m.q3, m.max, s.min, s.q1, s.median, s.q3, s.max,
             ]);
-            per_size.push(json!({"n": n, "identifications": rs.len(), "mean_error": m, "std_error": s, "unit": unit}));
+            per_size.push(DispersionSize {
+                n,
+                identifications: rs.len(),
+                mean_error: m,
+                std_error: s,
+                unit: unit.to_string(),
+            });
         }
         let largest = *self.sizes.iter().max().unwrap_or(&0);
         let last: Vec<&Run> = runs.iter().filter(|r| r.size == largest).collect();
@@ -225,30 +305,53 @@ impl DispersionJob {
             inp.meas.clone(),
         )?
         .unknowns();
-        let params: Vec<Value> = names
+        let params: Vec<ParameterDispersion> = names
             .iter()
             .enumerate()
             .filter(|_| !last.is_empty())
             .map(|(k, u)| {
                 let v: Vec<f64> = last.iter().map(|r| r.values[k]).collect();
                 let s = Summary::of(&v, &u.unit);
-                json!({"name": u.name, "unit": u.unit, "nominal": u.nominal * u.to_report, "mean": mean(&v), "std": s.std, "min": s.min, "max": s.max})
+                ParameterDispersion {
+                    name: u.name.clone(),
+                    unit: u.unit.clone(),
+                    nominal: u.nominal * u.to_report,
+                    mean: mean(&v),
+                    std: s.std,
+                    min: s.min,
+                    max: s.max,
+                }
             })
             .collect();
-        let mut f = Map::new();
-        f.insert("sizes".into(), json!(per_size));
-        f.insert("repetitions".into(), json!(self.repetitions));
-        f.insert("identifications".into(), json!(runs.len()));
-        f.insert("failures".into(), json!(failures));
-        f.insert(
-            "parameters_at_largest_size".into(),
-            json!({"n": largest, "parameters": params}),
-        );
-        f.insert("seed".into(), json!(self.seed));
-        Ok(Output {
-            fields: f,
+        let result = DispersionResult {
+            sizes: per_size,
+            repetitions: self.repetitions,
+            identifications: runs.len(),
+            failures,
+            parameters_at_largest_size: LargestSize {
+                n: largest,
+                parameters: params,
+            },
+            seed: self.seed,
+        };
+        let artefacts = dispersion_plots(&result.boxes(), unit);
+        Ok(crate::report::Run {
+            result,
             main_table: Some(table),
-            artefacts: vec![],
+            artefacts,
         })
+    }
+}
+
+impl Kind for DispersionJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl DispersionJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.study(monitor)?.into_output()
     }
 }

@@ -5,12 +5,13 @@ use std::sync::Arc;
 
 use std::collections::BTreeMap;
 
-use serde::Deserialize;
-use serde_json::{Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
 use super::{ChainSpec, SerialModel, load_model};
 use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
 use crate::model::Quantity;
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -74,15 +75,28 @@ fn pose(c: &crate::model::Chain, q: &[f64]) -> [f64; 6] {
     c.tcp(q, Some(&tau)).to_xyzabc()
 }
 
-impl Kind for FkJob {
-    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
+/// Length and angle units of a pose table.
+#[derive(Debug, Clone, Serialize)]
+pub struct PoseUnits {
+    /// Model length unit.
+    pub length: &'static str,
+    /// Model angle unit.
+    pub angle: &'static str,
+}
+
+/// The result of `serial.fk`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct SerialPoses {
+    /// Units of the poses.
+    pub units: PoseUnits,
+    /// x, y, z, a, b, c per joints row (also the main table).
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub poses: Table,
 }
 
 impl FkJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    /// Compute the TCP poses: the typed result, the poses also as the main table.
+    pub fn poses(&self, monitor: &dyn Monitor) -> Result<Run<SerialPoses>, JobError> {
         let c = &self.model.chain;
         let k = c.units.to_file(Quantity::Angle);
         let mut poses = Table::new(&["x", "y", "z", "a", "b", "c"]);
@@ -93,16 +107,29 @@ impl FkJob {
             let v = pose(c, q);
             poses.push(vec![v[0], v[1], v[2], v[3] * k, v[4] * k, v[5] * k]);
         }
-        let mut fields = serde_json::Map::new();
-        fields.insert(
-            "units".into(),
-            json!({"length": self.model.length_unit(), "angle": self.model.angle_unit()}),
-        );
-        fields.insert("poses".into(), poses.to_json_rows());
-        Ok(Output {
-            fields,
+        Ok(Run {
+            result: SerialPoses {
+                units: PoseUnits {
+                    length: self.model.length_unit(),
+                    angle: self.model.angle_unit(),
+                },
+                poses: poses.clone(),
+            },
             main_table: Some(poses),
             artefacts: vec![],
         })
+    }
+}
+
+impl Kind for FkJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::execute)
+    }
+}
+
+impl FkJob {
+    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
+    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+        self.poses(monitor)?.into_output()
     }
 }

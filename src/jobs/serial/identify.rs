@@ -12,11 +12,15 @@
 
 use std::sync::Arc;
 
-use serde::Deserialize;
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
 
 use super::{ChainSpec, PlateSpec, SerialModel, load_model};
-use crate::identify::{Pivoting, Solution, SolveOptions, solve};
+use crate::identify::solve::Dependency;
+use crate::identify::{
+    Degeneracy, NearDependent, ParamReport, Pivoting, PriorReport, Solution, SolveOptions,
+    StopReason, Unobservable, solve,
+};
 use crate::jobs::{
     Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
 };
@@ -24,7 +28,9 @@ use crate::measure::distance::distance_errors;
 use crate::measure::{
     BallPlate, DistanceMeasurement, DistanceProblem, PointMeasurement, PointProblem, Target,
 };
+use crate::model::dh::DhFile;
 use crate::model::{Chain, ParamId};
+use crate::report::Run;
 use crate::util::{Monitor, Summary};
 
 #[derive(Debug, Deserialize)]
@@ -110,16 +116,7 @@ pub fn parse_inputs(
     options: IdentifyOptions,
 ) -> Result<IdentifyInputs, JobError> {
     let model = load_model(inputs, model, chain)?;
-    let ids = match &options.identify {
-        Some(names) => model.params("options.identify", names)?,
-        None => model.default_identify(),
-    };
-    if ids.is_empty() {
-        return Err(JobError::invalid(
-            "options.identify",
-            "no parameter to identify",
-        ));
-    }
+    let ids = resolve_ids(&model, &options)?;
     let table = inputs.table("measurements", measurements)?;
     let mut warnings = Vec::new();
     if table.has("L_mm") {
@@ -188,20 +185,12 @@ pub fn parse_inputs(
         point_columns(&table),
     ));
     let plate = match plate {
-        Some(p) => p.plate()?,
-        None if table.has("ball") => {
-            return Err(JobError::invalid(
-                "ball_plate",
-                "ball-centring measurements need a ball plate",
-            ));
-        }
-        None => BallPlate {
-            centres: vec![],
-            distances: vec![],
-            gauge: None,
-        },
+        Some(p) => Some(p.plate()?),
+        None if table.has("ball") => return Err(no_plate()),
+        None => None,
     };
-    let meas = model.measurements("measurements", &table, plate.len())?;
+    let balls = plate.as_ref().map_or(0, BallPlate::len);
+    let meas = model.measurements("measurements", &table, balls)?;
     let validation = match validation {
         Some(v) => {
             let t = inputs.table("validation", v)?;
@@ -217,10 +206,102 @@ pub fn parse_inputs(
                 &model.joint_columns(),
                 point_columns(&t),
             ));
-            Some(model.measurements("validation", &t, plate.len())?)
+            Some(model.measurements("validation", &t, balls)?)
         }
         None => None,
     };
+    point_inputs(model, meas, plate, validation, warnings, options)
+}
+
+/// The parameters to identify: `options.identify` or the model's default list.
+fn resolve_ids(model: &SerialModel, options: &IdentifyOptions) -> Result<Vec<ParamId>, JobError> {
+    let ids = match &options.identify {
+        Some(names) => model.params("options.identify", names)?,
+        None => model.default_identify(),
+    };
+    if ids.is_empty() {
+        return Err(JobError::invalid(
+            "options.identify",
+            "no parameter to identify",
+        ));
+    }
+    Ok(ids)
+}
+
+fn no_plate() -> JobError {
+    JobError::invalid("ball_plate", "ball-centring measurements need a ball plate")
+}
+
+/// Joint count, joint limits and ball numbers of typed point measurements.
+fn check_points(
+    field: &str,
+    model: &SerialModel,
+    meas: &[PointMeasurement],
+    balls: usize,
+) -> Result<(), JobError> {
+    let dof = model.chain.dof();
+    let k = model.chain.units.to_file(crate::model::Quantity::Angle);
+    for (i, m) in meas.iter().enumerate() {
+        if m.q.len() != dof {
+            return Err(JobError::row(
+                field,
+                i + 1,
+                format!("{} joint values for a model with {dof} joints", m.q.len()),
+            ));
+        }
+        if let Some((j, v, l)) = model.chain.limit_violation(&m.q) {
+            return Err(JobError::row(
+                field,
+                i + 1,
+                format!(
+                    "q{} = {} {} is outside the joint limits [{}, {}]",
+                    j + 1,
+                    v * k,
+                    model.angle_unit(),
+                    l[0] * k,
+                    l[1] * k
+                ),
+            ));
+        }
+        match m.target {
+            Target::Ball(b) if b >= balls => {
+                return Err(JobError::row(
+                    field,
+                    i + 1,
+                    format!("ball = {}: the ball plate has balls 1..={balls}", b + 1),
+                ));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// Validate point-measurement inputs: the one path of the JSON and the typed constructors
+/// (of `serial.identify` and `serial.design`).
+pub(crate) fn point_inputs(
+    model: SerialModel,
+    meas: Vec<PointMeasurement>,
+    plate: Option<BallPlate>,
+    validation: Option<Vec<PointMeasurement>>,
+    warnings: Vec<String>,
+    options: IdentifyOptions,
+) -> Result<IdentifyInputs, JobError> {
+    let ids = resolve_ids(&model, &options)?;
+    let has_ball = meas.iter().any(|m| matches!(m.target, Target::Ball(_)));
+    let plate = match plate {
+        Some(p) => p,
+        None if has_ball => return Err(no_plate()),
+        None => BallPlate {
+            centres: vec![],
+            distances: vec![],
+            gauge: None,
+        },
+    };
+    check_points("measurements", &model, &meas, plate.len())?;
+    if let Some(v) = &validation {
+        check_points("validation", &model, v, plate.len())?;
+    }
     check_options(&options)?;
     let inputs = IdentifyInputs {
         model,
@@ -235,6 +316,15 @@ pub fn parse_inputs(
     };
     super::prior::validate(&inputs)?;
     Ok(inputs)
+}
+
+impl IdentifyOptions {
+    /// Parse `options` given as JSON (a campaign's `options.identify`), naming the field.
+    pub fn from_value(v: &Value) -> Result<IdentifyOptions, JobError> {
+        serde_path_to_error::deserialize(v).map_err(|e| {
+            JobError::invalid(format!("options.{}", e.path()), e.into_inner().to_string())
+        })
+    }
 }
 
 /// The measurement columns a point table is read for.
@@ -464,7 +554,7 @@ pub fn coincidence_report(
     plate: &BallPlate,
     centres: &[nalgebra::Vector3<f64>],
     unit: &str,
-) -> Value {
+) -> CoincidenceReport {
     let mut balls = Vec::new();
     let mut means: Vec<Option<[nalgebra::Vector3<f64>; 2]>> = Vec::new();
     for b in 0..plate.len() {
@@ -477,31 +567,31 @@ pub fn coincidence_report(
             means.push(None);
             continue;
         }
-        let mut entry = Map::new();
-        entry.insert("ball".into(), json!(b + 1));
-        entry.insert("count".into(), json!(qs.len()));
         let mut m2 = [nalgebra::Vector3::zeros(); 2];
-        for (slot, (label, chain)) in [("before", start), ("after", end)].into_iter().enumerate() {
+        let mut spread2 = [0.0; 2];
+        for (slot, chain) in [start, end].into_iter().enumerate() {
             let pts: Vec<_> = qs
                 .iter()
                 .map(|q| chain.tcp(q, Some(&start.static_torques(q))).p)
                 .collect();
             let mean = pts.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p) / pts.len() as f64;
-            let spread = (pts.iter().map(|p| (p - mean).norm_squared()).sum::<f64>()
+            spread2[slot] = (pts.iter().map(|p| (p - mean).norm_squared()).sum::<f64>()
                 / pts.len() as f64)
                 .sqrt();
-            entry.insert(format!("spread_rms_{label}"), json!(spread));
-            entry.insert(
-                format!("mean_position_{label}"),
-                json!([mean.x, mean.y, mean.z]),
-            );
             m2[slot] = mean;
         }
-        entry.insert("unit".into(), json!(unit));
-        balls.push(Value::Object(entry));
+        balls.push(BallCoincidence {
+            ball: b + 1,
+            count: qs.len(),
+            spread_rms_before: spread2[0],
+            mean_position_before: [m2[0].x, m2[0].y, m2[0].z],
+            spread_rms_after: spread2[1],
+            mean_position_after: [m2[1].x, m2[1].y, m2[1].z],
+            unit: unit.to_string(),
+        });
         means.push(Some(m2));
     }
-    let mut dists = Vec::new();
+    let mut ball_distances = Vec::new();
     for i in 0..plate.len() {
         for j in i + 1..plate.len() {
             let (Some(a), Some(b), Some(known)) =
@@ -509,108 +599,496 @@ pub fn coincidence_report(
             else {
                 continue;
             };
-            dists.push(json!({
-                "balls": [i + 1, j + 1],
-                "known": known,
-                "error_before": (a[0] - b[0]).norm() - known,
-                "error_after": (a[1] - b[1]).norm() - known,
-                "unit": unit,
-            }));
+            ball_distances.push(BallDistanceError {
+                balls: [i + 1, j + 1],
+                known,
+                error_before: (a[0] - b[0]).norm() - known,
+                error_after: (a[1] - b[1]).norm() - known,
+                unit: unit.to_string(),
+            });
         }
     }
-    json!({"balls": balls, "ball_distances": dists})
+    CoincidenceReport {
+        balls,
+        ball_distances,
+    }
+}
+
+/// The calibrated model file of a serial arm, of the same kind as the starting model:
+/// serialises as the DH JSON object, or as the URDF text.
+#[derive(Debug, Clone, Serialize)]
+#[serde(untagged)]
+#[allow(clippy::large_enum_variant)]
+pub enum SerialModelFile {
+    /// A DH model file.
+    Dh(DhFile),
+    /// URDF text.
+    Urdf(String),
+}
+
+/// `observability` of a serial identification.
+#[derive(Debug, Clone, Serialize)]
+pub struct Observability {
+    /// Condition number of the physically scaled Jacobian.
+    pub condition_number: f64,
+    /// Nearly dependent parameter groups.
+    pub near_dependent: Vec<NearDependent>,
+    /// How columns were scaled.
+    pub scaling: &'static str,
+}
+
+/// `convergence` of a serial identification.
+#[derive(Debug, Clone, Serialize)]
+pub struct Convergence {
+    /// Why the solver stopped.
+    pub stop_reason: StopReason,
+    /// Whether it converged.
+    pub converged: bool,
+    /// `ok` / `degenerate` / ... (see `Solution::status`).
+    pub status: &'static str,
+    /// Degeneracy, if any.
+    pub degenerate: Option<Degeneracy>,
+    /// Iterations used.
+    pub iterations: usize,
+    /// Cost at the start.
+    pub cost_before: f64,
+    /// Cost at the end.
+    pub cost_after: f64,
+    /// Cost with only the nuisance unknowns fitted.
+    pub cost_nuisance_only: Option<f64>,
+    /// Unit of the costs.
+    pub cost_unit: String,
+}
+
+/// `rank` of a serial identification.
+#[derive(Debug, Clone, Serialize)]
+pub struct Rank {
+    /// Identified (free) unknowns.
+    pub rank: usize,
+    /// All unknowns.
+    pub unknowns: usize,
+    /// Relative tolerance used.
+    pub tolerance: f64,
+}
+
+/// `residual_std`: the fitted residual standard deviation.
+#[derive(Debug, Clone, Serialize)]
+pub struct ResidualStd {
+    /// Value.
+    pub value: f64,
+    /// Length unit.
+    pub unit: String,
+    /// Degrees of freedom.
+    pub dof: usize,
+}
+
+/// `before`/`after` error statistics (`residuals`, `validation`), with an optional note.
+#[derive(Debug, Clone, Serialize)]
+pub struct BeforeAfter {
+    /// Errors of the starting model.
+    pub before: Summary,
+    /// Errors of the calibrated model.
+    pub after: Summary,
+    /// What the errors are, when not plain position errors.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub meaning: Option<&'static str>,
+}
+
+/// The validation summary of an identification (`validation.before.mean`, ...).
+pub type ValidationSummary = BeforeAfter;
+
+/// Point coincidence of one ball (see [`coincidence_report`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct BallCoincidence {
+    /// 1-based ball number.
+    pub ball: usize,
+    /// Measurements on it.
+    pub count: usize,
+    /// RMS spread of the starting model's TCP positions.
+    pub spread_rms_before: f64,
+    /// Their mean.
+    pub mean_position_before: [f64; 3],
+    /// RMS spread of the calibrated model's TCP positions.
+    pub spread_rms_after: f64,
+    /// Their mean.
+    pub mean_position_after: [f64; 3],
+    /// Length unit.
+    pub unit: String,
+}
+
+/// Distance error between the mean positions of two balls.
+#[derive(Debug, Clone, Serialize)]
+pub struct BallDistanceError {
+    /// 1-based ball numbers.
+    pub balls: [usize; 2],
+    /// Known distance.
+    pub known: f64,
+    /// Error of the starting model.
+    pub error_before: f64,
+    /// Error of the calibrated model.
+    pub error_after: f64,
+    /// Length unit.
+    pub unit: String,
+}
+
+/// Point-coincidence statistics on ball measurements (`balls`, `ball_distances`).
+#[derive(Debug, Clone, Serialize)]
+pub struct CoincidenceReport {
+    /// Per ball.
+    pub balls: Vec<BallCoincidence>,
+    /// Per pair of balls.
+    pub ball_distances: Vec<BallDistanceError>,
+}
+
+/// `anchor` of a distance identification.
+#[derive(Debug, Clone, Serialize)]
+pub struct Anchor {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+    /// Standard deviations of x, y, z.
+    pub std: [Option<f64>; 3],
+    /// Anchor fitted to the starting model.
+    pub nominal_fit: [f64; 3],
+    /// Frame (`W`).
+    pub frame: &'static str,
+    /// Length unit.
+    pub unit: String,
+}
+
+/// `length_offset` of a distance identification.
+#[derive(Debug, Clone, Serialize)]
+pub struct LengthOffset {
+    /// Value.
+    pub value: f64,
+    /// Standard deviation.
+    pub std: Option<f64>,
+    /// Offset fitted to the starting model.
+    pub nominal_fit: f64,
+    /// Length unit.
+    pub unit: String,
+    /// Definition.
+    pub meaning: &'static str,
+}
+
+/// The result of `serial.identify`: serialises to the job's result fields.
+#[derive(Debug, Clone, Serialize)]
+pub struct SerialCalibration {
+    /// `distance` for `L_mm` measurements; absent for points.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measurement_type: Option<&'static str>,
+    /// Every unknown with its estimate and standard deviation.
+    pub parameters: Vec<ParamReport>,
+    /// Unknowns held at nominal by the rank detection.
+    pub unidentifiable: Vec<String>,
+    /// How held unknowns depend on free ones.
+    pub dependencies: Vec<Dependency>,
+    /// Weakly observable unknowns.
+    pub weakly_observable: Vec<String>,
+    /// Unobservable unknowns (effect below the noise).
+    pub unobservable: Vec<Unobservable>,
+    /// Observability indices.
+    pub observability: Observability,
+    /// Solver convergence.
+    pub convergence: Convergence,
+    /// Rank detection.
+    pub rank: Rank,
+    /// Condition number of the identified unknowns.
+    pub condition_number: f64,
+    /// Residual standard deviation.
+    pub residual_std: ResidualStd,
+    /// Prior report (point measurements only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prior: Option<PriorReport>,
+    /// Gauge freedom the plate leaves (point measurements only; inner `None` is null).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gauge_freedom: Option<Option<String>>,
+    /// Residuals before/after.
+    pub residuals: BeforeAfter,
+    /// Point coincidence on the calibration balls (ball plates only).
+    #[serde(flatten)]
+    pub coincidence: Option<CoincidenceReport>,
+    /// Anchor (distance measurements).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub anchor: Option<Anchor>,
+    /// Length offset (distance measurements).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub length_offset: Option<LengthOffset>,
+    /// Errors on the validation set (Cartesian or distance validation).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub validation: Option<ValidationSummary>,
+    /// Point coincidence on validation balls.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub validation_coincidence: Option<CoincidenceReport>,
+    /// The calibrated model file.
+    pub calibrated_model: SerialModelFile,
+    /// Unused columns and similar (absent when none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub warnings: Option<Vec<String>>,
 }
 
 /// Identification report fields shared by point and distance problems.
-fn solution_fields(f: &mut Map<String, Value>, sol: &Solution, unit: &str, tolerance: f64) {
-    f.insert(
-        "parameters".into(),
-        serde_json::to_value(&sol.params).unwrap_or(Value::Null),
-    );
-    f.insert("unidentifiable".into(), json!(sol.unidentifiable));
-    f.insert(
-        "dependencies".into(),
-        serde_json::to_value(&sol.dependencies).unwrap_or(Value::Null),
-    );
-    f.insert("weakly_observable".into(), json!(sol.weakly_observable));
-    f.insert(
-        "unobservable".into(),
-        serde_json::to_value(&sol.unobservable).unwrap_or(Value::Null),
-    );
-    f.insert(
-        "observability".into(),
-        json!({
-            "condition_number": sol.condition_number,
-            "near_dependent": sol.near_dependent,
-            "scaling": "physical: lengths 1 mm, angles 0.5 deg, compliances 0.005 deg/(N*m)",
-        }),
-    );
-    f.insert(
-        "convergence".into(),
-        json!({
-            "stop_reason": sol.stop, "converged": sol.converged(), "status": sol.status(),
-            "degenerate": sol.degenerate, "iterations": sol.iterations,
-            "cost_before": sol.cost_before, "cost_after": sol.cost_after,
-            "cost_nuisance_only": sol.nuisance_cost, "cost_unit": format!("{unit}^2"),
-        }),
-    );
-    f.insert(
-        "rank".into(),
-        json!({"rank": sol.free.len(), "unknowns": sol.params.len(), "tolerance": tolerance}),
-    );
-    f.insert(
-        "condition_number".into(),
-        json!(sol.uncertainty.condition_number),
-    );
-    f.insert(
-        "residual_std".into(),
-        json!({"value": sol.uncertainty.sigma, "unit": unit, "dof": sol.uncertainty.dof}),
-    );
+fn solution_result(
+    sol: &Solution,
+    unit: &str,
+    tolerance: f64,
+    residuals: BeforeAfter,
+    calibrated_model: SerialModelFile,
+) -> SerialCalibration {
+    SerialCalibration {
+        measurement_type: None,
+        parameters: sol.params.clone(),
+        unidentifiable: sol.unidentifiable.clone(),
+        dependencies: sol.dependencies.clone(),
+        weakly_observable: sol.weakly_observable.clone(),
+        unobservable: sol.unobservable.clone(),
+        observability: Observability {
+            condition_number: sol.condition_number,
+            near_dependent: sol.near_dependent.clone(),
+            scaling: "physical: lengths 1 mm, angles 0.5 deg, compliances 0.005 deg/(N*m)",
+        },
+        convergence: Convergence {
+            stop_reason: sol.stop,
+            converged: sol.converged(),
+            status: sol.status(),
+            degenerate: sol.degenerate.clone(),
+            iterations: sol.iterations,
+            cost_before: sol.cost_before,
+            cost_after: sol.cost_after,
+            cost_nuisance_only: sol.nuisance_cost,
+            cost_unit: format!("{unit}^2"),
+        },
+        rank: Rank {
+            rank: sol.free.len(),
+            unknowns: sol.params.len(),
+            tolerance,
+        },
+        condition_number: sol.uncertainty.condition_number,
+        residual_std: ResidualStd {
+            value: sol.uncertainty.sigma,
+            unit: unit.to_string(),
+            dof: sol.uncertainty.dof,
+        },
+        prior: None,
+        gauge_freedom: None,
+        residuals,
+        coincidence: None,
+        anchor: None,
+        length_offset: None,
+        validation: None,
+        validation_coincidence: None,
+        calibrated_model,
+        warnings: None,
+    }
+}
+
+/// The calibrated model as a typed file and its artefact.
+fn calibrated_file(
+    model: &SerialModel,
+    chain: &Chain,
+    provenance: Value,
+) -> Result<(SerialModelFile, Artefact), JobError> {
+    let (value, art) = model.calibrated(chain, provenance)?;
+    let file = match value {
+        Value::String(text) => SerialModelFile::Urdf(text),
+        v => SerialModelFile::Dh(
+            serde_json::from_value(v).map_err(|e| JobError::Failed(e.to_string()))?,
+        ),
+    };
+    Ok((file, art))
+}
+
+/// `residuals.csv` (measurement, before, after) and the error plots drawn from the same
+/// columns.
+fn residual_artefacts(before: &[f64], after: &[f64], unit: &str) -> Vec<Artefact> {
+    let mut res = Table::new(&["measurement", "before", "after"]);
+    for (i, (a, b)) in before.iter().zip(after).enumerate() {
+        res.push(vec![(i + 1) as f64, *a, *b]);
+    }
+    let mut out = vec![Artefact {
+        name: "residuals.csv".into(),
+        media_type: "text/csv".into(),
+        content: res.to_csv().into_bytes(),
+    }];
+    // The plots read the CSV's columns (as the service's report did): equal lengths.
+    let n = before.len().min(after.len());
+    out.extend(crate::report::calibration_plots(
+        &before[..n],
+        &after[..n],
+        unit,
+    ));
+    out
 }
 
 impl IdentifyJob {
+    /// A `serial.identify` job from typed inputs (the campaigns' entry point; the JSON
+    /// path parses its tables and calls this too): model, point measurements (radians),
+    /// ball plate (required for ball targets), optional validation, options.
+    pub fn new(
+        model: SerialModel,
+        measurements: Vec<PointMeasurement>,
+        plate: Option<BallPlate>,
+        validation: Option<Vec<PointMeasurement>>,
+        options: IdentifyOptions,
+    ) -> Result<IdentifyJob, JobError> {
+        Ok(IdentifyJob {
+            inputs: point_inputs(model, measurements, plate, validation, Vec::new(), options)?,
+        })
+    }
+
+    /// A `serial.identify` job on a DH model with a three-ball plate given by its ball-bar
+    /// distances `[d12, d13, d23]` (the TriCal campaign's case).
+    pub fn from_dh(
+        model: DhFile,
+        measurements: Vec<PointMeasurement>,
+        ballbar: [f64; 3],
+        validation: Option<Vec<PointMeasurement>>,
+        options: IdentifyOptions,
+    ) -> Result<IdentifyJob, JobError> {
+        let plate = BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2])
+            .map_err(|e| JobError::invalid("ball_plate", e.to_string()))?;
+        IdentifyJob::new(
+            SerialModel::from_dh(model)?,
+            measurements,
+            Some(plate),
+            validation,
+            options,
+        )
+    }
+
+    /// The validated inputs.
+    pub fn inputs(&self) -> &IdentifyInputs {
+        &self.inputs
+    }
+
+    /// Run the identification: the typed result and its artefacts (calibrated model,
+    /// `residuals.csv`, error plots); no main table.
+    pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<SerialCalibration>, JobError> {
+        if !self.inputs.distances.is_empty() {
+            return self.calibrate_distance(monitor);
+        }
+        let inp = &self.inputs;
+        let (problem, sol, prior) = super::prior::identify(inp, None, monitor)?;
+        let calibrated = problem.model(&sol.x);
+        let unit = inp.model.length_unit();
+        let norms = |r: &nalgebra::DVector<f64>| -> Vec<f64> {
+            (0..problem.measurements().len())
+                .map(|i| r.rows(3 * i, 3).norm())
+                .collect()
+        };
+        let (before, after) = (norms(&sol.residuals_before), norms(&sol.residuals));
+        let provenance = json!({"method": "serial.identify", "calibd_version": crate::jobs::envelope::VERSION, "measurements": problem.measurements().len()});
+        let (model_file, model_art) = calibrated_file(&inp.model, &calibrated, provenance)?;
+        let mut r = solution_result(
+            &sol,
+            unit,
+            inp.solve_options(&problem).rank_tolerance,
+            BeforeAfter {
+                before: Summary::of(&before, unit),
+                after: Summary::of(&after, unit),
+                meaning: None,
+            },
+            model_file,
+        );
+        r.prior = Some(prior);
+        r.gauge_freedom = Some(inp.plate.gauge.clone());
+        let centres = problem.centres(&sol.x);
+        if !inp.plate.is_empty() {
+            r.coincidence = Some(coincidence_report(
+                problem.measurements(),
+                &inp.model.chain,
+                &calibrated,
+                &inp.plate,
+                &centres,
+                unit,
+            ));
+        }
+        if let Some(v) = &inp.validation {
+            let cartesian: Vec<PointMeasurement> = v
+                .iter()
+                .filter(|m| matches!(m.target, Target::Point(_)))
+                .cloned()
+                .collect();
+            if !cartesian.is_empty() {
+                r.validation = Some(BeforeAfter {
+                    before: Summary::of(&position_errors(&inp.model.chain, &cartesian), unit),
+                    after: Summary::of(&position_errors(&calibrated, &cartesian), unit),
+                    meaning: None,
+                });
+            }
+            if v.iter().any(|m| matches!(m.target, Target::Ball(_))) {
+                r.validation_coincidence = Some(coincidence_report(
+                    v,
+                    &inp.model.chain,
+                    &calibrated,
+                    &inp.plate,
+                    &centres,
+                    unit,
+                ));
+            }
+        }
+        if !inp.warnings.is_empty() {
+            r.warnings = Some(inp.warnings.clone());
+        }
+        let mut artefacts = vec![model_art];
+        artefacts.extend(residual_artefacts(&before, &after, unit));
+        Ok(Run {
+            result: r,
+            main_table: None,
+            artefacts,
+        })
+    }
+
     /// Distance (`L_mm`) identification: parameters, anchor and length offset, signed
     /// distance residuals, validation before (nominal model with its own fitted anchor and
     /// offset) and after, the calibrated model.
-    fn execute_distance(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
+    fn calibrate_distance(
+        &self,
+        monitor: &dyn Monitor,
+    ) -> Result<Run<SerialCalibration>, JobError> {
         let inp = &self.inputs;
         let (problem, sol) = inp.identify_distance(monitor)?;
         let calibrated = problem.model(&sol.x);
         let unit = inp.model.length_unit();
-        let mut f = Map::new();
-        f.insert("measurement_type".into(), json!("distance"));
-        solution_fields(
-            &mut f,
-            &sol,
-            unit,
-            inp.distance_solve_options(&problem).rank_tolerance,
-        );
         let (anchor, offset) = problem.anchor(&sol.x);
         let x0 = problem.initial();
         let (anchor0, offset0) = problem.anchor(&x0);
         let o = problem.chain_unknowns();
         let std_of = |k: usize| sol.params.get(o + k).and_then(|p| p.std);
-        f.insert(
-            "anchor".into(),
-            json!({"x": anchor.x, "y": anchor.y, "z": anchor.z,
-                   "std": [std_of(0), std_of(1), std_of(2)],
-                   "nominal_fit": [anchor0.x, anchor0.y, anchor0.z],
-                   "frame": "W", "unit": unit}),
-        );
-        f.insert(
-            "length_offset".into(),
-            json!({"value": offset, "std": std_of(3), "nominal_fit": offset0, "unit": unit,
-                   "meaning": "measured length = |TCP - anchor| + length_offset"}),
-        );
         let abs = |r: &nalgebra::DVector<f64>| -> Vec<f64> { r.iter().map(|v| v.abs()).collect() };
-        f.insert(
-            "residuals".into(),
-            json!({
-                "before": stats(&abs(&sol.residuals_before), unit),
-                "after": stats(&abs(&sol.residuals), unit),
-                "meaning": "absolute distance residuals | |TCP - anchor| + length_offset - L |",
-            }),
+        let provenance = json!({"method": "serial.identify", "measurement_type": "distance", "calibd_version": crate::jobs::envelope::VERSION, "measurements": problem.measurements().len()});
+        let (model_file, model_art) = calibrated_file(&inp.model, &calibrated, provenance)?;
+        let mut r = solution_result(
+            &sol,
+            unit,
+            inp.distance_solve_options(&problem).rank_tolerance,
+            BeforeAfter {
+                before: Summary::of(&abs(&sol.residuals_before), unit),
+                after: Summary::of(&abs(&sol.residuals), unit),
+                meaning: Some("absolute distance residuals | |TCP - anchor| + length_offset - L |"),
+            },
+            model_file,
         );
+        r.measurement_type = Some("distance");
+        r.anchor = Some(Anchor {
+            x: anchor.x,
+            y: anchor.y,
+            z: anchor.z,
+            std: [std_of(0), std_of(1), std_of(2)],
+            nominal_fit: [anchor0.x, anchor0.y, anchor0.z],
+            frame: "W",
+            unit: unit.to_string(),
+        });
+        r.length_offset = Some(LengthOffset {
+            value: offset,
+            std: std_of(3),
+            nominal_fit: offset0,
+            unit: unit.to_string(),
+            meaning: "measured length = |TCP - anchor| + length_offset",
+        });
         if let Some(v) = &inp.validation_distances {
             let before: Vec<f64> = distance_errors(&inp.model.chain, &anchor0, offset0, v)
                 .iter()
@@ -620,39 +1098,25 @@ impl IdentifyJob {
                 .iter()
                 .map(|e| e.abs())
                 .collect();
-            f.insert(
-                "validation".into(),
-                json!({
-                    "before": stats(&before, unit),
-                    "after": stats(&after, unit),
-                    "meaning": "absolute held-out distance errors; before: the starting model with the anchor and offset fitted to it",
-                }),
-            );
+            r.validation = Some(BeforeAfter {
+                before: Summary::of(&before, unit),
+                after: Summary::of(&after, unit),
+                meaning: Some(
+                    "absolute held-out distance errors; before: the starting model with the anchor and offset fitted to it",
+                ),
+            });
         }
-        let provenance = json!({"method": "serial.identify", "measurement_type": "distance", "calibd_version": crate::jobs::envelope::VERSION, "measurements": problem.measurements().len()});
-        let (model_value, model_file) = inp.model.calibrated(&calibrated, provenance)?;
-        f.insert("calibrated_model".into(), model_value);
         if !inp.warnings.is_empty() {
-            f.insert("warnings".into(), json!(inp.warnings));
+            r.warnings = Some(inp.warnings.clone());
         }
-        let mut res = Table::new(&["measurement", "before", "after"]);
-        for (i, (a, b)) in sol
-            .residuals_before
-            .iter()
-            .zip(sol.residuals.iter())
-            .enumerate()
-        {
-            res.push(vec![(i + 1) as f64, *a, *b]);
-        }
-        let residual_csv = Artefact {
-            name: "residuals.csv".into(),
-            media_type: "text/csv".into(),
-            content: res.to_csv().into_bytes(),
-        };
-        Ok(Output {
-            fields: f,
+        let before: Vec<f64> = sol.residuals_before.iter().copied().collect();
+        let after: Vec<f64> = sol.residuals.iter().copied().collect();
+        let mut artefacts = vec![model_art];
+        artefacts.extend(residual_artefacts(&before, &after, unit));
+        Ok(Run {
+            result: r,
             main_table: None,
-            artefacts: vec![model_file, residual_csv],
+            artefacts,
         })
     }
 }
@@ -666,100 +1130,112 @@ impl Kind for IdentifyJob {
 impl IdentifyJob {
     /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
     pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        let inp = &self.inputs;
-        if !inp.distances.is_empty() {
-            return self.execute_distance(monitor);
-        }
-        let (problem, sol, prior) = super::prior::identify(inp, None, monitor)?;
-        let calibrated = problem.model(&sol.x);
-        let unit = inp.model.length_unit();
-        let norms = |r: &nalgebra::DVector<f64>| -> Vec<f64> {
-            (0..problem.measurements().len())
-                .map(|i| r.rows(3 * i, 3).norm())
-                .collect()
-        };
-        let mut f = Map::new();
-        solution_fields(
-            &mut f,
-            &sol,
-            unit,
-            inp.solve_options(&problem).rank_tolerance,
+        self.calibrate(monitor)?.into_output()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::jobs::{DirResolver, Inputs};
+    use crate::util::monitor::NoMonitor;
+
+    /// The result fields of `examples/serial_identify.json` (ball plate, Cartesian
+    /// validation) as the hand-built map of 7e62456 had them.
+    const FIELDS: &[&str] = &[
+        "ball_distances",
+        "balls",
+        "calibrated_model",
+        "condition_number",
+        "convergence",
+        "dependencies",
+        "gauge_freedom",
+        "observability",
+        "parameters",
+        "prior",
+        "rank",
+        "residual_std",
+        "residuals",
+        "unidentifiable",
+        "unobservable",
+        "validation",
+        "weakly_observable",
+    ];
+
+    fn example() -> IdentifyJob {
+        let dir = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples"));
+        let doc: Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join("serial_identify.json")).unwrap(),
+        )
+        .unwrap();
+        prepare(&doc, &Inputs::new(&DirResolver { dir })).unwrap()
+    }
+
+    #[test]
+    fn the_typed_result_serialises_to_the_fields_of_before() {
+        let run = example().calibrate(&NoMonitor).unwrap();
+        let out = run.clone().into_output().unwrap();
+        let mut keys: Vec<&str> = out.fields.keys().map(String::as_str).collect();
+        keys.sort_unstable();
+        assert_eq!(keys, FIELDS);
+        let conv = out.fields["convergence"].as_object().unwrap();
+        let mut ck: Vec<&str> = conv.keys().map(String::as_str).collect();
+        ck.sort_unstable();
+        assert_eq!(
+            ck,
+            [
+                "converged",
+                "cost_after",
+                "cost_before",
+                "cost_nuisance_only",
+                "cost_unit",
+                "degenerate",
+                "iterations",
+                "status",
+                "stop_reason"
+            ]
         );
-        f.insert("prior".into(), json!(prior));
-        f.insert("gauge_freedom".into(), json!(inp.plate.gauge));
-        f.insert(
-            "residuals".into(),
-            json!({
-                "before": stats(&norms(&sol.residuals_before), unit),
-                "after": stats(&norms(&sol.residuals), unit),
-            }),
+        // The typed fields the campaigns read.
+        let v = run.result.validation.as_ref().unwrap();
+        assert_eq!(
+            out.fields["validation"]["after"]["mean"],
+            json!(v.after.mean)
         );
-        let centres = problem.centres(&sol.x);
-        if !inp.plate.is_empty() {
-            let r = coincidence_report(
-                problem.measurements(),
-                &inp.model.chain,
-                &calibrated,
-                &inp.plate,
-                &centres,
-                unit,
-            );
-            if let Value::Object(m) = r {
-                f.extend(m);
-            }
-        }
-        if let Some(v) = &inp.validation {
-            let cartesian: Vec<PointMeasurement> = v
-                .iter()
-                .filter(|m| matches!(m.target, Target::Point(_)))
-                .cloned()
-                .collect();
-            if !cartesian.is_empty() {
-                f.insert(
-                    "validation".into(),
-                    json!({
-                        "before": stats(&position_errors(&inp.model.chain, &cartesian), unit),
-                        "after": stats(&position_errors(&calibrated, &cartesian), unit),
-                    }),
-                );
-            }
-            if v.iter().any(|m| matches!(m.target, Target::Ball(_))) {
-                f.insert(
-                    "validation_coincidence".into(),
-                    coincidence_report(
-                        v,
-                        &inp.model.chain,
-                        &calibrated,
-                        &inp.plate,
-                        &centres,
-                        unit,
-                    ),
-                );
-            }
-        }
-        let provenance = json!({"method": "serial.identify", "calibd_version": crate::jobs::envelope::VERSION, "measurements": problem.measurements().len()});
-        let (model_value, model_file) = inp.model.calibrated(&calibrated, provenance)?;
-        f.insert("calibrated_model".into(), model_value);
-        if !inp.warnings.is_empty() {
-            f.insert("warnings".into(), json!(inp.warnings));
-        }
-        let mut res = Table::new(&["measurement", "before", "after"]);
-        for (i, (a, b)) in norms(&sol.residuals_before)
-            .into_iter()
-            .zip(norms(&sol.residuals))
-            .enumerate()
-        {
-            res.push(vec![(i + 1) as f64, a, b]);
-        }
-        let residual_csv = Artefact {
-            name: "residuals.csv".into(),
-            media_type: "text/csv".into(),
-            content: res.to_csv().into_bytes(),
+        assert!(v.after.mean < v.before.mean);
+        assert!(matches!(
+            run.result.calibrated_model,
+            SerialModelFile::Dh(_)
+        ));
+        // The kind draws its own plots.
+        let names: Vec<&str> = run.artefacts.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "calibrated_model.json",
+                "residuals.csv",
+                "errors_per_configuration.svg",
+                "error_histogram.svg"
+            ]
+        );
+    }
+
+    #[test]
+    fn the_typed_constructor_gives_the_result_of_the_json_path() {
+        let json = example();
+        let inp = json.inputs();
+        let crate::jobs::serial::Source::Dh(file) = &inp.model.source else {
+            panic!("a DH model")
         };
-        Ok(Output {
-            fields: f,
-            main_table: None,
-            artefacts: vec![model_file, residual_csv],
-        })
+        let typed = IdentifyJob::from_dh(
+            file.clone(),
+            inp.meas.clone(),
+            [200.012, 199.987, 200.003],
+            inp.validation.clone(),
+            inp.options.clone(),
+        )
+        .unwrap();
+        let a = json.calibrate(&NoMonitor).unwrap().into_output().unwrap();
+        let b = typed.calibrate(&NoMonitor).unwrap().into_output().unwrap();
+        assert_eq!(a.fields, b.fields);
     }
 }

@@ -95,6 +95,14 @@ pub fn load_model(
 }
 
 impl SerialModel {
+    /// A serial model from a parsed DH file (the typed constructors' entry point).
+    pub fn from_dh(file: DhFile) -> Result<SerialModel, JobError> {
+        Ok(SerialModel {
+            chain: file.to_chain()?,
+            source: Source::Dh(file),
+        })
+    }
+
     /// Default parameters to identify: the DH file's list; for URDF every placement error,
     /// the offsets of the moving joints, and the base (rank detection prunes the rest).
     pub fn default_identify(&self) -> Vec<ParamId> {
