@@ -3,8 +3,9 @@
 //!
 //! Modules: [`uwave`] (Mitutoyo U-WAVE-R), [`rws`] (ABB IRC5 Robot Web Services 1.0),
 //! [`smaract`] (MCS / MCS2 / CiA 402 piezo stages), [`can`] (socketcand, SocketCAN, CANopen),
-//! [`qtm`] (Qualisys RT), [`mock`] (`calibd mock`), [`transcript`] (recording format),
-//! [`link`] (connectors and back-off), [`error`].
+//! [`qtm`] (Qualisys RT), [`microscope`] (`calibd-pose/1`), [`mock`] (`calibd mock`: the
+//! one registry of mock devices), [`mock_kit`] (what every mock shares), [`transcript`]
+//! (recording format), [`link`] (connectors and back-off), [`error`].
 #![warn(missing_docs)]
 
 pub mod actor;
@@ -14,6 +15,7 @@ pub mod error;
 pub mod link;
 pub mod microscope;
 pub mod mock;
+pub mod mock_kit;
 pub mod qtm;
 pub mod rws;
 pub mod smaract;

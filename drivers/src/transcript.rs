@@ -77,7 +77,7 @@ impl Chunk {
 pub struct Header {
     /// Always [`FORMAT`].
     pub format: String,
-    /// Device family (`qtm`, `abb`, `uwave`, `mcs`, `mcs2`, `can`).
+    /// Device family (`qtm`, `abb`, `uwave`, `mcs`, `mcs2`, `can`, `microscope`).
     pub device: String,
     /// Free text: where and how it was recorded.
     #[serde(default)]

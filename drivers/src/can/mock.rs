@@ -5,7 +5,6 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use futures_util::{SinkExt, StreamExt};
-use tokio::io::AsyncWriteExt;
 use tokio::sync::broadcast;
 use tokio_util::codec::Framed;
 use tokio_util::sync::CancellationToken;
@@ -15,20 +14,14 @@ use super::canopen::{SDO_TX, SdoResponse, response};
 use super::frame::CanFrame;
 use super::node::{Drive, DriveModel, LinearAxis};
 use super::socketcand::{SocketcandCodec, frame_body, parse_send};
-use crate::mock::fault::{DELAY_FAULT, GARBAGE};
-use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, serve};
+use crate::mock_kit::fault::Fate;
+use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 
 /// Bus id of the simulated drive (clients get ids from 1).
 const NODE_ID: u64 = 0;
 
 /// Builds the hub handler with one drive (node 1) and starts the drive's task.
-pub(crate) fn handler(
-    args: &MockArgs,
-    faults: Faults,
-    tracker: &TaskTracker,
-    token: &CancellationToken,
-) -> Handler {
-    let _ = args;
+pub(crate) fn handler(faults: Faults, tracker: &TaskTracker, token: &CancellationToken) -> Handler {
     handler_with(Box::new(LinearAxis), faults, tracker, token)
 }
 
@@ -116,39 +109,31 @@ async fn client(
             }
             m = rx.recv(), if raw => match m {
                 Ok((from, frame)) if from != id => {
-                    let mut frame = frame;
-                    match faults.next() {
-                        None => {}
-                        Some(FaultKind::Delay) => tokio::time::sleep(DELAY_FAULT).await,
-                        Some(FaultKind::Drop) => return,
-                        Some(FaultKind::Stall) => {
-                            let mut io = f.into_inner();
-                            serve::stall(&mut io, &conn.token).await;
-                            return;
-                        }
-                        Some(FaultKind::Garbage) => {
-                            if f.get_mut().write_all(GARBAGE).await.is_err() { return; }
-                            continue;
-                        }
-                        Some(FaultKind::Truncate) => {
-                            let text = format!("< {} >", frame_body(&frame, now()));
-                            let _ = f.get_mut().write_all(&text.as_bytes()[..text.len() / 2]).await;
-                            return;
-                        }
-                        Some(FaultKind::DeviceError) => {
-                            // An SDO response becomes an abort: not in the present device state.
-                            if (frame.id & !0x7f) == u32::from(SDO_TX) && frame.data.len() == 8 {
-                                let d = &frame.data;
-                                let a = SdoResponse::Abort { index: u16::from_le_bytes([d[1], d[2]]), sub: d[3], code: 0x0800_0022 };
-                                frame.data = response(&a).to_vec();
-                            }
-                        }
+                    let wire = |fr: &CanFrame| format!("< {} >", frame_body(fr, now())).into_bytes();
+                    match faults.apply(f.get_mut(), &conn.token, frame, wire, sdo_abort).await {
+                        Fate::Send(frame) => if f.send(frame_body(&frame, now())).await.is_err() { return },
+                        Fate::Skipped => continue,
+                        Fate::Close => return,
                     }
-                    if f.send(frame_body(&frame, now())).await.is_err() { return; }
                 }
                 Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => {}
                 Err(_) => return,
             },
         }
     }
+}
+
+/// The `device-error` fault: an SDO response becomes an abort (not in the present device
+/// state); other frames pass unchanged.
+fn sdo_abort(mut frame: CanFrame) -> CanFrame {
+    if (frame.id & !0x7f) == u32::from(SDO_TX) && frame.data.len() == 8 {
+        let d = &frame.data;
+        let a = SdoResponse::Abort {
+            index: u16::from_le_bytes([d[1], d[2]]),
+            sub: d[3],
+            code: 0x0800_0022,
+        };
+        frame.data = response(&a).to_vec();
+    }
+    frame
 }

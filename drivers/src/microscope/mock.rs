@@ -1,17 +1,17 @@
 //! Microscope mock speaking `calibd-pose/1`: each `POSE?` takes a fresh image of a
 //! [`PoseModel`] (the hook for a digital twin), `ID?` identifies the mock, anything else is
-//! `ERR 1`. Planned faults (drop, stall, garbage, truncate, device error) replace replies.
+//! `ERR 1`. Planned faults (drop, stall, garbage, truncate, device error, delay) replace
+//! replies. `calibd mock microscope` serves the [`Drifting`] model.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use futures_util::{SinkExt, StreamExt};
-use tokio::io::AsyncWriteExt;
 use tokio_util::codec::Framed;
 
 use super::codec::{Reply, Request, ServerCodec};
-use crate::mock::fault::{DELAY_FAULT, GARBAGE};
-use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, serve};
+use crate::mock_kit::fault::Fate;
+use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 
 /// What the microscope sees: the hook for a digital twin of the robot under the camera.
 pub trait PoseModel: Send + 'static {
@@ -27,6 +27,48 @@ pub struct AtRest;
 impl PoseModel for AtRest {
     fn image(&mut self) -> Option<[f64; 3]> {
         Some([0.0; 3])
+    }
+}
+
+/// The `calibd mock microscope` model: a pattern that drifts slowly on a small circle near
+/// the origin (radius 100 µm, 1 mrad of rotation), seen through seeded uniform image noise
+/// (±0.2 µm, ±10 µrad): the same seed gives the same poses.
+#[derive(Debug, Clone)]
+pub struct Drifting {
+    images: u64,
+    rng: u64,
+}
+
+impl Drifting {
+    /// A drifting pattern whose image noise comes from `seed`.
+    pub fn new(seed: u64) -> Self {
+        Drifting {
+            images: 0,
+            rng: seed ^ 0x9e37_79b9_7f4a_7c15,
+        }
+    }
+
+    /// Uniform in [-1, 1) (splitmix64).
+    fn noise(&mut self) -> f64 {
+        self.rng = self.rng.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.rng;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+}
+
+impl PoseModel for Drifting {
+    fn image(&mut self) -> Option<[f64; 3]> {
+        self.images += 1;
+        let a = self.images as f64 * 1e-3;
+        let (sin, cos) = a.sin_cos();
+        Some([
+            1e-4 * cos + 2e-7 * self.noise(),
+            1e-4 * sin + 2e-7 * self.noise(),
+            1e-3 * sin + 1e-5 * self.noise(),
+        ])
     }
 }
 
@@ -108,35 +150,24 @@ async fn session(
             },
         };
         let reply = answer(&line, &model, &seq);
-        match faults.next() {
-            None => {}
-            Some(FaultKind::Delay) => tokio::time::sleep(DELAY_FAULT).await,
-            Some(FaultKind::Drop) => return,
-            Some(FaultKind::Stall) => {
-                let mut io = f.into_inner();
-                serve::stall(&mut io, &conn.token).await;
-                return;
-            }
-            Some(FaultKind::Garbage) => {
-                let _ = f.get_mut().write_all(GARBAGE).await;
-                continue;
-            }
-            Some(FaultKind::Truncate) => {
-                let t = reply.text();
-                let _ = f.get_mut().write_all(&t.as_bytes()[..t.len() / 2]).await;
-                return;
-            }
-            Some(FaultKind::DeviceError) => {
-                let e = Reply::Err {
-                    code: 3,
-                    text: "camera busy".into(),
-                };
-                if f.send(e).await.is_err() {
-                    return;
-                }
-                continue;
-            }
-        }
+        let busy = |_| Reply::Err {
+            code: 3,
+            text: "camera busy".into(),
+        };
+        let reply = match faults
+            .apply(
+                f.get_mut(),
+                &conn.token,
+                reply,
+                |r| r.text().into_bytes(),
+                busy,
+            )
+            .await
+        {
+            Fate::Send(r) => r,
+            Fate::Skipped => continue,
+            Fate::Close => return,
+        };
         if f.send(reply).await.is_err() {
             return;
         }
@@ -148,7 +179,7 @@ mod tests {
     use super::*;
     use crate::link::TcpConnector;
     use crate::microscope::{MicroscopeConfig, MicroscopeHandle};
-    use crate::mock::{FaultSpec, start_with};
+    use crate::mock_kit::{FaultKind, FaultSpec, start_with};
     use std::time::Duration;
 
     struct Walk(f64);

@@ -15,8 +15,8 @@ use tokio_util::codec::FramedRead;
 use super::codec::QtmCodec;
 use super::packet::{self, Component, DataFrame, Packet, event};
 use super::params::{Settings3d, write_3d};
-use crate::mock::fault::{DELAY_FAULT, GARBAGE};
-use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs};
+use crate::mock_kit::fault::Fate;
+use crate::mock_kit::{BoxIo, Conn, FaultKind, Faults, Handler};
 
 /// Highest protocol version the mock accepts.
 pub const MAX_VERSION: (u32, u32) = (1, 25);
@@ -73,18 +73,26 @@ impl MarkerModel for CircleMarkers {
     }
 }
 
-/// Builds the simulate-mode handler with four moving markers.
-pub(crate) fn handler(args: &MockArgs, faults: Faults) -> Handler {
-    handler_with(Arc::new(Mutex::new(CircleMarkers::new(4))), args, faults)
+/// Options of the QTM mock (`calibd mock qtm --rate-hz`).
+#[derive(Debug, Clone, Copy)]
+pub struct QtmOptions {
+    /// Capture rate: frames per second.
+    pub rate_hz: f64,
 }
 
-/// Builds a simulate-mode handler around any marker model.
+/// Builds the simulate-mode handler with four moving markers.
+pub(crate) fn handler(opts: impl Into<QtmOptions>, faults: Faults) -> Handler {
+    handler_with(Arc::new(Mutex::new(CircleMarkers::new(4))), opts, faults)
+}
+
+/// Builds a simulate-mode handler around any marker model (`opts`: [`QtmOptions`], or the
+/// `calibd mock` arguments).
 pub fn handler_with(
     model: Arc<Mutex<dyn MarkerModel>>,
-    args: &MockArgs,
+    opts: impl Into<QtmOptions>,
     faults: Faults,
 ) -> Handler {
-    let rate = args.rate_hz.clamp(1.0, 10_000.0);
+    let rate = opts.into().rate_hz.clamp(1.0, 10_000.0);
     Arc::new(move |io, conn| {
         let s = Session {
             model: model.clone(),
@@ -128,15 +136,9 @@ enum Step {
 
 impl Session {
     async fn run(mut self, io: BoxIo, conn: Conn) {
-        let (rd, mut wr) = tokio::io::split(io);
-        let mut rd = FramedRead::new(rd, QtmCodec);
-        if send(
-            &mut wr,
-            &Packet::Command("QTM RT Interface connected".into()),
-        )
-        .await
-        .is_err()
-        {
+        let mut rd = FramedRead::new(io, QtmCodec);
+        let welcome = encode(&Packet::Command("QTM RT Interface connected".into()));
+        if rd.get_mut().write_all(&welcome).await.is_err() {
             return;
         }
         let mut tick = tokio::time::interval(Duration::from_secs(1));
@@ -145,15 +147,14 @@ impl Session {
             let step = tokio::select! {
                 _ = conn.token.cancelled() => return,
                 p = rd.next() => match p {
-                    Some(Ok(Packet::Command(c))) => self.command(&c, &mut wr, &conn, &mut tick).await,
-                    Some(Ok(_)) => self.reply(&mut wr, Packet::Error("Parse Error".into()), &conn).await,
+                    Some(Ok(Packet::Command(c))) => self.command(&c, rd.get_mut(), &conn, &mut tick).await,
+                    Some(Ok(_)) => self.reply(rd.get_mut(), Packet::Error("Parse Error".into()), &conn).await,
                     _ => return,
                 },
-                _ = tick.tick(), if streaming => self.send_frame(&mut wr, &conn).await,
+                _ = tick.tick(), if streaming => self.send_frame(rd.get_mut(), &conn).await,
             };
             if matches!(step, Step::Stop) {
-                let mut io = rd.into_inner().unsplit(wr);
-                let _ = io.shutdown().await;
+                let _ = rd.get_mut().shutdown().await;
                 return;
             }
         }
@@ -190,7 +191,7 @@ impl Session {
         })
     }
 
-    async fn send_frame(&mut self, wr: &mut WriteHalf, conn: &Conn) -> Step {
+    async fn send_frame(&mut self, wr: &mut BoxIo, conn: &Conn) -> Step {
         let Some(s) = &self.stream else {
             return Step::Go;
         };
@@ -198,8 +199,7 @@ impl Session {
         let p = self.frame_packet(comps);
         match (udp_to, &self.udp) {
             (Some(to), Some(sock)) => {
-                let mut b = BytesMut::new();
-                packet::encode(&p, &mut b);
+                let b = encode(&p);
                 if let Some(FaultKind::Drop) = self.faults.next() {
                     return Step::Go; // a lost datagram
                 }
@@ -211,32 +211,14 @@ impl Session {
     }
 
     /// Sends a reply or data packet, applying a planned fault.
-    async fn reply(&mut self, wr: &mut WriteHalf, p: Packet, conn: &Conn) -> Step {
-        let mut b = BytesMut::new();
-        packet::encode(&p, &mut b);
-        let bytes: Vec<u8> = match self.faults.next() {
-            None => b.to_vec(),
-            Some(FaultKind::Delay) => {
-                tokio::time::sleep(DELAY_FAULT).await;
-                b.to_vec()
-            }
-            Some(FaultKind::Drop) => return Step::Stop,
-            Some(FaultKind::Stall) => {
-                self.stream = None;
-                return stall_writer(conn).await;
-            }
-            Some(FaultKind::Garbage) => GARBAGE.to_vec(),
-            Some(FaultKind::Truncate) => {
-                let _ = wr.write_all(&b[..b.len() / 2]).await;
-                return Step::Stop;
-            }
-            Some(FaultKind::DeviceError) => {
-                let mut e = BytesMut::new();
-                packet::encode(&Packet::Error("Injected device error".into()), &mut e);
-                e.to_vec()
-            }
+    async fn reply(&mut self, wr: &mut BoxIo, p: Packet, conn: &Conn) -> Step {
+        let error = |_| Packet::Error("Injected device error".into());
+        let p = match self.faults.apply(wr, &conn.token, p, encode, error).await {
+            Fate::Send(p) => p,
+            Fate::Skipped => return Step::Go,
+            Fate::Close => return Step::Stop,
         };
-        match wr.write_all(&bytes).await {
+        match wr.write_all(&encode(&p)).await {
             Ok(()) => Step::Go,
             Err(_) => Step::Stop,
         }
@@ -245,7 +227,7 @@ impl Session {
     async fn command(
         &mut self,
         cmd: &str,
-        wr: &mut WriteHalf,
+        wr: &mut BoxIo,
         conn: &Conn,
         tick: &mut tokio::time::Interval,
     ) -> Step {
@@ -348,21 +330,10 @@ impl Session {
     }
 }
 
-type WriteHalf = tokio::io::WriteHalf<BoxIo>;
-
-async fn send(wr: &mut WriteHalf, p: &Packet) -> std::io::Result<()> {
+fn encode(p: &Packet) -> Vec<u8> {
     let mut b = BytesMut::new();
     packet::encode(p, &mut b);
-    wr.write_all(&b).await
-}
-
-async fn stall_writer(conn: &Conn) -> Step {
-    // The reader half is still polled by nobody: just wait for shutdown or a while.
-    tokio::select! {
-        _ = conn.token.cancelled() => {}
-        _ = tokio::time::sleep(Duration::from_secs(30)) => {}
-    }
-    Step::Stop
+    b.to_vec()
 }
 
 fn components(words: &[&str]) -> Option<Components> {

@@ -2,17 +2,14 @@
 //! mode), answers the documented info requests (`IR1000gg0`, `IR11ccgg1`) and an optional
 //! configured data request; serves on a pseudo-terminal or TCP.
 
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio_util::sync::CancellationToken;
-use tokio_util::task::TaskTracker;
 
 use super::codec::{Unit, UwaveLine};
-use crate::mock::fault::{DELAY_FAULT, GARBAGE};
-use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, MockError, serve};
+use crate::mock_kit::fault::Fate;
+use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 
 /// What the indicators read: the hook for a digital twin of the centring fixture.
 pub trait IndicatorModel: Send + 'static {
@@ -36,20 +33,31 @@ impl IndicatorModel for DriftingIndicators {
     }
 }
 
-/// Builds the simulate-mode handler with the default model.
-pub(crate) fn handler(args: &MockArgs, faults: Faults) -> Handler {
-    let model: Arc<Mutex<dyn IndicatorModel>> = Arc::new(Mutex::new(DriftingIndicators));
-    handler_with(model, args, faults)
+/// Options of the U-WAVE mock (`calibd mock uwave --rate-hz --uwave-request`).
+#[derive(Debug, Clone)]
+pub struct UwaveOptions {
+    /// Readings per second and channel.
+    pub rate_hz: f64,
+    /// Data-request template answered with a reading (`{cc}`, `{gg}` placeholders); empty:
+    /// readings only stream.
+    pub request: String,
 }
 
-/// Builds a simulate-mode handler around any indicator model.
+/// Builds the simulate-mode handler with the default model.
+pub(crate) fn handler(opts: impl Into<UwaveOptions>, faults: Faults) -> Handler {
+    let model: Arc<Mutex<dyn IndicatorModel>> = Arc::new(Mutex::new(DriftingIndicators));
+    handler_with(model, opts, faults)
+}
+
+/// Builds a simulate-mode handler around any indicator model (`opts`: [`UwaveOptions`], or
+/// the `calibd mock` arguments).
 pub fn handler_with(
     model: Arc<Mutex<dyn IndicatorModel>>,
-    args: &MockArgs,
+    opts: impl Into<UwaveOptions>,
     faults: Faults,
 ) -> Handler {
-    let period = Duration::from_secs_f64(1.0 / args.rate_hz.clamp(0.1, 1000.0));
-    let request = args.uwave_request.clone();
+    let UwaveOptions { rate_hz, request } = opts.into();
+    let period = Duration::from_secs_f64(1.0 / rate_hz.clamp(0.1, 1000.0));
     let start = tokio::time::Instant::now();
     Arc::new(move |io, conn| {
         let s = Session {
@@ -132,42 +140,24 @@ impl Session {
         let Some(line) = self.data_line(channel) else {
             return Next::Go;
         };
-        let bytes = match self.faults.next() {
-            None => line.into_bytes(),
-            Some(FaultKind::Delay) => {
-                // The reading was taken now; it reaches the client late.
-                tokio::select! {
-                    _ = tokio::time::sleep(DELAY_FAULT) => {}
-                    _ = conn.token.cancelled() => return Next::Stop,
-                }
-                line.into_bytes()
-            }
-            Some(FaultKind::Drop) => return Next::Stop,
-            Some(FaultKind::Stall) => {
-                serve::stall(io, &conn.token).await;
-                return Next::Stop;
-            }
-            Some(FaultKind::Garbage) => GARBAGE.to_vec(),
-            Some(FaultKind::Truncate) => {
-                let _ = io.write_all(&line.as_bytes()[..line.len() / 2]).await;
-                return Next::Stop;
-            }
-            Some(FaultKind::DeviceError) => UwaveLine::Status {
+        let error = |_| {
+            let status = UwaveLine::Status {
                 group: Some(0),
                 channel: Some(channel),
                 transmitter: Some(format!("{:010}", 9_233_800 + u32::from(channel))),
                 code: 1,
-            }
-            .render()
-            .into_bytes()
-            .into_iter()
-            .chain([b'\r'])
-            .collect(),
+            };
+            status.render() + "\r"
         };
-        if io.write_all(&bytes).await.is_err() {
-            return Next::Stop;
+        let fate = self
+            .faults
+            .apply(io, &conn.token, line, |l| l.clone().into_bytes(), error)
+            .await;
+        match fate {
+            Fate::Send(line) if io.write_all(line.as_bytes()).await.is_ok() => Next::Go,
+            Fate::Skipped => Next::Go,
+            Fate::Send(_) | Fate::Close => Next::Stop,
         }
-        Next::Go
     }
 
     /// Answers one request line.
@@ -220,39 +210,4 @@ fn end_of_search(code: u8) -> UwaveLine {
         transmitter: None,
         code,
     }
-}
-
-/// Serves `handler` on a new pseudo-terminal; returns the slave path (or `link` if given, a
-/// symlink to it).
-pub(crate) fn serve_pty(
-    handler: Handler,
-    link: Option<PathBuf>,
-    tracker: &TaskTracker,
-    token: &CancellationToken,
-) -> Result<String, MockError> {
-    use tokio_serial::SerialPort;
-    let (master, slave) =
-        tokio_serial::SerialStream::pair().map_err(|e| MockError::Pty(e.to_string()))?;
-    let slave_path = slave
-        .name()
-        .ok_or_else(|| MockError::Pty("pty slave has no name".into()))?;
-    let addr = match link {
-        Some(p) => {
-            let _ = std::fs::remove_file(&p);
-            std::os::unix::fs::symlink(&slave_path, &p)
-                .map_err(|e| MockError::Pty(format!("symlink {}: {e}", p.display())))?;
-            p.display().to_string()
-        }
-        None => slave_path,
-    };
-    let conn = Conn {
-        peer: None,
-        token: token.child_token(),
-    };
-    tracker.spawn(async move {
-        // Keep the slave open so the master does not see EIO between client opens.
-        let _slave = slave;
-        handler(Box::new(master), conn).await;
-    });
-    Ok(addr)
 }

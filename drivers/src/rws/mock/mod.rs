@@ -13,7 +13,6 @@ use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
 use serde_json::json;
-use tokio::io::AsyncWriteExt;
 use tokio::time::Instant;
 use tokio_util::codec::Framed;
 
@@ -21,8 +20,8 @@ use super::digest;
 use super::http::{Headers, HttpServerCodec, Request, Response};
 use super::irb120;
 use super::rapid::{format_jointtarget, parse_jointtarget, parse_pos};
-use crate::mock::fault::{DELAY_FAULT, GARBAGE};
-use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, serve};
+use crate::mock_kit::fault::Fate;
+use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 
 /// Realm of IRC5 RobotWare 6.
 pub const REALM: &str = "validusers@robapi.abb";
@@ -177,15 +176,30 @@ impl Robot {
     }
 }
 
-/// Builds the simulate-mode handler with the default IRB 120.
-pub(crate) fn handler(args: &MockArgs, faults: Faults) -> Handler {
-    handler_with(Box::new(Irb120), args, faults)
+/// The account the mock's Digest authentication accepts (`calibd mock abb --user
+/// --password`).
+#[derive(Debug, Clone)]
+pub struct Credentials {
+    /// RWS user name.
+    pub user: String,
+    /// RWS password.
+    pub password: String,
 }
 
-/// Builds a simulate-mode handler around any arm model.
-pub fn handler_with(model: Box<dyn ArmModel>, args: &MockArgs, faults: Faults) -> Handler {
+/// Builds the simulate-mode handler with the default IRB 120.
+pub(crate) fn handler(account: impl Into<Credentials>, faults: Faults) -> Handler {
+    handler_with(Box::new(Irb120), account, faults)
+}
+
+/// Builds a simulate-mode handler around any arm model (`account`: [`Credentials`], or the
+/// `calibd mock` arguments).
+pub fn handler_with(
+    model: Box<dyn ArmModel>,
+    account: impl Into<Credentials>,
+    faults: Faults,
+) -> Handler {
     let robot = Arc::new(Mutex::new(Robot::new(model)));
-    let (user, password) = (args.user.clone(), args.password.clone());
+    let Credentials { user, password } = account.into();
     Arc::new(move |io, conn| {
         let s = Server {
             robot: robot.clone(),
@@ -256,36 +270,24 @@ impl Server {
             let close = req
                 .header("connection")
                 .is_some_and(|c| c.eq_ignore_ascii_case("close"));
-            let resp = self.respond(&req);
+            let mut resp = self.respond(&req);
             if resp.status != 401 {
-                match self.faults.next() {
-                    None => {}
-                    Some(FaultKind::Delay) => tokio::time::sleep(DELAY_FAULT).await,
-                    Some(FaultKind::Drop) => return,
-                    Some(FaultKind::Stall) => {
-                        let mut io = f.into_inner();
-                        serve::stall(&mut io, &conn.token).await;
-                        return;
-                    }
-                    Some(FaultKind::Garbage) => {
-                        let _ = f.get_mut().write_all(GARBAGE).await;
-                        return;
-                    }
-                    Some(FaultKind::Truncate) => {
-                        let mut b = bytes::BytesMut::new();
-                        let _ =
-                            tokio_util::codec::Encoder::encode(&mut HttpServerCodec, resp, &mut b);
-                        let _ = f.get_mut().write_all(&b[..b.len() / 2]).await;
-                        return;
-                    }
-                    Some(FaultKind::DeviceError) => {
-                        let e = error(503, -1073414144, "Too many active sessions");
-                        if f.send(e).await.is_err() {
-                            return;
-                        }
-                        continue;
-                    }
-                }
+                let wire = |r: &Response| {
+                    let mut b = bytes::BytesMut::new();
+                    let _ =
+                        tokio_util::codec::Encoder::encode(&mut HttpServerCodec, r.clone(), &mut b);
+                    b.to_vec()
+                };
+                let busy = |_| error(503, -1073414144, "Too many active sessions");
+                resp = match self
+                    .faults
+                    .apply(f.get_mut(), &conn.token, resp, wire, busy)
+                    .await
+                {
+                    Fate::Send(r) => r,
+                    // Garbage in an HTTP stream: the client cannot resynchronise.
+                    Fate::Skipped | Fate::Close => return,
+                };
             }
             if f.send(resp).await.is_err() || close {
                 return;

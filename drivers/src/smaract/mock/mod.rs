@@ -8,13 +8,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
-use tokio::io::AsyncWriteExt;
 use tokio::time::Instant;
 use tokio_util::codec::Framed;
 
 use super::line::LineCodec;
-use crate::mock::fault::{DELAY_FAULT, GARBAGE};
-use crate::mock::{BoxIo, Conn, FaultKind, Faults, Handler, MockArgs, serve};
+use crate::mock_kit::fault::Fate;
+use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 use mcs2::mcs2_reply;
 
 /// The positioners behind a controller: the hook for piezo-stage twins.
@@ -157,29 +156,28 @@ impl Sim {
     }
 }
 
-fn sim(args: &MockArgs) -> Arc<Mutex<Sim>> {
-    let _ = args;
-    Arc::new(Mutex::new(Sim::new(Box::new(Slc1730x3))))
+fn sim(model: Box<dyn StageModel>) -> Arc<Mutex<Sim>> {
+    Arc::new(Mutex::new(Sim::new(model)))
 }
 
 /// Simulate-mode handler for the MCS (ASCII) controller.
-pub(crate) fn mcs_handler(args: &MockArgs, faults: Faults) -> Handler {
-    mcs_handler_with(sim(args), faults)
+pub(crate) fn mcs_handler(faults: Faults) -> Handler {
+    mcs_handler_with_model(Box::new(Slc1730x3), faults)
 }
 
 /// Simulate-mode handler for the MCS2 (SCPI) controller.
-pub(crate) fn mcs2_handler(args: &MockArgs, faults: Faults) -> Handler {
-    mcs2_handler_with(sim(args), faults)
+pub(crate) fn mcs2_handler(faults: Faults) -> Handler {
+    mcs2_handler_with_model(Box::new(Slc1730x3), faults)
 }
 
 /// MCS handler around any stage model.
 pub fn mcs_handler_with_model(model: Box<dyn StageModel>, faults: Faults) -> Handler {
-    mcs_handler_with(Arc::new(Mutex::new(Sim::new(model))), faults)
+    handler_with(sim(model), faults, Dialect::Mcs)
 }
 
 /// MCS2 handler around any stage model.
 pub fn mcs2_handler_with_model(model: Box<dyn StageModel>, faults: Faults) -> Handler {
-    mcs2_handler_with(Arc::new(Mutex::new(Sim::new(model))), faults)
+    handler_with(sim(model), faults, Dialect::Mcs2)
 }
 
 /// The error queue of a simulated MCS2 controller, shared by all its connections: tests use
@@ -212,24 +210,15 @@ pub fn mcs2_handler_with_queue(
     model: Box<dyn StageModel>,
     faults: Faults,
 ) -> (Handler, Mcs2ErrorQueue) {
-    let sim = Arc::new(Mutex::new(Sim::new(model)));
-    (mcs2_handler_with(sim.clone(), faults), Mcs2ErrorQueue(sim))
+    let sim = sim(model);
+    (
+        handler_with(sim.clone(), faults, Dialect::Mcs2),
+        Mcs2ErrorQueue(sim),
+    )
 }
 
-fn mcs_handler_with(sim: Arc<Mutex<Sim>>, faults: Faults) -> Handler {
-    Arc::new(move |io, conn| Box::pin(session(io, conn, sim.clone(), faults.clone(), Dialect::Mcs)))
-}
-
-fn mcs2_handler_with(sim: Arc<Mutex<Sim>>, faults: Faults) -> Handler {
-    Arc::new(move |io, conn| {
-        Box::pin(session(
-            io,
-            conn,
-            sim.clone(),
-            faults.clone(),
-            Dialect::Mcs2,
-        ))
-    })
+fn handler_with(sim: Arc<Mutex<Sim>>, faults: Faults, d: Dialect) -> Handler {
+    Arc::new(move |io, conn| Box::pin(session(io, conn, sim.clone(), faults.clone(), d)))
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -260,41 +249,28 @@ async fn session(io: BoxIo, conn: Conn, sim: Arc<Mutex<Sim>>, faults: Faults, d:
         };
         let eol = if d == Dialect::Mcs { "" } else { "\r" };
         for r in replies {
-            let fault = faults.next();
-            let text = match fault {
-                None => format!("{r}{eol}"),
-                Some(FaultKind::Delay) => {
-                    tokio::time::sleep(DELAY_FAULT).await;
-                    format!("{r}{eol}")
-                }
-                Some(FaultKind::Drop) => return,
-                Some(FaultKind::Stall) => {
-                    let mut io = f.into_inner();
-                    serve::stall(&mut io, &conn.token).await;
-                    return;
-                }
-                Some(FaultKind::Garbage) => {
-                    let _ = f.get_mut().write_all(GARBAGE).await;
-                    continue;
-                }
-                Some(FaultKind::Truncate) => {
-                    let _ = f.get_mut().write_all(&r.as_bytes()[..r.len() / 2]).await;
-                    return;
-                }
-                Some(FaultKind::DeviceError) => match d {
-                    Dialect::Mcs => ":E0,129".to_string(),
-                    Dialect::Mcs2 => {
-                        if let Ok(mut s) = sim.lock() {
-                            s.axes[0].fault = true;
-                            s.errors
-                                .push((-300, "Device-specific error: positioner fault".into()));
-                        }
-                        format!("{r}{eol}")
+            // The device's own error: MCS answers with one, MCS2 faults positioner 0 and
+            // queues an error, the reply itself unchanged.
+            let error = |r: String| match d {
+                Dialect::Mcs => ":E0,129".to_string(),
+                Dialect::Mcs2 => {
+                    if let Ok(mut s) = sim.lock() {
+                        s.axes[0].fault = true;
+                        s.errors
+                            .push((-300, "Device-specific error: positioner fault".into()));
                     }
-                },
+                    r
+                }
             };
-            if f.send(text).await.is_err() {
-                return;
+            let wire = |r: &String| r.clone().into_bytes();
+            match faults.apply(f.get_mut(), &conn.token, r, wire, error).await {
+                Fate::Send(r) => {
+                    if f.send(format!("{r}{eol}")).await.is_err() {
+                        return;
+                    }
+                }
+                Fate::Skipped => continue,
+                Fate::Close => return,
             }
         }
     }

@@ -3,6 +3,7 @@
 
 use std::future::Future;
 use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::pin::Pin;
 use std::sync::Arc;
 
@@ -10,6 +11,8 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite};
 use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
+
+use super::MockError;
 
 /// A byte stream a mock can serve on (TCP socket or pty master).
 pub trait MockIo: AsyncRead + AsyncWrite + Unpin + Send {}
@@ -64,4 +67,39 @@ pub(crate) async fn stall(io: &mut BoxIo, token: &CancellationToken) {
             _ = token.cancelled() => return,
         }
     }
+}
+
+/// Serves `handler` on a new pseudo-terminal; returns the slave path (or `link` if given, a
+/// symlink to it).
+pub(crate) fn serve_pty(
+    handler: Handler,
+    link: Option<PathBuf>,
+    tracker: &TaskTracker,
+    token: &CancellationToken,
+) -> Result<String, MockError> {
+    use tokio_serial::SerialPort;
+    let (master, slave) =
+        tokio_serial::SerialStream::pair().map_err(|e| MockError::Pty(e.to_string()))?;
+    let slave_path = slave
+        .name()
+        .ok_or_else(|| MockError::Pty("pty slave has no name".into()))?;
+    let addr = match link {
+        Some(p) => {
+            let _ = std::fs::remove_file(&p);
+            std::os::unix::fs::symlink(&slave_path, &p)
+                .map_err(|e| MockError::Pty(format!("symlink {}: {e}", p.display())))?;
+            p.display().to_string()
+        }
+        None => slave_path,
+    };
+    let conn = Conn {
+        peer: None,
+        token: token.child_token(),
+    };
+    tracker.spawn(async move {
+        // Keep the slave open so the master does not see EIO between client opens.
+        let _slave = slave;
+        handler(Box::new(master), conn).await;
+    });
+    Ok(addr)
 }

@@ -6,6 +6,11 @@ use std::str::FromStr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use tokio::io::AsyncWriteExt;
+use tokio_util::sync::CancellationToken;
+
+use super::serve::{BoxIo, stall};
+
 /// What the mock does instead of a normal reply.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FaultKind {
@@ -105,6 +110,58 @@ impl Faults {
 
 /// Bytes used by the `garbage` fault: not valid in any of our protocols.
 pub(crate) const GARBAGE: &[u8] = b"\xff\xfe\x00garbage<<>>\xff\xff\xff\xff\xff\xff\xff\xff\r\n";
+
+/// What becomes of one reply once the fault plan has had its say ([`Faults::apply`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum Fate<T> {
+    /// Send this: the reply (maybe [`DELAY_FAULT`] late) or the device's error in its place.
+    Send(T),
+    /// Garbage went out instead of the reply; the session goes on.
+    Skipped,
+    /// The connection is over (drop, stall until the client left, truncate, write error).
+    Close,
+}
+
+impl Faults {
+    /// Counts one reply and applies the fault planned for it, the same way in every mock:
+    /// `delay` waits [`DELAY_FAULT`] then sends, `drop` closes, `stall` reads and discards
+    /// until the client leaves, `garbage` writes [`GARBAGE`] instead, `truncate` writes the
+    /// first half of `wire(&reply)` and closes, `device-error` sends
+    /// `device_error(reply)`. `io` is the connection under the session's framing (nothing
+    /// may be buffered in it for writing).
+    pub(crate) async fn apply<T>(
+        &self,
+        io: &mut BoxIo,
+        token: &CancellationToken,
+        reply: T,
+        wire: impl FnOnce(&T) -> Vec<u8>,
+        device_error: impl FnOnce(T) -> T,
+    ) -> Fate<T> {
+        match self.next() {
+            None => Fate::Send(reply),
+            Some(FaultKind::Delay) => tokio::select! {
+                _ = tokio::time::sleep(DELAY_FAULT) => Fate::Send(reply),
+                _ = token.cancelled() => Fate::Close,
+            },
+            Some(FaultKind::Drop) => Fate::Close,
+            Some(FaultKind::Stall) => {
+                stall(io, token).await;
+                Fate::Close
+            }
+            Some(FaultKind::Garbage) => match io.write_all(GARBAGE).await {
+                Ok(()) => Fate::Skipped,
+                Err(_) => Fate::Close,
+            },
+            Some(FaultKind::Truncate) => {
+                let bytes = wire(&reply);
+                let _ = io.write_all(&bytes[..bytes.len() / 2]).await;
+                let _ = io.flush().await;
+                Fate::Close
+            }
+            Some(FaultKind::DeviceError) => Fate::Send(device_error(reply)),
+        }
+    }
+}
 
 #[cfg(test)]
 mod tests {

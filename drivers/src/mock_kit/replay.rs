@@ -2,19 +2,29 @@
 //! their recorded gaps; client chunks are awaited by byte count (the client may split or
 //! coalesce writes), compared, and a mismatch is logged, not fatal.
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_util::sync::CancellationToken;
 
-use super::serve::BoxIo;
+use super::serve::{BoxIo, Conn, Handler};
 use crate::transcript::{Direction, Transcript};
 
 /// Longest pause honoured between two recorded device chunks.
 const MAX_GAP: Duration = Duration::from_secs(2);
 
+/// A handler that plays `t` to every client.
+pub(crate) fn handler(t: Transcript) -> Handler {
+    let t = Arc::new(t);
+    Arc::new(move |io, conn: Conn| {
+        let t = t.clone();
+        Box::pin(async move { replay(io, &t, conn.token).await })
+    })
+}
+
 /// Plays `t` to one client; returns when done, on EOF or on shutdown.
-pub(crate) async fn replay(mut io: BoxIo, t: &Transcript, token: CancellationToken) {
+async fn replay(mut io: BoxIo, t: &Transcript, token: CancellationToken) {
     let mut pending: Vec<u8> = Vec::new();
     let mut last_t = 0u64;
     for c in t.chunks.iter().filter(|c| !c.udp) {
@@ -56,11 +66,5 @@ pub(crate) async fn replay(mut io: BoxIo, t: &Transcript, token: CancellationTok
         last_t = c.t_us;
     }
     // Transcript finished: keep the connection open until the client leaves.
-    let mut buf = [0u8; 1024];
-    loop {
-        tokio::select! {
-            r = io.read(&mut buf) => if !matches!(r, Ok(n) if n > 0) { return },
-            _ = token.cancelled() => return,
-        }
-    }
+    super::serve::stall(&mut io, &token).await;
 }
