@@ -238,39 +238,6 @@ pub async fn run<S: Step>(
     })
 }
 
-/// Mean errors of a validation pass (the `validation` of an identification result).
-#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
-pub struct ValidationMeans {
-    /// The starting model.
-    pub before: Mean,
-    /// The calibrated model.
-    pub after: Mean,
-}
-
-/// One mean error (other statistics of the result are kept, not read).
-#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
-pub struct Mean {
-    /// Mean error.
-    pub mean: f64,
-    /// The other statistics, as the identification reported them.
-    #[serde(flatten)]
-    pub rest: serde_json::Map<String, serde_json::Value>,
-}
-
-/// What a campaign's identification produced: its result fields, the calibrated model,
-/// the validation means (if a validation set was given) and its artefacts.
-#[derive(Debug, Clone)]
-pub struct Identified<M> {
-    /// The identification's result fields (merged into the campaign's result).
-    pub fields: serde_json::Map<String, serde_json::Value>,
-    /// The calibrated model.
-    pub model: M,
-    /// Validation means.
-    pub validation: Option<ValidationMeans>,
-    /// Artefacts.
-    pub artefacts: Vec<crate::jobs::Artefact>,
-}
-
 /// Wrap up a campaign: its typed result as the output, the identification's artefacts, the
 /// measurement table (main table and `measurements.csv`), one more table if any, and the
 /// model it proposes for its cell.

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use super::engine::{self, CampaignError, Retry, Step, StepError, Summary};
-use super::results::{MocapCampaign, MocapStats};
+use super::results::{MeanErrors, MocapCampaign, MocapStats};
 use crate::jobs::cell::mocap::{MocapCampaignJob, samples_table};
 use crate::jobs::{Cx, JobError, Produced};
 use crate::lab::{Candidate, CellModel, Evidence};
@@ -206,19 +206,21 @@ pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, Jo
     let mean = |f: fn(&PostureSample) -> usize| {
         rec.iter().map(|s| f(s) as f64).sum::<f64>() / rec.len() as f64
     };
+    let fit = &identified.result;
+    let means = MeanErrors::new(fit.rmse_before_mm, fit.rmse_after_mm);
     let candidate = Candidate {
         cell: job.cell.clone(),
-        model: CellModel::Humanoid(identified.model.clone()),
-        evidence: identified.validation.as_ref().map(|v| Evidence {
+        model: CellModel::Humanoid(fit.calibrated_model.clone()),
+        evidence: Some(Evidence {
             what: "marker RMSE on the campaign's postures".into(),
-            before: v.before.mean,
-            after: v.after.mean,
+            before: fit.rmse_before_mm,
+            after: fit.rmse_after_mm,
             unit: "mm",
         }),
-        validation: serde_json::to_value(&identified.validation).unwrap_or_default(),
+        validation: serde_json::to_value(&means).unwrap_or_default(),
     };
     let result = MocapCampaign {
-        calibration: identified.fields,
+        calibration: identified.result,
         cell: job.cell.clone(),
         campaign: MocapStats {
             planned: plan.len(),
@@ -232,7 +234,7 @@ pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, Jo
             wall_time_s: t0.elapsed().as_secs_f64(),
             journal_entries: journal.entries().map(|e| e.len()).unwrap_or(0),
         },
-        measurements: table.to_json_rows(),
+        measurements: table.clone(),
     };
     engine::conclude(&result, identified.artefacts, table, None, candidate)
 }

@@ -166,7 +166,7 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
     let mut acc_rec = Vec::new();
     if job.accuracy.is_some() {
         let (control, n) = {
-            let (job, model) = (job.clone(), identified.model.clone());
+            let (job, model) = (job.clone(), identified.result.calibrated_model.clone());
             cx.compute(move |m| job.accuracy_plan(&model, m)).await?
         };
         let offset = plan.len();
@@ -187,28 +187,29 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
                 control.len()
             )));
         }
-        let (job, model, rec) = (job.clone(), identified.model.clone(), acc_rec.clone());
-        accuracy = Some(
-            cx.phase(0.95, 1.0)
-                .compute(move |m| job.accuracy(&model, &rec, n, m))
-                .await?,
-        );
+        let model = identified.result.calibrated_model.clone();
+        let (job, rec) = (job.clone(), acc_rec.clone());
+        accuracy = cx
+            .phase(0.95, 1.0)
+            .compute(move |m| job.accuracy(&model, &rec, n, m))
+            .await?
+            .map(|run| run.result);
     }
     let all: Vec<PcrRecorded> = cal.iter().chain(&val).cloned().collect();
     let measurements = table(&all);
     let candidate = Candidate {
         cell: job.cell.clone(),
-        model: CellModel::Pcr(identified.model.clone()),
-        evidence: identified.validation.as_ref().map(|v| Evidence {
+        model: CellModel::Pcr(identified.result.calibrated_model.clone()),
+        evidence: identified.result.validation.as_ref().map(|v| Evidence {
             what: "validation mean position error".into(),
             before: v.before.mean,
             after: v.after.mean,
             unit: "m",
         }),
-        validation: serde_json::to_value(&identified.validation).unwrap_or_default(),
+        validation: serde_json::to_value(&identified.result.validation).unwrap_or_default(),
     };
     let result = PcrCampaign {
-        calibration: identified.fields,
+        calibration: identified.result,
         accuracy,
         cell: job.cell.clone(),
         campaign: PcrStats {
@@ -224,7 +225,7 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
             wall_time_s: t0.elapsed().as_secs_f64(),
             journal_entries: journal.entries().map(|e| e.len()).unwrap_or(0),
         },
-        measurements: measurements.to_json_rows(),
+        measurements: measurements.clone(),
     };
     engine::conclude(
         &result,

@@ -3,7 +3,12 @@
 //! figures of the measuring.
 
 use serde::Serialize;
-use serde_json::{Map, Value};
+
+use crate::jobs::Table;
+use crate::jobs::humanoid::identify::HumanoidCalibration;
+use crate::jobs::pcr::accuracy::PcrAccuracy;
+use crate::jobs::pcr::identify::PcrCalibration;
+use crate::jobs::serial::identify::SerialCalibration;
 
 /// Figures of a TriCal campaign's measuring.
 #[derive(Debug, Clone, Serialize)]
@@ -39,7 +44,7 @@ pub struct TricalStats {
 pub struct TricalCampaign {
     /// The `serial.identify` result on the centred configurations.
     #[serde(flatten)]
-    pub calibration: Map<String, Value>,
+    pub calibration: SerialCalibration,
     /// The cell.
     pub cell: String,
     /// Measuring figures.
@@ -47,7 +52,8 @@ pub struct TricalCampaign {
     /// The model the campaign started from.
     pub start_model: crate::model::dh::DhFile,
     /// The centred configurations (rows of the main table).
-    pub measurements: Value,
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub measurements: Table,
 }
 
 /// Figures of a 3-PF campaign's measuring.
@@ -82,16 +88,17 @@ pub struct PcrStats {
 pub struct PcrCampaign {
     /// The `pcr.identify` result.
     #[serde(flatten)]
-    pub calibration: Map<String, Value>,
+    pub calibration: PcrCalibration,
     /// The `pcr.accuracy` result of the identified model, if asked for.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub accuracy: Option<Map<String, Value>>,
+    pub accuracy: Option<PcrAccuracy>,
     /// The cell.
     pub cell: String,
     /// Measuring figures.
     pub campaign: PcrStats,
     /// The calibration and validation joint sets (rows of the main table).
-    pub measurements: Value,
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub measurements: Table,
 }
 
 /// Figures of a motion-capture campaign.
@@ -124,11 +131,39 @@ pub struct MocapStats {
 pub struct MocapCampaign {
     /// The `humanoid.identify` result.
     #[serde(flatten)]
-    pub calibration: Map<String, Value>,
+    pub calibration: HumanoidCalibration,
     /// The cell.
     pub cell: String,
     /// Campaign figures.
     pub campaign: MocapStats,
     /// The averaged postures (rows of the main table).
-    pub measurements: Value,
+    #[serde(serialize_with = "crate::report::json_rows")]
+    pub measurements: Table,
+}
+
+/// Mean errors of the starting and the calibrated model, kept in a cell's history as the
+/// validation of a model whose identification reports only means (`before.mean`, ...).
+#[derive(Debug, Clone, Serialize)]
+pub struct MeanErrors {
+    /// The starting model.
+    pub before: Mean,
+    /// The calibrated model.
+    pub after: Mean,
+}
+
+/// One mean error.
+#[derive(Debug, Clone, Serialize)]
+pub struct Mean {
+    /// Mean error (in the evidence's unit).
+    pub mean: f64,
+}
+
+impl MeanErrors {
+    /// The means `before` and `after`.
+    pub fn new(before: f64, after: f64) -> Self {
+        Self {
+            before: Mean { mean: before },
+            after: Mean { mean: after },
+        }
+    }
 }

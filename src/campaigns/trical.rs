@@ -186,7 +186,7 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
         )));
     }
     let t_id = Instant::now();
-    let calibration = {
+    let run = {
         let (job, file, ballbar) = (job.clone(), file.clone(), cell.ballbar);
         let (rec, vrec) = (rec.clone(), vrec.clone());
         cx.phase(0.92, 1.0)
@@ -209,27 +209,30 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
         wall_time_s: t0.elapsed().as_secs_f64(),
         journal_entries: journal.entries().map(|e| e.len()).unwrap_or(0),
     };
+    let model = run.result.calibrated_model.dh().cloned().ok_or_else(|| {
+        JobError::Failed("the identification of a DH cell returned a URDF model".into())
+    })?;
     let candidate = Candidate {
         cell: job.cell.clone(),
-        model: CellModel::Serial(calibration.model),
-        evidence: calibration.validation.as_ref().map(|v| Evidence {
+        model: CellModel::Serial(model),
+        evidence: run.result.validation.as_ref().map(|v| Evidence {
             what: "validation mean error".into(),
             before: v.before.mean,
             after: v.after.mean,
             unit: "mm",
         }),
-        validation: serde_json::to_value(&calibration.validation).unwrap_or_default(),
+        validation: serde_json::to_value(&run.result.validation).unwrap_or_default(),
     };
     let result = TricalCampaign {
-        calibration: calibration.fields,
+        calibration: run.result,
         cell: job.cell.clone(),
         campaign: stats,
         start_model: file,
-        measurements: measurements.to_json_rows(),
+        measurements: measurements.clone(),
     };
     engine::conclude(
         &result,
-        calibration.artefacts,
+        run.artefacts,
         measurements,
         (!vrec.is_empty()).then(|| ("validation_measurements.csv", recorded_table(&vrec))),
         candidate,

@@ -122,13 +122,17 @@ pub trait Kind: Send + Sync + std::fmt::Debug + 'static {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture;
 }
 
-/// Run a numerical kind: `f` on the blocking pool with the context's monitor.
-pub fn computed<K: Kind>(
+/// Run a numerical kind: `f` on the blocking pool with the context's monitor; its typed
+/// result becomes the job's output.
+pub fn computed<K: Kind, T: serde::Serialize + Send + 'static>(
     kind: Arc<K>,
     cx: Cx,
-    f: fn(&K, &dyn Monitor) -> Result<Output, JobError>,
+    f: fn(&K, &dyn Monitor) -> Result<crate::report::Run<T>, JobError>,
 ) -> RunFuture {
-    Box::pin(async move { cx.compute(move |m| f(&kind, m)).await.map(Produced::from) })
+    Box::pin(async move {
+        let run = cx.compute(move |m| f(&kind, m)).await?;
+        run.into_output().map(Produced::from)
+    })
 }
 
 /// One entry of the kind registry: name, description and how to validate a document.
@@ -359,20 +363,21 @@ mod tests {
     struct Overflowing;
 
     impl Overflowing {
-        fn execute(&self, _: &dyn Monitor) -> Result<Output, JobError> {
+        fn table(&self, _: &dyn Monitor) -> Result<crate::report::Run<BTreeMap<(), ()>>, JobError> {
             let mut t = Table::new(&["x", "y"]);
             t.push(vec![1.0, 2.0]);
             t.push(vec![1e308 * 10.0, f64::NAN]);
-            Ok(Output {
+            Ok(crate::report::Run {
+                result: BTreeMap::new(),
                 main_table: Some(t),
-                ..Default::default()
+                artefacts: Vec::new(),
             })
         }
     }
 
     impl Kind for Overflowing {
         fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-            computed(self, cx, Self::execute)
+            computed(self, cx, Self::table)
         }
     }
 

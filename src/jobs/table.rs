@@ -167,6 +167,21 @@ impl Table {
         names.iter().map(|n| self.col(field, n)).collect()
     }
 
+    /// The table without column `name` (the same table if it has none).
+    pub fn without(&self, name: &str) -> Table {
+        let keep: Vec<usize> = (0..self.columns.len())
+            .filter(|&k| self.columns[k] != name)
+            .collect();
+        Table {
+            columns: keep.iter().map(|&k| self.columns[k].clone()).collect(),
+            rows: self
+                .rows
+                .iter()
+                .map(|r| keep.iter().map(|&k| r[k]).collect())
+                .collect(),
+        }
+    }
+
     /// Append a row.
     pub fn push(&mut self, row: Vec<f64>) {
         debug_assert_eq!(row.len(), self.columns.len());

@@ -94,75 +94,12 @@ pub fn dispersion_plots(sizes: &[DispersionBox], unit: &str) -> Vec<Artefact> {
     ]
 }
 
-/// The plots for a finished result read back from its JSON and artefacts: kept for the
-/// service worker until kinds' own plots replace it; a thin wrapper over
-/// [`calibration_plots`] and [`dispersion_plots`].
-pub fn plots(result: &Value, artefacts: &[Artefact]) -> Vec<Artefact> {
-    let mut out = Vec::new();
-    let unit = result
-        .pointer("/residuals/after/unit")
-        .and_then(Value::as_str)
-        .unwrap_or("mm");
-    if let Some(t) = artefacts
-        .iter()
-        .find(|a| a.name == "residuals.csv")
-        .and_then(|a| std::str::from_utf8(&a.content).ok())
-        .and_then(|s| Table::from_csv("residuals.csv", s).ok())
-    {
-        if let (Ok(b), Ok(a)) = (t.col("", "before"), t.col("", "after")) {
-            let before: Vec<f64> = t.rows.iter().map(|r| r[b]).collect();
-            let after: Vec<f64> = t.rows.iter().map(|r| r[a]).collect();
-            out.extend(calibration_plots(&before, &after, unit));
-        }
-    }
-    if let Some(sizes) = result.get("sizes").and_then(Value::as_array) {
-        let unit = sizes
-            .first()
-            .and_then(|s| s.get("unit"))
-            .and_then(Value::as_str)
-            .unwrap_or("mm");
-        let field = |s: &Value, f: &str| s.get(f).and_then(quartiles);
-        // Each plot keeps the sizes that have its field (as before).
-        for (f, name, title) in [
-            (
-                "mean_error",
-                "dispersion_mean_error.svg",
-                "Mean validation error",
-            ),
-            (
-                "std_error",
-                "dispersion_std_error.svg",
-                "Std of validation error",
-            ),
-        ] {
-            let boxes: Vec<(f64, [f64; 5])> = sizes
-                .iter()
-                .filter_map(|s| Some((s.get("n")?.as_f64()?, field(s, f)?)))
-                .collect();
-            if !boxes.is_empty() {
-                out.push(svg_artefact(name, boxplots(&boxes, title, unit)));
-            }
-        }
-    }
-    out
-}
-
 fn svg_artefact(name: &str, svg: String) -> Artefact {
     Artefact {
         name: name.into(),
         media_type: "image/svg+xml".into(),
         content: svg.into_bytes(),
     }
-}
-
-fn quartiles(v: &Value) -> Option<[f64; 5]> {
-    Some([
-        v.get("min")?.as_f64()?,
-        v.get("q1")?.as_f64()?,
-        v.get("median")?.as_f64()?,
-        v.get("q3")?.as_f64()?,
-        v.get("max")?.as_f64()?,
-    ])
 }
 
 fn max_of(v: &[f64]) -> f64 {
@@ -255,7 +192,6 @@ pub fn boxplots(boxes: &[(f64, [f64; 5])], title: &str, unit: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use serde_json::json;
 
     #[test]
     fn histogram_counts_every_value_once() {
@@ -266,14 +202,8 @@ mod tests {
     }
 
     #[test]
-    fn plots_come_from_residuals_and_dispersion_results() {
-        let csv = "measurement,before,after\n1,1.5,0.05\n2,2.0,0.04\n";
-        let arts = [Artefact {
-            name: "residuals.csv".into(),
-            media_type: "text/csv".into(),
-            content: csv.as_bytes().to_vec(),
-        }];
-        let p = plots(&json!({"kind": "serial.identify"}), &arts);
+    fn calibration_and_dispersion_plots_draw_every_value() {
+        let p = calibration_plots(&[1.5, 2.0], &[0.05, 0.04], "mm");
         let names: Vec<&str> = p.iter().map(|a| a.name.as_str()).collect();
         assert_eq!(
             names,
@@ -282,15 +212,19 @@ mod tests {
         let svg = String::from_utf8(p[0].content.clone()).unwrap();
         // Two before bars and two after bars.
         assert_eq!(svg.matches("<rect x=").count(), 4 + 2, "{svg}");
-        let q = json!({"min": 1.0, "q1": 2.0, "median": 3.0, "q3": 4.0, "max": 5.0});
-        let r = json!({"sizes": [{"n": 20, "mean_error": q, "std_error": q, "unit": "mm"}]});
-        let p = plots(&r, &[]);
+        let q = [1.0, 2.0, 3.0, 4.0, 5.0];
+        let boxes = [DispersionBox {
+            n: 20.0,
+            mean_error: q,
+            std_error: q,
+        }];
+        let p = dispersion_plots(&boxes, "mm");
         assert_eq!(p.len(), 2);
         assert!(
             String::from_utf8(p[0].content.clone())
                 .unwrap()
                 .contains(">20</text>")
         );
-        assert!(plots(&json!({"kind": "serial.fk"}), &[]).is_empty());
+        assert!(dispersion_plots(&[], "mm").is_empty());
     }
 }

@@ -225,17 +225,12 @@ async fn run_one(svc: &Service, entry: Entry) {
     );
 }
 
-/// Store a run's outcome: a result with its plots, and the cell's model decision, all in
+/// Store a run's outcome: a result with its artefacts, and the cell's model decision, all in
 /// the transaction that marks the job succeeded.
 async fn conclude(svc: &Service, id: i64, run: Result<jobs::Completed, JobError>) -> Outcome {
     match run {
         Ok(done) => {
-            let mut artefacts = done.artefacts;
-            for p in crate::report::plots(&done.result, &artefacts) {
-                if !artefacts.iter().any(|a| a.name == p.name) {
-                    artefacts.push(p);
-                }
-            }
+            let artefacts = done.artefacts;
             let decision = done.candidate.as_ref().map(|c| svc.shared.lab.decide(c));
             let csv = done.main_table.as_ref().map(|t| t.to_csv());
             let st = svc.shared.store.clone();

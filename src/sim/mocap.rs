@@ -9,6 +9,7 @@ use std::time::Duration;
 use calibd_drivers::mock::{self, Faults, MockArgs, MockDevice, RunningMock};
 use calibd_drivers::qtm::mock::MarkerModel;
 
+use super::with;
 use crate::design::playback::quintic;
 use crate::lab::{CellLink, LabError, MocapCellLink};
 use crate::model::humanoid::BaseMode;
@@ -44,11 +45,7 @@ struct Room {
     frames: u64,
 }
 
-type Shared = Arc<Mutex<Room>>;
-
-fn with<T>(room: &Shared, f: impl FnOnce(&mut Room) -> T) -> T {
-    f(&mut room.lock().unwrap_or_else(|p| p.into_inner()))
-}
+type Shared = super::Shared<Room>;
 
 /// The twin's markers as the cameras see them: the true robot at its current joints, with
 /// the twin's mocap noise (each frame its own seeded draw), in mm.

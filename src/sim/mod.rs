@@ -9,6 +9,7 @@ pub mod trical;
 
 use std::future::Future;
 use std::pin::Pin;
+use std::sync::{Arc, Mutex};
 
 use calibd_drivers::mock::RunningMock;
 
@@ -17,6 +18,14 @@ pub use pcr::SimPcrOptions;
 pub use trical::{INDICATOR_ZERO_MM, SimTricalOptions};
 
 use crate::lab::{Attached, Lab, LabError};
+
+/// A twin shared by the simulated devices of one cell; each locks it for one exchange.
+type Shared<T> = Arc<Mutex<T>>;
+
+/// Run `f` on a shared twin (a panic in one device does not poison it for the others).
+fn with<T, R>(twin: &Shared<T>, f: impl FnOnce(&mut T) -> R) -> R {
+    f(&mut twin.lock().unwrap_or_else(|p| p.into_inner()))
+}
 
 /// Settings of the simulated lab.
 #[derive(Debug, Clone)]

@@ -10,6 +10,7 @@ use calibd_drivers::microscope::mock::PoseModel;
 use calibd_drivers::mock::{self, FaultSpec, Faults, RunningMock};
 use calibd_drivers::smaract::mock::StageModel;
 
+use super::with;
 use crate::lab::{CellLink, LabError, PcrCellLink};
 use crate::model::pcr::Equilibrium;
 use crate::twin::PcrTwin;
@@ -49,11 +50,7 @@ struct Sim {
     residual: Rng,
 }
 
-type Shared = Arc<Mutex<Sim>>;
-
-fn with<T>(s: &Shared, f: impl FnOnce(&mut Sim) -> T) -> T {
-    f(&mut s.lock().unwrap_or_else(|p| p.into_inner()))
-}
+type Shared = super::Shared<Sim>;
 
 /// The robot's clamps on the MCS2 mock: each move settles a few nm from its target and
 /// the twin's joints follow.

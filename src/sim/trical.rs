@@ -9,6 +9,7 @@ use calibd_drivers::rws::mock::ArmModel;
 use calibd_drivers::uwave::AxisMap;
 use calibd_drivers::uwave::mock::IndicatorModel;
 
+use super::with;
 use crate::lab::{BallCentringCell, CellLink, LabError, RwsLink, UwaveLink};
 use crate::twin::SerialTwin;
 use crate::twin::cell::{INDICATOR_HALF_RANGE_MM, SimulatedCell};
@@ -43,11 +44,7 @@ impl Default for SimTricalOptions {
     }
 }
 
-type Shared = Arc<Mutex<SimulatedCell>>;
-
-fn with<T>(cell: &Shared, f: impl FnOnce(&mut SimulatedCell) -> T) -> T {
-    f(&mut cell.lock().unwrap_or_else(|p| p.into_inner()))
-}
+type Shared = super::Shared<SimulatedCell>;
 
 fn rad(q_deg: &[f64; 6]) -> Vec<f64> {
     q_deg.iter().map(|v| v.to_radians()).collect()

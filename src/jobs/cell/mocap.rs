@@ -10,13 +10,15 @@ use std::time::Duration;
 use serde::Deserialize;
 use serde_json::Value;
 
-use super::calls::{design_nocp, identify_humanoid};
-use crate::campaigns::engine::{Identified, Retry};
+use crate::campaigns::engine::Retry;
 use crate::campaigns::mocap::{PostureSample, RecordOptions};
-use crate::jobs::humanoid::PreprocessSpec;
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, parse_spec};
+use crate::jobs::humanoid::design::{ConstraintSpec, DesignJob, DesignOptions};
+use crate::jobs::humanoid::identify::{HumanoidCalibration, IdentifyJob};
+use crate::jobs::humanoid::{BaseSpec, ColumnMap, FitSpec, MarkerSpec, PreprocessSpec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, NoReferences, RunFuture, Table, parse_spec};
 use crate::lab::MocapCell;
 use crate::model::humanoid::MarkerDef;
+use crate::report::Run;
 use crate::util::Monitor;
 
 /// `postures.nocp`: the `humanoid.design` fields that are not the cell's own.
@@ -24,13 +26,13 @@ use crate::util::Monitor;
 #[serde(deny_unknown_fields)]
 struct NocpSpec {
     #[serde(default)]
-    constraints: Option<Value>,
+    constraints: ConstraintSpec,
     #[serde(default)]
     seed: u64,
     #[serde(default)]
     n: Option<usize>,
     #[serde(default)]
-    options: Option<Value>,
+    options: DesignOptions,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -41,7 +43,7 @@ struct Options {
     preprocess: Option<PreprocessSpec>,
     retry_attempts: usize,
     retry_backoff_ms: u64,
-    identify: Option<Value>,
+    identify: FitSpec,
 }
 
 impl Default for Options {
@@ -53,7 +55,7 @@ impl Default for Options {
             preprocess: None,
             retry_attempts: r.attempts,
             retry_backoff_ms: r.backoff.as_millis() as u64,
-            identify: None,
+            identify: FitSpec::default(),
         }
     }
 }
@@ -150,6 +152,20 @@ pub struct MocapSetup {
     pub markers: Vec<MarkerDef>,
 }
 
+impl MocapSetup {
+    /// The markers as `humanoid.*` jobs take them.
+    fn marker_specs(&self) -> Vec<MarkerSpec> {
+        self.markers
+            .iter()
+            .map(|m| MarkerSpec {
+                name: m.name.clone(),
+                link: m.link.clone(),
+                initial: [m.initial.x, m.initial.y, m.initial.z],
+            })
+            .collect()
+    }
+}
+
 impl MocapCampaignJob {
     /// The snapshot of `cell` the campaign works with.
     pub(crate) fn setup(&self, cell: &MocapCell) -> MocapSetup {
@@ -176,8 +192,19 @@ impl MocapCampaignJob {
         cell: &MocapSetup,
         samples: &Table,
         monitor: &dyn Monitor,
-    ) -> Result<Identified<String>, JobError> {
-        identify_humanoid(cell, samples, self.options.identify.as_ref(), monitor)
+    ) -> Result<Run<HumanoidCalibration>, JobError> {
+        let samples = samples.without("posture");
+        let job = IdentifyJob::new(
+            &cell.urdf,
+            &cell.root_link,
+            &cell.joints,
+            &cell.marker_specs(),
+            &BaseSpec::Identify {},
+            samples,
+            &ColumnMap::new(),
+            self.options.identify.clone(),
+        )?;
+        job.calibrate(monitor)
     }
 
     /// The postures (named joint values, rad): the NOCP design of the cell, or the table.
@@ -189,15 +216,19 @@ impl MocapCampaignJob {
         let (table, field) = match &self.postures {
             Postures::Table(t) => (t.clone(), "postures"),
             Postures::Nocp(n) => {
-                let t = design_nocp(
-                    cell,
-                    n.constraints.as_ref(),
+                let job = DesignJob::new(
+                    &Inputs::new(&NoReferences),
+                    &cell.urdf,
+                    &cell.root_link,
+                    &cell.joints,
+                    cell.marker_specs(),
+                    &BaseSpec::Identify {},
+                    &n.constraints,
                     n.seed,
                     n.n,
-                    n.options.as_ref(),
-                    monitor,
+                    &n.options,
                 )?;
-                (t, "postures.nocp")
+                (job.design(monitor)?.result.postures, "postures.nocp")
             }
         };
         let idx = table.cols(field, &cell.joints)?;

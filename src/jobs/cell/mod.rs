@@ -2,7 +2,6 @@
 //! before anything moves; the campaigns themselves are in [`crate::campaigns`], async tasks
 //! over the cell's devices that journal every measurement before the next move.
 
-pub mod calls;
 pub mod centre;
 pub mod mocap;
 pub mod pcr;

@@ -8,18 +8,19 @@
 use std::sync::Arc;
 
 use serde::Deserialize;
-use serde_json::{Map, Value};
+use serde_json::Value;
 
 use super::RetrySpec;
-use super::calls::{accuracy_pcr, identify_pcr};
-use crate::campaigns::engine::Identified;
 use crate::campaigns::pcr::PcrRecorded;
-use crate::jobs::pcr::accuracy::trajectory;
-use crate::jobs::pcr::identify::IdentifyOptions;
+use crate::geometry::Pose2;
+use crate::jobs::pcr::accuracy::{AccuracyJob, PcrAccuracy, trajectory};
+use crate::jobs::pcr::identify::{IdentifyJob, IdentifyOptions, PcrCalibration};
 use crate::jobs::pcr::ik::solve_rows;
 use crate::jobs::pcr::{PcrModel, load_model};
-use crate::jobs::{Cx, Inputs, JobError, Kind, NoReferences, RunFuture, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, parse_spec};
+use crate::measure::pcr::PcrMeasurement;
 use crate::model::pcr::PcrFile;
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -28,15 +29,23 @@ pub(crate) struct Options {
     /// Wait after the stages settle, before the image (ms).
     pub(crate) settle_ms: u64,
     pub(crate) retry: RetrySpec,
-    identify: Option<Value>,
+    identify: IdentifyOptions,
 }
 
-/// `accuracy`: the `pcr.accuracy` trajectory and repetitions.
+/// `accuracy` as given: the `pcr.accuracy` trajectory and repetitions.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub(crate) struct AccuracySpec {
+struct AccuracySpec {
     trajectory: Value,
     #[serde(default = "default_repetitions")]
+    repetitions: usize,
+}
+
+/// The accuracy pass: the trajectory's name and commanded poses (m, rad), and the cycles.
+#[derive(Debug, Clone)]
+pub(crate) struct Accuracy {
+    name: String,
+    commanded: Vec<Pose2>,
     repetitions: usize,
 }
 
@@ -80,7 +89,7 @@ pub struct PcrCampaignJob {
     poses: usize,
     pub(crate) seed: u64,
     validation_fraction: f64,
-    pub(crate) accuracy: Option<AccuracySpec>,
+    pub(crate) accuracy: Option<Accuracy>,
     pub(crate) options: Options,
 }
 
@@ -107,38 +116,38 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<PcrCampaignJob, JobEr
             ),
         ));
     }
-    if let Some(a) = &s.accuracy {
-        let (_, c) = trajectory(inputs, &a.trajectory)
-            .map_err(|e| JobError::invalid("accuracy.trajectory", e.to_string()))?;
-        if c.is_empty() || a.repetitions == 0 {
-            return Err(JobError::invalid(
-                "accuracy",
-                "the trajectory needs a pose and repetitions at least 1",
-            ));
+    let accuracy = match &s.accuracy {
+        Some(a) => {
+            let (name, commanded) = trajectory(inputs, &a.trajectory)
+                .map_err(|e| JobError::invalid("accuracy.trajectory", e.to_string()))?;
+            if commanded.is_empty() || a.repetitions == 0 {
+                return Err(JobError::invalid(
+                    "accuracy",
+                    "the trajectory needs a pose and repetitions at least 1",
+                ));
+            }
+            Some(Accuracy {
+                name,
+                commanded,
+                repetitions: a.repetitions,
+            })
         }
-    }
+        None => None,
+    };
     if s.options.retry.attempts == 0 {
         return Err(JobError::invalid(
             "options.retry.attempts",
             "must be at least 1",
         ));
     }
-    if let Some(o) = &s.options.identify {
-        let io: IdentifyOptions = serde_path_to_error::deserialize(o).map_err(|e| {
-            JobError::invalid(
-                format!("options.identify.{}", e.path()),
-                e.into_inner().to_string(),
-            )
-        })?;
-        crate::jobs::pcr::identify::calibration_options(&io)?;
-    }
+    crate::jobs::pcr::identify::calibration_options(&s.options.identify)?;
     Ok(PcrCampaignJob {
         cell: s.cell,
         model,
         poses: s.poses,
         seed: s.seed,
         validation_fraction: s.validation_fraction,
-        accuracy: s.accuracy,
+        accuracy,
         options: s.options,
     })
 }
@@ -174,15 +183,11 @@ impl PcrCampaignJob {
         cal: &[PcrRecorded],
         val: &[PcrRecorded],
         monitor: &dyn Monitor,
-    ) -> Result<Identified<PcrFile>, JobError> {
-        let set = |r: &[PcrRecorded]| r.iter().map(|r| (r.q, r.z)).collect::<Vec<_>>();
-        identify_pcr(
-            file,
-            &set(cal),
-            &set(val),
-            self.options.identify.as_ref(),
-            monitor,
-        )
+    ) -> Result<Run<PcrCalibration>, JobError> {
+        let validation = (!val.is_empty()).then(|| measurements(val));
+        let options = &self.options.identify;
+        IdentifyJob::from_file(file.clone(), measurements(cal), validation, options)?
+            .calibrate(monitor)
     }
 
     /// The accuracy trajectory's joint sets by inverse kinematics of `model`, visited in
@@ -195,12 +200,10 @@ impl PcrCampaignJob {
         let Some(a) = &self.accuracy else {
             return Ok((Vec::new(), 0));
         };
-        let inputs = Inputs::new(&NoReferences);
         let robot = model
             .robot()
             .map_err(|e| JobError::Failed(format!("the identified model: {e}")))?;
-        let (_, commanded) = trajectory(&inputs, &a.trajectory)?;
-        let control = solve_rows(&robot, &commanded, "accuracy.trajectory", monitor)?;
+        let control = solve_rows(&robot, &a.commanded, "accuracy.trajectory", monitor)?;
         let n = control.len();
         Ok((
             (0..a.repetitions)
@@ -211,23 +214,47 @@ impl PcrCampaignJob {
     }
 
     /// `pcr.accuracy` of `model` on what the robot reached (cycle `c`, pose `k` is
-    /// `rec[c n + k]`).
+    /// `rec[c n + k]`); `None` when the job asks for no accuracy pass.
     pub(crate) fn accuracy(
         &self,
         model: &PcrFile,
         rec: &[PcrRecorded],
         n: usize,
         monitor: &dyn Monitor,
-    ) -> Result<Map<String, Value>, JobError> {
+    ) -> Result<Option<Run<PcrAccuracy>>, JobError> {
         let Some(a) = &self.accuracy else {
-            return Ok(Map::new());
+            return Ok(None);
         };
-        let grouped: Vec<([f64; 3], [f64; 3])> = (0..n)
+        let grouped: Vec<PcrRecorded> = (0..n)
             .flat_map(|k| (0..a.repetitions).map(move |c| c * n + k))
-            .filter_map(|i| rec.get(i).map(|r| (r.q, r.z)))
+            .filter_map(|i| rec.get(i).cloned())
             .collect();
-        accuracy_pcr(model, &a.trajectory, a.repetitions, &grouped, monitor)
+        let robot = model
+            .robot()
+            .map_err(|e| JobError::Failed(format!("the identified model: {e}")))?;
+        let model = PcrModel {
+            file: model.clone(),
+            robot,
+        };
+        let job = AccuracyJob::reached(
+            model,
+            a.name.clone(),
+            a.commanded.clone(),
+            a.repetitions,
+            measurements(&grouped),
+        )?;
+        job.evaluate(monitor).map(Some)
     }
+}
+
+/// The journalled joint sets (m) and microscope poses (m, rad) as measurements.
+fn measurements(rec: &[PcrRecorded]) -> Vec<PcrMeasurement> {
+    rec.iter()
+        .map(|r| PcrMeasurement {
+            q: r.q,
+            z: Pose2::new(r.z[0], r.z[1], r.z[2]),
+        })
+        .collect()
 }
 
 impl Kind for PcrCampaignJob {

@@ -9,16 +9,18 @@ use std::sync::Arc;
 use serde::Deserialize;
 use serde_json::Value;
 
-use super::calls::{identify_balls, select_for_plate};
 use super::{CentringSpec, RetrySpec, default_cell, trical_devices};
-use crate::campaigns::engine::Identified;
 use crate::campaigns::trical::{Planned, Recorded};
 use crate::design::balls::ball_pool;
-use crate::jobs::serial::identify::IdentifyOptions;
+use crate::jobs::serial::SerialModel;
+use crate::jobs::serial::design::{DesignOptions, select};
+use crate::jobs::serial::identify::{IdentifyJob, IdentifyOptions, SerialCalibration};
 use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, parse_spec};
 use crate::measure::BallPlate;
+use crate::measure::point::{PointMeasurement, Target};
 use crate::model::Chain;
 use crate::model::dh::DhFile;
+use crate::report::Run;
 use crate::util::Monitor;
 
 #[derive(Debug, Clone, Deserialize)]
@@ -54,7 +56,7 @@ fn validation_seed() -> u64 {
 pub(crate) struct Options {
     pub(crate) centring: CentringSpec,
     pub(crate) retry: RetrySpec,
-    identify: Option<Value>,
+    identify: IdentifyOptions,
 }
 
 #[derive(Debug, Deserialize)]
@@ -165,14 +167,6 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CampaignJob, JobError
             "options.retry.attempts",
             "must be at least 1",
         ));
-    }
-    if let Some(o) = &s.options.identify {
-        serde_path_to_error::deserialize::<_, IdentifyOptions>(o).map_err(|e| {
-            JobError::invalid(
-                format!("options.identify.{}", e.path()),
-                e.into_inner().to_string(),
-            )
-        })?;
     }
     Ok(CampaignJob {
         cell: s.cell,
@@ -295,9 +289,16 @@ impl CampaignJob {
                 candidates.len()
             )));
         }
-        let pool: Vec<(Vec<f64>, usize)> =
-            candidates.iter().map(|p| (p.q.clone(), p.ball)).collect();
-        let selected = select_for_plate(file, &pool, ballbar, n, d.seed, monitor)?;
+        let pool = candidates
+            .iter()
+            .map(|p| ball_point(&p.q, p.ball))
+            .collect();
+        let options = DesignOptions {
+            seed: d.seed,
+            ..DesignOptions::default()
+        };
+        let model = SerialModel::from_dh(file.clone())?;
+        let selected = select(model, pool, Some(plate.clone()), n, &options, monitor)?;
         Ok((
             short_tour(
                 selected
@@ -317,24 +318,29 @@ impl CampaignJob {
         rec: &[Recorded],
         vrec: &[Recorded],
         monitor: &dyn Monitor,
-    ) -> Result<Identified<DhFile>, JobError> {
+    ) -> Result<Run<SerialCalibration>, JobError> {
         let plate = BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2])?;
-        let meas: Vec<(Vec<f64>, usize)> = rec.iter().map(|r| (r.q.clone(), r.ball)).collect();
-        let validation: Vec<(Vec<f64>, [f64; 3])> = vrec
+        let meas = rec.iter().map(|r| ball_point(&r.q, r.ball)).collect();
+        let validation: Vec<PointMeasurement> = vrec
             .iter()
             .filter_map(|r| {
-                let c = plate.centres.get(r.ball).copied().flatten()?;
-                Some((r.q.clone(), [c.x, c.y, c.z]))
+                Some(PointMeasurement {
+                    q: r.q.clone(),
+                    target: Target::Point(plate.centres.get(r.ball).copied().flatten()?),
+                })
             })
             .collect();
-        identify_balls(
-            file,
-            &meas,
-            ballbar,
-            &validation,
-            self.options.identify.as_ref(),
-            monitor,
-        )
+        let validation = (!validation.is_empty()).then_some(validation);
+        let options = self.options.identify.clone();
+        IdentifyJob::from_dh(file.clone(), meas, ballbar, validation, options)?.calibrate(monitor)
+    }
+}
+
+/// A measurement of the centre of ball `ball` (0-based) at joints `q` (rad).
+fn ball_point(q: &[f64], ball: usize) -> PointMeasurement {
+    PointMeasurement {
+        q: q.to_vec(),
+        target: Target::Ball(ball),
     }
 }
 

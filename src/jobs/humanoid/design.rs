@@ -14,9 +14,7 @@ use crate::design::humanoid::{Comparison, ConstraintOptions, HumanoidPostures, c
 use crate::design::ocp::{NocpOptions, OptimOptions, cocp, nocp};
 use crate::design::playback::{order_postures, sample_trajectory, travel};
 use crate::design::postures::PostureSet;
-use crate::jobs::{
-    Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
-};
+use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::marker_fit::Groups;
 use crate::model::srdf::disabled_collisions;
 use crate::report::Run;
@@ -505,13 +503,6 @@ impl DesignJob {
 
 impl Kind for DesignJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl DesignJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.design(monitor)?.into_output()
+        computed(self, cx, Self::design)
     }
 }

@@ -14,9 +14,7 @@ use super::samples::{SampleSet, load_samples, samples_from_table};
 use super::{BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, load_model, load_model_text};
 use crate::identify::solve::Dependency;
 use crate::identify::{Degeneracy, ParamReport, RobustKind, StopReason};
-use crate::jobs::{
-    Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
-};
+use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::marker_fit::{
     FitOptions, Groups, MarkerFit, fit, fit_frames, structural_count,
 };
@@ -570,14 +568,7 @@ impl IdentifyJob {
 
 impl Kind for IdentifyJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl IdentifyJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.calibrate(monitor)?.into_output()
+        computed(self, cx, Self::calibrate)
     }
 }
 

@@ -11,7 +11,7 @@ use serde_json::Value;
 
 use super::samples::{SampleSet, load_samples};
 use super::{BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, apply_parameters, load_model};
-use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::measure::marker_fit::{FitOptions, fit_frames};
 use crate::measure::markers::marker_rmse;
 use crate::model::humanoid::{HParam, Humanoid};
@@ -233,13 +233,6 @@ impl ValidateJob {
 
 impl Kind for ValidateJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl ValidateJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.validate(monitor)?.into_output()
+        computed(self, cx, Self::validate)
     }
 }

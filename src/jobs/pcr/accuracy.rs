@@ -13,7 +13,7 @@ use serde_json::{Map, Value};
 use super::{PcrModel, load_model, poses};
 use crate::design::trajectory::{circle, square};
 use crate::geometry::Pose2;
-use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::pcr::accuracy::{AccuracySummary, pose_accuracy, summarise};
 use crate::measure::pcr::{PcrMeasurement, measured_pose};
 use crate::model::pcr::PcrFile;
@@ -389,13 +389,6 @@ impl AccuracyJob {
 
 impl Kind for AccuracyJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl AccuracyJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.evaluate(monitor)?.into_output()
+        computed(self, cx, Self::evaluate)
     }
 }

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::{LoadSpec, PcrModel, SI, SiUnits, load_model, pose_table};
-use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
 use crate::report::Run;
 use crate::util::Monitor;
@@ -162,13 +162,6 @@ impl FkJob {
 
 impl Kind for FkJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl FkJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.poses(monitor)?.into_output()
+        computed(self, cx, Self::poses)
     }
 }

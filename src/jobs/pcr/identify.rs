@@ -10,9 +10,7 @@ use serde_json::{Value, json};
 use super::{PcrModel, load_model};
 use crate::identify::ParamReport;
 use crate::identify::solve::Dependency;
-use crate::jobs::{
-    Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
-};
+use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::pcr::steps::{CalibrationOptions, Step, calibrated_file, default_steps};
 use crate::measure::pcr::{PcrMeasurement, StepReport, Table3, identify_steps};
 use crate::model::pcr::PcrFile;
@@ -397,14 +395,7 @@ impl IdentifyJob {
 
 impl Kind for IdentifyJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl IdentifyJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.calibrate(monitor)?.into_output()
+        computed(self, cx, Self::calibrate)
     }
 }
 

@@ -8,7 +8,7 @@ use serde_json::Value;
 
 use super::{LoadSpec, PcrModel, SI, SiUnits, load_model, poses};
 use crate::geometry::Pose2;
-use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
 use crate::report::Run;
 use crate::util::Monitor;
@@ -112,13 +112,6 @@ impl IkJob {
 
 impl Kind for IkJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl IkJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.joints(monitor)?.into_output()
+        computed(self, cx, Self::joints)
     }
 }

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::{PcrModel, load_model};
-use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::model::pcr::sensitivity::{
     SensitivityRow, central_configurations, default_steps, sensitivity,
 };
@@ -118,13 +118,6 @@ impl SensitivityJob {
 
 impl Kind for SensitivityJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl SensitivityJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.sensitivities(monitor)?.into_output()
+        computed(self, cx, Self::sensitivities)
     }
 }

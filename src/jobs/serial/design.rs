@@ -10,7 +10,7 @@ use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, point_input
 use super::{ChainSpec, PlateSpec, SerialModel};
 use crate::design::{DetmaxOptions, Indices, Pool, detmax, indices};
 use crate::identify::{Problem, rank_revealing};
-use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::{BallPlate, PointMeasurement, PointProblem};
 use crate::report::Run;
 use crate::util::Monitor;
@@ -315,13 +315,6 @@ pub fn select(
 
 impl Kind for DesignJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl DesignJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.design(monitor)?.into_output()
+        computed(self, cx, Self::design)
     }
 }

@@ -15,7 +15,7 @@ use super::design::DesignPool;
 use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, position_errors};
 use super::{ChainSpec, PlateSpec};
 use crate::design::{DetmaxOptions, detmax};
-use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec};
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::report::{DispersionBox, dispersion_plots};
 use crate::util::stats::{Quartiles, mean};
 use crate::util::{Monitor, Summary};
@@ -345,13 +345,6 @@ impl DispersionJob {
 
 impl Kind for DispersionJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl DispersionJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.study(monitor)?.into_output()
+        computed(self, cx, Self::study)
     }
 }

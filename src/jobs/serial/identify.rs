@@ -21,9 +21,7 @@ use crate::identify::{
     Degeneracy, NearDependent, ParamReport, Pivoting, PriorReport, Solution, SolveOptions,
     StopReason, Unobservable, solve,
 };
-use crate::jobs::{
-    Artefact, Cx, Inputs, JobError, Kind, Output, RunFuture, Table, computed, parse_spec,
-};
+use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::distance::distance_errors;
 use crate::measure::{
     BallPlate, DistanceMeasurement, DistanceProblem, PointMeasurement, PointProblem, Target,
@@ -626,6 +624,16 @@ pub enum SerialModelFile {
     Urdf(String),
 }
 
+impl SerialModelFile {
+    /// The DH model file, if the model is one.
+    pub fn dh(&self) -> Option<&DhFile> {
+        match self {
+            SerialModelFile::Dh(d) => Some(d),
+            SerialModelFile::Urdf(_) => None,
+        }
+    }
+}
+
 /// `observability` of a serial identification.
 #[derive(Debug, Clone, Serialize)]
 pub struct Observability {
@@ -1123,14 +1131,7 @@ impl IdentifyJob {
 
 impl Kind for IdentifyJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
-        computed(self, cx, Self::execute)
-    }
-}
-
-impl IdentifyJob {
-    /// Compute the job's output (on the blocking pool, see [`Kind::run`]).
-    pub fn execute(&self, monitor: &dyn Monitor) -> Result<Output, JobError> {
-        self.calibrate(monitor)?.into_output()
+        computed(self, cx, Self::calibrate)
     }
 }
 
