@@ -118,7 +118,8 @@ pub struct Config {
     /// Authentication.
     pub auth: AuthConfig,
     /// The lab the campaign kinds drive: `sim` (the simulated lab on loopback: digital
-    /// twins behind the mock device servers, driven over the real protocols) or `none`.
+    /// twins behind the mock device servers, driven over the real protocols), `none`, or
+    /// the path of a lab file describing real cells (`deploy/lab.example.toml`).
     pub lab: String,
     /// Seed of the simulated lab's twins.
     pub lab_seed: u64,
@@ -169,7 +170,7 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ),
     ("CALIBD_LOG_FORMAT", "log_format: text or json"),
     ("CALIBD_DEVICES", "devices: comma-separated names"),
-    ("CALIBD_LAB", "lab: sim or none"),
+    ("CALIBD_LAB", "lab: sim, none or a lab file path"),
     ("CALIBD_LAB_SEED", "lab_seed: integer"),
     (
         "CALIBD_ANONYMOUS_READ",
@@ -221,7 +222,14 @@ impl Config {
                     path: p.into(),
                     source,
                 })?;
-                Config::from_toml(p, &text)?
+                let mut c = Config::from_toml(p, &text)?;
+                // A lab file named in the settings file is relative to it.
+                if !matches!(c.lab.as_str(), "sim" | "none") && Path::new(&c.lab).is_relative() {
+                    if let Some(dir) = p.parent() {
+                        c.lab = dir.join(&c.lab).display().to_string();
+                    }
+                }
+                c
             }
             None => Config::default(),
         };
@@ -259,11 +267,11 @@ impl Config {
                 }
                 "CALIBD_DEVICES" => self.devices = list(&v),
                 "CALIBD_LAB" => {
-                    if !matches!(v.trim(), "sim" | "none") {
+                    if v.trim().is_empty() {
                         return Err(ConfigError::Env {
                             name,
                             value: v,
-                            message: "expected sim or none".into(),
+                            message: "expected sim, none or a lab file path".into(),
                         });
                     }
                     self.lab = v.trim().into();

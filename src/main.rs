@@ -14,6 +14,24 @@ struct Cli {
 }
 
 #[derive(Debug, Subcommand)]
+enum LabCommand {
+    /// Connect to every device of the lab and print a table: device, address, identity or
+    /// error and what to fix. Exits non-zero if any device fails.
+    Check {
+        /// The lab file (default: the `lab` of the daemon's settings: CALIBD_CONFIG and
+        /// CALIBD_* variables; `sim` checks the simulated lab).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Longest wait for each device (s).
+        #[arg(long, default_value_t = 5.0)]
+        timeout_s: f64,
+        /// Print the check as JSON (as `GET /v1/lab`) instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Debug, Subcommand)]
 enum Command {
     /// Run a job file in-process, without a daemon, and print or write its result.
     Run {
@@ -51,6 +69,12 @@ enum Command {
         /// Settings file (TOML); every setting can also come from a CALIBD_* variable.
         #[arg(long, env = "CALIBD_CONFIG")]
         config: Option<PathBuf>,
+    },
+    /// The lab: `calibd lab check` connects to every configured device and prints who
+    /// answered, and what to fix where one did not.
+    Lab {
+        #[command(subcommand)]
+        command: LabCommand,
     },
     /// Submit a job file to a daemon (files it names are uploaded as datasets).
     Submit {
@@ -197,6 +221,49 @@ async fn shutdown_signal() {
     let term = std::future::pending::<()>();
     tokio::select! { _ = ctrl_c => {}, _ = term => {} }
     tracing::info!("shutting down");
+}
+
+/// `calibd lab check`: build the lab, probe every device, print, exit 1 on any failure.
+fn lab_check(config: Option<PathBuf>, timeout_s: f64, json: bool) -> Result<()> {
+    let lab_path = match config {
+        Some(p) => p.display().to_string(),
+        None => {
+            let file = std::env::var_os("CALIBD_CONFIG").map(PathBuf::from);
+            calibd::config::Config::load(file.as_deref(), &|k| std::env::var(k).ok())?.lab
+        }
+    };
+    if !(timeout_s > 0.0 && timeout_s.is_finite()) {
+        bail!("--timeout-s must be positive");
+    }
+    let timeout = std::time::Duration::from_secs_f64(timeout_s);
+    let rt = runtime()?;
+    let reports = rt.block_on(async {
+        let lab = match lab_path.as_str() {
+            "none" => bail!("the settings say lab = \"none\": name a lab file with --config"),
+            "sim" => calibd::lab::Lab::simulated(&calibd::sim::SimOptions::default()).await?,
+            file => {
+                let cells =
+                    calibd::lab::config::load(Path::new(file), &calibd::lab::config::ProcessEnv)?;
+                calibd::lab::Lab::connect(cells)?
+            }
+        };
+        let r = lab.check(timeout).await;
+        lab.stop().await;
+        Ok(r)
+    })?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    } else {
+        print!("{}", calibd::lab::devices::table(&reports));
+    }
+    let failed = reports
+        .iter()
+        .filter(|r| !matches!(r.status, calibd::lab::DeviceStatus::Ok { .. }))
+        .count();
+    if failed > 0 {
+        bail!("{failed} of {} devices failed the check", reports.len());
+    }
+    Ok(())
 }
 
 fn serve(listen: Option<String>, data: Option<PathBuf>, config: Option<PathBuf>) -> Result<()> {
@@ -422,6 +489,14 @@ fn main() -> Result<()> {
             data,
             config,
         } => serve(listen, data, config),
+        Command::Lab {
+            command:
+                LabCommand::Check {
+                    config,
+                    timeout_s,
+                    json,
+                },
+        } => lab_check(config, timeout_s, json),
         Command::Submit {
             job,
             watch,

@@ -83,12 +83,26 @@ pub async fn start(
             tracing::info!(devices = ?lab.device_names(), addresses = ?lab.mock_addresses(), "simulated lab started on loopback");
             Some(Arc::new(lab))
         }
-        other => {
-            return Err(ServeError::Lab(format!(
-                "unknown lab `{other}` (sim or none)"
-            )));
+        file => {
+            let cells = crate::lab::config::load(
+                std::path::Path::new(file),
+                &crate::lab::config::ProcessEnv,
+            )
+            .map_err(|e| ServeError::Lab(e.to_string()))?;
+            let lab = crate::lab::Lab::connect(cells)?;
+            // Addresses only: the lab file's secrets never reach the log.
+            tracing::info!(file, devices = ?lab.device_names(), "lab connecting in the background");
+            Some(Arc::new(lab))
         }
     };
+    if let Some(lab) = &lab {
+        // The background lab check: availability of every cell, `GET /v1/lab`.
+        tokio::spawn(lab.clone().watch(
+            Duration::from_secs(30),
+            Duration::from_secs(2),
+            shutdown.clone(),
+        ));
+    }
     let (service, workers) = Service::start_with_lab(
         store,
         ServiceConfig {

@@ -30,7 +30,7 @@ fn run(
     journal: &Arc<MemoryJournal>,
 ) -> Result<Value, calibd::jobs::JobError> {
     let job = prepare(doc, &NoReferences).expect("valid job");
-    assert_eq!(job.devices(), vec!["pcr3pf.mcs2", "pcr3pf.microscope"]);
+    assert_eq!(job.devices(), vec!["pcr3pf.stages", "pcr3pf.microscope"]);
     let journal: Arc<dyn Journal> = journal.clone();
     calibd::offline::run_on(rt.handle(), &job, lab.clone(), journal, &NoMonitor).map(|c| c.result)
 }

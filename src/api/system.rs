@@ -19,6 +19,7 @@ pub(super) fn router() -> Router<AppState> {
         .route("/examples/{name}", get(example))
         .route("/devices", get(devices))
         .route("/cells", get(cells))
+        .route("/lab", get(lab))
 }
 
 pub(super) fn root_router() -> Router<AppState> {
@@ -78,6 +79,42 @@ async fn devices(State(s): State<AppState>, caller: Caller) -> Result<Json<Value
 async fn cells(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     Ok(Json(json!({"cells": s.service.cells().await?})))
+}
+
+/// `GET /v1/lab` query: `refresh=true` probes every device now instead of returning the
+/// background check's last results.
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LabQuery {
+    #[serde(default)]
+    refresh: bool,
+}
+
+async fn lab(
+    State(s): State<AppState>,
+    caller: Caller,
+    q: Result<axum::extract::Query<LabQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let axum::extract::Query(q) = q?;
+    let lab = s.service.lab();
+    let devices = if q.refresh {
+        lab.check(std::time::Duration::from_secs(3)).await
+    } else {
+        lab.reports()
+    };
+    let cells: Vec<Value> = lab
+        .cells()
+        .map(|c| {
+            json!({
+                "name": c.name(),
+                "kind": c.kind(),
+                "available": lab.unavailable(c.name()).is_none(),
+                "reason": lab.unavailable(c.name()),
+            })
+        })
+        .collect();
+    Ok(Json(json!({"cells": cells, "devices": devices})))
 }
 
 async fn openapi() -> Response {

@@ -4,6 +4,7 @@
 
 use std::sync::{Arc, Mutex};
 
+use super::devices::DeviceLink;
 use crate::model::dh::DhFile;
 use crate::model::humanoid::MarkerDef;
 use crate::model::pcr::PcrFile;
@@ -18,7 +19,7 @@ macro_rules! cell_common {
             fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
                 f.debug_struct(stringify!($cell))
                     .field("name", &self.name)
-                    .field("devices", &self.devices)
+                    .field("devices", &self.links)
                     .finish_non_exhaustive()
             }
         }
@@ -58,8 +59,8 @@ pub struct TricalCell {
     pub ballbar: [f64; 3],
     /// The envelope the procedures enforce.
     pub envelope: Envelope,
-    /// Device names (queue locks).
-    pub devices: Vec<String>,
+    /// Its devices: names (queue locks), addresses, probes.
+    pub links: Vec<DeviceLink>,
 }
 
 /// A 3-PF cell: the continuum robot on three stages (MCS2) under a microscope.
@@ -72,8 +73,8 @@ pub struct PcrCell {
     pub microscope: Arc<dyn PoseSensor>,
     /// The cell's current model.
     pub model: Mutex<PcrFile>,
-    /// Device names (queue locks).
-    pub devices: Vec<String>,
+    /// Its devices: names (queue locks), addresses, probes.
+    pub links: Vec<DeviceLink>,
 }
 
 /// A motion-capture cell: a humanoid's joint interface in a QTM room.
@@ -94,8 +95,8 @@ pub struct MocapCell {
     pub limits: Vec<[f64; 2]>,
     /// The markers on the robot with their guessed positions.
     pub markers: Vec<MarkerDef>,
-    /// Device names (queue locks).
-    pub devices: Vec<String>,
+    /// Its devices: names (queue locks), addresses, probes.
+    pub links: Vec<DeviceLink>,
 }
 
 /// A model of one cell kind.
@@ -160,11 +161,16 @@ impl Cell {
     }
 
     /// Device names (queue locks, device panel).
-    pub fn devices(&self) -> &[String] {
+    pub fn devices(&self) -> Vec<String> {
+        self.links().iter().map(|l| l.name.clone()).collect()
+    }
+
+    /// Its devices with their addresses and probes.
+    pub fn links(&self) -> &[DeviceLink] {
         match self {
-            Cell::BallCentring(c) => &c.devices,
-            Cell::Pcr(c) => &c.devices,
-            Cell::Mocap(c) => &c.devices,
+            Cell::BallCentring(c) => &c.links,
+            Cell::Pcr(c) => &c.links,
+            Cell::Mocap(c) => &c.links,
         }
     }
 

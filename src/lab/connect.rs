@@ -6,19 +6,26 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use std::f64::consts::PI;
+
+use calibd_drivers::can::{Cia402Config, Cia402Handle, SocketCanConnector, SocketcandConnector};
 use calibd_drivers::microscope::{MicroscopeConfig, MicroscopeHandle};
 use calibd_drivers::qtm::{QtmConfig, QtmHandle};
 use calibd_drivers::rws::{RwsConfig, RwsHandle};
-use calibd_drivers::smaract::Mcs2Handle;
+use calibd_drivers::smaract::{Mcs2Handle, McsHandle};
 use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle};
-use calibd_drivers::{Backoff, StageConfig, TcpConnector};
+use calibd_drivers::{Backoff, Stage, StageConfig, TcpConnector};
 
-use super::adapters::{Microscope, QtmStream, RwsRobot, SmaractStages, UwaveIndicators};
-use super::{Cell, Lab, MocapCell, PcrCell, TricalCell};
+use super::adapters::{
+    Microscope, PerJoint, QtmStream, RwsRobot, SmaractStages, StageEnvelope, UwaveIndicators,
+};
+use super::devices::DeviceLink;
+use super::probes::{self, probe};
+use super::{Cell, Lab, LabError, MocapCell, PcrCell, TricalCell};
 use crate::model::dh::DhFile;
 use crate::model::humanoid::MarkerDef;
 use crate::model::pcr::PcrFile;
-use crate::procedures::{Envelope, JointRobot, MotionLimiter};
+use crate::procedures::{Envelope, JointRobot, MotionLimiter, Workspace};
 
 /// An IRC5 controller reached over Robot Web Services.
 #[derive(Debug, Clone)]
@@ -29,6 +36,8 @@ pub struct RwsLink {
     pub user: String,
     /// RWS password (from a file or the environment; never logged).
     pub password: String,
+    /// The RAPID module serving calibd's moves (`calib_q`, `calib_cmd`, ...).
+    pub module: String,
 }
 
 /// A U-WAVE-R receiver on a serial port.
@@ -40,6 +49,9 @@ pub struct UwaveLink {
     pub baud: u32,
     /// Channel, sign and zero reading (mm) of each tool axis.
     pub axes: [AxisMap; 3],
+    /// Data-request template (`{cc}` channel, `{gg}` group); empty waits for the
+    /// indicators' own readings.
+    pub request_template: String,
 }
 
 /// A ball-centring cell.
@@ -59,6 +71,60 @@ pub struct BallCentringCell {
     pub max_joint_step_deg: f64,
     /// Largest tool move of the centring loop (mm).
     pub max_tool_step_mm: f64,
+    /// Joint limits (deg) narrowing the model's, if configured.
+    pub joint_limits_deg: Option<Vec<[f64; 2]>>,
+    /// Box the TCP must stay in (mm, robot base frame: min, max), if configured.
+    pub workspace_mm: Option<[[f64; 3]; 2]>,
+}
+
+/// How the 3-PF cell's stage controller is reached.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StageBackend {
+    /// SmarAct MCS2 (SCPI over TCP, pm) at `host:port`.
+    Mcs2(String),
+    /// SmarAct MCS (ASCII, nm) at `host:port`.
+    Mcs(String),
+    /// CiA 402 drives through a socketcand server.
+    Socketcand {
+        /// `host:port` of socketcand.
+        address: String,
+        /// Bus name on the server.
+        bus: String,
+    },
+    /// CiA 402 drives on a native SocketCAN interface (`can0`).
+    SocketCan(String),
+}
+
+impl StageBackend {
+    /// What the controller is, for operators.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            StageBackend::Mcs2(_) => "SmarAct MCS2",
+            StageBackend::Mcs(_) => "SmarAct MCS",
+            StageBackend::Socketcand { .. } => "CiA 402 drives (socketcand)",
+            StageBackend::SocketCan(_) => "CiA 402 drives (SocketCAN)",
+        }
+    }
+
+    /// The address shown to operators.
+    pub fn address(&self) -> String {
+        match self {
+            StageBackend::Mcs2(a) | StageBackend::Mcs(a) => a.clone(),
+            StageBackend::Socketcand { address, bus } => format!("{address} ({bus})"),
+            StageBackend::SocketCan(iface) => iface.clone(),
+        }
+    }
+}
+
+/// The stages of a 3-PF cell.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StagesLink {
+    /// The controller.
+    pub backend: StageBackend,
+    /// Channels (MCS) or CANopen node ids (CiA 402) of the joints q1, q2, q3.
+    pub channels: [u8; 3],
+    /// Picometres per position count (CiA 402 drives).
+    pub pm_per_count: i64,
 }
 
 /// A 3-PF cell.
@@ -66,14 +132,25 @@ pub struct BallCentringCell {
 pub struct PcrCellLink {
     /// Cell name.
     pub name: String,
-    /// MCS2 controller `host:port`.
-    pub mcs2: String,
-    /// MCS2 channels of the joints q1, q2, q3.
-    pub channels: [u8; 3],
+    /// The stages.
+    pub stages: StagesLink,
     /// Microscope pose server `host:port`.
     pub microscope: String,
-    /// Nominal model.
+    /// Largest stage move of one command (m).
+    pub max_stage_step_m: f64,
+    /// Nominal model (its joint box is the stages' envelope).
     pub model: PcrFile,
+}
+
+/// A humanoid's joint interface (`calibd-joints/1` over TCP).
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointsLink {
+    /// `host:port` of the interface (the robot's bridge).
+    pub address: String,
+    /// Joint speed the move durations are planned with (rad/s).
+    pub speed_rad_s: f64,
+    /// Largest change of any joint in one move (rad).
+    pub max_step_rad: f64,
 }
 
 /// A motion-capture cell.
@@ -81,12 +158,12 @@ pub struct PcrCellLink {
 pub struct MocapCellLink {
     /// Cell name.
     pub name: String,
-    /// The robot's joint interface (in process until a joint-interface protocol exists).
-    pub joints: Arc<dyn JointRobot>,
-    /// Device name of the joint interface.
-    pub joints_device: String,
+    /// The robot's joint interface.
+    pub joints: JointsLink,
     /// QTM RT server `host:port`.
     pub qtm: String,
+    /// QTM label -> model marker name (labels not listed keep their name).
+    pub labels: std::collections::BTreeMap<String, String>,
     /// Nominal URDF text.
     pub urdf: String,
     /// Root link of the measured chain.
@@ -97,12 +174,16 @@ pub struct MocapCellLink {
     pub limits: Vec<[f64; 2]>,
     /// Markers with their guessed positions.
     pub markers: Vec<MarkerDef>,
+    /// An in-process robot used instead of the joint interface (the simulated lab until
+    /// its twin is served over `calibd-joints/1`).
+    pub in_process: Option<Arc<dyn JointRobot>>,
 }
 
 impl std::fmt::Debug for MocapCellLink {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("MocapCellLink")
             .field("name", &self.name)
+            .field("joints", &self.joints)
             .field("qtm", &self.qtm)
             .finish()
     }
@@ -127,17 +208,35 @@ fn backoff() -> Backoff {
     }
 }
 
-fn ball_centring(d: BallCentringCell) -> TricalCell {
-    let chain_limits = d.model.to_chain().map(|c| {
-        c.actuated()
-            .iter()
-            .map(|&j| {
-                c.joints[j]
-                    .limits
-                    .unwrap_or([-std::f64::consts::PI, std::f64::consts::PI])
-            })
-            .collect::<Vec<_>>()
-    });
+fn ball_centring(d: BallCentringCell) -> Result<TricalCell, LabError> {
+    let chain = d.model.to_chain().map_err(|e| LabError::Cell {
+        cell: d.name.clone(),
+        message: format!("model: {e}"),
+    })?;
+    let mut limits: Vec<[f64; 2]> = chain
+        .actuated()
+        .iter()
+        .map(|&j| chain.joints[j].limits.unwrap_or([-PI, PI]))
+        .collect();
+    if let Some(l) = &d.joint_limits_deg {
+        // The configured envelope narrows the model's limits, never widens them.
+        for (m, c) in limits.iter_mut().zip(l) {
+            *m = [m[0].max(c[0].to_radians()), m[1].min(c[1].to_radians())];
+        }
+    }
+    let mut rws_limits = RwsConfig::default().limits_deg;
+    if limits.len() != rws_limits.len() {
+        return Err(LabError::Cell {
+            cell: d.name,
+            message: format!(
+                "the model has {} joints; an IRC5 arm over RWS has 6",
+                limits.len()
+            ),
+        });
+    }
+    for (r, l) in rws_limits.iter_mut().zip(&limits) {
+        *r = (l[0].to_degrees(), l[1].to_degrees());
+    }
     let rws = RwsHandle::connect(
         TcpConnector::new(d.rws.address.clone()),
         RwsConfig {
@@ -147,9 +246,10 @@ fn ball_centring(d: BallCentringCell) -> TricalCell {
             timeout: Duration::from_secs(2),
             move_timeout: Duration::from_secs(20),
             poll: Duration::from_millis(5),
+            limits_deg: rws_limits,
             max_joint_step_deg: d.max_joint_step_deg,
+            max_tool_step_mm: d.max_tool_step_mm,
             backoff: backoff(),
-            ..RwsConfig::default()
         },
     );
     let uwave = UwaveHandle::connect(
@@ -161,40 +261,105 @@ fn ball_centring(d: BallCentringCell) -> TricalCell {
         UwaveConfig {
             timeout: Duration::from_millis(500),
             axes: d.uwave.axes,
+            request_template: d.uwave.request_template.clone(),
             backoff: backoff(),
             ..UwaveConfig::default()
         },
     );
     let envelope = Envelope {
-        limits: chain_limits.unwrap_or_default(),
+        limits,
         max_joint_step: d.max_joint_step_deg.to_radians(),
         max_tool_step_mm: d.max_tool_step_mm,
+        workspace_mm: d.workspace_mm.map(|b| Workspace {
+            min_mm: b[0],
+            max_mm: b[1],
+            chain: Arc::new(chain),
+        }),
     };
     let (rws_name, uwave_name) = (format!("{}.rws", d.name), format!("{}.uwave", d.name));
-    TricalCell {
+    let axes = d.uwave.axes;
+    let links = vec![
+        DeviceLink::new(
+            rws_name.clone(),
+            "ABB IRC5 (RWS 1.0)",
+            d.rws.address,
+            probe(rws.clone(), probes::rws),
+        ),
+        DeviceLink::new(
+            uwave_name.clone(),
+            "Mitutoyo U-WAVE-R",
+            d.uwave.path,
+            probe(uwave.clone(), move |h| probes::uwave(h, axes)),
+        ),
+    ];
+    Ok(TricalCell {
         robot: Arc::new(MotionLimiter::new(
-            RwsRobot::new(rws, rws_name.clone()),
+            RwsRobot::new(rws, rws_name),
             envelope.clone(),
         )),
-        indicators: Arc::new(UwaveIndicators::new(uwave, uwave_name.clone())),
+        indicators: Arc::new(UwaveIndicators::new(uwave, uwave_name)),
         model: Mutex::new(d.model),
         ballbar: d.ballbar,
         envelope,
-        devices: vec![rws_name, uwave_name],
+        links,
         name: d.name,
+    })
+}
+
+/// The stage controller of a 3-PF cell and the channels of q1..q3 on it.
+fn stages(s: &StagesLink) -> (Arc<dyn Stage>, [u8; 3]) {
+    let cfg = StageConfig {
+        timeout: Duration::from_secs(1),
+        move_timeout: Duration::from_secs(10),
+        poll: Duration::from_millis(2),
+        backoff: backoff(),
+    };
+    let drive = |node: u8| Cia402Config {
+        node,
+        pm_per_count: s.pm_per_count,
+        backoff: backoff(),
+        ..Cia402Config::default()
+    };
+    match &s.backend {
+        StageBackend::Mcs2(a) => (
+            Arc::new(Mcs2Handle::connect(TcpConnector::new(a.clone()), cfg)),
+            s.channels,
+        ),
+        StageBackend::Mcs(a) => (
+            Arc::new(McsHandle::connect(TcpConnector::new(a.clone()), cfg)),
+            s.channels,
+        ),
+        StageBackend::Socketcand { address, bus } => {
+            let one = |node| -> Arc<dyn Stage> {
+                Arc::new(Cia402Handle::connect(
+                    SocketcandConnector {
+                        addr: address.clone(),
+                        bus: bus.clone(),
+                        recorder: None,
+                    },
+                    drive(node),
+                ))
+            };
+            let [a, b, c] = s.channels;
+            (Arc::new(PerJoint([one(a), one(b), one(c)])), [0, 1, 2])
+        }
+        StageBackend::SocketCan(iface) => {
+            let one = |node| -> Arc<dyn Stage> {
+                Arc::new(Cia402Handle::connect(
+                    SocketCanConnector {
+                        iface: iface.clone(),
+                    },
+                    drive(node),
+                ))
+            };
+            let [a, b, c] = s.channels;
+            (Arc::new(PerJoint([one(a), one(b), one(c)])), [0, 1, 2])
+        }
     }
 }
 
 fn pcr(d: PcrCellLink) -> PcrCell {
-    let mcs2 = Mcs2Handle::connect(
-        TcpConnector::new(d.mcs2.clone()),
-        StageConfig {
-            timeout: Duration::from_secs(1),
-            move_timeout: Duration::from_secs(10),
-            poll: Duration::from_millis(2),
-            backoff: backoff(),
-        },
-    );
+    let (stage, channels) = stages(&d.stages);
     let scope = MicroscopeHandle::connect(
         TcpConnector::new(d.microscope.clone()),
         MicroscopeConfig {
@@ -202,17 +367,38 @@ fn pcr(d: PcrCellLink) -> PcrCell {
             backoff: backoff(),
         },
     );
-    let (st, mi) = (format!("{}.mcs2", d.name), format!("{}.microscope", d.name));
+    let (st, mi) = (
+        format!("{}.stages", d.name),
+        format!("{}.microscope", d.name),
+    );
+    let envelope = StageEnvelope {
+        limits_m: d.model.limits(),
+        max_step_m: d.max_stage_step_m,
+    };
+    let links = vec![
+        DeviceLink::new(
+            st.clone(),
+            d.stages.backend.kind(),
+            d.stages.backend.address(),
+            probe(stage.clone(), move |h| probes::stages(h, channels)),
+        ),
+        DeviceLink::new(
+            mi.clone(),
+            "microscope (calibd-pose/1)",
+            d.microscope,
+            probe(scope.clone(), probes::microscope),
+        ),
+    ];
     PcrCell {
-        stages: Arc::new(SmaractStages::new(Arc::new(mcs2), d.channels, st.clone())),
-        microscope: Arc::new(Microscope::new(scope, mi.clone())),
+        stages: Arc::new(SmaractStages::new(stage, channels, st).within(envelope)),
+        microscope: Arc::new(Microscope::new(scope, mi)),
         model: Mutex::new(d.model),
-        devices: vec![st, mi],
+        links,
         name: d.name,
     }
 }
 
-fn mocap(d: MocapCellLink) -> MocapCell {
+fn mocap(d: MocapCellLink) -> Result<MocapCell, LabError> {
     let qtm = QtmHandle::connect(
         TcpConnector::new(d.qtm.clone()),
         QtmConfig {
@@ -221,18 +407,36 @@ fn mocap(d: MocapCellLink) -> MocapCell {
             ..QtmConfig::default()
         },
     );
-    let q = format!("{}.qtm", d.name);
-    MocapCell {
-        robot: d.joints,
-        stream: Arc::new(QtmStream::new(qtm, q.clone())),
+    let (j, q) = (format!("{}.joints", d.name), format!("{}.qtm", d.name));
+    let robot = d.in_process.ok_or_else(|| LabError::Cell {
+        cell: d.name.clone(),
+        message: "the joint interface driver is not available in this build".into(),
+    })?;
+    let links = vec![
+        DeviceLink::new(
+            j,
+            "joint interface (calibd-joints/1)",
+            d.joints.address,
+            probe(robot.clone(), probes::joints),
+        ),
+        DeviceLink::new(
+            q.clone(),
+            "Qualisys QTM (RT 1.25)",
+            d.qtm,
+            probe(qtm.clone(), probes::qtm),
+        ),
+    ];
+    Ok(MocapCell {
+        robot,
+        stream: Arc::new(QtmStream::new(qtm, q).with_labels(d.labels)),
         urdf: Mutex::new(d.urdf),
         root_link: d.root_link,
         joints: d.joint_names,
         limits: d.limits,
         markers: d.markers,
-        devices: vec![d.joints_device, q],
+        links,
         name: d.name,
-    }
+    })
 }
 
 impl Lab {
@@ -243,9 +447,9 @@ impl Lab {
         let mut lab = Lab::empty();
         for c in cells {
             let cell = match c {
-                CellLink::BallCentring(d) => Cell::BallCentring(ball_centring(d)),
+                CellLink::BallCentring(d) => Cell::BallCentring(ball_centring(d)?),
                 CellLink::Pcr(d) => Cell::Pcr(pcr(d)),
-                CellLink::Mocap(d) => Cell::Mocap(mocap(d)),
+                CellLink::Mocap(d) => Cell::Mocap(mocap(d)?),
             };
             lab.insert(cell)?;
         }

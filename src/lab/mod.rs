@@ -5,16 +5,23 @@
 
 pub mod adapters;
 pub mod cells;
+pub mod config;
 pub mod connect;
 pub mod decision;
+pub mod devices;
+pub mod probes;
 
 use std::collections::BTreeMap;
 use std::future::Future;
 use std::pin::Pin;
 
 pub use cells::{Cell, CellModel, MocapCell, PcrCell, TricalCell};
-pub use connect::{BallCentringCell, CellLink, MocapCellLink, PcrCellLink, RwsLink, UwaveLink};
+pub use connect::{
+    BallCentringCell, CellLink, JointsLink, MocapCellLink, PcrCellLink, RwsLink, StageBackend,
+    StagesLink, UwaveLink,
+};
 pub use decision::{Acceptance, Candidate, Decision, Evidence};
+pub use devices::{DeviceLink, DeviceReport, DeviceStatus, Identity};
 
 use crate::jobs::JobError;
 
@@ -33,6 +40,17 @@ pub enum LabError {
     /// Two cells share a name.
     #[error("two cells are named `{0}`")]
     DuplicateCell(String),
+    /// A cell's description cannot be built into a cell.
+    #[error("cell `{cell}`: {message}")]
+    Cell {
+        /// The cell.
+        cell: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The lab file was refused.
+    #[error("{0}")]
+    Config(#[from] config::LabConfigError),
 }
 
 /// Something that must live as long as the lab and stop with it (the simulation's mock
@@ -173,7 +191,7 @@ impl Lab {
 
     /// Names of every device of every cell (device panel, queue locks).
     pub fn device_names(&self) -> Vec<String> {
-        self.cells().flat_map(|c| c.devices().to_vec()).collect()
+        self.cells().flat_map(|c| c.devices()).collect()
     }
 
     /// Addresses of attached simulated devices.

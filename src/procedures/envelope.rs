@@ -1,7 +1,13 @@
-//! `MotionLimiter`: a decorator that enforces a cell's motion envelope (joint limits and the
-//! largest joint step of one move) in the procedure, whatever the driver also checks.
+//! `MotionLimiter`: a decorator that enforces a cell's motion envelope (joint limits, the
+//! largest joint step and tool move of one command, and a box the TCP must stay in) before
+//! a command reaches the device, whatever the driver also checks.
+
+use std::sync::Arc;
+
+use nalgebra::Vector3;
 
 use super::devices::{DeviceError, DeviceFuture, Robot};
+use crate::model::Chain;
 
 /// The envelope of a cell.
 #[derive(Debug, Clone, PartialEq)]
@@ -12,6 +18,48 @@ pub struct Envelope {
     pub max_joint_step: f64,
     /// Largest tool-frame move (mm).
     pub max_tool_step_mm: f64,
+    /// Box the TCP must stay in, if the cell has one.
+    pub workspace_mm: Option<Workspace>,
+}
+
+/// A box the TCP must stay in (mm, the model's world frame), with the model that places
+/// the TCP for a joint vector.
+#[derive(Debug, Clone)]
+pub struct Workspace {
+    /// Lower corner (mm).
+    pub min_mm: [f64; 3],
+    /// Upper corner (mm).
+    pub max_mm: [f64; 3],
+    /// The cell's model (nominal: the envelope is a safety margin, not a measurement).
+    pub chain: Arc<Chain>,
+}
+
+impl PartialEq for Workspace {
+    fn eq(&self, o: &Self) -> bool {
+        self.min_mm == o.min_mm && self.max_mm == o.max_mm
+    }
+}
+
+impl Workspace {
+    /// The TCP position (mm) and rotation at joints `q` (rad).
+    fn tcp_mm(&self, q: &[f64]) -> (Vector3<f64>, nalgebra::Matrix3<f64>) {
+        let f = self.chain.tcp(q, None);
+        let scale = if self.chain.units.mm { 1.0 } else { 1000.0 };
+        (f.p * scale, f.r)
+    }
+
+    /// Why `p` (mm) is outside the box, if it is.
+    fn outside(&self, p: &Vector3<f64>) -> Option<String> {
+        let axes = ["x", "y", "z"];
+        (0..3).find_map(|k| {
+            (!(p[k] >= self.min_mm[k] && p[k] <= self.max_mm[k])).then(|| {
+                format!(
+                    "TCP {} = {:.1} mm outside the workspace [{}, {}] mm",
+                    axes[k], p[k], self.min_mm[k], self.max_mm[k]
+                )
+            })
+        })
+    }
 }
 
 /// A robot whose moves are checked against an envelope before they are sent.
@@ -74,6 +122,11 @@ impl<R: Robot> Robot for MotionLimiter<R> {
                     env.max_joint_step.to_degrees()
                 )));
             }
+            if let Some(w) = &env.workspace_mm {
+                if let Some(why) = w.outside(&w.tcp_mm(q).0) {
+                    return Err(Self::refuse(why));
+                }
+            }
             self.inner.move_joints(q).await
         })
     }
@@ -86,6 +139,14 @@ impl<R: Robot> Robot for MotionLimiter<R> {
                     "tool move {n:.3} mm above the {} mm limit",
                     self.envelope.max_tool_step_mm
                 )));
+            }
+            if let Some(w) = &self.envelope.workspace_mm {
+                let q = self.inner.joints().await?;
+                let (p, r) = w.tcp_mm(&q);
+                let to = p + r * Vector3::from(offset_mm);
+                if let Some(why) = w.outside(&to) {
+                    return Err(Self::refuse(why));
+                }
             }
             self.inner.move_tool(offset_mm).await
         })

@@ -14,5 +14,5 @@ pub use devices::{
     DeviceError, DeviceFuture, Indicators, JointRobot, LinearStages, MarkerFrames, MarkerStream,
     PoseSensor, Robot,
 };
-pub use envelope::{Envelope, MotionLimiter};
+pub use envelope::{Envelope, MotionLimiter, Workspace};
 pub use journal::{EntryStatus, Journal, JournalEntry, MemoryJournal};

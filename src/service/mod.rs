@@ -198,6 +198,7 @@ impl Service {
             return Err(ServiceError::QueueFull(waiting));
         }
         let store = self.shared.store.clone();
+        let lab = self.shared.lab.clone();
         let (id, created, job) = blocking(move || {
             let job = jobs::prepare(&doc, &StoreResolver(store.clone())).map_err(|e| {
                 if e.is_invalid_input() {
@@ -213,6 +214,9 @@ impl Service {
                     job.kind,
                     devices.join(", ")
                 )));
+            }
+            if let Some(reason) = lab.unavailable_for(&devices) {
+                return Err(ServiceError::Conflict(reason));
             }
             let idempotency = origin.idempotency_key.map(|key| {
                 let mut request = serde_json::to_vec(&doc).unwrap_or_default();

@@ -11,7 +11,7 @@ use calibd_drivers::qtm::mock::MarkerModel;
 
 use super::with;
 use crate::design::playback::quintic;
-use crate::lab::{CellLink, LabError, MocapCellLink};
+use crate::lab::{CellLink, JointsLink, LabError, MocapCellLink};
 use crate::model::humanoid::BaseMode;
 use crate::procedures::{DeviceError, DeviceFuture, JointRobot};
 use crate::twin::humanoid::{HumanoidTwin, TALOS_URDF, left_arm_spec};
@@ -217,9 +217,14 @@ pub(super) async fn start(
     };
     let link = MocapCellLink {
         name: "talos".into(),
-        joints: Arc::new(robot),
-        joints_device: ROBOT.into(),
+        joints: JointsLink {
+            address: "in process".into(),
+            speed_rad_s: o.joint_speed_rad_s,
+            max_step_rad: 2.0 * std::f64::consts::PI,
+        },
+        in_process: Some(Arc::new(robot)),
         qtm: qtm_mock.addr.clone(),
+        labels: Default::default(),
         urdf: TALOS_URDF.to_string(),
         root_link,
         joint_names: names,

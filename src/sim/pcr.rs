@@ -11,7 +11,7 @@ use calibd_drivers::mock::{self, FaultSpec, Faults, RunningMock};
 use calibd_drivers::smaract::mock::StageModel;
 
 use super::with;
-use crate::lab::{CellLink, LabError, PcrCellLink};
+use crate::lab::{CellLink, LabError, PcrCellLink, StageBackend, StagesLink};
 use crate::model::pcr::Equilibrium;
 use crate::twin::PcrTwin;
 use crate::util::Rng;
@@ -163,9 +163,18 @@ pub(super) async fn start(
     .map_err(|e| mock_err("microscope", e))?;
     let link = PcrCellLink {
         name: "pcr3pf".into(),
-        mcs2: stage_mock.addr.clone(),
-        channels: [0, 1, 2],
+        stages: StagesLink {
+            backend: StageBackend::Mcs2(stage_mock.addr.clone()),
+            channels: [0, 1, 2],
+            pm_per_count: 1000,
+        },
         microscope: scope_mock.addr.clone(),
+        // The whole travel: the simulated cell moves between any two planned joint sets.
+        max_stage_step_m: file
+            .limits()
+            .iter()
+            .map(|[lo, hi]| hi - lo)
+            .fold(0.0, f64::max),
         model: file,
     };
     Ok((CellLink::Pcr(link), vec![stage_mock, scope_mock]))

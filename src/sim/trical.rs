@@ -159,16 +159,20 @@ pub(super) async fn start(
             address: rws_mock.addr.clone(),
             user: rws_args.user.clone(),
             password: rws_args.password.clone(),
+            module: "CalibServer".into(),
         },
         uwave: UwaveLink {
             path: uw_mock.addr.clone(),
             baud: 57_600,
             axes: [axis(0), axis(1), axis(2)],
+            request_template: String::new(),
         },
         ballbar,
         model: file,
         max_joint_step_deg: o.max_joint_step_deg,
         max_tool_step_mm: 6.5,
+        joint_limits_deg: None,
+        workspace_mm: None,
     };
     Ok((CellLink::BallCentring(link), vec![rws_mock, uw_mock]))
 }

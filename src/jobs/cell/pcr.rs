@@ -264,7 +264,7 @@ impl Kind for PcrCampaignJob {
 
     fn devices(&self) -> Vec<String> {
         vec![
-            format!("{}.mcs2", self.cell),
+            format!("{}.stages", self.cell),
             format!("{}.microscope", self.cell),
         ]
     }

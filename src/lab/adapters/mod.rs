@@ -28,6 +28,6 @@ pub mod pcr;
 pub mod qtm;
 pub mod serial;
 
-pub use pcr::{Microscope, SmaractStages};
+pub use pcr::{Microscope, PerJoint, SmaractStages, StageEnvelope};
 pub use qtm::QtmStream;
 pub use serial::{RwsRobot, UwaveIndicators, device_error};

@@ -4,8 +4,9 @@
 
 use std::sync::Arc;
 
-use calibd_drivers::Stage;
+use calibd_drivers::link::BoxFuture;
 use calibd_drivers::microscope::MicroscopeHandle;
+use calibd_drivers::{DriverError, Stage, StageStatus};
 
 use super::serial::device_error;
 use crate::procedures::{DeviceError, DeviceFuture, LinearStages, PoseSensor};
@@ -18,6 +19,53 @@ pub struct SmaractStages {
     stage: Arc<dyn Stage>,
     channels: [u8; 3],
     name: String,
+    envelope: Option<StageEnvelope>,
+}
+
+/// Where the stages may go: each joint's travel (m) and the largest move of one command
+/// (m); a target outside is refused before a byte leaves.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StageEnvelope {
+    /// [lower, upper] of q1..q3 (m).
+    pub limits_m: [[f64; 2]; 3],
+    /// Largest change of any joint in one move (m).
+    pub max_step_m: f64,
+}
+
+/// Three single-channel controllers (CiA 402 drives, one per node) as one controller whose
+/// channel k is drive k's channel 0.
+pub struct PerJoint(pub [Arc<dyn Stage>; 3]);
+
+impl std::fmt::Debug for PerJoint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PerJoint").finish_non_exhaustive()
+    }
+}
+
+impl PerJoint {
+    fn drive(&self, ch: u8) -> Result<&Arc<dyn Stage>, DriverError> {
+        self.0
+            .get(usize::from(ch))
+            .ok_or_else(|| DriverError::InvalidRequest {
+                device: "can",
+                detail: format!("joint {ch} of 3"),
+            })
+    }
+}
+
+impl Stage for PerJoint {
+    fn move_absolute(&self, ch: u8, pos_pm: i64) -> BoxFuture<'_, Result<i64, DriverError>> {
+        Box::pin(async move { self.drive(ch)?.move_absolute(0, pos_pm).await })
+    }
+    fn position(&self, ch: u8) -> BoxFuture<'_, Result<i64, DriverError>> {
+        Box::pin(async move { self.drive(ch)?.position(0).await })
+    }
+    fn status(&self, ch: u8) -> BoxFuture<'_, Result<StageStatus, DriverError>> {
+        Box::pin(async move { self.drive(ch)?.status(0).await })
+    }
+    fn reference(&self, ch: u8) -> BoxFuture<'_, Result<(), DriverError>> {
+        Box::pin(async move { self.drive(ch)?.reference(0).await })
+    }
 }
 
 impl std::fmt::Debug for SmaractStages {
@@ -36,7 +84,38 @@ impl SmaractStages {
             stage,
             channels,
             name: name.into(),
+            envelope: None,
         }
+    }
+
+    /// Refuse moves outside `envelope`.
+    pub fn within(mut self, envelope: StageEnvelope) -> Self {
+        self.envelope = Some(envelope);
+        self
+    }
+
+    /// Why a move from `now` to `q` (m) leaves the envelope, if it does.
+    fn refused(&self, now: &[f64; 3], q: &[f64; 3]) -> Option<String> {
+        let e = self.envelope.as_ref()?;
+        (0..3).find_map(|k| {
+            let [lo, hi] = e.limits_m[k];
+            if !(q[k] >= lo && q[k] <= hi) {
+                Some(format!(
+                    "q{} = {} m outside the travel [{lo}, {hi}] m",
+                    k + 1,
+                    q[k]
+                ))
+            } else if (q[k] - now[k]).abs() > e.max_step_m {
+                Some(format!(
+                    "q{} moves {} m, above the {} m step limit",
+                    k + 1,
+                    (q[k] - now[k]).abs(),
+                    e.max_step_m
+                ))
+            } else {
+                None
+            }
+        })
     }
 }
 
@@ -54,6 +133,15 @@ fn to_pm(device: &str, q: f64) -> Result<i64, DeviceError> {
 impl LinearStages for SmaractStages {
     fn move_to<'a>(&'a self, q: &'a [f64; 3]) -> DeviceFuture<'a, [f64; 3]> {
         Box::pin(async move {
+            if self.envelope.is_some() {
+                let now = self.positions().await?;
+                if let Some(reason) = self.refused(&now, q) {
+                    return Err(DeviceError::Refused {
+                        device: self.name.clone(),
+                        reason,
+                    });
+                }
+            }
             let t: [i64; 3] = [
                 to_pm(&self.name, q[0])?,
                 to_pm(&self.name, q[1])?,

@@ -19,6 +19,7 @@ pub struct QtmStream {
     handle: QtmHandle,
     name: String,
     labels: tokio::sync::Mutex<Option<Vec<String>>>,
+    rename: std::collections::BTreeMap<String, String>,
 }
 
 impl QtmStream {
@@ -28,7 +29,14 @@ impl QtmStream {
             handle,
             name: name.into(),
             labels: tokio::sync::Mutex::new(None),
+            rename: Default::default(),
         }
+    }
+
+    /// Report QTM label `k` as model marker `v` (labels not in the map keep their name).
+    pub fn with_labels(mut self, rename: std::collections::BTreeMap<String, String>) -> Self {
+        self.rename = rename;
+        self
     }
 
     async fn labels(&self) -> Result<Vec<String>, DeviceError> {
@@ -41,8 +49,13 @@ impl QtmStream {
             .parameters_3d()
             .await
             .map_err(|e| device_error(&self.name, e))?;
-        *l = Some(s.labels.clone());
-        Ok(s.labels)
+        let labels: Vec<String> = s
+            .labels
+            .iter()
+            .map(|q| self.rename.get(q).unwrap_or(q).clone())
+            .collect();
+        *l = Some(labels.clone());
+        Ok(labels)
     }
 
     async fn collect(&self, duration: Duration) -> Result<MarkerFrames, DeviceError> {

@@ -1,0 +1,282 @@
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use super::*;
+use crate::lab::StageBackend;
+
+/// A folder with the files a lab file names: the three models, a password file and a
+/// stand-in for the receiver's serial port.
+struct Fixture {
+    dir: tempfile::TempDir,
+}
+
+impl Fixture {
+    fn new() -> Fixture {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/robots");
+        for (from, to) in [
+            ("irb120.json", "irb120.json"),
+            ("pcr3pf.json", "pcr3pf.json"),
+            ("talos/talos_reduced.urdf", "talos.urdf"),
+        ] {
+            std::fs::copy(data.join(from), dir.path().join(to)).expect("copy model");
+        }
+        std::fs::write(dir.path().join("rws-password"), "s3cret-rws\n").expect("secret");
+        std::fs::write(dir.path().join("ttyUWAVE"), "").expect("port stand-in");
+        Fixture { dir }
+    }
+
+    fn path(&self) -> PathBuf {
+        self.dir.path().join("lab.toml")
+    }
+
+    fn parse(&self, text: &str) -> Result<Vec<CellLink>, LabConfigError> {
+        let env: BTreeMap<String, String> = [("QTM_PW".to_string(), "unused".to_string())].into();
+        let text = text.replace("@DIR@", &self.dir.path().display().to_string());
+        parse(&text, &self.path(), &env)
+    }
+}
+
+const TRICAL: &str = r#"
+[[cell]]
+name = "irb120"
+kind = "ball_centring"
+model = "irb120.json"
+ballbar_mm = { d12 = 200.0, d13 = 210.0, d23 = 220.0 }
+
+[cell.controller]
+address = "192.168.125.1:80"
+password_file = "rws-password"
+
+[cell.indicators]
+port = "@DIR@/ttyUWAVE"
+axes = [
+  { channel = 0, zero_mm = 6.0, range_mm = [0.0, 12.7] },
+  { channel = 1, sign = -1, zero_mm = 6.1 },
+  { channel = 2, zero_mm = 6.2 },
+]
+
+[cell.envelope]
+max_tool_step_mm = 1.5
+workspace_mm = { min = [100.0, -400.0, 0.0], max = [600.0, 400.0, 700.0] }
+"#;
+
+const PCR: &str = r#"
+[[cell]]
+name = "pcr3pf"
+kind = "pcr"
+model = "pcr3pf.json"
+[cell.stages]
+controller = "cia402"
+address = "127.0.0.1:29536"
+channels = [3, 4, 5]
+[cell.microscope]
+address = "127.0.0.1:5050"
+"#;
+
+const HUMANOID: &str = r#"
+[[cell]]
+name = "talos"
+kind = "humanoid"
+model = "talos.urdf"
+[cell.mocap]
+address = "127.0.0.1:22223"
+labels = { "LH1" = "w1" }
+[cell.joints]
+address = "127.0.0.1:7070"
+root_link = "base_link"
+names = ["torso_1_joint", "arm_left_1_joint"]
+markers = [{ name = "w1", link = "arm_left_7_link", initial_m = [0.0, 0.05, -0.1] }]
+[cell.envelope]
+joint_limits_deg = [[-10, 10], [-400, 400]]
+"#;
+
+#[test]
+fn a_lab_of_three_cells_reads_into_their_descriptions() {
+    let f = Fixture::new();
+    let cells = f
+        .parse(&format!("{TRICAL}{PCR}{HUMANOID}"))
+        .expect("valid lab");
+    assert_eq!(cells.len(), 3);
+    let CellLink::BallCentring(t) = &cells[0] else {
+        panic!("not a ball-centring cell: {:?}", cells[0]);
+    };
+    assert_eq!(t.name, "irb120");
+    assert_eq!(t.rws.address, "192.168.125.1:80");
+    assert_eq!(t.rws.user, "Default User");
+    // The password file's line, without its newline.
+    assert_eq!(t.rws.password, "s3cret-rws");
+    assert_eq!(t.rws.module, "CalibServer");
+    assert_eq!(t.ballbar, [200.0, 210.0, 220.0]);
+    assert_eq!(t.uwave.baud, 57_600);
+    assert_eq!(t.uwave.axes[1].sign, -1.0);
+    assert_eq!(t.uwave.axes[2].zero_mm, 6.2);
+    assert_eq!(t.max_tool_step_mm, 1.5);
+    assert_eq!(t.max_joint_step_deg, 10.0);
+    assert_eq!(
+        t.workspace_mm,
+        Some([[100.0, -400.0, 0.0], [600.0, 400.0, 700.0]])
+    );
+    let CellLink::Pcr(p) = &cells[1] else {
+        panic!("not a 3-PF cell");
+    };
+    assert_eq!(
+        p.stages.backend,
+        StageBackend::Socketcand {
+            address: "127.0.0.1:29536".into(),
+            bus: "can0".into()
+        }
+    );
+    assert_eq!(p.stages.channels, [3, 4, 5]);
+    let CellLink::Mocap(m) = &cells[2] else {
+        panic!("not a humanoid cell");
+    };
+    assert_eq!(m.joints.address, "127.0.0.1:7070");
+    assert_eq!(m.labels.get("LH1").map(String::as_str), Some("w1"));
+    // The envelope narrows the URDF's limits: torso_1 to +-10 deg; arm_left_1 keeps the
+    // URDF's own limits (the configured +-400 deg is wider).
+    assert!((m.limits[0][0] + 10f64.to_radians()).abs() < 1e-12);
+    assert!((m.limits[0][1] - 10f64.to_radians()).abs() < 1e-12);
+    assert!(m.limits[1][1] < 400f64.to_radians() && m.limits[1][1] > 0.5);
+    assert_eq!(m.markers[0].initial.z, -0.1);
+}
+
+#[test]
+fn an_unknown_key_is_refused_with_its_line_and_name() {
+    let f = Fixture::new();
+    let text = TRICAL.replace("max_tool_step_mm = 1.5", "max_tool_stepmm = 1.5");
+    let e = f.parse(&text).unwrap_err();
+    let line = text
+        .lines()
+        .position(|l| l.contains("max_tool_stepmm"))
+        .expect("line")
+        + 1;
+    assert_eq!(e.line, line, "{e}");
+    assert!(e.message.contains("max_tool_stepmm"), "{e}");
+    assert!(
+        e.to_string().starts_with(&f.path().display().to_string()),
+        "{e}"
+    );
+}
+
+#[test]
+fn an_inline_password_is_refused_and_never_echoed() {
+    let f = Fixture::new();
+    let text = TRICAL.replace(
+        "password_file = \"rws-password\"",
+        "password = \"hunter2-inline\"",
+    );
+    let e = f.parse(&text).unwrap_err();
+    assert!(e.message.contains("password_file"), "{e}");
+    assert!(!e.to_string().contains("hunter2"), "{e}");
+    let line = text
+        .lines()
+        .position(|l| l.contains("hunter2"))
+        .expect("line")
+        + 1;
+    assert_eq!(e.line, line);
+}
+
+#[test]
+fn secrets_come_from_the_environment_or_are_named_missing() {
+    let f = Fixture::new();
+    let text = TRICAL.replace(
+        "password_file = \"rws-password\"",
+        "password_env = \"CALIBD_TEST_RWS_PW\"",
+    );
+    let e = f.parse(&text).unwrap_err();
+    assert!(
+        e.message.contains("CALIBD_TEST_RWS_PW") && e.message.contains("not set"),
+        "{e}"
+    );
+    let env: BTreeMap<String, String> =
+        [("CALIBD_TEST_RWS_PW".to_string(), "from-env".to_string())].into();
+    let text = text.replace("@DIR@", &f.dir.path().display().to_string());
+    let cells = parse(&text, &f.path(), &env).expect("valid");
+    let CellLink::BallCentring(t) = &cells[0] else {
+        panic!("kind");
+    };
+    assert_eq!(t.rws.password, "from-env");
+}
+
+#[test]
+fn a_missing_serial_port_device_and_model_are_named() {
+    let f = Fixture::new();
+    let e = f
+        .parse(&TRICAL.replace("@DIR@/ttyUWAVE", "/dev/ttyCALIBD-NOT-THERE"))
+        .unwrap_err();
+    assert!(
+        e.message.contains("/dev/ttyCALIBD-NOT-THERE") && e.message.contains("does not exist"),
+        "{e}"
+    );
+    let e = f
+        .parse(&PCR.replace("[cell.microscope]\naddress = \"127.0.0.1:5050\"\n", ""))
+        .unwrap_err();
+    assert!(e.message.contains("[cell.microscope]"), "{e}");
+    let e = f
+        .parse(&PCR.replace("pcr3pf.json", "nope.json"))
+        .unwrap_err();
+    assert!(e.message.contains("nope.json"), "{e}");
+    assert_eq!(e.line, 5, "{e}");
+    let e = f
+        .parse(&PCR.replace("127.0.0.1:5050", "127.0.0.1"))
+        .unwrap_err();
+    assert!(
+        e.message.contains("microscope.address") && e.message.contains("host:port"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_section_of_another_kind_and_a_second_cell_of_the_same_name_are_refused() {
+    let f = Fixture::new();
+    let e = f
+        .parse(&format!(
+            "{PCR}[cell.indicators]\nport = \"x\"\naxes = []\n"
+        ))
+        .unwrap_err();
+    assert!(
+        e.message.contains("[cell.indicators] does not belong"),
+        "{e}"
+    );
+    let e = f.parse(&format!("{PCR}{PCR}")).unwrap_err();
+    assert!(e.message.contains("already described at line 3"), "{e}");
+    let e = f.parse("").unwrap_err();
+    assert!(e.message.contains("[[cell]]"), "{e}");
+}
+
+#[test]
+fn the_example_lab_file_parses_up_to_its_absent_models() {
+    // deploy/lab.example.toml names /etc/calibd paths: on a machine without them, the
+    // first thing missing is named with its line, not a parse error.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/lab.example.toml");
+    let e = load(&path, &ProcessEnv).unwrap_err();
+    assert!(e.message.contains("/etc/calibd/models/irb120.json"), "{e}");
+    assert_eq!(e.line, 17, "{e}");
+}
+
+#[test]
+fn the_example_lab_file_describes_three_cells_once_its_files_exist() {
+    let f = Fixture::new();
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/lab.example.toml");
+    let text = std::fs::read_to_string(path).expect("example");
+    let text = text
+        .replace("/etc/calibd/models/irb120.json", "irb120.json")
+        .replace("/etc/calibd/models/pcr3pf.json", "pcr3pf.json")
+        .replace("/etc/calibd/models/talos_reduced.urdf", "talos.urdf")
+        .replace("/etc/calibd/secrets/rws-password", "rws-password")
+        .replace(
+            "/dev/serial/by-id/usb-Mitutoyo_U-WAVE-R-if00-port0",
+            "@DIR@/ttyUWAVE",
+        );
+    let cells = f.parse(&text).expect("the example is valid");
+    let kinds: Vec<&str> = cells
+        .iter()
+        .map(|c| match c {
+            CellLink::BallCentring(_) => "ball_centring",
+            CellLink::Pcr(_) => "pcr",
+            CellLink::Mocap(_) => "humanoid",
+        })
+        .collect();
+    assert_eq!(kinds, ["ball_centring", "pcr", "humanoid"]);
+}
