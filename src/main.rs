@@ -147,7 +147,8 @@ enum Command {
         role: String,
     },
     /// Run a mock device server (QTM, ABB RWS, U-WAVE, SmarAct MCS/MCS2, CAN, microscope) until
-    /// Ctrl-C.
+    /// Ctrl-C. `calibd mock lab --config LAB.toml [--cell NAME]` serves the devices of a lab
+    /// file's cells from the digital twins instead (see `calibd mock lab --help`).
     Mock(calibd_drivers::mock::MockArgs),
     /// Write a digital twin's data set (CSV tables and the model file) into a folder, for
     /// examples and experiments.
@@ -427,7 +428,50 @@ fn write_twin(which: &str, out: &Path, seed: u64) -> Result<()> {
     Ok(())
 }
 
+/// `calibd mock lab`: serve the devices of a lab file's cells from the digital twins.
+#[derive(Debug, Parser)]
+#[command(name = "calibd mock lab")]
+struct MockLabCli {
+    /// The lab file whose cells to serve (at its addresses; serial ports become symlinks
+    /// to pseudo-terminals).
+    #[arg(long)]
+    config: PathBuf,
+    /// Serve only this cell (repeatable; default every cell).
+    #[arg(long = "cell")]
+    cells: Vec<String>,
+    /// Seed of the twins (the daemon's `lab_seed` for the same twins as `lab = "sim"`).
+    #[arg(long, default_value_t = 7)]
+    seed: u64,
+}
+
+/// `calibd mock lab ...`: the twins of a lab file, until interrupted.
+fn mock_lab(args: MockLabCli) -> Result<()> {
+    init_tracing(false);
+    let rt = runtime()?;
+    rt.block_on(async move {
+        let lab = calibd::sim::lab::serve(
+            &args.config,
+            &args.cells,
+            args.seed,
+            &calibd::lab::config::ProcessEnv,
+        )
+        .await?;
+        for d in &lab.devices {
+            println!("mock {} ready on {}", d.device, d.address);
+        }
+        println!("mock lab ready");
+        let _ = tokio::signal::ctrl_c().await;
+        lab.stop().await;
+        Ok(())
+    })
+}
+
 fn main() -> Result<()> {
+    // `calibd mock lab` takes a lab file rather than one device: its own arguments.
+    let argv: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    if argv.get(1).is_some_and(|a| a == "mock") && argv.get(2).is_some_and(|a| a == "lab") {
+        return mock_lab(MockLabCli::parse_from(argv.iter().skip(2)));
+    }
     let cli = Cli::parse();
     match cli.command {
         Command::Run {

@@ -331,7 +331,10 @@ fn every_sample_config_in_deploy_loads_and_round_trips() {
             continue;
         }
         // Lab files (lab.*.toml) describe cells, not the daemon: src/lab/config_tests.rs.
-        if p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("lab.")) {
+        if p.file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| n.starts_with("lab."))
+        {
             continue;
         }
         let c = calibd::config::Config::load(Some(&p), &|_| None).unwrap_or_else(|e| panic!("{e}"));

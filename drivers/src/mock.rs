@@ -16,7 +16,7 @@ use std::sync::{Arc, Mutex};
 
 pub use crate::mock_kit::{
     BoxIo, Conn, DELAY_FAULT, FaultKind, FaultSpec, Faults, Handler, MockError, MockTasks,
-    RunningMock, fault, serve, start_pty_with, start_with,
+    RunningMock, fault, serve, start_pty_at, start_pty_with, start_with,
 };
 
 use crate::mock_kit::replay;

@@ -277,16 +277,21 @@ fn ball_centring(d: BallCentringCell) -> Result<TricalCell, LabError> {
         }),
     };
     let (rws_name, uwave_name) = (format!("{}.rws", d.name), format!("{}.uwave", d.name));
+    // Errors name the device and where it is reached.
+    let (rws_at, uwave_at) = (
+        format!("{rws_name} at {}", d.rws.address),
+        format!("{uwave_name} at {}", d.uwave.path),
+    );
     let axes = d.uwave.axes;
     let links = vec![
         DeviceLink::new(
-            rws_name.clone(),
+            rws_name,
             "ABB IRC5 (RWS 1.0)",
             d.rws.address,
             probe(rws.clone(), probes::rws),
         ),
         DeviceLink::new(
-            uwave_name.clone(),
+            uwave_name,
             "Mitutoyo U-WAVE-R",
             d.uwave.path,
             probe(uwave.clone(), move |h| probes::uwave(h, axes)),
@@ -294,10 +299,10 @@ fn ball_centring(d: BallCentringCell) -> Result<TricalCell, LabError> {
     ];
     Ok(TricalCell {
         robot: Arc::new(MotionLimiter::new(
-            RwsRobot::new(rws, rws_name),
+            RwsRobot::new(rws, rws_at),
             envelope.clone(),
         )),
-        indicators: Arc::new(UwaveIndicators::new(uwave, uwave_name)),
+        indicators: Arc::new(UwaveIndicators::new(uwave, uwave_at)),
         model: Mutex::new(d.model),
         ballbar: d.ballbar,
         envelope,
@@ -371,27 +376,29 @@ fn pcr(d: PcrCellLink) -> PcrCell {
         format!("{}.stages", d.name),
         format!("{}.microscope", d.name),
     );
+    let st_at = format!("{st} at {}", d.stages.backend.address());
+    let mi_at = format!("{mi} at {}", d.microscope);
     let envelope = StageEnvelope {
         limits_m: d.model.limits(),
         max_step_m: d.max_stage_step_m,
     };
     let links = vec![
         DeviceLink::new(
-            st.clone(),
+            st,
             d.stages.backend.kind(),
             d.stages.backend.address(),
             probe(stage.clone(), move |h| probes::stages(h, channels)),
         ),
         DeviceLink::new(
-            mi.clone(),
+            mi,
             "microscope (calibd-pose/1)",
             d.microscope,
             probe(scope.clone(), probes::microscope),
         ),
     ];
     PcrCell {
-        stages: Arc::new(SmaractStages::new(stage, channels, st).within(envelope)),
-        microscope: Arc::new(Microscope::new(scope, mi)),
+        stages: Arc::new(SmaractStages::new(stage, channels, st_at).within(envelope)),
+        microscope: Arc::new(Microscope::new(scope, mi_at)),
         model: Mutex::new(d.model),
         links,
         name: d.name,
@@ -408,6 +415,7 @@ fn mocap(d: MocapCellLink) -> Result<MocapCell, LabError> {
         },
     );
     let (j, q) = (format!("{}.joints", d.name), format!("{}.qtm", d.name));
+    let q_at = format!("{q} at {}", d.qtm);
     let robot = d.in_process.ok_or_else(|| LabError::Cell {
         cell: d.name.clone(),
         message: "the joint interface driver is not available in this build".into(),
@@ -420,7 +428,7 @@ fn mocap(d: MocapCellLink) -> Result<MocapCell, LabError> {
             probe(robot.clone(), probes::joints),
         ),
         DeviceLink::new(
-            q.clone(),
+            q,
             "Qualisys QTM (RT 1.25)",
             d.qtm,
             probe(qtm.clone(), probes::qtm),
@@ -428,7 +436,7 @@ fn mocap(d: MocapCellLink) -> Result<MocapCell, LabError> {
     ];
     Ok(MocapCell {
         robot,
-        stream: Arc::new(QtmStream::new(qtm, q).with_labels(d.labels)),
+        stream: Arc::new(QtmStream::new(qtm, q_at).with_labels(d.labels)),
         urdf: Mutex::new(d.urdf),
         root_link: d.root_link,
         joints: d.joint_names,

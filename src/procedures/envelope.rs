@@ -152,3 +152,78 @@ impl<R: Robot> Robot for MotionLimiter<R> {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::{Arc, Mutex};
+
+    use super::*;
+    use crate::procedures::fakes::FakeRobot;
+    use crate::twin::SerialTwin;
+    use crate::twin::cell::SimulatedCell;
+
+    fn block_on<F: std::future::Future>(f: F) -> F::Output {
+        tokio::runtime::Builder::new_current_thread()
+            .build()
+            .expect("runtime")
+            .block_on(f)
+    }
+
+    /// The twin's arm behind an envelope whose workspace is a box around the TCP at `q0`.
+    fn limited(half_mm: f64) -> (MotionLimiter<FakeRobot>, FakeRobot, Vec<f64>, Arc<Chain>) {
+        let twin = SerialTwin::irb120(7);
+        let chain = Arc::new(twin.nominal.clone());
+        let cell = Arc::new(Mutex::new(SimulatedCell::new(twin, 1)));
+        let robot = FakeRobot(cell);
+        let q0 = vec![0.1, 0.3, 0.2, 0.0, 0.8, 0.0];
+        block_on(robot.move_joints(&q0)).expect("start pose");
+        let p = chain.tcp(&q0, None).p * if chain.units.mm { 1.0 } else { 1000.0 };
+        let envelope = Envelope {
+            limits: vec![[-3.0, 3.0]; 6],
+            max_joint_step: 0.5,
+            max_tool_step_mm: 5.0,
+            workspace_mm: Some(Workspace {
+                min_mm: [p.x - half_mm, p.y - half_mm, p.z - half_mm],
+                max_mm: [p.x + half_mm, p.y + half_mm, p.z + half_mm],
+                chain: chain.clone(),
+            }),
+        };
+        (
+            MotionLimiter::new(robot.clone(), envelope),
+            robot,
+            q0,
+            chain,
+        )
+    }
+
+    #[test]
+    fn a_move_that_takes_the_tcp_out_of_the_workspace_is_refused_before_it_is_sent() {
+        let (lim, robot, q0, chain) = limited(10.0);
+        // 0.1 rad of joint 1 swings the TCP by tens of millimetres: outside the 10 mm box.
+        let mut q = q0.clone();
+        q[0] += 0.1;
+        let moved = (chain.tcp(&q, None).p - chain.tcp(&q0, None).p).norm();
+        assert!(moved > 20.0, "{moved}");
+        let e = block_on(lim.move_joints(&q)).unwrap_err().to_string();
+        assert!(e.contains("outside the workspace"), "{e}");
+        assert_eq!(
+            block_on(robot.joints()).expect("joints"),
+            q0,
+            "nothing moved"
+        );
+        // A small move inside the box goes through.
+        let mut q = q0.clone();
+        q[5] += 0.05;
+        block_on(lim.move_joints(&q)).expect("inside the box");
+        assert_eq!(block_on(robot.joints()).expect("joints"), q);
+        // A 4 mm tool step from the box's centre stays inside a 10 mm box; a second box of
+        // 3 mm refuses it.
+        block_on(lim.move_tool([0.0, 0.0, 4.0])).expect("inside");
+        let (lim, robot, q0, _) = limited(3.0);
+        let e = block_on(lim.move_tool([0.0, 0.0, 4.0]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("outside the workspace"), "{e}");
+        assert_eq!(block_on(robot.joints()).expect("joints"), q0);
+    }
+}

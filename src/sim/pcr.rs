@@ -124,6 +124,25 @@ pub(super) async fn start(
     seed: u64,
     o: &SimPcrOptions,
 ) -> Result<(CellLink, Vec<RunningMock>), LabError> {
+    let (link, mocks) = start_at(seed, o, "127.0.0.1:0", "127.0.0.1:0").await?;
+    Ok((CellLink::Pcr(link), mocks))
+}
+
+/// The 3-PF twin's nominal model file for `seed`: what a lab file must name for
+/// `calibd mock lab` to serve it.
+pub fn twin_model(seed: u64) -> Result<crate::model::pcr::PcrFile, LabError> {
+    Ok(PcrTwin::nominal(seed)
+        .map_err(|e| mock_err("pcr twin", e))?
+        .file)
+}
+
+/// Start the simulated 3-PF cell's MCS2 stages at `stages_at` and microscope at `scope_at`.
+pub async fn start_at(
+    seed: u64,
+    o: &SimPcrOptions,
+    stages_at: &str,
+    scope_at: &str,
+) -> Result<(PcrCellLink, Vec<RunningMock>), LabError> {
     let twin = PcrTwin::nominal(seed).map_err(|e| mock_err("pcr twin", e))?;
     let file = twin.file.clone();
     let lim = file.limits();
@@ -143,7 +162,7 @@ pub(super) async fn start(
         residual_pm: o.stage_residual_nm.max(0.0) * 1e3,
     };
     let stage_mock = mock::start_with(
-        "127.0.0.1:0",
+        stages_at,
         calibd_drivers::smaract::mock::mcs2_handler_with_model(
             Box::new(stages),
             Faults::new(o.stage_faults.clone()),
@@ -153,7 +172,7 @@ pub(super) async fn start(
     .map_err(|e| mock_err("mcs2", e))?;
     let scope: Arc<Mutex<dyn PoseModel>> = Arc::new(Mutex::new(TwinMicroscope { sim }));
     let scope_mock = mock::start_with(
-        "127.0.0.1:0",
+        scope_at,
         calibd_drivers::microscope::mock::handler_with(
             scope,
             Faults::new(o.microscope_faults.clone()),
@@ -177,5 +196,5 @@ pub(super) async fn start(
             .fold(0.0, f64::max),
         model: file,
     };
-    Ok((CellLink::Pcr(link), vec![stage_mock, scope_mock]))
+    Ok((link, vec![stage_mock, scope_mock]))
 }

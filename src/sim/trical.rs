@@ -117,17 +117,56 @@ pub(super) async fn start(
     seed: u64,
     o: &SimTricalOptions,
 ) -> Result<(CellLink, Vec<RunningMock>), LabError> {
+    let rws_args = MockArgs::new(MockDevice::Abb);
+    let at = Served {
+        rws: "127.0.0.1:0".into(),
+        uwave: None,
+        user: rws_args.user,
+        password: rws_args.password,
+    };
+    let (link, mocks) = start_at(seed, o, &at).await?;
+    Ok((CellLink::BallCentring(link), mocks))
+}
+
+/// Where the simulated TriCal cell's devices are served.
+#[derive(Debug, Clone)]
+pub struct Served {
+    /// RWS listen address (`127.0.0.1:0` picks a port).
+    pub rws: String,
+    /// A path to link to the U-WAVE receiver's pseudo-terminal (`None`: the pty's own).
+    pub uwave: Option<std::path::PathBuf>,
+    /// RWS user the controller accepts.
+    pub user: String,
+    /// RWS password the controller accepts.
+    pub password: String,
+}
+
+/// The IRB 120 twin's cell (nominal model and ballbar) for `seed`: what a lab file must
+/// name for `calibd mock lab` to serve it.
+pub fn twin_cell(seed: u64) -> (crate::model::dh::DhFile, [f64; 3]) {
+    let twin = SerialTwin::irb120(seed);
+    (twin.file, twin.ballbar)
+}
+
+/// Start the simulated TriCal cell's devices at `at`.
+pub async fn start_at(
+    seed: u64,
+    o: &SimTricalOptions,
+    at: &Served,
+) -> Result<(BallCentringCell, Vec<RunningMock>), LabError> {
     let twin = SerialTwin::irb120(seed);
     let file = twin.file.clone();
     let ballbar = twin.ballbar;
     let cell: Shared = Arc::new(Mutex::new(SimulatedCell::new(twin, seed ^ 0x5eed)));
-    let rws_args = MockArgs::new(MockDevice::Abb);
+    let mut rws_args = MockArgs::new(MockDevice::Abb);
+    rws_args.user = at.user.clone();
+    rws_args.password = at.password.clone();
     let arm = TwinArm {
         cell: cell.clone(),
         speed_deg_s: o.arm_speed_deg_s,
     };
     let rws_mock = mock::start_with(
-        "127.0.0.1:0",
+        &at.rws,
         calibd_drivers::rws::mock::handler_with(
             Box::new(arm),
             &rws_args,
@@ -142,11 +181,10 @@ pub(super) async fn start(
         cell,
         stall: o.indicator_stall.clone(),
     }));
-    let uw_mock = mock::start_pty_with(calibd_drivers::uwave::mock::handler_with(
-        ind,
-        &uw_args,
-        Faults::default(),
-    ))
+    let uw_mock = mock::start_pty_at(
+        calibd_drivers::uwave::mock::handler_with(ind, &uw_args, Faults::default()),
+        at.uwave.clone(),
+    )
     .map_err(|e| mock_err("uwave", e))?;
     let axis = |c| AxisMap {
         channel: c,
@@ -174,5 +212,5 @@ pub(super) async fn start(
         joint_limits_deg: None,
         workspace_mm: None,
     };
-    Ok((CellLink::BallCentring(link), vec![rws_mock, uw_mock]))
+    Ok((link, vec![rws_mock, uw_mock]))
 }

@@ -123,3 +123,9 @@ pub async fn start_with(listen: &str, handler: Handler) -> Result<RunningMock, M
 pub fn start_pty_with(handler: Handler) -> Result<RunningMock, MockError> {
     MockTasks::new().serve_pty(handler, None)
 }
+
+/// [`start_pty_with`], with `link` (if given) a symlink to the pty that clients open as
+/// the configured serial port (an existing file there is replaced).
+pub fn start_pty_at(handler: Handler, link: Option<PathBuf>) -> Result<RunningMock, MockError> {
+    MockTasks::new().serve_pty(handler, link)
+}

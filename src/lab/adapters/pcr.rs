@@ -197,3 +197,68 @@ impl PoseSensor for Microscope {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Mutex;
+
+    use super::*;
+
+    /// A stage controller that records the moves it receives.
+    #[derive(Default)]
+    struct Recording {
+        at_pm: Mutex<[i64; 3]>,
+        moves: Mutex<Vec<(u8, i64)>>,
+    }
+
+    impl Stage for Recording {
+        fn move_absolute(&self, ch: u8, pos_pm: i64) -> BoxFuture<'_, Result<i64, DriverError>> {
+            Box::pin(async move {
+                self.moves.lock().expect("lock").push((ch, pos_pm));
+                self.at_pm.lock().expect("lock")[usize::from(ch)] = pos_pm;
+                Ok(pos_pm)
+            })
+        }
+        fn position(&self, ch: u8) -> BoxFuture<'_, Result<i64, DriverError>> {
+            Box::pin(async move { Ok(self.at_pm.lock().expect("lock")[usize::from(ch)]) })
+        }
+        fn status(&self, _: u8) -> BoxFuture<'_, Result<StageStatus, DriverError>> {
+            Box::pin(async move { Ok(StageStatus::default()) })
+        }
+        fn reference(&self, _: u8) -> BoxFuture<'_, Result<(), DriverError>> {
+            Box::pin(async move { Ok(()) })
+        }
+    }
+
+    #[test]
+    fn a_target_outside_the_travel_or_too_far_is_refused_before_a_command_leaves() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .expect("runtime");
+        let rec = Arc::new(Recording::default());
+        let stages =
+            SmaractStages::new(rec.clone(), [0, 1, 2], "cell.stages at x").within(StageEnvelope {
+                limits_m: [[-0.01, 0.01]; 3],
+                max_step_m: 0.002,
+            });
+        let e = rt
+            .block_on(stages.move_to(&[0.0, 0.011, 0.0]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("q2") && e.contains("outside the travel"), "{e}");
+        let e = rt
+            .block_on(stages.move_to(&[0.003, 0.0, 0.0]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("q1") && e.contains("step limit"), "{e}");
+        assert!(
+            rec.moves.lock().expect("lock").is_empty(),
+            "nothing was sent"
+        );
+        let at = rt
+            .block_on(stages.move_to(&[0.001, -0.002, 0.0]))
+            .expect("inside");
+        assert_eq!(at, [0.001, -0.002, 0.0]);
+        assert_eq!(rec.moves.lock().expect("lock").len(), 3);
+    }
+}

@@ -1,0 +1,211 @@
+//! `calibd mock lab --config FILE`: the devices of a lab file's cells served from the
+//! digital twins, at the addresses the file names (a symlink to a pseudo-terminal at each
+//! serial port path), in a process of their own. A daemon pointed at the same file then
+//! drives them over the real protocols exactly as it would drive the lab's instruments.
+//!
+//! The twins are the simulated lab's: an IRB 120 ball-centring cell and the 3-PF robot.
+//! A cell is served only if the file describes the twin (its nominal model, ballbar and
+//! indicator mapping): the daemon's nominal must be the twin's, or the calibration would
+//! start from a model the twin does not have. `calibd twin serial|pcr --out DIR` writes
+//! the nominal models.
+
+use std::path::Path;
+
+use calibd_drivers::mock::RunningMock;
+
+use super::trical::{INDICATOR_ZERO_MM, Served};
+use super::{SimPcrOptions, SimTricalOptions};
+use crate::lab::config::Environment;
+use crate::lab::{BallCentringCell, CellLink, LabError, PcrCellLink, StageBackend};
+
+/// One served device, for the ready lines.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServedDevice {
+    /// `<cell>.<device>`.
+    pub device: String,
+    /// Where it is served.
+    pub address: String,
+}
+
+/// The mock lab: its running servers.
+#[derive(Debug)]
+pub struct MockLab {
+    /// The devices served.
+    pub devices: Vec<ServedDevice>,
+    mocks: Vec<RunningMock>,
+}
+
+impl MockLab {
+    /// Stop every server.
+    pub async fn stop(self) {
+        for m in self.mocks {
+            m.stop().await;
+        }
+    }
+}
+
+fn refuse(cell: &str, message: String) -> LabError {
+    LabError::Cell {
+        cell: cell.into(),
+        message,
+    }
+}
+
+/// A fixed `host:port` (a mock lab serves where the file says; port 0 would leave the
+/// daemon not knowing where).
+fn fixed(cell: &str, key: &str, a: &str) -> Result<String, LabError> {
+    if a.ends_with(":0") {
+        return Err(refuse(
+            cell,
+            format!("{key} = {a}: give a fixed port to serve on"),
+        ));
+    }
+    Ok(a.to_string())
+}
+
+/// Serve the cells of the lab file at `path` named in `only` (all when empty), from the
+/// twins of `seed`.
+pub async fn serve(
+    path: &Path,
+    only: &[String],
+    seed: u64,
+    env: &dyn Environment,
+) -> Result<MockLab, LabError> {
+    let cells = crate::lab::config::load_for_mocks(path, env)?;
+    let name = |c: &CellLink| match c {
+        CellLink::BallCentring(c) => c.name.clone(),
+        CellLink::Pcr(c) => c.name.clone(),
+        CellLink::Mocap(c) => c.name.clone(),
+    };
+    for o in only {
+        if !cells.iter().any(|c| &name(c) == o) {
+            return Err(refuse(o, format!("not in {}", path.display())));
+        }
+    }
+    let mut lab = MockLab {
+        devices: Vec::new(),
+        mocks: Vec::new(),
+    };
+    for c in cells
+        .iter()
+        .filter(|c| only.is_empty() || only.contains(&name(c)))
+    {
+        let r = match c {
+            CellLink::BallCentring(d) => trical(d, seed).await,
+            CellLink::Pcr(d) => pcr(d, seed).await,
+            CellLink::Mocap(d) => Err(refuse(
+                &d.name,
+                "the mock lab has no humanoid joint interface to serve yet".into(),
+            )),
+        };
+        match r {
+            Ok((devices, mocks)) => {
+                lab.devices.extend(devices);
+                lab.mocks.extend(mocks);
+            }
+            Err(e) => {
+                lab.stop().await;
+                return Err(e);
+            }
+        }
+    }
+    Ok(lab)
+}
+
+async fn trical(
+    d: &BallCentringCell,
+    seed: u64,
+) -> Result<(Vec<ServedDevice>, Vec<RunningMock>), LabError> {
+    let (nominal, ballbar) = super::trical::twin_cell(seed);
+    if serde_json::to_value(&d.model).ok() != serde_json::to_value(&nominal).ok() {
+        return Err(refuse(
+            &d.name,
+            "the model file is not the IRB 120 twin's nominal (write it with `calibd twin serial --out DIR`)".into(),
+        ));
+    }
+    if (0..3).any(|k| (d.ballbar[k] - ballbar[k]).abs() > 1e-9) {
+        return Err(refuse(
+            &d.name,
+            format!("ballbar_mm {:?} is not the twin's {ballbar:?}", d.ballbar),
+        ));
+    }
+    for (k, a) in d.uwave.axes.iter().enumerate() {
+        if usize::from(a.channel) != k
+            || a.sign != 1.0
+            || (a.zero_mm - INDICATOR_ZERO_MM).abs() > 1e-9
+        {
+            return Err(refuse(
+                &d.name,
+                format!(
+                    "indicators.axes[{k}] must be {{ channel = {k}, sign = 1, zero_mm = {INDICATOR_ZERO_MM} }} for the twin's device"
+                ),
+            ));
+        }
+    }
+    let at = Served {
+        rws: fixed(&d.name, "controller.address", &d.rws.address)?,
+        uwave: Some(d.uwave.path.clone().into()),
+        user: d.rws.user.clone(),
+        password: d.rws.password.clone(),
+    };
+    let o = SimTricalOptions {
+        max_joint_step_deg: d.max_joint_step_deg,
+        ..SimTricalOptions::default()
+    };
+    let (link, mocks) = super::trical::start_at(seed, &o, &at).await?;
+    Ok((
+        vec![
+            ServedDevice {
+                device: format!("{}.rws", d.name),
+                address: link.rws.address,
+            },
+            ServedDevice {
+                device: format!("{}.uwave", d.name),
+                address: link.uwave.path,
+            },
+        ],
+        mocks,
+    ))
+}
+
+async fn pcr(
+    d: &PcrCellLink,
+    seed: u64,
+) -> Result<(Vec<ServedDevice>, Vec<RunningMock>), LabError> {
+    let nominal = super::pcr::twin_model(seed)?;
+    if serde_json::to_value(&d.model).ok() != serde_json::to_value(&nominal).ok() {
+        return Err(refuse(
+            &d.name,
+            "the model file is not the 3-PF twin's nominal (write it with `calibd twin pcr --out DIR`)".into(),
+        ));
+    }
+    let StageBackend::Mcs2(stages_at) = &d.stages.backend else {
+        return Err(refuse(
+            &d.name,
+            "the twin's stages are an MCS2: set stages.controller = \"mcs2\"".into(),
+        ));
+    };
+    if d.stages.channels != [0, 1, 2] {
+        return Err(refuse(
+            &d.name,
+            "the twin's MCS2 drives q1..q3 on channels [0, 1, 2]".into(),
+        ));
+    }
+    let stages_at = fixed(&d.name, "stages.address", stages_at)?;
+    let scope_at = fixed(&d.name, "microscope.address", &d.microscope)?;
+    let (link, mocks) =
+        super::pcr::start_at(seed, &SimPcrOptions::default(), &stages_at, &scope_at).await?;
+    Ok((
+        vec![
+            ServedDevice {
+                device: format!("{}.stages", d.name),
+                address: link.stages.backend.address(),
+            },
+            ServedDevice {
+                device: format!("{}.microscope", d.name),
+                address: link.microscope,
+            },
+        ],
+        mocks,
+    ))
+}
