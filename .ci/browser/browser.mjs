@@ -71,6 +71,16 @@ try {
   if (hits.length) fail("the uploaded script ran: " + hits.join(", "));
   console.log(`uploaded HTML dataset ${dsId.slice(0, 12)}... came back as a download (${evilFile.suggestedFilename()}); no script ran`);
 
+  // The lab check: every device of the simulated lab says who it is.
+  await page.click("#lab-check");
+  await page.waitForFunction(() => {
+    const rows = [...document.querySelectorAll("#lab tbody tr[data-device]")];
+    return rows.length >= 6 && rows.every((r) => r.children[2].textContent === "ok");
+  }, null, { timeout: 20000 });
+  const rws = await page.textContent('#lab tr[data-device="irb120.rws"]');
+  if (!/ABB IRC5/.test(rws)) fail("the lab check row of irb120.rws says " + rws);
+  console.log("lab check on the page: " + rws.replace(/\s+/g, " "));
+
   console.log("browser test passed");
 } catch (e) {
   // Say what the page showed: its errors and the job list.

@@ -424,7 +424,20 @@ impl Reader<'_> {
         }
         match (&s.password_file, &s.password_env) {
             (Some(f), None) => {
-                let p = self.resolve(f.get_ref());
+                // systemd's LoadCredential=: the unit's private credentials folder.
+                let raw = f.get_ref().display().to_string();
+                let p = match raw.strip_prefix("${CREDENTIALS_DIRECTORY}/") {
+                    Some(rest) => match self.env.var("CREDENTIALS_DIRECTORY") {
+                        Some(dir) => PathBuf::from(dir).join(rest),
+                        None => {
+                            return Err(self.err(
+                                &f.span(),
+                                format!("{key}.password_file: CREDENTIALS_DIRECTORY is not set (give the credential with LoadCredential= in the unit)"),
+                            ));
+                        }
+                    },
+                    None => self.resolve(f.get_ref()),
+                };
                 let t = std::fs::read_to_string(&p).map_err(|e| {
                     self.err(
                         &f.span(),

@@ -200,6 +200,31 @@ fn secrets_come_from_the_environment_or_are_named_missing() {
 }
 
 #[test]
+fn a_password_file_can_be_a_systemd_credential() {
+    let f = Fixture::new();
+    let text = TRICAL
+        .replace(
+            "password_file = \"rws-password\"",
+            "password_file = \"${CREDENTIALS_DIRECTORY}/rws\"",
+        )
+        .replace("@DIR@", &f.dir.path().display().to_string());
+    let creds = tempfile::tempdir().expect("dir");
+    std::fs::write(creds.path().join("rws"), "from-credential").expect("write");
+    let env: BTreeMap<String, String> = [(
+        "CREDENTIALS_DIRECTORY".to_string(),
+        creds.path().display().to_string(),
+    )]
+    .into();
+    let cells = parse(&text, &f.path(), &env).expect("valid");
+    let CellLink::BallCentring(t) = &cells[0] else {
+        panic!("kind");
+    };
+    assert_eq!(t.rws.password, "from-credential");
+    let e = parse(&text, &f.path(), &BTreeMap::new()).unwrap_err();
+    assert!(e.message.contains("LoadCredential"), "{e}");
+}
+
+#[test]
 fn a_missing_serial_port_device_and_model_are_named() {
     let f = Fixture::new();
     let e = f

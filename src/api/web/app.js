@@ -230,6 +230,18 @@ async function loadDevices() {
   } catch { /* shown as offline */ }
 }
 
+async function loadLab(refresh = false) {
+  try {
+    const r = await api("/v1/lab" + (refresh ? "?refresh=true" : ""));
+    $("#lab-cells").replaceChildren(...r.cells.map((c) => el("div", { class: c.available ? "cell-ok" : "cell-down" },
+      `${c.name} (${c.kind}): ${c.available ? "available" : c.reason}`)));
+    const text = (d) => d.state === "ok" ? `${d.kind}: ${d.identity.summary}` : d.state === "failed" ? `${d.kind}: ${d.error} — fix: ${d.fix}` : "not checked yet";
+    $("#lab tbody").replaceChildren(...(r.devices.length ? r.devices.map((d) => el("tr", { "data-device": d.device },
+      el("td", {}, d.device), el("td", {}, d.address), el("td", { class: "lab-" + d.state }, d.state), el("td", {}, text(d))))
+      : [el("tr", {}, el("td", { colspan: "4", class: "hint" }, "no lab configured"))]));
+  } catch { /* shown as offline */ }
+}
+
 async function init() {
   $("#token").value = localStorage.getItem("calibd-token") || "";
   // Reads need the token too: everything is (re)loaded when it changes.
@@ -237,6 +249,7 @@ async function init() {
   $("#submit").addEventListener("click", submit);
   $("#upload").addEventListener("click", upload);
   $("#more").addEventListener("click", () => loadJobs(true));
+  $("#lab-check").addEventListener("click", () => loadLab(true));
   $("#state-filter").addEventListener("change", () => loadJobs());
   $("#job-file").addEventListener("change", async () => { const f = $("#job-file").files[0]; if (f) $("#job-text").value = await f.text(); });
   $("#load-example").addEventListener("click", async () => {
@@ -250,6 +263,7 @@ async function init() {
   } catch { /* shown as offline */ }
   await loadAll();
   setInterval(loadDevices, 5000);
+  setInterval(loadLab, 10000);
   stream();
 }
 
@@ -266,5 +280,6 @@ async function loadAll() {
     if (!has) m.dataset.token = "missing";
   }
   loadDevices();
+  loadLab();
 }
 init();
