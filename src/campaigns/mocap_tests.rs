@@ -1,87 +1,10 @@
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
 
 use super::*;
-use crate::procedures::{DeviceFuture, MemoryJournal};
-use crate::util::{NoMonitor, Rng};
-
-/// A point robot: one marker at (q0, q1, 1) m; moves fail while `failing` > 0.
-struct FakeRobot {
-    q: Mutex<Vec<f64>>,
-    failing: AtomicUsize,
-    moves: AtomicUsize,
-}
-
-impl JointRobot for FakeRobot {
-    fn joint_names(&self) -> Vec<String> {
-        vec!["a".into(), "b".into()]
-    }
-    fn joints(&self) -> DeviceFuture<'_, Vec<f64>> {
-        Box::pin(async move { Ok(self.q.lock().map(|q| q.clone()).unwrap_or_default()) })
-    }
-    fn move_to<'a>(&'a self, posture: &'a [(String, f64)]) -> DeviceFuture<'a, ()> {
-        Box::pin(async move {
-            if self
-                .failing
-                .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| n.checked_sub(1))
-                .is_ok()
-            {
-                return Err(DeviceError::Disconnected {
-                    device: "fake".into(),
-                });
-            }
-            self.moves.fetch_add(1, Ordering::SeqCst);
-            let mut q = self.q.lock().map_err(|_| DeviceError::Disconnected {
-                device: "fake".into(),
-            })?;
-            for (n, v) in posture {
-                match n.as_str() {
-                    "a" => q[0] = *v,
-                    "b" => q[1] = *v,
-                    _ => {
-                        return Err(DeviceError::Refused {
-                            device: "fake".into(),
-                            reason: format!("no joint {n}"),
-                        });
-                    }
-                }
-            }
-            Ok(())
-        })
-    }
-}
-
-/// 100 Hz frames of the robot's marker with 0.3 mm noise (seeded).
-struct FakeStream<'r> {
-    robot: &'r FakeRobot,
-    rng: Mutex<Rng>,
-}
-
-impl MarkerStream for FakeStream<'_> {
-    fn record(&self, d: Duration) -> DeviceFuture<'_, MarkerFrames> {
-        Box::pin(async move {
-            let q = self.robot.q.lock().map(|q| q.clone()).unwrap_or_default();
-            let mut rng = self
-                .rng
-                .lock()
-                .map_err(|_| DeviceError::Disconnected { device: "s".into() })?;
-            let n = (d.as_secs_f64() * 100.0) as usize;
-            Ok(MarkerFrames {
-                labels: vec!["m".into()],
-                t_s: (0..n).map(|i| i as f64 / 100.0).collect(),
-                frames: (0..n)
-                    .map(|_| {
-                        vec![Some([
-                            q[0] + 3e-4 * rng.normal(),
-                            q[1] + 3e-4 * rng.normal(),
-                            1.0 + 3e-4 * rng.normal(),
-                        ])]
-                    })
-                    .collect(),
-            })
-        })
-    }
-}
+use crate::procedures::MemoryJournal;
+use crate::procedures::fakes::{FakeMarkers, FakePointRobot};
+use crate::util::NoMonitor;
 
 fn opts() -> RecordOptions {
     RecordOptions {
@@ -102,12 +25,8 @@ fn plan() -> Vec<Vec<(String, f64)>> {
         .collect()
 }
 
-fn robot(failing: usize) -> FakeRobot {
-    FakeRobot {
-        q: Mutex::new(vec![0.0, 0.0]),
-        failing: AtomicUsize::new(failing),
-        moves: AtomicUsize::new(0),
-    }
+fn robot(failing: usize) -> Arc<FakePointRobot> {
+    FakePointRobot::new(failing)
 }
 
 fn quick() -> Retry {
@@ -120,12 +39,9 @@ fn quick() -> Retry {
 #[tokio::test]
 async fn averages_stable_samples_to_well_below_the_frame_noise() {
     let r = robot(0);
-    let s = FakeStream {
-        robot: &r,
-        rng: Mutex::new(Rng::new(1)),
-    };
+    let s = FakeMarkers::new(r.clone(), 1);
     let j = MemoryJournal::default();
-    let sum = run(&r, &s, &plan(), &j, &opts(), &quick(), &NoMonitor)
+    let sum = run(&*r, &s, &plan(), &j, &opts(), &quick(), &NoMonitor)
         .await
         .unwrap();
     assert_eq!((sum.recorded, sum.skipped, sum.planned), (5, 0, 5));
@@ -145,24 +61,21 @@ async fn averages_stable_samples_to_well_below_the_frame_noise() {
 #[tokio::test]
 async fn retries_then_pauses_and_resumes_without_measuring_twice() {
     let r = robot(2);
-    let s = FakeStream {
-        robot: &r,
-        rng: Mutex::new(Rng::new(2)),
-    };
+    let s = FakeMarkers::new(r.clone(), 2);
     let j = MemoryJournal::default();
     // Two faults < three attempts: recovered.
-    let sum = run(&r, &s, &plan()[..2], &j, &opts(), &quick(), &NoMonitor)
+    let sum = run(&*r, &s, &plan()[..2], &j, &opts(), &quick(), &NoMonitor)
         .await
         .unwrap();
     assert_eq!(sum.recorded, 2);
     // Three faults on posture 2: paused there.
     r.failing.store(3, Ordering::SeqCst);
-    let e = run(&r, &s, &plan(), &j, &opts(), &quick(), &NoMonitor)
+    let e = run(&*r, &s, &plan(), &j, &opts(), &quick(), &NoMonitor)
         .await
         .unwrap_err();
     assert!(matches!(e, CampaignError::Paused { index: 2, .. }), "{e:?}");
     let before = r.moves.load(Ordering::SeqCst);
-    let sum = run(&r, &s, &plan(), &j, &opts(), &quick(), &NoMonitor)
+    let sum = run(&*r, &s, &plan(), &j, &opts(), &quick(), &NoMonitor)
         .await
         .unwrap();
     assert_eq!(sum.recorded, 5);
@@ -175,14 +88,11 @@ async fn retries_then_pauses_and_resumes_without_measuring_twice() {
 #[tokio::test]
 async fn refused_posture_is_skipped() {
     let r = robot(0);
-    let s = FakeStream {
-        robot: &r,
-        rng: Mutex::new(Rng::new(3)),
-    };
+    let s = FakeMarkers::new(r.clone(), 3);
     let j = MemoryJournal::default();
     let mut p = plan();
     p[1] = vec![("c".to_string(), 0.0)];
-    let sum = run(&r, &s, &p, &j, &opts(), &quick(), &NoMonitor)
+    let sum = run(&*r, &s, &p, &j, &opts(), &quick(), &NoMonitor)
         .await
         .unwrap();
     assert_eq!((sum.recorded, sum.skipped), (4, 1));

@@ -3,50 +3,8 @@ use crate::campaigns::engine::{CampaignError, Summary};
 use crate::procedures::Journal;
 use crate::procedures::{EntryStatus, MemoryJournal};
 use crate::util::NoMonitor;
-use std::sync::Mutex;
 
-/// Stages that settle 1 nm past the target; the first `faults` moves time out.
-struct FakeStages {
-    faults: Mutex<usize>,
-    moves: Mutex<Vec<[f64; 3]>>,
-}
-impl LinearStages for FakeStages {
-    fn move_to<'a>(&'a self, q: &'a [f64; 3]) -> DeviceFuture<'a, [f64; 3]> {
-        Box::pin(async move {
-            let mut f = self.faults.lock().expect("lock");
-            if *f > 0 {
-                *f -= 1;
-                return Err(DeviceError::Timeout {
-                    device: "stages".into(),
-                    timeout_ms: 1,
-                });
-            }
-            self.moves.lock().expect("lock").push(*q);
-            Ok(q.map(|v| v + 1e-9))
-        })
-    }
-    fn positions(&self) -> DeviceFuture<'_, [f64; 3]> {
-        Box::pin(async { Ok([0.0; 3]) })
-    }
-}
-/// A microscope that sees the last joint set scaled (a known linear map).
-struct FakeScope<'a>(&'a FakeStages);
-impl PoseSensor for FakeScope<'_> {
-    fn read_pose(&self) -> DeviceFuture<'_, [f64; 3]> {
-        Box::pin(async move {
-            let q = self
-                .0
-                .moves
-                .lock()
-                .expect("lock")
-                .last()
-                .copied()
-                .unwrap_or_default();
-            Ok([2.0 * q[0], 3.0 * q[1], q[2]])
-        })
-    }
-}
-use crate::procedures::DeviceFuture;
+use crate::procedures::fakes::{FakeScope, FakeStages};
 
 fn opts(attempts: usize) -> PcrOptions {
     PcrOptions {
@@ -62,15 +20,20 @@ fn opts(attempts: usize) -> PcrOptions {
 #[tokio::test]
 async fn faults_are_retried_then_pause_and_the_envelope_skips() {
     let plan = [[1e-4, 2e-4, 3e-4], [5e-3, 0.0, 0.0], [-1e-4, 0.0, 1e-4]];
-    let st = FakeStages {
-        faults: Mutex::new(2),
-        moves: Mutex::default(),
-    };
+    let st = FakeStages::new(2);
     let j = MemoryJournal::default();
     // Two timeouts, three attempts: the first joint set is measured on the third.
-    let s = run(&st, &FakeScope(&st), &plan, 10, &j, &opts(3), &NoMonitor)
-        .await
-        .expect("campaign");
+    let s = run(
+        &*st,
+        &FakeScope(st.clone()),
+        &plan,
+        10,
+        &j,
+        &opts(3),
+        &NoMonitor,
+    )
+    .await
+    .expect("campaign");
     assert_eq!((s.recorded, s.skipped, s.planned), (2, 1, 3));
     let rec: Vec<PcrRecorded> = engine::recorded(&j, 10, 3).expect("journal");
     assert_eq!(rec[0].index, 10);
@@ -82,16 +45,32 @@ async fn faults_are_retried_then_pause_and_the_envelope_skips() {
     // The out-of-envelope joint set never reached the stages.
     assert_eq!(st.moves.lock().expect("lock").len(), 2);
     // Resume: nothing left, nothing measured again.
-    run(&st, &FakeScope(&st), &plan, 10, &j, &opts(3), &NoMonitor)
-        .await
-        .expect("resume");
+    run(
+        &*st,
+        &FakeScope(st.clone()),
+        &plan,
+        10,
+        &j,
+        &opts(3),
+        &NoMonitor,
+    )
+    .await
+    .expect("resume");
     assert_eq!(st.moves.lock().expect("lock").len(), 2);
     // Persistent faults pause at the first unmeasured index.
     *st.faults.lock().expect("lock") = 5;
     let j2 = MemoryJournal::default();
-    let e = run(&st, &FakeScope(&st), &plan, 0, &j2, &opts(2), &NoMonitor)
-        .await
-        .expect_err("paused");
+    let e = run(
+        &*st,
+        &FakeScope(st.clone()),
+        &plan,
+        0,
+        &j2,
+        &opts(2),
+        &NoMonitor,
+    )
+    .await
+    .expect_err("paused");
     assert!(matches!(e, CampaignError::Paused { index: 0, .. }), "{e}");
     assert!(j2.entries().expect("entries").is_empty());
 }

@@ -1,5 +1,12 @@
-//! In-memory devices over the simulated cell, for tests and the simulated lab: a robot and
-//! indicators sharing one [`SimulatedCell`].
+//! In-memory devices, one for every device trait: a robot and indicators sharing one
+//! [`SimulatedCell`] (here), stages and a microscope ([`stages`]), a joint robot and a
+//! marker stream ([`mocap`]).
+
+pub mod mocap;
+pub mod stages;
+
+pub use mocap::{FakeMarkers, FakePointRobot};
+pub use stages::{FakeScope, FakeStages};
 
 use std::sync::{Arc, Mutex};
 
