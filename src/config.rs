@@ -224,10 +224,11 @@ impl Config {
                 })?;
                 let mut c = Config::from_toml(p, &text)?;
                 // A lab file named in the settings file is relative to it.
-                if !matches!(c.lab.as_str(), "sim" | "none") && Path::new(&c.lab).is_relative() {
-                    if let Some(dir) = p.parent() {
-                        c.lab = dir.join(&c.lab).display().to_string();
-                    }
+                if let Some(dir) = p.parent()
+                    && !matches!(c.lab.as_str(), "sim" | "none")
+                    && Path::new(&c.lab).is_relative()
+                {
+                    c.lab = dir.join(&c.lab).display().to_string();
                 }
                 c
             }

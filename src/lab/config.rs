@@ -364,22 +364,45 @@ impl Reader<'_> {
         })
     }
 
-    /// Refuse a section the cell's kind does not use (a typo for another kind's key).
-    fn refuse<T>(
+    /// Refuse the sections and envelope keys a cell's kind does not use (a typo for
+    /// another kind's key would otherwise be silently ignored).
+    fn only(
         &self,
         c: &Spanned<CellSpec>,
-        v: &Option<Spanned<T>>,
-        key: &str,
+        sections: &[&str],
+        envelope: &[&str],
     ) -> Result<(), LabConfigError> {
-        match v {
-            Some(s) => Err(self.err(
-                &s.span(),
-                format!(
-                    "cell `{}`: [cell.{key}] does not belong to a {:?} cell",
-                    c.get_ref().name.get_ref(),
-                    c.get_ref().kind
-                ),
-            )),
+        let s = c.get_ref();
+        let present = [
+            ("controller", s.controller.as_ref().map(Spanned::span)),
+            ("indicators", s.indicators.as_ref().map(Spanned::span)),
+            ("stages", s.stages.as_ref().map(Spanned::span)),
+            ("microscope", s.microscope.as_ref().map(Spanned::span)),
+            ("mocap", s.mocap.as_ref().map(Spanned::span)),
+            ("joints", s.joints.as_ref().map(Spanned::span)),
+        ];
+        let wrong = |what: String| {
+            format!(
+                "cell `{}`: {what} does not belong to a {:?} cell",
+                s.name.get_ref(),
+                s.kind
+            )
+        };
+        for (key, at) in present {
+            if let Some(at) = at.filter(|_| !sections.contains(&key)) {
+                return Err(self.err(&at, wrong(format!("[cell.{key}]"))));
+            }
+        }
+        let e = &s.envelope;
+        let keys = [
+            ("joint_limits_deg", e.joint_limits_deg.is_some()),
+            ("max_joint_step_deg", e.max_joint_step_deg.is_some()),
+            ("max_tool_step_mm", e.max_tool_step_mm.is_some()),
+            ("workspace_mm", e.workspace_mm.is_some()),
+            ("max_stage_step_m", e.max_stage_step_m.is_some()),
+        ];
+        match keys.iter().find(|(k, set)| *set && !envelope.contains(k)) {
+            Some((k, _)) => Err(self.err(&c.span(), wrong(format!("envelope.{k}")))),
             None => Ok(()),
         }
     }
@@ -477,10 +500,16 @@ impl Reader<'_> {
 
     fn ball_centring(&self, c: &Spanned<CellSpec>) -> Result<BallCentringCell, LabConfigError> {
         let s = c.get_ref();
-        self.refuse(c, &s.stages, "stages")?;
-        self.refuse(c, &s.microscope, "microscope")?;
-        self.refuse(c, &s.mocap, "mocap")?;
-        self.refuse(c, &s.joints, "joints")?;
+        self.only(
+            c,
+            &["controller", "indicators"],
+            &[
+                "joint_limits_deg",
+                "max_joint_step_deg",
+                "max_tool_step_mm",
+                "workspace_mm",
+            ],
+        )?;
         let name = s.name.get_ref().clone();
         let model = DhFile::parse(&self.model_text(s)?)
             .and_then(|m| m.to_chain().map(|_| m))
@@ -541,11 +570,7 @@ impl Reader<'_> {
             })
         };
         let env = &s.envelope;
-        self.refuse_key(
-            env.max_stage_step_m.is_some(),
-            c,
-            "envelope.max_stage_step_m",
-        )?;
+
         let dof = model.to_chain().map(|ch| ch.actuated().len()).unwrap_or(0);
         let limits_deg = match &env.joint_limits_deg {
             Some(l) if l.get_ref().len() != dof => {
@@ -604,49 +629,10 @@ impl Reader<'_> {
         })
     }
 
-    fn refuse_key(
-        &self,
-        present: bool,
-        c: &Spanned<CellSpec>,
-        key: &str,
-    ) -> Result<(), LabConfigError> {
-        if present {
-            Err(self.err(
-                &c.span(),
-                format!(
-                    "cell `{}`: {key} does not apply to a {:?} cell",
-                    c.get_ref().name.get_ref(),
-                    c.get_ref().kind
-                ),
-            ))
-        } else {
-            Ok(())
-        }
-    }
-
     fn pcr(&self, c: &Spanned<CellSpec>) -> Result<PcrCellLink, LabConfigError> {
         let s = c.get_ref();
-        self.refuse(c, &s.controller, "controller")?;
-        self.refuse(c, &s.indicators, "indicators")?;
-        self.refuse(c, &s.mocap, "mocap")?;
-        self.refuse(c, &s.joints, "joints")?;
+        self.only(c, &["stages", "microscope"], &["max_stage_step_m"])?;
         let env = &s.envelope;
-        self.refuse_key(
-            env.max_tool_step_mm.is_some(),
-            c,
-            "envelope.max_tool_step_mm",
-        )?;
-        self.refuse_key(env.workspace_mm.is_some(), c, "envelope.workspace_mm")?;
-        self.refuse_key(
-            env.joint_limits_deg.is_some(),
-            c,
-            "envelope.joint_limits_deg",
-        )?;
-        self.refuse_key(
-            env.max_joint_step_deg.is_some(),
-            c,
-            "envelope.max_joint_step_deg",
-        )?;
         let model = PcrFile::parse(&self.model_text(s)?)
             .map_err(|e| e.to_string())
             .and_then(|m| m.robot().map(|_| m).map_err(|e| e.to_string()))
@@ -702,22 +688,12 @@ impl Reader<'_> {
 
     fn humanoid(&self, c: &Spanned<CellSpec>) -> Result<MocapCellLink, LabConfigError> {
         let s = c.get_ref();
-        self.refuse(c, &s.controller, "controller")?;
-        self.refuse(c, &s.indicators, "indicators")?;
-        self.refuse(c, &s.stages, "stages")?;
-        self.refuse(c, &s.microscope, "microscope")?;
+        self.only(
+            c,
+            &["mocap", "joints"],
+            &["joint_limits_deg", "max_joint_step_deg"],
+        )?;
         let env = &s.envelope;
-        self.refuse_key(
-            env.max_tool_step_mm.is_some(),
-            c,
-            "envelope.max_tool_step_mm",
-        )?;
-        self.refuse_key(env.workspace_mm.is_some(), c, "envelope.workspace_mm")?;
-        self.refuse_key(
-            env.max_stage_step_m.is_some(),
-            c,
-            "envelope.max_stage_step_m",
-        )?;
         let urdf = self.model_text(s)?;
         let js = self.need(c, &s.joints, "joints")?;
         let j = js.get_ref();
