@@ -50,8 +50,10 @@
 //! ```
 
 pub mod codec;
+pub mod driver;
 
 pub use codec::{ErrorCode, Identity, JointsCodec, Reply, Request, ServerCodec};
+pub use driver::{JointsConfig, JointsHandle, JointsReading, JointsState};
 
 /// The protocol name sent in the `hello` reply.
 pub const PROTOCOL: &str = "calibd-joints/1";
