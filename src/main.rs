@@ -122,8 +122,8 @@ enum Command {
         #[arg(long, default_value = "viewer")]
         role: String,
     },
-    /// Run a mock device server (QTM, ABB RWS, U-WAVE, SmarAct MCS/MCS2, CAN, microscope) until
-    /// Ctrl-C.
+    /// Run a mock device server (QTM, ABB RWS, U-WAVE, SmarAct MCS/MCS2, CAN, microscope, joint
+    /// interface) until Ctrl-C.
     Mock(calibd_drivers::mock::MockArgs),
     /// Write a digital twin's data set (CSV tables and the model file) into a folder, for
     /// examples and experiments.

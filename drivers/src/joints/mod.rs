@@ -51,6 +51,7 @@
 
 pub mod codec;
 pub mod driver;
+pub mod mock;
 
 pub use codec::{ErrorCode, Identity, JointsCodec, Reply, Request, ServerCodec};
 pub use driver::{JointsConfig, JointsHandle, JointsReading, JointsState};
