@@ -6,6 +6,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use calibd_drivers::joints::{JointsConfig, JointsHandle};
 use calibd_drivers::microscope::{MicroscopeConfig, MicroscopeHandle};
 use calibd_drivers::qtm::{QtmConfig, QtmHandle};
 use calibd_drivers::rws::{RwsConfig, RwsHandle};
@@ -13,12 +14,14 @@ use calibd_drivers::smaract::Mcs2Handle;
 use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle};
 use calibd_drivers::{Backoff, StageConfig, TcpConnector};
 
-use super::adapters::{Microscope, QtmStream, RwsRobot, SmaractStages, UwaveIndicators};
+use super::adapters::{
+    JointInterface, Microscope, QtmStream, RwsRobot, SmaractStages, UwaveIndicators,
+};
 use super::{Cell, Lab, MocapCell, PcrCell, TricalCell};
 use crate::model::dh::DhFile;
 use crate::model::humanoid::MarkerDef;
 use crate::model::pcr::PcrFile;
-use crate::procedures::{Envelope, JointRobot, MotionLimiter};
+use crate::procedures::{Envelope, MotionLimiter};
 
 /// An IRC5 controller reached over Robot Web Services.
 #[derive(Debug, Clone)]
@@ -77,14 +80,15 @@ pub struct PcrCellLink {
 }
 
 /// A motion-capture cell.
-#[derive(Clone)]
+#[derive(Debug, Clone)]
 pub struct MocapCellLink {
     /// Cell name.
     pub name: String,
-    /// The robot's joint interface (in process until a joint-interface protocol exists).
-    pub joints: Arc<dyn JointRobot>,
-    /// Device name of the joint interface.
-    pub joints_device: String,
+    /// The robot's joint interface (`calibd-joints/1`) `host:port`.
+    pub joints: String,
+    /// Mean speed (rad/s) of the joint that moves most in a move: a move's duration is its
+    /// largest joint change over this speed.
+    pub joints_speed_rad_s: f64,
     /// QTM RT server `host:port`.
     pub qtm: String,
     /// Nominal URDF text.
@@ -97,15 +101,6 @@ pub struct MocapCellLink {
     pub limits: Vec<[f64; 2]>,
     /// Markers with their guessed positions.
     pub markers: Vec<MarkerDef>,
-}
-
-impl std::fmt::Debug for MocapCellLink {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MocapCellLink")
-            .field("name", &self.name)
-            .field("qtm", &self.qtm)
-            .finish()
-    }
 }
 
 /// One cell's description.
@@ -221,16 +216,29 @@ fn mocap(d: MocapCellLink) -> MocapCell {
             ..QtmConfig::default()
         },
     );
-    let q = format!("{}.qtm", d.name);
+    let joints = JointsHandle::connect(
+        TcpConnector::new(d.joints.clone()),
+        JointsConfig {
+            timeout: Duration::from_secs(2),
+            backoff: backoff(),
+            ..JointsConfig::default()
+        },
+    );
+    let (j, q) = (format!("{}.joints", d.name), format!("{}.qtm", d.name));
     MocapCell {
-        robot: d.joints,
+        robot: Arc::new(JointInterface::new(
+            joints,
+            d.joint_names.clone(),
+            d.joints_speed_rad_s,
+            j.clone(),
+        )),
         stream: Arc::new(QtmStream::new(qtm, q.clone())),
         urdf: Mutex::new(d.urdf),
         root_link: d.root_link,
         joints: d.joint_names,
         limits: d.limits,
         markers: d.markers,
-        devices: vec![d.joints_device, q],
+        devices: vec![j, q],
         name: d.name,
     }
 }
