@@ -62,7 +62,7 @@ pub struct JointsReading {
 pub struct JointsState {
     /// A connection is open.
     pub connected: bool,
-    /// A move of this driver is under way.
+    /// A move is under way: this driver's, or any move as the last `read` reported it.
     pub moving: bool,
     /// Last positions read or reached (rad); empty before the first.
     pub positions_rad: BTreeMap<String, f64>,
@@ -84,7 +84,6 @@ pub struct JointsHandle {
     tx: mpsc::Sender<Call>,
     stop_tx: mpsc::Sender<Answer<Reply>>,
     state: watch::Receiver<JointsState>,
-    timeout: Duration,
     cfg: JointsConfig,
 }
 
@@ -149,7 +148,6 @@ impl JointsHandle {
             tx,
             stop_tx,
             state,
-            timeout: cfg.timeout,
             cfg,
         }
     }
@@ -171,7 +169,7 @@ impl JointsHandle {
 
     /// Identity, joints and limits of the robot; refuses a server of another protocol.
     pub async fn hello(&self) -> Result<Identity, DriverError> {
-        match self.ask(Request::Hello, self.timeout).await? {
+        match self.ask(Request::Hello, self.cfg.timeout).await? {
             Reply::Hello(id) if id.protocol == PROTOCOL => Ok(id),
             Reply::Hello(id) => Err(DriverError::Protocol {
                 device: DEVICE,
@@ -183,7 +181,7 @@ impl JointsHandle {
 
     /// Current positions and whether a move runs.
     pub async fn read(&self) -> Result<JointsReading, DriverError> {
-        match self.ask(Request::Read, self.timeout).await? {
+        match self.ask(Request::Read, self.cfg.timeout).await? {
             Reply::State {
                 positions_rad,
                 moving,
