@@ -146,9 +146,9 @@ enum Command {
         #[arg(long, default_value = "viewer")]
         role: String,
     },
-    /// Run a mock device server (QTM, ABB RWS, U-WAVE, SmarAct MCS/MCS2, CAN, microscope) until
-    /// Ctrl-C. `calibd mock lab --config LAB.toml [--cell NAME]` serves the devices of a lab
-    /// file's cells from the digital twins instead (see `calibd mock lab --help`).
+    /// Run a mock device server (QTM, ABB RWS, U-WAVE, SmarAct MCS/MCS2, CAN, microscope, joint
+    /// interface) until Ctrl-C. `calibd mock lab --config LAB.toml [--cell NAME]` serves the
+    /// devices of a lab file's cells from the digital twins instead (`calibd mock lab --help`).
     Mock(calibd_drivers::mock::MockArgs),
     /// Write a digital twin's data set (CSV tables and the model file) into a folder, for
     /// examples and experiments.

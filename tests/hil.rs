@@ -89,6 +89,37 @@ fn lab_dir(dir: &Path, microscope_port: u16) -> PathBuf {
     )
     .expect("write");
     std::fs::write(dir.join("rws-password"), "hil-secret\n").expect("write");
+    std::fs::write(dir.join("talos.urdf"), calibd::twin::humanoid::TALOS_URDF).expect("write");
+    let (root, joints, markers) = calibd::sim::mocap::twin_cell(7).expect("talos twin");
+    let markers: Vec<String> = markers
+        .iter()
+        .map(|m| {
+            format!(
+                "{{ name = \"{}\", link = \"{}\", initial_m = [{}, {}, {}] }}",
+                m.name, m.link, m.initial.x, m.initial.y, m.initial.z
+            )
+        })
+        .collect();
+    let humanoid = format!(
+        r#"
+[[cell]]
+name = "talos"
+kind = "humanoid"
+model = "talos.urdf"
+[cell.mocap]
+address = "127.0.0.1:{}"
+[cell.joints]
+address = "127.0.0.1:{}"
+root_link = "{root}"
+names = {:?}
+speed_rad_s = 2.0
+markers = [{}]
+"#,
+        free_port(),
+        free_port(),
+        joints,
+        markers.join(", ")
+    );
     let z = calibd::sim::INDICATOR_ZERO_MM;
     let text = format!(
         r#"
@@ -129,7 +160,7 @@ max_stage_step_m = 0.05
         free_port(),
     );
     let lab = dir.join("lab.toml");
-    std::fs::write(&lab, text).expect("write");
+    std::fs::write(&lab, text + &humanoid).expect("write");
     lab
 }
 
@@ -283,6 +314,7 @@ async fn campaigns_run_over_mock_processes_and_a_killed_device_pauses_and_resume
     let lab = lab_dir(dir.path(), free_port());
     let trical_mock = mock(&lab, "irb120");
     let _pcr_mock = mock(&lab, "pcr3pf");
+    let _talos_mock = mock(&lab, "talos");
 
     // The preflight against the mock processes: every device answers with its identity.
     let (ok, out) = lab_check(&lab);
@@ -298,6 +330,8 @@ async fn campaigns_run_over_mock_processes_and_a_killed_device_pauses_and_resume
         "SmarAct MCS2",
         "pcr3pf.microscope",
         "calibd-pose/1",
+        "talos.joints",
+        "talos.qtm",
     ] {
         assert!(out.contains(want), "{want} missing from\n{out}");
     }
@@ -310,7 +344,7 @@ async fn campaigns_run_over_mock_processes_and_a_killed_device_pauses_and_resume
         .iter()
         .map(|r| r["state"].as_str().unwrap_or(""))
         .collect();
-    assert_eq!(states, ["ok"; 4], "{l}");
+    assert_eq!(states, ["ok"; 6], "{l}");
     // The password never leaves the daemon.
     assert!(!l.to_string().contains("hil-secret"));
 
@@ -327,6 +361,29 @@ async fn campaigns_run_over_mock_processes_and_a_killed_device_pauses_and_resume
         r["validation"]["before"]["mean"]
     );
     assert!(after > 3e-9 && after < 40e-9, "{}", r["validation"]);
+
+    // A motion-capture campaign over QTM and the joint interface: NOCP postures, recorded,
+    // identified to the mocap noise.
+    let (_, r, t) = d
+        .run(&json!({
+            "kind": "cell.mocap_campaign", "cell": "talos",
+            "postures": {"nocp": {"constraints": {"collision": false}, "seed": 3,
+                                  "options": {"base_pool": 200, "max_postures": 40}}},
+            "options": {"settle_s": 0.05, "record_s": 0.5}
+        }))
+        .await;
+    let (before, after) = (
+        r["rmse_before_mm"].as_f64().expect("rmse"),
+        r["rmse_after_mm"].as_f64().expect("rmse"),
+    );
+    eprintln!(
+        "mocap campaign over processes: {t:.1} s, {} postures, marker rmse {before:.3} -> {after:.3} mm",
+        r["campaign"]["recorded"]
+    );
+    assert!(
+        after < 1.0 && before > 10.0 * after,
+        "{before} -> {after} mm"
+    );
 
     // A TriCal campaign, uninterrupted: the reference journal.
     let (first, r, t) = d.run(&trical_doc()).await;

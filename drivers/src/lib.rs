@@ -3,7 +3,8 @@
 //!
 //! Modules: [`uwave`] (Mitutoyo U-WAVE-R), [`rws`] (ABB IRC5 Robot Web Services 1.0),
 //! [`smaract`] (MCS / MCS2 / CiA 402 piezo stages), [`can`] (socketcand, SocketCAN, CANopen),
-//! [`qtm`] (Qualisys RT), [`microscope`] (`calibd-pose/1`), [`mock`] (`calibd mock`: the
+//! [`qtm`] (Qualisys RT), [`microscope`] (`calibd-pose/1`), [`joints`] (`calibd-joints/1`, a
+//! humanoid's joint interface), [`mock`] (`calibd mock`: the
 //! one registry of mock devices), [`mock_kit`] (what every mock shares), [`transcript`]
 //! (recording format), [`link`] (connectors and back-off), [`error`].
 #![warn(missing_docs)]
@@ -12,6 +13,7 @@ pub mod actor;
 pub mod bench;
 pub mod can;
 pub mod error;
+pub mod joints;
 pub mod link;
 pub mod microscope;
 pub mod mock;

@@ -21,7 +21,7 @@ pub use crate::mock_kit::{
 
 use crate::mock_kit::replay;
 use crate::transcript::Transcript;
-use crate::{can, microscope, qtm, rws, smaract, uwave};
+use crate::{can, joints, microscope, qtm, rws, smaract, uwave};
 
 /// Which device to mock.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -41,6 +41,9 @@ pub enum MockDevice {
     /// Microscope pose server (`calibd-pose/1` over TCP): a pattern drifting slowly near the
     /// origin, with seeded image noise.
     Microscope,
+    /// Joint interface (`calibd-joints/1` over TCP): a four-joint arm whose joints move
+    /// linearly over each move's duration.
+    Joints,
 }
 
 impl MockDevice {
@@ -54,6 +57,7 @@ impl MockDevice {
             MockDevice::Mcs2 => "mcs2",
             MockDevice::Can => "can",
             MockDevice::Microscope => "microscope",
+            MockDevice::Joints => "joints",
         }
     }
 }
@@ -153,6 +157,10 @@ pub async fn start(args: MockArgs) -> Result<RunningMock, MockError> {
             MockDevice::Can => can::mock::handler(faults, &tasks.tracker, &tasks.token),
             MockDevice::Microscope => microscope::mock::handler_with(
                 Arc::new(Mutex::new(microscope::mock::Drifting::new(args.seed))),
+                faults,
+            ),
+            MockDevice::Joints => joints::mock::handler_with(
+                Arc::new(Mutex::new(joints::mock::Linear::demo())),
                 faults,
             ),
         },

@@ -77,7 +77,7 @@ impl Chunk {
 pub struct Header {
     /// Always [`FORMAT`].
     pub format: String,
-    /// Device family (`qtm`, `abb`, `uwave`, `mcs`, `mcs2`, `can`, `microscope`).
+    /// Device family (`qtm`, `abb`, `uwave`, `mcs`, `mcs2`, `can`, `microscope`, `joints`).
     pub device: String,
     /// Free text: where and how it was recorded.
     #[serde(default)]

@@ -744,7 +744,7 @@ impl Reader<'_> {
                     self,
                     c,
                     env.max_joint_step_deg,
-                    30.0,
+                    180.0,
                     "max_joint_step_deg",
                 )?
                 .to_radians(),
@@ -756,7 +756,6 @@ impl Reader<'_> {
             joint_names: j.names.clone(),
             limits,
             markers,
-            in_process: None,
         })
     }
 }

@@ -9,6 +9,7 @@ use std::time::Duration;
 use std::f64::consts::PI;
 
 use calibd_drivers::can::{Cia402Config, Cia402Handle, SocketCanConnector, SocketcandConnector};
+use calibd_drivers::joints::{JointsConfig, JointsHandle};
 use calibd_drivers::microscope::{MicroscopeConfig, MicroscopeHandle};
 use calibd_drivers::qtm::{QtmConfig, QtmHandle};
 use calibd_drivers::rws::{RwsConfig, RwsHandle};
@@ -17,7 +18,8 @@ use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle};
 use calibd_drivers::{Backoff, Stage, StageConfig, TcpConnector};
 
 use super::adapters::{
-    Microscope, PerJoint, QtmStream, RwsRobot, SmaractStages, StageEnvelope, UwaveIndicators,
+    JointInterface, Microscope, PerJoint, QtmStream, RwsRobot, SmaractStages, StageEnvelope,
+    UwaveIndicators,
 };
 use super::devices::DeviceLink;
 use super::probes::{self, probe};
@@ -154,7 +156,7 @@ pub struct JointsLink {
 }
 
 /// A motion-capture cell.
-#[derive(Clone)]
+#[derive(Debug, Clone)]
 pub struct MocapCellLink {
     /// Cell name.
     pub name: String,
@@ -174,19 +176,6 @@ pub struct MocapCellLink {
     pub limits: Vec<[f64; 2]>,
     /// Markers with their guessed positions.
     pub markers: Vec<MarkerDef>,
-    /// An in-process robot used instead of the joint interface (the simulated lab until
-    /// its twin is served over `calibd-joints/1`).
-    pub in_process: Option<Arc<dyn JointRobot>>,
-}
-
-impl std::fmt::Debug for MocapCellLink {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("MocapCellLink")
-            .field("name", &self.name)
-            .field("joints", &self.joints)
-            .field("qtm", &self.qtm)
-            .finish()
-    }
 }
 
 /// One cell's description.
@@ -414,12 +403,23 @@ fn mocap(d: MocapCellLink) -> Result<MocapCell, LabError> {
             ..QtmConfig::default()
         },
     );
+    let joints = JointsHandle::connect(
+        TcpConnector::new(d.joints.address.clone()),
+        JointsConfig {
+            timeout: Duration::from_secs(2),
+            backoff: backoff(),
+            ..JointsConfig::default()
+        },
+    );
     let (j, q) = (format!("{}.joints", d.name), format!("{}.qtm", d.name));
-    let q_at = format!("{q} at {}", d.qtm);
-    let robot = d.in_process.ok_or_else(|| LabError::Cell {
-        cell: d.name.clone(),
-        message: "the joint interface driver is not available in this build".into(),
-    })?;
+    let (j_at, q_at) = (
+        format!("{j} at {}", d.joints.address),
+        format!("{q} at {}", d.qtm),
+    );
+    let robot: Arc<dyn JointRobot> = Arc::new(
+        JointInterface::new(joints, d.joint_names.clone(), d.joints.speed_rad_s, j_at)
+            .within(d.limits.clone(), d.joints.max_step_rad),
+    );
     let links = vec![
         DeviceLink::new(
             j,

@@ -59,6 +59,8 @@ pub struct DeviceLink {
     pub address: String,
     probe: Box<dyn Fn() -> ProbeFuture + Send + Sync>,
     status: Mutex<DeviceStatus>,
+    /// One probe at a time per device (the background check and a refresh may meet).
+    probing: tokio::sync::Mutex<()>,
 }
 
 impl std::fmt::Debug for DeviceLink {
@@ -84,6 +86,7 @@ impl DeviceLink {
             address: address.into(),
             probe: Box::new(probe),
             status: Mutex::new(DeviceStatus::Unchecked),
+            probing: tokio::sync::Mutex::new(()),
         }
     }
 
@@ -97,6 +100,7 @@ impl DeviceLink {
 
     /// Probe now (at most `timeout`), keep and return the result.
     pub async fn check(&self, timeout: Duration) -> DeviceStatus {
+        let _one = self.probing.lock().await;
         let r = match tokio::time::timeout(timeout, (self.probe)()).await {
             Ok(r) => r,
             Err(_) => Err(format!("no answer within {} s", timeout.as_secs_f64())),
@@ -136,6 +140,8 @@ pub fn fix_for(kind: &str, address: &str, error: &str) -> String {
         format!(
             "{address} does not exist: plug the receiver in and name its port (ls /dev/serial/by-id/)"
         )
+    } else if e.contains("not a typewriter") || e.contains("inappropriate ioctl") {
+        format!("{address} is not a serial port: name the receiver's port (ls /dev/serial/by-id/)")
     } else if e.contains("permission denied") {
         format!("calibd may not open {address}: add the calibd user to the dialout group")
     } else if e.contains("resolve") || e.contains("lookup") || e.contains("name or service") {

@@ -3,7 +3,8 @@
 //! serial port path), in a process of their own. A daemon pointed at the same file then
 //! drives them over the real protocols exactly as it would drive the lab's instruments.
 //!
-//! The twins are the simulated lab's: an IRB 120 ball-centring cell and the 3-PF robot.
+//! The twins are the simulated lab's: an IRB 120 ball-centring cell, the 3-PF robot and
+//! the TALOS left arm in a QTM room.
 //! A cell is served only if the file describes the twin (its nominal model, ballbar and
 //! indicator mapping): the daemon's nominal must be the twin's, or the calibration would
 //! start from a model the twin does not have. `calibd twin serial|pcr --out DIR` writes
@@ -16,7 +17,7 @@ use calibd_drivers::mock::RunningMock;
 use super::trical::{INDICATOR_ZERO_MM, Served};
 use super::{SimPcrOptions, SimTricalOptions};
 use crate::lab::config::Environment;
-use crate::lab::{BallCentringCell, CellLink, LabError, PcrCellLink, StageBackend};
+use crate::lab::{BallCentringCell, CellLink, LabError, MocapCellLink, PcrCellLink, StageBackend};
 
 /// One served device, for the ready lines.
 #[derive(Debug, Clone, PartialEq)]
@@ -93,10 +94,7 @@ pub async fn serve(
         let r = match c {
             CellLink::BallCentring(d) => trical(d, seed).await,
             CellLink::Pcr(d) => pcr(d, seed).await,
-            CellLink::Mocap(d) => Err(refuse(
-                &d.name,
-                "the mock lab has no humanoid joint interface to serve yet".into(),
-            )),
+            CellLink::Mocap(d) => mocap(d, seed).await,
         };
         match r {
             Ok((devices, mocks)) => {
@@ -204,6 +202,63 @@ async fn pcr(
             ServedDevice {
                 device: format!("{}.microscope", d.name),
                 address: link.microscope,
+            },
+        ],
+        mocks,
+    ))
+}
+
+async fn mocap(
+    d: &MocapCellLink,
+    seed: u64,
+) -> Result<(Vec<ServedDevice>, Vec<RunningMock>), LabError> {
+    let (root, names, markers) = super::mocap::twin_cell(seed)?;
+    if d.urdf.trim() != crate::twin::humanoid::TALOS_URDF.trim() {
+        return Err(refuse(
+            &d.name,
+            "the model is not the TALOS twin's URDF (tests/data/robots/talos/talos_reduced.urdf)"
+                .into(),
+        ));
+    }
+    if d.root_link != root || d.joint_names != names {
+        return Err(refuse(
+            &d.name,
+            format!("the twin measures root_link = {root:?}, names = {names:?}"),
+        ));
+    }
+    let want: Vec<(&str, &str)> = markers
+        .iter()
+        .map(|m| (m.name.as_str(), m.link.as_str()))
+        .collect();
+    let got: Vec<(&str, &str)> = d
+        .markers
+        .iter()
+        .map(|m| (m.name.as_str(), m.link.as_str()))
+        .collect();
+    if want != got || !d.labels.is_empty() {
+        return Err(refuse(
+            &d.name,
+            format!(
+                "the twin's markers (name, link) are {want:?}, labelled as named (no labels map)"
+            ),
+        ));
+    }
+    let qtm_at = fixed(&d.name, "mocap.address", &d.qtm)?;
+    let joints_at = fixed(&d.name, "joints.address", &d.joints.address)?;
+    let o = super::SimMocapOptions {
+        joint_speed_rad_s: d.joints.speed_rad_s,
+        ..super::SimMocapOptions::default()
+    };
+    let (link, mocks) = super::mocap::start_at(seed, &o, &qtm_at, &joints_at).await?;
+    Ok((
+        vec![
+            ServedDevice {
+                device: format!("{}.joints", d.name),
+                address: link.joints.address,
+            },
+            ServedDevice {
+                device: format!("{}.qtm", d.name),
+                address: link.qtm,
             },
         ],
         mocks,

@@ -1,11 +1,12 @@
 //! The humanoid motion-capture cell: TALOS (its joint interface) in a Qualisys room. In the
 //! simulated lab the TALOS twin ([`HumanoidTwin`], torso + left arm, constant waist) sits
-//! behind an in-process joint robot (there is no TALOS protocol among the drivers) and behind
-//! the QTM RT mock's marker model, which the QTM driver reads over the real protocol.
+//! behind the joint-interface mock's joint model (`calibd-joints/1`) and behind the QTM RT
+//! mock's marker model; the lab's joint and QTM drivers reach both over the real protocols.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
 
+use calibd_drivers::joints::mock::JointModel;
 use calibd_drivers::mock::{self, Faults, MockArgs, MockDevice, RunningMock};
 use calibd_drivers::qtm::mock::MarkerModel;
 
@@ -13,7 +14,6 @@ use super::with;
 use crate::design::playback::quintic;
 use crate::lab::{CellLink, JointsLink, LabError, MocapCellLink};
 use crate::model::humanoid::BaseMode;
-use crate::procedures::{DeviceError, DeviceFuture, JointRobot};
 use crate::twin::humanoid::{HumanoidTwin, TALOS_URDF, left_arm_spec};
 
 /// Settings of the simulated motion-capture cell.
@@ -21,10 +21,11 @@ use crate::twin::humanoid::{HumanoidTwin, TALOS_URDF, left_arm_spec};
 pub struct SimMocapOptions {
     /// Capture rate of the QTM mock (frames per second).
     pub rate_hz: f64,
-    /// Largest joint speed of the simulated robot (rad/s); moves are quintic.
+    /// Joint speed the lab asks of the robot (rad/s): a move lasts its largest joint change
+    /// over this speed; the twin follows a quintic over that time.
     pub joint_speed_rad_s: f64,
-    /// The next this-many moves fail with a device fault (fault injection).
-    pub failing_moves: Arc<std::sync::atomic::AtomicUsize>,
+    /// The next this-many moves fail with a controller fault (fault injection).
+    pub failing_moves: Arc<AtomicUsize>,
 }
 
 impl Default for SimMocapOptions {
@@ -74,90 +75,45 @@ impl MarkerModel for TwinMarkers {
     }
 }
 
-/// The twin's joint interface: quintic moves at a bounded joint speed, the current joints
-/// published to the marker model every 5 ms.
-struct SimJointRobot {
+/// The twin's joints as the joint-interface mock's robot: quintic moves over the duration
+/// the driver asks for, the current joints shared with the marker model (the mock updates
+/// them every few ms while a move runs); the next `failing` moves fail with a controller
+/// fault (fault injection).
+struct TwinJoints {
     room: Shared,
     names: Vec<String>,
     limits: Vec<[f64; 2]>,
-    speed: f64,
-    failing: Arc<std::sync::atomic::AtomicUsize>,
-    moving: tokio::sync::Mutex<()>,
+    failing: Arc<AtomicUsize>,
 }
 
-const ROBOT: &str = "talos.joints";
-
-impl SimJointRobot {
-    fn target(&self, posture: &[(String, f64)]) -> Result<Vec<f64>, DeviceError> {
-        let mut q = with(&self.room, |r| r.q.clone());
-        for (name, v) in posture {
-            let refuse = |reason: String| DeviceError::Refused {
-                device: ROBOT.into(),
-                reason,
-            };
-            let k = self
-                .names
-                .iter()
-                .position(|n| n == name)
-                .ok_or_else(|| refuse(format!("no joint `{name}`")))?;
-            let [lo, hi] = self.limits[k];
-            if !(v.is_finite() && *v >= lo && *v <= hi) {
-                return Err(refuse(format!(
-                    "{name} = {v} rad is outside its limits [{lo}, {hi}]"
-                )));
-            }
-            q[k] = *v;
-        }
-        Ok(q)
+impl JointModel for TwinJoints {
+    fn robot(&self) -> String {
+        "talos (digital twin)".into()
     }
-
-    async fn play(&self, posture: &[(String, f64)]) -> Result<(), DeviceError> {
-        let _guard = self.moving.lock().await;
-        let target = self.target(posture)?;
-        let taken = self
-            .failing
-            .fetch_update(
-                std::sync::atomic::Ordering::SeqCst,
-                std::sync::atomic::Ordering::SeqCst,
-                |n| n.checked_sub(1),
-            )
-            .is_ok();
-        if taken {
-            return Err(DeviceError::Fault {
-                device: ROBOT.into(),
-                message: "joint controller fault (injected)".into(),
-            });
-        }
-        let start = with(&self.room, |r| r.q.clone());
-        let travel = start
-            .iter()
-            .zip(&target)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
-        // A quintic's peak speed is 15/8 of its mean speed.
-        let duration = (1.875 * travel / self.speed).max(0.01);
-        let t0 = tokio::time::Instant::now();
-        loop {
-            let t = t0.elapsed().as_secs_f64();
-            let q = quintic(&start, &target, duration, t).0;
-            with(&self.room, |r| r.q = q);
-            if t >= duration {
-                return Ok(());
-            }
-            tokio::time::sleep(Duration::from_millis(5)).await;
-        }
-    }
-}
-
-impl JointRobot for SimJointRobot {
-    fn joint_names(&self) -> Vec<String> {
+    fn names(&self) -> Vec<String> {
         self.names.clone()
     }
-    fn joints(&self) -> DeviceFuture<'_, Vec<f64>> {
-        Box::pin(async move { Ok(with(&self.room, |r| r.q.clone())) })
+    fn limits(&self) -> Vec<[f64; 2]> {
+        self.limits.clone()
     }
-    fn move_to<'a>(&'a self, posture: &'a [(String, f64)]) -> DeviceFuture<'a, ()> {
-        Box::pin(self.play(posture))
+    fn positions(&mut self) -> Vec<f64> {
+        with(&self.room, |r| r.q.clone())
+    }
+    fn set_positions(&mut self, q: &[f64]) {
+        with(&self.room, |r| r.q = q.to_vec());
+    }
+    fn begin_move(&mut self, _target: &[f64], _duration_s: f64) -> Result<(), String> {
+        let taken = self
+            .failing
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| n.checked_sub(1))
+            .is_ok();
+        if taken {
+            return Err("joint controller fault (injected)".into());
+        }
+        Ok(())
+    }
+    fn profile(&self, start: &[f64], target: &[f64], duration_s: f64, t_s: f64) -> Vec<f64> {
+        quintic(start, target, duration_s, t_s).0
     }
 }
 
@@ -168,16 +124,46 @@ fn mock_err(device: &str, e: impl std::fmt::Display) -> LabError {
     }
 }
 
-/// Start the simulated motion-capture cell: the TALOS twin (true errors from `seed`), its
-/// joint interface, a QTM RT mock on a loopback port streaming the twin's markers, and a
-/// QTM driver actor connected to it.
+/// Start the simulated motion-capture cell: the TALOS twin (true errors from `seed`), a
+/// joint-interface mock moving its joints and a QTM RT mock streaming its markers, both on
+/// loopback ports; the cell's description names their addresses.
 pub(super) async fn start(
     seed: u64,
     o: &SimMocapOptions,
-) -> Result<(CellLink, RunningMock), LabError> {
+) -> Result<(CellLink, Vec<RunningMock>), LabError> {
+    let (link, mocks) = start_at(seed, o, "127.0.0.1:0", "127.0.0.1:0").await?;
+    Ok((CellLink::Mocap(link), mocks))
+}
+
+/// The TALOS twin's left-arm cell for `seed`: root link, measured joints (in order) and
+/// markers, what a lab file must name for `calibd mock lab` to serve it (the URDF is
+/// [`TALOS_URDF`]).
+pub fn twin_cell(
+    seed: u64,
+) -> Result<(String, Vec<String>, Vec<crate::model::humanoid::MarkerDef>), LabError> {
+    let twin = twin(seed)?;
+    Ok((
+        twin.spec.root.clone(),
+        twin.nominal.variables.clone(),
+        twin.spec.markers.clone(),
+    ))
+}
+
+fn twin(seed: u64) -> Result<HumanoidTwin, LabError> {
     let mut spec = left_arm_spec(false);
     spec.base = BaseMode::Identify;
-    let twin = HumanoidTwin::new(spec, seed).map_err(|e| mock_err("talos twin", e))?;
+    HumanoidTwin::new(spec, seed).map_err(|e| mock_err("talos twin", e))
+}
+
+/// Start the simulated motion-capture cell's QTM server at `qtm_at` and joint interface at
+/// `joints_at`.
+pub async fn start_at(
+    seed: u64,
+    o: &SimMocapOptions,
+    qtm_at: &str,
+    joints_at: &str,
+) -> Result<(MocapCellLink, Vec<RunningMock>), LabError> {
+    let twin = twin(seed)?;
     let names = twin.nominal.variables.clone();
     let limits: Vec<[f64; 2]> = twin
         .nominal
@@ -202,27 +188,36 @@ pub(super) async fn start(
         labels,
     }));
     let qtm_mock = mock::start_with(
-        "127.0.0.1:0",
+        qtm_at,
         calibd_drivers::qtm::mock::handler_with(model, &args, Faults::default()),
     )
     .await
     .map_err(|e| mock_err("qtm", e))?;
-    let robot = SimJointRobot {
+    let joints: Arc<Mutex<dyn JointModel>> = Arc::new(Mutex::new(TwinJoints {
         room,
         names: names.clone(),
         limits: limits.clone(),
-        speed: o.joint_speed_rad_s,
         failing: o.failing_moves.clone(),
-        moving: tokio::sync::Mutex::new(()),
+    }));
+    let joints_mock = match mock::start_with(
+        joints_at,
+        calibd_drivers::joints::mock::handler_with(joints, Faults::default()),
+    )
+    .await
+    {
+        Ok(m) => m,
+        Err(e) => {
+            qtm_mock.stop().await;
+            return Err(mock_err("joints", e));
+        }
     };
     let link = MocapCellLink {
         name: "talos".into(),
         joints: JointsLink {
-            address: "in process".into(),
+            address: joints_mock.addr.clone(),
             speed_rad_s: o.joint_speed_rad_s,
             max_step_rad: 2.0 * std::f64::consts::PI,
         },
-        in_process: Some(Arc::new(robot)),
         qtm: qtm_mock.addr.clone(),
         labels: Default::default(),
         urdf: TALOS_URDF.to_string(),
@@ -231,5 +226,5 @@ pub(super) async fn start(
         limits,
         markers,
     };
-    Ok((CellLink::Mocap(link), qtm_mock))
+    Ok((link, vec![joints_mock, qtm_mock]))
 }

@@ -73,8 +73,8 @@ impl Lab {
     /// the lab connected to them. Must be called inside a tokio runtime.
     pub async fn simulated(opts: &SimOptions) -> Result<Lab, LabError> {
         let (trical, mut mocks) = trical::start(opts.seed, &opts.trical).await?;
-        let (mocap, qtm) = mocap::start(opts.seed, &opts.mocap).await?;
-        mocks.push(qtm);
+        let (mocap, more) = mocap::start(opts.seed, &opts.mocap).await?;
+        mocks.extend(more);
         let (pcr, more) = pcr::start(opts.seed, &opts.pcr).await?;
         mocks.extend(more);
         let mut lab = Lab::connect(vec![trical, mocap, pcr])?;

@@ -24,10 +24,12 @@ macro_rules! named_adapter {
     };
 }
 
+pub mod joints;
 pub mod pcr;
 pub mod qtm;
 pub mod serial;
 
+pub use joints::JointInterface;
 pub use pcr::{Microscope, PerJoint, SmaractStages, StageEnvelope};
 pub use qtm::QtmStream;
 pub use serial::{RwsRobot, UwaveIndicators, device_error};
