@@ -5,13 +5,15 @@
 //! [`smaract`] (MCS / MCS2 / CiA 402 piezo stages), [`can`] (socketcand, SocketCAN, CANopen),
 //! [`qtm`] (Qualisys RT), [`microscope`] (`calibd-pose/1`), [`mock`] (`calibd mock`: the
 //! one registry of mock devices), [`mock_kit`] (what every mock shares), [`transcript`]
-//! (recording format), [`link`] (connectors and back-off), [`error`].
+//! (recording format), [`link`] (connectors and back-off), [`error`], [`identity`] (what
+//! each driver reports about the device it talks to, for `calibd lab check`).
 #![warn(missing_docs)]
 
 pub mod actor;
 pub mod bench;
 pub mod can;
 pub mod error;
+pub mod identity;
 pub mod link;
 pub mod microscope;
 pub mod mock;
@@ -24,6 +26,7 @@ pub mod transcript;
 pub mod uwave;
 
 pub use error::{CodecError, DriverError};
+pub use identity::{DeviceIdentity, Identity};
 pub use link::{Backoff, Connect, Once, TcpConnector};
 pub use smaract::{Stage, StageConfig, StageStatus};
 pub use tee::{Side, Tee};

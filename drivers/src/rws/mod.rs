@@ -9,4 +9,4 @@ pub mod irb120;
 pub mod mock;
 pub mod rapid;
 
-pub use driver::{ControllerState, RwsConfig, RwsHandle, RwsState};
+pub use driver::{ControllerState, RwsConfig, RwsHandle, RwsIdentity, RwsState};

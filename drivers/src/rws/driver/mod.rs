@@ -3,7 +3,10 @@
 //! the calibd RAPID module, refused locally when outside joint limits or step limits
 //! (the move logic is in `moves`).
 
+mod identity;
 mod moves;
+
+pub use identity::{RwsIdentity, TASK, parse_modules};
 
 use std::time::Duration;
 
@@ -43,6 +46,9 @@ pub struct RwsConfig {
     pub max_tool_step_mm: f64,
     /// Reconnection back-off.
     pub backoff: Backoff,
+    /// Name of the calibd RAPID module that must be loaded in T_ROB1
+    /// (`drivers/rapid/CalibServer.mod`).
+    pub calib_module: String,
 }
 
 impl Default for RwsConfig {
@@ -58,6 +64,7 @@ impl Default for RwsConfig {
             max_joint_step_deg: 15.0,
             max_tool_step_mm: 10.0,
             backoff: Backoff::default(),
+            calib_module: "CalibServer".into(),
         }
     }
 }
@@ -93,6 +100,7 @@ enum Op {
     State(Reply<ControllerState>),
     MoveAbsJ([f64; 6], Reply<[f64; 6]>),
     MoveRelTool([f64; 3], Reply<[f64; 6]>),
+    Identity(Reply<RwsIdentity>),
 }
 
 impl std::fmt::Debug for Op {
@@ -104,6 +112,7 @@ impl std::fmt::Debug for Op {
             Op::State(_) => write!(f, "State"),
             Op::MoveAbsJ(q, _) => write!(f, "MoveAbsJ({q:?})"),
             Op::MoveRelTool(d, _) => write!(f, "MoveRelTool({d:?})"),
+            Op::Identity(_) => write!(f, "Identity"),
         }
     }
 }
@@ -175,6 +184,13 @@ impl RwsHandle {
         call(&self.tx, DEVICE, |r| Op::MoveRelTool(dp_mm, r)).await
     }
 
+    /// Controller name, RobotWare version, whether the calibd RAPID module
+    /// ([`RwsConfig::calib_module`]) is loaded in T_ROB1, and the controller state. A missing
+    /// module is reported in the identity (see [`RwsIdentity::module_error`]), not as an error.
+    pub async fn identity(&self) -> Result<RwsIdentity, DriverError> {
+        call(&self.tx, DEVICE, Op::Identity).await
+    }
+
     /// Watch channel with link state and the last joints read.
     pub fn state(&self) -> watch::Receiver<RwsState> {
         self.state.clone()
@@ -238,6 +254,10 @@ impl<C: Connect> Actor<C> {
                 }
                 Op::MoveRelTool(d, r) => {
                     let res = self.move_rel_tool(d).await;
+                    drop(r.send(res))
+                }
+                Op::Identity(r) => {
+                    let res = self.identity().await;
                     drop(r.send(res))
                 }
             }
