@@ -16,6 +16,13 @@ use crate::mock_kit::fault::Fate;
 use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 use mcs2::mcs2_reply;
 
+/// Serial number the MCS2 mock reports (`:DEV:SNUM?`).
+pub const MCS2_SERIAL: &str = "MCS2-00001234";
+/// Device name the MCS2 mock reports (`:DEV:NAME?`).
+pub const MCS2_NAME: &str = "MCS2-sim";
+/// System id the MCS mock reports (`:GSI`).
+pub const MCS_SYSTEM_ID: i64 = 3_118_167_526;
+
 /// The positioners behind a controller: the hook for piezo-stage twins.
 pub trait StageModel: Send + 'static {
     /// Number of channels.
@@ -296,6 +303,12 @@ fn mcs_reply(s: &mut Sim, cmd: &str) -> String {
     };
     if m == "SCM" {
         return ":E-1,0".into();
+    }
+    if m == "GSI" && args.is_empty() {
+        return format!(":ID{MCS_SYSTEM_ID}");
+    }
+    if m == "GNC" && args.is_empty() {
+        return format!(":N{}", s.axes.len());
     }
     let Some(ch) = s.channel(ch_txt) else {
         return if matches!(
