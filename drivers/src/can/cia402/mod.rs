@@ -237,15 +237,15 @@ impl<C: CanConnect> Actor<C> {
 
     /// Drops the bus after an error that breaks the link, and publishes it.
     fn note_error<T>(&mut self, r: &Result<T, DriverError>) {
-        if let Err(e) = r {
-            if e.breaks_link() {
-                self.bus = None;
-                let msg = e.to_string();
-                self.state.send_modify(|s| {
-                    s.connected = false;
-                    s.last_error = Some(msg);
-                });
-            }
+        if let Err(e) = r
+            && e.breaks_link()
+        {
+            self.bus = None;
+            let msg = e.to_string();
+            self.state.send_modify(|s| {
+                s.connected = false;
+                s.last_error = Some(msg);
+            });
         }
     }
 
