@@ -171,7 +171,7 @@ impl Session {
         let channels = self.model.lock().map(|m| m.channels()).unwrap_or_default();
         let reply = if text.len() == 9 && text.starts_with("IR1000") {
             let info = ReceiverInfo {
-                group: text[6..8].parse().unwrap_or(0),
+                group: text.get(6..8).and_then(|g| g.parse().ok()).unwrap_or(0),
                 receiver_id: RECEIVER_ID.into(),
                 band: 15,
                 l: '0',
@@ -180,7 +180,7 @@ impl Session {
             };
             Some(UwaveLine::ReceiverInfo { raw: info.render() })
         } else if text.len() == 9 && text.starts_with("IR11") {
-            let from: u8 = text[4..6].parse().unwrap_or(0);
+            let from: u8 = text.get(4..6).and_then(|c| c.parse().ok()).unwrap_or(0);
             Some(match channels.iter().find(|c| **c >= from) {
                 Some(c) => UwaveLine::TransmitterInfo {
                     state: 2,
