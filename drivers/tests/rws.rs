@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use calibd_drivers::mock::{self, FaultSpec, MockArgs, MockDevice};
-use calibd_drivers::rws::{RwsConfig, RwsHandle, irb120};
+use calibd_drivers::rws::{self, RwsConfig, RwsHandle, irb120};
 use calibd_drivers::{Backoff, DriverError, Recorder, TcpConnector};
 
 fn cfg() -> RwsConfig {
@@ -214,7 +214,7 @@ async fn checked_in_transcript_replays() {
 async fn identity_names_the_controller_and_the_calib_module() {
     use calibd_drivers::Identity;
     let (m, h) = start(&[]).await;
-    let id = h.identity().await.unwrap();
+    let id = h.identity(rws::DEFAULT_CALIB_MODULE).await.unwrap();
     assert_eq!(id.controller_name, "IRB120-sim");
     assert_eq!(id.robotware_version, "6.15.1013");
     assert_eq!(id.robotware_version_name, "6.15.01.00");
@@ -248,7 +248,7 @@ async fn identity_reports_a_missing_calib_module_with_the_fix() {
     args.rapid_module = "SomethingElse".into();
     let m = mock::start(args).await.unwrap();
     let h = RwsHandle::connect(TcpConnector::new(m.addr.clone()), cfg());
-    let id = h.identity().await.unwrap();
+    let id = h.identity(rws::DEFAULT_CALIB_MODULE).await.unwrap();
     assert!(!id.calib_module_loaded);
     assert_eq!(id.rapid_modules, ["SomethingElse", "BASE", "user"]);
     let e = id.module_error().unwrap().to_string();

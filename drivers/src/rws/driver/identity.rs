@@ -14,6 +14,9 @@ use crate::error::DriverError;
 use crate::identity::Identity;
 use crate::link::Connect;
 
+/// Name of the calibd RAPID module (`drivers/rapid/CalibServer.mod`).
+pub const DEFAULT_CALIB_MODULE: &str = "CalibServer";
+
 /// The RAPID task the calibd module runs in.
 pub const TASK: &str = "T_ROB1";
 
@@ -28,7 +31,7 @@ pub struct RwsIdentity {
     pub robotware_version_name: String,
     /// RAPID task inspected (`T_ROB1`).
     pub rapid_task: String,
-    /// The calibd RAPID module looked for (configured; default `CalibServer`).
+    /// The calibd RAPID module looked for (default [`DEFAULT_CALIB_MODULE`]).
     pub calib_module: String,
     /// True when `calib_module` is among the task's modules.
     pub calib_module_loaded: bool,
@@ -109,11 +112,10 @@ impl Identity for RwsIdentity {
 
 impl<C: Connect> Actor<C> {
     /// Reads system info, the module list of T_ROB1 and the controller state.
-    pub(super) async fn identity(&mut self) -> Result<RwsIdentity, DriverError> {
+    pub(super) async fn identity(&mut self, module: String) -> Result<RwsIdentity, DriverError> {
         let sys = self.get_state("/rw/system").await?;
         let modules = self.modules(TASK).await?;
         let state = self.ctrl_state().await?;
-        let module = self.cfg.calib_module.clone();
         Ok(RwsIdentity {
             controller_name: field(&sys, "name")?,
             robotware_version: field(&sys, "rwversion")?,

@@ -6,7 +6,7 @@
 mod identity;
 mod moves;
 
-pub use identity::{RwsIdentity, TASK, parse_modules};
+pub use identity::{DEFAULT_CALIB_MODULE, RwsIdentity, TASK, parse_modules};
 
 use std::time::Duration;
 
@@ -46,9 +46,6 @@ pub struct RwsConfig {
     pub max_tool_step_mm: f64,
     /// Reconnection back-off.
     pub backoff: Backoff,
-    /// Name of the calibd RAPID module that must be loaded in T_ROB1
-    /// (`drivers/rapid/CalibServer.mod`).
-    pub calib_module: String,
 }
 
 impl Default for RwsConfig {
@@ -64,7 +61,6 @@ impl Default for RwsConfig {
             max_joint_step_deg: 15.0,
             max_tool_step_mm: 10.0,
             backoff: Backoff::default(),
-            calib_module: "CalibServer".into(),
         }
     }
 }
@@ -100,7 +96,7 @@ enum Op {
     State(Reply<ControllerState>),
     MoveAbsJ([f64; 6], Reply<[f64; 6]>),
     MoveRelTool([f64; 3], Reply<[f64; 6]>),
-    Identity(Reply<RwsIdentity>),
+    Identity(String, Reply<RwsIdentity>),
 }
 
 impl std::fmt::Debug for Op {
@@ -112,7 +108,7 @@ impl std::fmt::Debug for Op {
             Op::State(_) => write!(f, "State"),
             Op::MoveAbsJ(q, _) => write!(f, "MoveAbsJ({q:?})"),
             Op::MoveRelTool(d, _) => write!(f, "MoveRelTool({d:?})"),
-            Op::Identity(_) => write!(f, "Identity"),
+            Op::Identity(m, _) => write!(f, "Identity({m})"),
         }
     }
 }
@@ -184,11 +180,15 @@ impl RwsHandle {
         call(&self.tx, DEVICE, |r| Op::MoveRelTool(dp_mm, r)).await
     }
 
-    /// Controller name, RobotWare version, whether the calibd RAPID module
-    /// ([`RwsConfig::calib_module`]) is loaded in T_ROB1, and the controller state. A missing
-    /// module is reported in the identity (see [`RwsIdentity::module_error`]), not as an error.
-    pub async fn identity(&self) -> Result<RwsIdentity, DriverError> {
-        call(&self.tx, DEVICE, Op::Identity).await
+    /// Controller name, RobotWare version, whether the calibd RAPID module `calib_module`
+    /// ([`DEFAULT_CALIB_MODULE`] unless the lab renamed it) is loaded in T_ROB1, and the
+    /// controller state. A missing module is reported in the identity (see
+    /// [`RwsIdentity::module_error`]), not as an error.
+    pub async fn identity(&self, calib_module: &str) -> Result<RwsIdentity, DriverError> {
+        call(&self.tx, DEVICE, |r| {
+            Op::Identity(calib_module.to_string(), r)
+        })
+        .await
     }
 
     /// Watch channel with link state and the last joints read.
@@ -256,8 +256,8 @@ impl<C: Connect> Actor<C> {
                     let res = self.move_rel_tool(d).await;
                     drop(r.send(res))
                 }
-                Op::Identity(r) => {
-                    let res = self.identity().await;
+                Op::Identity(m, r) => {
+                    let res = self.identity(m).await;
                     drop(r.send(res))
                 }
             }
