@@ -323,9 +323,11 @@ async fn campaigns_run_over_mock_processes_and_a_killed_device_pauses_and_resume
     for want in [
         "irb120.rws",
         "ABB IRC5",
-        "motors motoron",
+        "CalibServer loaded",
         "irb120.uwave",
         "3 transmitters",
+        "RobotWare 6.",
+        "MCS2-sim",
         "pcr3pf.stages",
         "SmarAct MCS2",
         "pcr3pf.microscope",

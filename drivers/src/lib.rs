@@ -6,13 +6,15 @@
 //! [`qtm`] (Qualisys RT), [`microscope`] (`calibd-pose/1`), [`joints`] (`calibd-joints/1`, a
 //! humanoid's joint interface), [`mock`] (`calibd mock`: the
 //! one registry of mock devices), [`mock_kit`] (what every mock shares), [`transcript`]
-//! (recording format), [`link`] (connectors and back-off), [`error`].
+//! (recording format), [`link`] (connectors and back-off), [`error`], [`identity`] (what
+//! each driver reports about the device it talks to, for `calibd lab check`).
 #![warn(missing_docs)]
 
 pub mod actor;
 pub mod bench;
 pub mod can;
 pub mod error;
+pub mod identity;
 pub mod joints;
 pub mod link;
 pub mod microscope;
@@ -26,6 +28,7 @@ pub mod transcript;
 pub mod uwave;
 
 pub use error::{CodecError, DriverError};
+pub use identity::{DeviceIdentity, Identity};
 pub use link::{Backoff, Connect, Once, TcpConnector};
 pub use smaract::{Stage, StageConfig, StageStatus};
 pub use tee::{Side, Tee};

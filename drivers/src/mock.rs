@@ -95,6 +95,10 @@ pub struct MockArgs {
     /// placeholders). The real request is unverified; empty = readings only stream.
     #[arg(long, default_value = "")]
     pub uwave_request: String,
+    /// `abb` only: RAPID program module listed as loaded in T_ROB1 (the calibd module;
+    /// empty = none, to rehearse a controller where it is missing).
+    #[arg(long, default_value = "CalibServer")]
+    pub rapid_module: String,
     /// `microscope` only: seed of the simulated image noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -113,6 +117,7 @@ impl MockArgs {
             user: "Default User".into(),
             password: "robotics".into(),
             uwave_request: String::new(),
+            rapid_module: "CalibServer".into(),
             seed: 1,
         }
     }
@@ -138,6 +143,21 @@ impl From<&MockArgs> for rws::mock::Credentials {
         rws::mock::Credentials {
             user: a.user.clone(),
             password: a.password.clone(),
+        }
+    }
+}
+
+impl From<&MockArgs> for rws::mock::RwsMockOptions {
+    fn from(a: &MockArgs) -> Self {
+        rws::mock::RwsMockOptions {
+            credentials: a.into(),
+            controller: rws::mock::ControllerInfo {
+                program_modules: (!a.rapid_module.is_empty())
+                    .then(|| a.rapid_module.clone())
+                    .into_iter()
+                    .collect(),
+                ..rws::mock::ControllerInfo::default()
+            },
         }
     }
 }

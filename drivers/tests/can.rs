@@ -158,3 +158,46 @@ async fn documented_exchange_replays() {
     assert_eq!(h.statusword().await.unwrap(), 0x0237);
     m.stop().await;
 }
+
+#[tokio::test]
+async fn identity_reads_0x1018_and_the_segmented_device_name() {
+    use calibd_drivers::Identity;
+    use calibd_drivers::can::node::{
+        MOCK_DEVICE_NAME, MOCK_PRODUCT_CODE, MOCK_REVISION, MOCK_SERIAL, MOCK_VENDOR_ID,
+    };
+    let (m, h) = start(&[]).await;
+    let id = h.identity().await.unwrap();
+    assert_eq!(id.node_id, 1);
+    assert_eq!(id.device_type, 0x0002_0192);
+    assert_eq!(id.vendor_id, MOCK_VENDOR_ID);
+    assert_eq!(id.vendor_id, 0x00CA_1BD0);
+    assert_eq!(id.product_code, MOCK_PRODUCT_CODE);
+    assert_eq!(id.revision_number, MOCK_REVISION);
+    assert_eq!(id.serial_number, Some(MOCK_SERIAL));
+    // 17 bytes: a segmented upload of three segments.
+    assert_eq!(id.device_name.as_deref(), Some(MOCK_DEVICE_NAME));
+    assert_eq!(id.device_name.as_deref(), Some("calibd CiA402 sim"));
+    assert_eq!(id.statusword, 0x0250);
+    assert_eq!(id.power_state, "switch on disabled");
+    assert!(id.problems().is_empty());
+    assert_eq!(
+        id.summary(),
+        "node 1 \"calibd CiA402 sim\": vendor 0x00ca1bd0 product 0x00000402 rev 1.3, switch on disabled"
+    );
+    // The identity objects are read-only; a missing sub-index is an SDO abort.
+    assert!(
+        h.write(0x1018, 1, &[0, 0, 0, 0])
+            .await
+            .unwrap_err()
+            .is_device_error()
+    );
+    match h.read(0x1018, 9).await {
+        Err(DriverError::Device {
+            code: 0x0609_0011, ..
+        }) => {}
+        other => panic!("{other:?}"),
+    }
+    // Expedited reads still work after the segmented one.
+    assert_eq!(h.statusword().await.unwrap(), 0x0250);
+    m.stop().await;
+}

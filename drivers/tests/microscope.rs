@@ -122,3 +122,37 @@ async fn documented_exchange_replays() {
     assert!(matches!(e, DriverError::Device { code: 2, .. }), "{e}");
     m.stop().await;
 }
+
+#[tokio::test]
+async fn identity_is_the_id_line_and_one_fresh_pose() {
+    use calibd_drivers::Identity;
+    let (m, h) = start(MockArgs::new(MockDevice::Microscope)).await;
+    let id = h.identity().await.unwrap();
+    assert_eq!(id.id, MOCK_ID);
+    let p = id.pose.unwrap();
+    assert_eq!(p.seq, 1);
+    assert!((p.x_m.hypot(p.y_m) - 1e-4).abs() < 1e-6, "{p:?}");
+    assert_eq!(id.pose_error, None);
+    assert!(id.problems().is_empty());
+    let row = id.device_identity();
+    assert_eq!(row.device_kind, "microscope");
+    assert!(
+        row.summary
+            .starts_with("calibd-pose/1 simulated microscope; image 1: x "),
+        "{}",
+        row.summary
+    );
+    assert_eq!(row.details["pose"]["seq"], 1);
+    m.stop().await;
+
+    // The second reply (the pose) is the fault kit's device error (3 camera busy): kept in
+    // the identity, with the fix.
+    let (m, h) = start(with_faults(&["device-error@2"])).await;
+    let id = h.identity().await.unwrap();
+    assert_eq!(id.id, MOCK_ID);
+    assert_eq!(id.pose, None);
+    let e = id.pose_error.clone().unwrap();
+    assert_eq!(e, "error 3: camera busy");
+    assert_eq!(id.problems().len(), 1);
+    m.stop().await;
+}

@@ -270,3 +270,29 @@ async fn a_lost_udp_datagram_is_counted_as_a_frame_gap() {
     assert_eq!(s.connects, 1);
     m.stop().await;
 }
+
+#[tokio::test]
+async fn identity_reports_versions_frequency_and_labelled_markers() {
+    use calibd_drivers::Identity;
+    let (m, h) = start(&[]).await;
+    let id = h.identity().await.unwrap();
+    assert_eq!(id.protocol_version, "1.25");
+    assert_eq!(id.qtm_version, "2.3 (build 464)");
+    assert_eq!(id.frequency_hz, 200);
+    assert_eq!(id.axis_upwards, "+Z");
+    assert_eq!(id.labels, ["tool_a", "tool_b", "tool_c", "base"]);
+    assert_eq!(id.labelled_marker_count, 4);
+    assert!(id.problems().is_empty());
+    assert_eq!(
+        id.summary(),
+        "QTM 2.3 (build 464), RT protocol 1.25, 200 Hz, 4 labelled markers (tool_a, tool_b, tool_c, base)"
+    );
+    assert_eq!(h.parameters_general().await.unwrap().frequency_hz, 200);
+    // `GetParameters General 3D` is one document with both sections.
+    let both = h.command("GetParameters General 3D").await;
+    assert!(
+        both.is_err(),
+        "an XML reply is not a command reply: {both:?}"
+    );
+    m.stop().await;
+}

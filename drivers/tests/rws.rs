@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use calibd_drivers::mock::{self, FaultSpec, MockArgs, MockDevice};
-use calibd_drivers::rws::{RwsConfig, RwsHandle, irb120};
+use calibd_drivers::rws::{self, RwsConfig, RwsHandle, irb120};
 use calibd_drivers::{Backoff, DriverError, Recorder, TcpConnector};
 
 fn cfg() -> RwsConfig {
@@ -207,5 +207,56 @@ async fn checked_in_transcript_replays() {
     assert_eq!(seq, "0");
     assert!(close(&q, &[5.0, 0.0, 0.0, 0.0, 30.0, 0.0], 1e-3));
     assert_eq!(q, j);
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn identity_names_the_controller_and_the_calib_module() {
+    use calibd_drivers::Identity;
+    let (m, h) = start(&[]).await;
+    let id = h.identity(rws::DEFAULT_CALIB_MODULE).await.unwrap();
+    assert_eq!(id.controller_name, "IRB120-sim");
+    assert_eq!(id.robotware_version, "6.15.1013");
+    assert_eq!(id.robotware_version_name, "6.15.01.00");
+    assert_eq!(id.rapid_task, "T_ROB1");
+    assert_eq!(id.calib_module, "CalibServer");
+    assert!(id.calib_module_loaded);
+    assert_eq!(id.rapid_modules, ["CalibServer", "BASE", "user"]);
+    assert_eq!(
+        (
+            id.ctrlstate.as_str(),
+            id.opmode.as_str(),
+            id.execstate.as_str()
+        ),
+        ("motoron", "AUTO", "running")
+    );
+    assert!(id.problems().is_empty(), "{:?}", id.problems());
+    assert!(id.module_error().is_none());
+    let row = id.device_identity();
+    assert_eq!(row.device_kind, "rws");
+    assert_eq!(
+        row.summary,
+        "IRB120-sim, RobotWare 6.15.01.00, CalibServer loaded, motoron AUTO running"
+    );
+    assert_eq!(row.details["robotware_version"], "6.15.1013");
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn identity_reports_a_missing_calib_module_with_the_fix() {
+    let mut args = MockArgs::new(MockDevice::Abb);
+    args.rapid_module = "SomethingElse".into();
+    let m = mock::start(args).await.unwrap();
+    let h = RwsHandle::connect(TcpConnector::new(m.addr.clone()), cfg());
+    let id = h.identity(rws::DEFAULT_CALIB_MODULE).await.unwrap();
+    assert!(!id.calib_module_loaded);
+    assert_eq!(id.rapid_modules, ["SomethingElse", "BASE", "user"]);
+    let e = id.module_error().unwrap().to_string();
+    assert!(
+        e.contains(
+            "RAPID module CalibServer is not loaded in T_ROB1: load drivers/rapid/CalibServer.mod"
+        ),
+        "{e}"
+    );
     m.stop().await;
 }

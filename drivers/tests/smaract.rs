@@ -237,3 +237,67 @@ async fn mcs2_error_is_attributed_to_the_command_that_caused_it() {
     assert_eq!(h.state().borrow().stale_errors_drained, 2);
     m.stop().await;
 }
+
+#[tokio::test]
+async fn mcs2_identity_reports_serial_name_channels_and_referencing() {
+    use calibd_drivers::Identity;
+    let (m, _, addr) = start(MockDevice::Mcs2, &[], None).await;
+    let h = Mcs2Handle::connect(TcpConnector::new(addr), cfg());
+    h.reference(1).await.unwrap();
+    h.move_absolute(1, 1_500_000_000).await.unwrap();
+    let id = h.identity(&[0, 1, 7]).await.unwrap();
+    assert_eq!(id.controller, "mcs2");
+    assert_eq!(id.serial_number, "MCS2-00001234");
+    assert_eq!(id.device_name.as_deref(), Some("MCS2-sim"));
+    assert_eq!(id.channel_count, 3);
+    assert_eq!(id.missing_channels, [7]);
+    assert_eq!(id.channels.len(), 2);
+    let (c0, c1) = (&id.channels[0], &id.channels[1]);
+    assert_eq!(
+        (c0.channel, c0.referenced, c0.fault, c0.position_pm),
+        (0, false, false, 0)
+    );
+    // Sensor present + calibrated + closed loop + amplifier + in position: 0x4_0062 + bit 19.
+    assert_eq!(
+        c0.state_raw,
+        (1 << 1) | (1 << 5) | (1 << 6) | (1 << 18) | (1 << 19)
+    );
+    assert!(c1.referenced);
+    assert_eq!(c1.state_raw & (1 << 7), 1 << 7);
+    assert_eq!(c1.position_pm, 1_500_000_000 - 2000);
+    let p = id.problems();
+    assert_eq!(p.len(), 2, "{p:?}");
+    assert!(
+        p[0].starts_with("channel 7 is configured but the controller has only 3"),
+        "{p:?}"
+    );
+    assert!(p[1].starts_with("channel 0 is not referenced"), "{p:?}");
+    let row = id.device_identity();
+    assert_eq!(row.device_kind, "mcs2");
+    assert_eq!(
+        row.summary,
+        "SmarAct MCS2 MCS2-00001234 \"MCS2-sim\", 3 channels; ch0 NOT ref 0.000 mm, ch1 ref 1.500 mm"
+    );
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn mcs_identity_reports_system_id_channels_and_position_known() {
+    let (m, _, addr) = start(MockDevice::Mcs, &[], None).await;
+    let h = McsHandle::connect(TcpConnector::new(addr), cfg());
+    h.reference(2).await.unwrap();
+    let id = h.identity(&[0, 2]).await.unwrap();
+    assert_eq!(id.controller, "mcs");
+    assert_eq!(id.serial_number, "3118167526");
+    assert_eq!(id.device_name, None);
+    assert_eq!(id.channel_count, 3);
+    assert!(id.missing_channels.is_empty());
+    assert_eq!(
+        id.channels
+            .iter()
+            .map(|c| (c.channel, c.referenced, c.state_raw))
+            .collect::<Vec<_>>(),
+        [(0, false, 3), (2, true, 3)]
+    );
+    m.stop().await;
+}

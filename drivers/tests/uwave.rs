@@ -311,3 +311,48 @@ async fn consecutive_timeouts_reopen_the_link() {
     assert_eq!(h.state().borrow().consecutive_timeouts, 0);
     m.stop().await;
 }
+
+#[tokio::test]
+async fn identity_reads_receiver_transmitters_and_cached_readings() {
+    use calibd_drivers::Identity;
+    let mut args = MockArgs::new(MockDevice::Uwave);
+    args.pty = true;
+    args.rate_hz = 50.0;
+    let m = mock::start(args).await.unwrap();
+    let conn = SerialConnector {
+        path: m.addr.clone(),
+        baud: 57600,
+        recorder: None,
+    };
+    let h = UwaveHandle::connect(conn, cfg());
+    // One reading in: the mock sends every channel per tick, so all three are cached.
+    h.fresh(2).await.unwrap();
+    let id = h.identity().await.unwrap();
+    assert_eq!(id.receiver.group, 0);
+    assert_eq!(id.receiver.receiver_id, "0000123456");
+    assert_eq!(id.receiver.band, 15);
+    assert_eq!(id.receiver.noise_raw.len(), 16);
+    assert_eq!(&id.receiver.noise_raw[..4], &[12, 8, 15, 3]);
+    let ids: Vec<&str> = id.transmitters.iter().map(|t| t.id.as_str()).collect();
+    assert_eq!(ids, ["0009233800", "0009233801", "0009233802"]);
+    assert_eq!(id.channels.len(), 3);
+    for (c, r) in id.channels.iter().enumerate() {
+        assert_eq!(usize::from(r.channel), c);
+        assert_eq!(r.transmitter_state, Some("connected"));
+        assert_eq!(r.transmitter_id.as_deref(), Some(ids[c]));
+        let v = r.value_mm.unwrap();
+        assert!((v - model_mm(r.channel)).abs() < 0.0025, "{r:?}");
+        assert!(r.age_ms.unwrap() < 2000, "{r:?}");
+    }
+    assert!(id.problems().is_empty(), "{:?}", id.problems());
+    let row = id.device_identity();
+    assert_eq!(row.device_kind, "uwave");
+    assert!(
+        row.summary
+            .starts_with("U-WAVE-R 0000123456 group 00 band 15, 3 transmitters; ch00 6.35"),
+        "{}",
+        row.summary
+    );
+    assert_eq!(row.details["receiver"]["receiver_id"], "0000123456");
+    m.stop().await;
+}

@@ -21,7 +21,7 @@ use super::adapters::{
     JointInterface, Microscope, PerJoint, QtmStream, RwsRobot, SmaractStages, StageEnvelope,
     UwaveIndicators,
 };
-use super::devices::DeviceLink;
+use super::devices::{DeviceLink, ProbeFuture};
 use super::probes::{self, probe};
 use super::{Cell, Lab, LabError, MocapCell, PcrCell, TricalCell};
 use crate::model::dh::DhFile;
@@ -271,19 +271,20 @@ fn ball_centring(d: BallCentringCell) -> Result<TricalCell, LabError> {
         format!("{rws_name} at {}", d.rws.address),
         format!("{uwave_name} at {}", d.uwave.path),
     );
-    let axes = d.uwave.axes;
+    let module = d.rws.module.clone();
+    let channels = d.uwave.axes.map(|a| a.channel);
     let links = vec![
         DeviceLink::new(
             rws_name,
             "ABB IRC5 (RWS 1.0)",
             d.rws.address,
-            probe(rws.clone(), probes::rws),
+            probe(rws.clone(), move |h| probes::rws(h, module.clone())),
         ),
         DeviceLink::new(
             uwave_name,
             "Mitutoyo U-WAVE-R",
             d.uwave.path,
-            probe(uwave.clone(), move |h| probes::uwave(h, axes)),
+            probe(uwave.clone(), move |h| probes::uwave(h, channels)),
         ),
     ];
     Ok(TricalCell {
@@ -300,8 +301,11 @@ fn ball_centring(d: BallCentringCell) -> Result<TricalCell, LabError> {
     })
 }
 
-/// The stage controller of a 3-PF cell and the channels of q1..q3 on it.
-fn stages(s: &StagesLink) -> (Arc<dyn Stage>, [u8; 3]) {
+/// A probe as the lab keeps it.
+type Probe = Box<dyn Fn() -> ProbeFuture + Send + Sync>;
+
+/// The stage controller of a 3-PF cell, the channels of q1..q3 on it, and its probe.
+fn stages(s: &StagesLink) -> (Arc<dyn Stage>, [u8; 3], Probe) {
     let cfg = StageConfig {
         timeout: Duration::from_secs(1),
         move_timeout: Duration::from_secs(10),
@@ -314,46 +318,54 @@ fn stages(s: &StagesLink) -> (Arc<dyn Stage>, [u8; 3]) {
         backoff: backoff(),
         ..Cia402Config::default()
     };
+    let ch = s.channels;
+    let drives = |one: &dyn Fn(u8) -> Cia402Handle| -> (Arc<dyn Stage>, [u8; 3], Probe) {
+        let d = Arc::new(ch.map(one));
+        let per: [Arc<dyn Stage>; 3] = [
+            Arc::new(d[0].clone()),
+            Arc::new(d[1].clone()),
+            Arc::new(d[2].clone()),
+        ];
+        (
+            Arc::new(PerJoint(per)),
+            [0, 1, 2],
+            Box::new(probe(d, probes::cia402)),
+        )
+    };
     match &s.backend {
-        StageBackend::Mcs2(a) => (
-            Arc::new(Mcs2Handle::connect(TcpConnector::new(a.clone()), cfg)),
-            s.channels,
-        ),
-        StageBackend::Mcs(a) => (
-            Arc::new(McsHandle::connect(TcpConnector::new(a.clone()), cfg)),
-            s.channels,
-        ),
-        StageBackend::Socketcand { address, bus } => {
-            let one = |node| -> Arc<dyn Stage> {
-                Arc::new(Cia402Handle::connect(
-                    SocketcandConnector {
-                        addr: address.clone(),
-                        bus: bus.clone(),
-                        recorder: None,
-                    },
-                    drive(node),
-                ))
-            };
-            let [a, b, c] = s.channels;
-            (Arc::new(PerJoint([one(a), one(b), one(c)])), [0, 1, 2])
+        StageBackend::Mcs2(a) => {
+            let h = Arc::new(Mcs2Handle::connect(TcpConnector::new(a.clone()), cfg));
+            let p = probe(h.clone(), move |h| probes::mcs2(h, ch));
+            (h, ch, Box::new(p))
         }
-        StageBackend::SocketCan(iface) => {
-            let one = |node| -> Arc<dyn Stage> {
-                Arc::new(Cia402Handle::connect(
-                    SocketCanConnector {
-                        iface: iface.clone(),
-                    },
-                    drive(node),
-                ))
-            };
-            let [a, b, c] = s.channels;
-            (Arc::new(PerJoint([one(a), one(b), one(c)])), [0, 1, 2])
+        StageBackend::Mcs(a) => {
+            let h = Arc::new(McsHandle::connect(TcpConnector::new(a.clone()), cfg));
+            let p = probe(h.clone(), move |h| probes::mcs(h, ch));
+            (h, ch, Box::new(p))
         }
+        StageBackend::Socketcand { address, bus } => drives(&|node| {
+            Cia402Handle::connect(
+                SocketcandConnector {
+                    addr: address.clone(),
+                    bus: bus.clone(),
+                    recorder: None,
+                },
+                drive(node),
+            )
+        }),
+        StageBackend::SocketCan(iface) => drives(&|node| {
+            Cia402Handle::connect(
+                SocketCanConnector {
+                    iface: iface.clone(),
+                },
+                drive(node),
+            )
+        }),
     }
 }
 
 fn pcr(d: PcrCellLink) -> PcrCell {
-    let (stage, channels) = stages(&d.stages);
+    let (stage, channels, stage_probe) = stages(&d.stages);
     let scope = MicroscopeHandle::connect(
         TcpConnector::new(d.microscope.clone()),
         MicroscopeConfig {
@@ -376,7 +388,7 @@ fn pcr(d: PcrCellLink) -> PcrCell {
             st,
             d.stages.backend.kind(),
             d.stages.backend.address(),
-            probe(stage.clone(), move |h| probes::stages(h, channels)),
+            stage_probe,
         ),
         DeviceLink::new(
             mi,
@@ -416,6 +428,7 @@ fn mocap(d: MocapCellLink) -> Result<MocapCell, LabError> {
         format!("{j} at {}", d.joints.address),
         format!("{q} at {}", d.qtm),
     );
+    let (joints_probe, names) = (joints.clone(), Arc::new(d.joint_names.clone()));
     let robot: Arc<dyn JointRobot> = Arc::new(
         JointInterface::new(joints, d.joint_names.clone(), d.joints.speed_rad_s, j_at)
             .within(d.limits.clone(), d.joints.max_step_rad),
@@ -425,7 +438,7 @@ fn mocap(d: MocapCellLink) -> Result<MocapCell, LabError> {
             j,
             "joint interface (calibd-joints/1)",
             d.joints.address,
-            probe(robot.clone(), probes::joints),
+            probe(joints_probe, move |h| probes::joints(h, names.clone())),
         ),
         DeviceLink::new(
             q,

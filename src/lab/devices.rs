@@ -22,8 +22,23 @@ pub struct Identity {
     pub details: serde_json::Value,
 }
 
+/// Why a probe failed, and the fix when the device's identity names it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProbeError {
+    /// What went wrong.
+    pub error: String,
+    /// What to do (else derived from the error by [`fix_for`]).
+    pub fix: Option<String>,
+}
+
+impl From<String> for ProbeError {
+    fn from(error: String) -> Self {
+        Self { error, fix: None }
+    }
+}
+
 /// A probe's future.
-pub type ProbeFuture = Pin<Box<dyn Future<Output = Result<Identity, String>> + Send>>;
+pub type ProbeFuture = Pin<Box<dyn Future<Output = Result<Identity, ProbeError>> + Send>>;
 
 /// The last check of a device.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -103,7 +118,10 @@ impl DeviceLink {
         let _one = self.probing.lock().await;
         let r = match tokio::time::timeout(timeout, (self.probe)()).await {
             Ok(r) => r,
-            Err(_) => Err(format!("no answer within {} s", timeout.as_secs_f64())),
+            Err(_) => Err(ProbeError::from(format!(
+                "no answer within {} s",
+                timeout.as_secs_f64()
+            ))),
         };
         let checked_at = crate::store::format_time(chrono::Utc::now());
         let s = match r {
@@ -111,9 +129,11 @@ impl DeviceLink {
                 identity,
                 checked_at,
             },
-            Err(error) => DeviceStatus::Failed {
-                fix: fix_for(self.kind, &self.address, &error),
-                error,
+            Err(e) => DeviceStatus::Failed {
+                fix: e
+                    .fix
+                    .unwrap_or_else(|| fix_for(self.kind, &self.address, &e.error)),
+                error: e.error,
                 checked_at,
             },
         };

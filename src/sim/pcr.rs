@@ -71,6 +71,9 @@ impl StageModel for TwinStages {
     fn speed_pm_s(&self, _: u8) -> f64 {
         self.speed_pm_s
     }
+    fn referenced_at_start(&self) -> bool {
+        true
+    }
     fn settle(&self, ch: u8, target_pm: i64) -> i64 {
         let r = self.residual_pm;
         with(&self.sim, |s| {

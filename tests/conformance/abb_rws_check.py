@@ -20,6 +20,15 @@ def main(host, port):
     assert rws.get_controller_state() == "motoron"
     assert rws.get_operation_mode() == "AUTO"
     assert rws.get_execution_state().ctrlexecstate == "running"
+    # Identity (calibd lab check): abb-robot-client 0.4.0 has no system-info helper, so its
+    # own GET path (Digest, cookies, JSON parsing) reads RWS 1.0 /rw/system and the module
+    # list of T_ROB1; get_tasks() is its helper for the task list.
+    sysinfo = rws._do_get("rw/system")["_embedded"]["_state"][0]
+    assert sysinfo["_type"] == "sys-system" and sysinfo["name"] == "IRB120-sim", sysinfo
+    assert sysinfo["rwversion"].startswith("6.") and sysinfo["rwversionname"].startswith("6."), sysinfo
+    mods = rws._do_get("rw/rapid/modules?task=T_ROB1")["_embedded"]["_state"]
+    assert "CalibServer" in [m["name"] for m in mods if m["_type"] == "rap-module-info-li"], mods
+    assert rws.get_tasks()["T_ROB1"].motiontask
     rws.set_rapid_variable("calib_dp", "[1.5,-2,0]")
     assert rws.get_rapid_variable("calib_dp") == "[1.5,-2,0]"
     # A move through the calibd RAPID module, driven only by RWS variable writes.

@@ -21,6 +21,11 @@ def main(host, port):
         net.add_node(node)
         sw = u16(node.sdo.upload(0x6041, 0))
         assert sw == 0x0250, hex(sw)  # switch on disabled, voltage enabled, remote
+        # Identity (calibd lab check): 0x1018 expedited, 0x1008 by canopen's segmented upload.
+        ident = [int.from_bytes(node.sdo.upload(0x1018, s), "little") for s in (1, 2, 3, 4)]
+        assert ident == [0x00CA1BD0, 0x402, 0x00010003, 0x1234], [hex(v) for v in ident]
+        name = node.sdo.upload(0x1008, 0).decode()
+        assert name == "calibd CiA402 sim", name
         for cw, want in ((0x06, 0x21), (0x07, 0x23), (0x0F, 0x27)):
             node.sdo.download(0x6040, 0, cw.to_bytes(2, "little"))
             sw = u16(node.sdo.upload(0x6041, 0))
@@ -47,7 +52,7 @@ def main(host, port):
             raise AssertionError("read-only object accepted a write")
         except canopen.SdoAbortedError as e:
             assert e.code == 0x06010002, hex(e.code)
-        print(f"python-can + canopen OK: enabled the drive, profile-position move to {pos}, aborts 0x06020000/0x06010002")
+        print(f"python-can + canopen OK: identity {name!r} vendor {ident[0]:#x}, enabled the drive, profile-position move to {pos}, aborts 0x06020000/0x06010002")
     finally:
         net.disconnect()
 

@@ -20,6 +20,12 @@ async def main(host, port):
     root = ET.fromstring(xml)
     labels = [l.find("Name").text for l in root.iter("Label")]
     assert labels == ["tool_a", "tool_b", "tool_c", "base"], labels
+    # Identity (calibd lab check): capture frequency from General/Frequency.
+    general = await conn.get_parameters(["general"])
+    if isinstance(general, bytes):
+        general = general.decode()
+    freq = ET.fromstring(general).find("General/Frequency").text
+    assert freq == "100", freq
     frames = []
 
     def on_packet(packet):
@@ -40,7 +46,7 @@ async def main(host, port):
         r = ((x - 500.0) ** 2 + (y - 200.0) ** 2) ** 0.5
         assert abs(r - 50.0) < 1e-3 and z == 1000.0, (x, y, z)
     occluded = sum(1 for _, m in frames if m[3][0] != m[3][0])
-    print(f"qtm-rt OK: state {state.name}, labels {labels}, {len(frames)} frames, "
+    print(f"qtm-rt OK: state {state.name}, {freq} Hz, labels {labels}, {len(frames)} frames, "
           f"{occluded} with 'base' occluded (NaN)")
 
 

@@ -9,7 +9,7 @@ pub mod mock;
 pub mod node;
 pub mod socketcand;
 
-pub use cia402::{Cia402Config, Cia402Handle, Cia402State};
+pub use cia402::{Cia402Config, Cia402Handle, Cia402Identity, Cia402State};
 pub use frame::{
     CanConnect, CanFrame, FrameTransport, SocketCanConnector, Socketcand, SocketcandConnector,
 };

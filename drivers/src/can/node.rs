@@ -3,7 +3,18 @@
 
 use std::collections::HashMap;
 
-use super::canopen::{SDO_RX, SDO_TX, SdoResponse, obj, response};
+use super::canopen::{SDO_RX, SDO_TX, SdoResponse, obj, response, upload_segment_response};
+
+/// Vendor id the simulated drive reports in 0x1018:1 (not a CiA-assigned id).
+pub const MOCK_VENDOR_ID: u32 = 0x00CA_1BD0;
+/// Product code of the simulated drive (0x1018:2).
+pub const MOCK_PRODUCT_CODE: u32 = 0x0000_0402;
+/// Revision number of the simulated drive (0x1018:3): major 1, minor 3.
+pub const MOCK_REVISION: u32 = 0x0001_0003;
+/// Serial number of the simulated drive (0x1018:4).
+pub const MOCK_SERIAL: u32 = 0x0000_1234;
+/// Device name of the simulated drive (0x1008, read with a segmented upload).
+pub const MOCK_DEVICE_NAME: &str = "calibd CiA402 sim";
 use super::frame::CanFrame;
 
 /// The axis behind the drive: the hook for a stage/joint twin.
@@ -44,6 +55,10 @@ pub struct Drive {
     node: u8,
     model: Box<dyn DriveModel>,
     od: HashMap<u16, Vec<u8>>,
+    /// Objects with sub-indices (0x1018) and strings (0x1008), keyed by (index, sub).
+    records: HashMap<(u16, u8), Vec<u8>>,
+    /// A segmented upload in progress: index, sub, bytes still to send, next toggle bit.
+    segment: Option<(u16, u8, Vec<u8>, bool)>,
     power: Power,
     controlword: u16,
     position: i32,
@@ -63,12 +78,14 @@ impl std::fmt::Debug for Drive {
     }
 }
 
-const READ_ONLY: [u16; 6] = [
+const READ_ONLY: [u16; 8] = [
     obj::STATUSWORD,
     obj::MODES_DISPLAY,
     obj::POSITION_ACTUAL,
     obj::ERROR_CODE,
-    0x1000,
+    obj::DEVICE_TYPE,
+    obj::DEVICE_NAME,
+    obj::IDENTITY,
     0x6502,
 ];
 
@@ -85,10 +102,23 @@ impl Drive {
         od.insert(0x6098, vec![35]); // homing on the current position
         od.insert(0x6502, 0x21u32.to_le_bytes().to_vec()); // pp + hm
         od.insert(obj::ERROR_CODE, vec![0, 0]);
+        let mut records = HashMap::new();
+        records.insert((obj::DEVICE_NAME, 0), MOCK_DEVICE_NAME.as_bytes().to_vec());
+        records.insert((obj::IDENTITY, 0), vec![4]);
+        for (sub, v) in [
+            (1, MOCK_VENDOR_ID),
+            (2, MOCK_PRODUCT_CODE),
+            (3, MOCK_REVISION),
+            (4, MOCK_SERIAL),
+        ] {
+            records.insert((obj::IDENTITY, sub), v.to_le_bytes().to_vec());
+        }
         Drive {
             node,
             model,
             od,
+            records,
+            segment: None,
             power: Power::SwitchOnDisabled,
             controlword: 0,
             position: 0,
@@ -194,6 +224,12 @@ impl Drive {
     }
 
     fn read(&self, index: u16, sub: u8) -> Result<Vec<u8>, u32> {
+        if let Some(v) = self.records.get(&(index, sub)) {
+            return Ok(v.clone());
+        }
+        if self.records.keys().any(|(i, _)| *i == index) {
+            return Err(0x0609_0011);
+        }
         let v = match index {
             obj::STATUSWORD => self.statusword().to_le_bytes().to_vec(),
             obj::CONTROLWORD => self.controlword.to_le_bytes().to_vec(),
@@ -229,6 +265,30 @@ impl Drive {
         Ok(())
     }
 
+    /// The next upload segment, or an abort (no transfer running, toggle not alternated).
+    fn next_segment(&mut self, toggle: bool) -> [u8; 8] {
+        let Some((index, sub, mut rest, t)) = self.segment.take() else {
+            return response(&SdoResponse::Abort {
+                index: 0,
+                sub: 0,
+                code: 0x0504_0001,
+            });
+        };
+        if t != toggle {
+            return response(&SdoResponse::Abort {
+                index,
+                sub,
+                code: 0x0503_0000,
+            });
+        }
+        let chunk: Vec<u8> = rest.drain(..rest.len().min(7)).collect();
+        let last = rest.is_empty();
+        if !last {
+            self.segment = Some((index, sub, rest, !toggle));
+        }
+        upload_segment_response(toggle, &chunk, last)
+    }
+
     /// Handles one bus frame; returns the reply frame, if any.
     pub fn on_frame(&mut self, f: &CanFrame) -> Option<CanFrame> {
         let node = u16::from(self.node);
@@ -250,12 +310,19 @@ impl Drive {
         let (index, sub) = (u16::from_le_bytes([d[1], d[2]]), d[3]);
         let r = match d[0] {
             0x40 => match self.read(index, sub) {
-                Ok(mut data) => {
-                    data.truncate(4);
-                    SdoResponse::Upload { index, sub, data }
+                Ok(data) if data.len() > 4 => {
+                    let size = u32::try_from(data.len()).ok();
+                    self.segment = Some((index, sub, data, false));
+                    SdoResponse::UploadSegmented { index, sub, size }
                 }
+                Ok(data) => SdoResponse::Upload { index, sub, data },
                 Err(code) => SdoResponse::Abort { index, sub, code },
             },
+            // Upload segment request, toggle in bit 4 (no index in segment frames).
+            0x60 | 0x70 => {
+                let toggle = d[0] == 0x70;
+                return Some(CanFrame::new(SDO_TX + node, &self.next_segment(toggle)));
+            }
             c if c & 0xE3 == 0x23 => {
                 let n = 4 - ((c >> 2) & 3) as usize;
                 match self.write(index, sub, &d[4..4 + n]) {

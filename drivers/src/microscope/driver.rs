@@ -33,7 +33,7 @@ impl Default for MicroscopeConfig {
 }
 
 /// One pose read by the microscope (pattern frame in the camera frame).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct PoseReading {
     /// Image counter.
     pub seq: u64,
@@ -114,6 +114,67 @@ impl MicroscopeHandle {
             }),
             other => Err(unexpected(Request::Pose, &other)),
         }
+    }
+}
+
+/// Identity of the microscope's pose server: its `ID?` line and one fresh `POSE?`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct MicroscopeIdentity {
+    /// The identification line (`ID <text>`).
+    pub id: String,
+    /// A fresh pose (None when the server answered `POSE?` with an error).
+    pub pose: Option<PoseReading>,
+    /// The server's `ERR <code> <text>` to `POSE?`, e.g. pattern not found.
+    pub pose_error: Option<String>,
+}
+
+impl crate::identity::Identity for MicroscopeIdentity {
+    const DEVICE_KIND: &'static str = DEVICE;
+
+    fn summary(&self) -> String {
+        match (&self.pose, &self.pose_error) {
+            (Some(p), _) => format!(
+                "{}; image {}: x {:.1} um, y {:.1} um, theta {:.3} mrad",
+                self.id,
+                p.seq,
+                p.x_m * 1e6,
+                p.y_m * 1e6,
+                p.theta_rad * 1e3
+            ),
+            (None, Some(e)) => format!("{}; no pose: {e}", self.id),
+            (None, None) => format!("{}; no pose", self.id),
+        }
+    }
+
+    fn problems(&self) -> Vec<String> {
+        match &self.pose_error {
+            Some(e) => vec![format!(
+                "no pose from the microscope ({e}): put the pattern under the camera, check \
+                 focus and lighting"
+            )],
+            None => Vec::new(),
+        }
+    }
+}
+
+impl MicroscopeHandle {
+    /// The `ID?` line and one fresh `POSE?` reading. An error the server reports for the
+    /// pose (code 2 pattern not found, 3 camera busy, ...) is kept in
+    /// [`MicroscopeIdentity::pose_error`]; link errors are returned.
+    pub async fn identity(&self) -> Result<MicroscopeIdentity, DriverError> {
+        let id = self.id().await?;
+        let (pose, pose_error) = match self.pose().await {
+            Ok(p) => (Some(p), None),
+            Err(DriverError::Device { code, message, .. }) => {
+                (None, Some(format!("error {code}: {message}")))
+            }
+            Err(e) => return Err(e),
+        };
+        Ok(MicroscopeIdentity {
+            id,
+            pose,
+            pose_error,
+        })
     }
 }
 

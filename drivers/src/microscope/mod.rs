@@ -25,4 +25,4 @@ pub mod driver;
 pub mod mock;
 
 pub use codec::{MicroscopeCodec, Reply, Request};
-pub use driver::{MicroscopeConfig, MicroscopeHandle, PoseReading};
+pub use driver::{MicroscopeConfig, MicroscopeHandle, MicroscopeIdentity, PoseReading};

@@ -12,8 +12,9 @@ use tokio::sync::{broadcast, mpsc, watch};
 use tokio::time::Instant;
 
 use super::codec::QtmCodec;
+use super::identity::{QtmIdentity, after};
 use super::packet::{self, DataFrame, Packet};
-use super::params::{Settings3d, parse_3d};
+use super::params::{Settings3d, SettingsGeneral, parse_3d, parse_general};
 use crate::actor::{Reply, call, next_or_pending};
 use crate::error::{CodecError, DriverError};
 use crate::link::{Connect, Link, Once};
@@ -27,6 +28,7 @@ enum Request {
     Command(String, Reply<String>),
     State(Reply<u8>),
     Params3d(Reply<Settings3d>),
+    ParamsGeneral(Reply<SettingsGeneral>),
     Stream(String, StreamTransport, Reply<()>),
     Stop(Reply<()>),
 }
@@ -37,6 +39,7 @@ impl std::fmt::Debug for Request {
             Request::Command(c, _) => write!(f, "Command({c:?})"),
             Request::State(_) => write!(f, "State"),
             Request::Params3d(_) => write!(f, "Params3d"),
+            Request::ParamsGeneral(_) => write!(f, "ParamsGeneral"),
             Request::Stream(c, t, _) => write!(f, "Stream({c:?}, {t:?})"),
             Request::Stop(_) => write!(f, "Stop"),
         }
@@ -47,6 +50,7 @@ enum Pending {
     Text(Reply<String>),
     Event(Reply<u8>),
     Xml(Reply<Settings3d>),
+    General(Reply<SettingsGeneral>),
 }
 
 impl Pending {
@@ -55,6 +59,7 @@ impl Pending {
             Pending::Text(r) => drop(r.send(Err(e))),
             Pending::Event(r) => drop(r.send(Err(e))),
             Pending::Xml(r) => drop(r.send(Err(e))),
+            Pending::General(r) => drop(r.send(Err(e))),
         }
     }
 }
@@ -112,6 +117,32 @@ impl QtmHandle {
     /// `GetParameters 3D`: labels and axis convention.
     pub async fn parameters_3d(&self) -> Result<Settings3d, DriverError> {
         call(&self.tx, DEVICE, Request::Params3d).await
+    }
+
+    /// `GetParameters General`: the capture frequency (`General/Frequency`).
+    pub async fn parameters_general(&self) -> Result<SettingsGeneral, DriverError> {
+        call(&self.tx, DEVICE, Request::ParamsGeneral).await
+    }
+
+    /// RT protocol version (`Version`), QTM version (`QTMVersion`), capture frequency
+    /// (`GetParameters General`) and labelled markers (`GetParameters 3D`).
+    pub async fn identity(&self) -> Result<QtmIdentity, DriverError> {
+        let protocol_version = after(&self.command("Version").await?, "Version is ", DEVICE)?;
+        let qtm_version = after(
+            &self.command("QTMVersion").await?,
+            "QTM Version is ",
+            DEVICE,
+        )?;
+        let general = self.parameters_general().await?;
+        let s3d = self.parameters_3d().await?;
+        Ok(QtmIdentity {
+            protocol_version,
+            qtm_version,
+            frequency_hz: general.frequency_hz,
+            axis_upwards: s3d.axis_upwards,
+            labelled_marker_count: s3d.labels.len(),
+            labels: s3d.labels,
+        })
     }
 
     /// Starts `StreamFrames AllFrames <components>` (e.g. `"3D"`, `"3D 3DNoLabels"`); frames
@@ -311,6 +342,10 @@ impl<C: Connect> Actor<C> {
                 Ok(()) => self.pending.push_back((deadline, Pending::Xml(r))),
                 Err(e) => drop(r.send(Err(e))),
             },
+            Request::ParamsGeneral(r) => match self.send("GetParameters General".into()).await {
+                Ok(()) => self.pending.push_back((deadline, Pending::General(r))),
+                Err(e) => drop(r.send(Err(e))),
+            },
             Request::Stream(comps, t, r) => {
                 let res = self.start_stream(&comps, t).await;
                 if res.is_ok() {
@@ -406,6 +441,10 @@ impl<C: Connect> Actor<C> {
             Packet::Xml(x) => match self.pending.pop_front() {
                 Some((_, Pending::Xml(r))) => {
                     let _ = r.send(parse_3d(&x).map_err(|e| DriverError::from_codec(DEVICE, e)));
+                }
+                Some((_, Pending::General(r))) => {
+                    let _ =
+                        r.send(parse_general(&x).map_err(|e| DriverError::from_codec(DEVICE, e)));
                 }
                 Some((_, other)) => other.fail(protocol("unexpected XML reply".into())),
                 None => {}

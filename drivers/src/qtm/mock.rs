@@ -1,5 +1,5 @@
 //! QTM RT mock (protocol 1.25, little endian): welcome, version negotiation, GetState,
-//! GetParameters 3D, StreamFrames over TCP or UDP, GetCurrentFrame; commands compared
+//! GetParameters 3D / General / All, StreamFrames over TCP or UDP, GetCurrentFrame; commands compared
 //! case-insensitively (qtm-rt sends lower case). Markers come from a [`MarkerModel`].
 
 use std::net::SocketAddr;
@@ -14,7 +14,7 @@ use tokio_util::codec::FramedRead;
 
 use super::codec::QtmCodec;
 use super::packet::{self, Component, DataFrame, Packet, event};
-use super::params::{Settings3d, write_3d};
+use super::params::{Settings3d, SettingsGeneral, write_parameters};
 use crate::mock_kit::fault::Fate;
 use crate::mock_kit::{BoxIo, Conn, FaultKind, Faults, Handler};
 
@@ -244,15 +244,18 @@ impl Session {
             ["qtmversion"] => Packet::Command("QTM Version is 2.3 (build 464)".into()),
             ["byteorder"] => Packet::Command("Byte order is little endian".into()),
             ["getstate"] | ["getlastevent"] => Packet::Event(event::CONNECTED),
-            ["getparameters", rest @ ..] if rest.iter().any(|w| *w == "3d" || *w == "all") => {
-                let labels = self.model.lock().map(|m| m.labels()).unwrap_or_default();
-                Packet::Xml(write_3d(
-                    "1.25",
-                    &Settings3d {
-                        axis_upwards: "+Z".into(),
-                        labels,
-                    },
-                ))
+            ["getparameters", rest @ ..]
+                if rest.iter().any(|w| matches!(*w, "3d" | "general" | "all")) =>
+            {
+                let all = rest.contains(&"all");
+                let general = (all || rest.contains(&"general")).then(|| SettingsGeneral {
+                    frequency_hz: self.rate.round() as u32,
+                });
+                let three_d = (all || rest.contains(&"3d")).then(|| Settings3d {
+                    axis_upwards: "+Z".into(),
+                    labels: self.model.lock().map(|m| m.labels()).unwrap_or_default(),
+                });
+                Packet::Xml(write_parameters("1.25", general.as_ref(), three_d.as_ref()))
             }
             ["getparameters", ..] => Packet::Error("Parameters not available".into()),
             ["takecontrol", ..] => Packet::Command("You are now master".into()),

@@ -3,6 +3,7 @@
 
 pub mod codec;
 pub mod driver;
+pub mod identity;
 pub mod mock;
 pub mod packet;
 pub mod params;
@@ -10,5 +11,6 @@ pub mod state;
 
 pub use codec::QtmCodec;
 pub use driver::{QtmConfig, QtmHandle, QtmState, StreamTransport};
+pub use identity::QtmIdentity;
 pub use packet::{Component, DataFrame, Packet};
-pub use params::Settings3d;
+pub use params::{Settings3d, SettingsGeneral};

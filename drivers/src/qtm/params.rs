@@ -1,5 +1,6 @@
-//! 3D parameters XML (`GetParameters 3D`): marker labels parsed with a real XML parser
-//! (quick-xml), unknown elements ignored; and the writer used by the mock.
+//! Parameters XML (`GetParameters 3D`, `GetParameters General`): marker labels and the
+//! capture frequency parsed with a real XML parser (quick-xml), unknown elements ignored;
+//! and the writers used by the mock.
 
 use quick_xml::Reader;
 use quick_xml::events::Event;
@@ -80,14 +81,99 @@ pub fn parse_3d(xml: &str) -> Result<Settings3d, CodecError> {
     Ok(out)
 }
 
+/// What calibd needs from the General settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub struct SettingsGeneral {
+    /// Capture frequency (`General/Frequency`), Hz.
+    pub frequency_hz: u32,
+}
+
+/// Reads the text of every element at `path` (outermost first, the root excluded: e.g.
+/// `["General", "Frequency"]`) of a `QTM_Parameters_Ver_1.xx` document, in order.
+fn texts_at(xml: &str, want: &[&str], what: &str) -> Result<Vec<String>, CodecError> {
+    let mut r = Reader::from_str(xml);
+    let mut path: Vec<String> = Vec::new();
+    let mut text = String::new();
+    let mut out = Vec::new();
+    let bad = |e: &dyn std::fmt::Display| CodecError::malformed(format!("{what} XML: {e}"));
+    loop {
+        match r.read_event().map_err(|e| bad(&e))? {
+            Event::Start(s) => {
+                path.push(String::from_utf8_lossy(s.name().as_ref()).into_owned());
+                text.clear();
+            }
+            Event::Text(t) => text.push_str(&t.xml_content().map_err(|e| bad(&e))?),
+            Event::CData(t) => text.push_str(&t.decode().map_err(|e| bad(&e))?),
+            Event::End(_) => {
+                if path.len() == want.len() + 1 && path[1..].iter().zip(want).all(|(a, b)| a == b) {
+                    out.push(text.trim().to_string());
+                }
+                path.pop();
+                text.clear();
+            }
+            Event::Eof => break,
+            _ => {}
+        }
+    }
+    Ok(out)
+}
+
+/// Parses a `QTM_Parameters_Ver_1.xx` document with a `General` section: the capture
+/// frequency is `General/Frequency` (the `Frequency` elements nested deeper, e.g. in
+/// `Camera`, are other things).
+pub fn parse_general(xml: &str) -> Result<SettingsGeneral, CodecError> {
+    let f = texts_at(xml, &["General", "Frequency"], "General parameters")?;
+    let [v] = f.as_slice() else {
+        return Err(CodecError::malformed(format!(
+            "General parameters XML has {} General/Frequency elements, not 1",
+            f.len()
+        )));
+    };
+    let frequency_hz = v.parse().map_err(|_| {
+        CodecError::malformed(format!("General/Frequency {v:?} is not a frequency in Hz"))
+    })?;
+    Ok(SettingsGeneral { frequency_hz })
+}
+
+/// The `General` element the mock serves (inside a parameters document).
+pub fn general_section(g: &SettingsGeneral) -> String {
+    format!(
+        "<General><Frequency>{}</Frequency><Capture_Time>10.000</Capture_Time>\
+         <Start_On_External_Trigger>False</Start_On_External_Trigger>\
+         <External_Time_Base><Enabled>False</Enabled><Signal_Source>Control port</Signal_Source>\
+         <Frequency_Multiplier>1</Frequency_Multiplier><Frequency_Divisor>1</Frequency_Divisor>\
+         </External_Time_Base>\
+         <Camera><ID>1</ID><Model>Miqus M3</Model><Mode>Marker</Mode>\
+         <Video_Frequency>{}</Video_Frequency></Camera></General>",
+        g.frequency_hz, g.frequency_hz
+    )
+}
+
+/// Writes a parameters document with the `General` and/or `The_3D` sections (as
+/// `GetParameters General 3D` answers).
+pub fn write_parameters(
+    version: &str,
+    general: Option<&SettingsGeneral>,
+    three_d: Option<&Settings3d>,
+) -> String {
+    let g = general.map(general_section).unwrap_or_default();
+    let t = three_d.map(the_3d_section).unwrap_or_default();
+    format!("<QTM_Parameters_Ver_{version}>{g}{t}</QTM_Parameters_Ver_{version}>")
+}
+
 fn escape(s: &str) -> String {
     quick_xml::escape::escape(s).into_owned()
 }
 
 /// Writes the 3D parameters document the mock serves.
 pub fn write_3d(version: &str, s: &Settings3d) -> String {
+    write_parameters(version, None, Some(s))
+}
+
+/// The `The_3D` element the mock serves.
+pub fn the_3d_section(s: &Settings3d) -> String {
     let mut x = format!(
-        "<QTM_Parameters_Ver_{version}><The_3D><AxisUpwards>{}</AxisUpwards>\
+        "<The_3D><AxisUpwards>{}</AxisUpwards>\
          <CalibrationTime>2026.11.22 08:00:00</CalibrationTime><Labels>{}</Labels>",
         escape(&s.axis_upwards),
         s.labels.len()
@@ -98,9 +184,7 @@ pub fn write_3d(version: &str, s: &Settings3d) -> String {
             escape(l)
         ));
     }
-    x.push_str(&format!(
-        "<Bones></Bones></The_3D></QTM_Parameters_Ver_{version}>"
-    ));
+    x.push_str("<Bones></Bones></The_3D>");
     x
 }
 
@@ -118,6 +202,34 @@ mod tests {
         let s = parse_3d(xml).unwrap();
         assert_eq!(s.labels, vec!["th12", "r_asis"]);
         assert_eq!(s.axis_upwards, "+Z");
+    }
+
+    #[test]
+    fn general_frequency_is_the_direct_child_only() {
+        // Shape of a QTM 2023 reply to `GetParameters General` (cameras shortened).
+        let xml = "<QTM_Parameters_Ver_1.25>\n<General>\n<Frequency>100</Frequency>\n\
+<Capture_Time>10.000</Capture_Time>\n<Start_On_External_Trigger>False</Start_On_External_Trigger>\n\
+<External_Time_Base><Enabled>False</Enabled><Nominal_Frequency>None</Nominal_Frequency></External_Time_Base>\n\
+<Camera><ID>1</ID><Model>Miqus M3</Model><Frequency>25</Frequency></Camera>\n\
+</General>\n</QTM_Parameters_Ver_1.25>";
+        assert_eq!(parse_general(xml).unwrap().frequency_hz, 100);
+        let g = SettingsGeneral { frequency_hz: 250 };
+        assert_eq!(
+            parse_general(&write_parameters("1.25", Some(&g), None)).unwrap(),
+            g
+        );
+        // Both sections in one document (GetParameters General 3D).
+        let s = Settings3d {
+            axis_upwards: "+Z".into(),
+            labels: vec!["a".into()],
+        };
+        let both = write_parameters("1.25", Some(&g), Some(&s));
+        assert_eq!(parse_general(&both).unwrap(), g);
+        assert_eq!(parse_3d(&both).unwrap(), s);
+        assert!(parse_general(&write_3d("1.25", &s)).is_err());
+        let e = parse_general("<P><General><Frequency>fast</Frequency></General></P>");
+        assert!(e.unwrap_err().to_string().contains("\"fast\""));
+        assert!(parse_general("<P><General><Frequency>1</General></P>").is_err());
     }
 
     #[test]

@@ -9,4 +9,6 @@ pub mod irb120;
 pub mod mock;
 pub mod rapid;
 
-pub use driver::{ControllerState, RwsConfig, RwsHandle, RwsState};
+pub use driver::{
+    ControllerState, DEFAULT_CALIB_MODULE, RwsConfig, RwsHandle, RwsIdentity, RwsState,
+};

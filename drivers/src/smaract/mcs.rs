@@ -1,6 +1,7 @@
 //! SmarAct MCS (MCS1) ASCII protocol: `:CMD<ch>,args\n` → one reply line in synchronous
 //! mode (`:SCM0`); positions in nm; errors `:E<ch>,<code>` (devices.md §3a).
 
+use super::identity::{ChannelIdentity, StageIdentity};
 use super::line::{LineClient, LineState};
 use super::stage::{Stage, StageConfig, StageStatus, wait_until};
 use crate::error::DriverError;
@@ -168,6 +169,55 @@ impl McsHandle {
         })
     }
 
+    /// A controller-wide query (`:GSI`, `:GNC`) whose reply is `:<mnemonic><value>`.
+    async fn system_value(&self, cmd: &str, mnemonic: &str) -> Result<i64, DriverError> {
+        match self.command(cmd).await? {
+            McsReply::Value {
+                mnemonic: m,
+                ch: v,
+                values,
+            } if m == mnemonic && values.is_empty() => Ok(v),
+            other => Err(DriverError::Protocol {
+                device: DEVICE,
+                detail: format!("expected :{mnemonic}<value> to {cmd:?}, got {other:?}"),
+            }),
+        }
+    }
+
+    /// System id (`:GSI`), channel count (`:GNC`) and, per channel in `channels`, whether
+    /// its physical position is known (`:GPPK`) and its position. Channels beyond the count
+    /// are listed in [`StageIdentity::missing_channels`] without being queried.
+    pub async fn identity(&self, channels: &[u8]) -> Result<StageIdentity, DriverError> {
+        let system_id = self.system_value(":GSI", "ID").await?;
+        let count = self.system_value(":GNC", "N").await?;
+        let channel_count = u32::try_from(count).map_err(|_| DriverError::Protocol {
+            device: DEVICE,
+            detail: format!(":GNC = {count} is not a channel count"),
+        })?;
+        let (present, missing_channels): (Vec<u8>, Vec<u8>) = channels
+            .iter()
+            .partition(|c| u32::from(**c) < channel_count);
+        let mut out = Vec::with_capacity(present.len());
+        for ch in present {
+            let s = self.status_of(ch).await?;
+            out.push(ChannelIdentity {
+                channel: ch,
+                referenced: s.referenced,
+                fault: s.fault,
+                state_raw: s.raw,
+                position_pm: self.position(ch).await?,
+            });
+        }
+        Ok(StageIdentity {
+            controller: DEVICE,
+            serial_number: system_id.to_string(),
+            device_name: None,
+            channel_count,
+            channels: out,
+            missing_channels,
+        })
+    }
+
     /// Link state.
     pub fn state(&self) -> tokio::sync::watch::Receiver<LineState> {
         self.line.state()
@@ -228,6 +278,26 @@ impl Stage for McsHandle {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn parses_system_id_and_channel_count_replies() {
+        assert_eq!(
+            parse_reply(":ID3118167526").unwrap(),
+            McsReply::Value {
+                mnemonic: "ID".into(),
+                ch: 3_118_167_526,
+                values: vec![]
+            }
+        );
+        assert_eq!(
+            parse_reply(":N3").unwrap(),
+            McsReply::Value {
+                mnemonic: "N".into(),
+                ch: 3,
+                values: vec![]
+            }
+        );
+    }
 
     #[test]
     fn parses_documented_replies() {

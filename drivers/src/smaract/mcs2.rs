@@ -7,6 +7,7 @@
 //! errors read right after a command are that command's. Code 0 ("No error") ends a drain
 //! and is never an error.
 
+use super::identity::{ChannelIdentity, StageIdentity};
 use super::line::{ErrorQueue, LineClient, LineState};
 use super::stage::{Stage, StageConfig, StageStatus, wait_until};
 use crate::error::DriverError;
@@ -91,6 +92,43 @@ impl Mcs2Handle {
             referenced: bits & (1 << 7) != 0,
             fault: bits & FAULT_BITS != 0,
             raw: bits,
+        })
+    }
+
+    /// Serial number, name, channel count and, per channel in `channels`, whether it is
+    /// referenced (state bit 7) and its position. Channels beyond `:DEV:NOCH?` are listed in
+    /// [`StageIdentity::missing_channels`] without being queried.
+    pub async fn identity(&self, channels: &[u8]) -> Result<StageIdentity, DriverError> {
+        let unquote = |s: String| s.trim().trim_matches('"').to_string();
+        let serial_number = unquote(self.checked_query(":DEV:SNUM?").await?);
+        let device_name = unquote(self.checked_query(":DEV:NAME?").await?);
+        let noch = self.checked_query(":DEV:NOCH?").await?;
+        let channel_count =
+            u32::try_from(int(&noch, ":DEV:NOCH?")?).map_err(|_| DriverError::Protocol {
+                device: DEVICE,
+                detail: format!(":DEV:NOCH? = {noch:?} is not a channel count"),
+            })?;
+        let (present, missing_channels): (Vec<u8>, Vec<u8>) = channels
+            .iter()
+            .partition(|c| u32::from(**c) < channel_count);
+        let mut out = Vec::with_capacity(present.len());
+        for ch in present {
+            let s = self.status_of(ch).await?;
+            out.push(ChannelIdentity {
+                channel: ch,
+                referenced: s.referenced,
+                fault: s.fault,
+                state_raw: s.raw,
+                position_pm: self.position(ch).await?,
+            });
+        }
+        Ok(StageIdentity {
+            controller: DEVICE,
+            serial_number,
+            device_name: Some(device_name),
+            channel_count,
+            channels: out,
+            missing_channels,
         })
     }
 

@@ -80,7 +80,8 @@ pub enum UwaveLine {
         /// 0 button mode, 1 event mode.
         mode: u8,
     },
-    /// `RI1`: receiver info reply (kept raw: only diagnostic).
+    /// `RI1`: receiver info reply, kept raw so that a line of another layout does not break
+    /// the stream; [`ReceiverInfo::parse`] reads it.
     ReceiverInfo {
         /// The text after `RI1`.
         raw: String,
@@ -226,6 +227,77 @@ pub fn parse_line(line: &str) -> Result<UwaveLine, CodecError> {
     }
 }
 
+/// A parsed `RI1` receiver-info line: `RI1` gg rrrrrrrrrr bb l d + 16 3-digit noise values
+/// (devices.md §2, U-WAVE API v1). The layout names `l` and `d` without saying what they
+/// mean, so they are kept as sent.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct ReceiverInfo {
+    /// Receiver group (00-99).
+    pub group: u8,
+    /// 10-digit receiver id.
+    pub receiver_id: String,
+    /// Radio band (11-25).
+    pub band: u8,
+    /// The `l` character of the layout, as sent.
+    pub l: char,
+    /// The `d` character of the layout, as sent.
+    pub d: char,
+    /// The 16 noise values (3 digits each, raw receiver units), one per band slot.
+    pub noise_raw: Vec<u16>,
+}
+
+impl ReceiverInfo {
+    /// Length of the text after `RI1`: 2 + 10 + 2 + 1 + 1 + 16 * 3.
+    pub const LEN: usize = 64;
+
+    /// Parses the text after `RI1` (see [`UwaveLine::ReceiverInfo`]).
+    pub fn parse(raw: &str) -> Result<Self, CodecError> {
+        let bad = |what: &str| CodecError::malformed(format!("{what} in RI1 line {raw:?}"));
+        if !raw.is_ascii() {
+            return Err(bad("non-ASCII byte"));
+        }
+        if raw.len() != Self::LEN {
+            return Err(bad(&format!(
+                "{} characters after RI1, not {}",
+                raw.len(),
+                Self::LEN
+            )));
+        }
+        let digits = |s: &str, what: &str| -> Result<u16, CodecError> {
+            if s.bytes().all(|b| b.is_ascii_digit()) {
+                s.parse().map_err(|_| bad(what))
+            } else {
+                Err(bad(&format!("{what} {s:?} not digits")))
+            }
+        };
+        let receiver_id = &raw[2..12];
+        if !receiver_id.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(bad("receiver id not hex"));
+        }
+        let ch = |i: usize| char::from(raw.as_bytes()[i]);
+        let noise_raw = (0..16)
+            .map(|i| digits(&raw[16 + 3 * i..19 + 3 * i], "noise value"))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(ReceiverInfo {
+            group: two(&raw[0..2], "group", raw)?,
+            receiver_id: receiver_id.to_string(),
+            band: two(&raw[12..14], "band", raw)?,
+            l: ch(14),
+            d: ch(15),
+            noise_raw,
+        })
+    }
+
+    /// Renders the text after `RI1` (the inverse of [`ReceiverInfo::parse`] for valid values).
+    pub fn render(&self) -> String {
+        let noise: String = self.noise_raw.iter().map(|n| format!("{n:03}")).collect();
+        format!(
+            "{:02}{}{:02}{}{}{noise}",
+            self.group, self.receiver_id, self.band, self.l, self.d
+        )
+    }
+}
+
 /// Codec for the receiver side of the port: decodes CR-terminated lines, encodes raw
 /// request bytes (the caller includes the CR, since the request bytes are configuration).
 #[derive(Debug, Clone, Copy, Default)]
@@ -347,6 +419,33 @@ mod tests {
             }) => {}
             other => panic!("unexpected {other:?}"),
         }
+    }
+
+    #[test]
+    fn receiver_info_line() {
+        // RI1, group 00, receiver 0000123456, band 15, l 0, d 1, 16 noise values.
+        let line = b"RI10000001234561501012008015003000000000000000000000000000000000099\r";
+        let r = decode_all(line);
+        let Ok(UwaveLine::ReceiverInfo { raw }) = &r[0] else {
+            panic!("{r:?}")
+        };
+        let info = ReceiverInfo::parse(raw).unwrap();
+        assert_eq!(info.group, 0);
+        assert_eq!(info.receiver_id, "0000123456");
+        assert_eq!(info.band, 15);
+        assert_eq!((info.l, info.d), ('0', '1'));
+        assert_eq!(info.noise_raw.len(), 16);
+        assert_eq!(&info.noise_raw[..4], &[12, 8, 15, 3]);
+        assert_eq!(info.noise_raw[15], 99);
+        assert_eq!(info.render(), *raw);
+        // One character short (an older mock's line), a letter in a noise value, non-hex id.
+        assert!(ReceiverInfo::parse(&raw[1..]).is_err());
+        let mut bad = raw.clone();
+        bad.replace_range(20..21, "x");
+        assert!(ReceiverInfo::parse(&bad).is_err());
+        let mut bad = raw.clone();
+        bad.replace_range(2..3, "Z");
+        assert!(ReceiverInfo::parse(&bad).is_err());
     }
 
     #[test]

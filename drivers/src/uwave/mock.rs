@@ -7,7 +7,13 @@ use std::time::Duration;
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
-use super::codec::{Unit, UwaveLine};
+use super::codec::{ReceiverInfo, Unit, UwaveLine};
+
+/// Receiver id the mock reports in its `RI1` line.
+pub const RECEIVER_ID: &str = "0000123456";
+
+/// Noise values of the mock's `RI1` line: low on its band (15), higher on the others.
+const NOISE: [u16; 16] = [12, 8, 15, 3, 21, 9, 4, 0, 2, 5, 11, 7, 6, 14, 1, 10];
 use crate::mock_kit::fault::Fate;
 use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 
@@ -164,11 +170,17 @@ impl Session {
     async fn answer(&self, io: &mut BoxIo, text: &str, conn: &Conn) -> Next {
         let channels = self.model.lock().map(|m| m.channels()).unwrap_or_default();
         let reply = if text.len() == 9 && text.starts_with("IR1000") {
-            Some(UwaveLine::ReceiverInfo {
-                raw: format!("{}0000123456150{}", &text[6..8], "000".repeat(16)),
-            })
+            let info = ReceiverInfo {
+                group: text.get(6..8).and_then(|g| g.parse().ok()).unwrap_or(0),
+                receiver_id: RECEIVER_ID.into(),
+                band: 15,
+                l: '0',
+                d: '1',
+                noise_raw: NOISE.to_vec(),
+            };
+            Some(UwaveLine::ReceiverInfo { raw: info.render() })
         } else if text.len() == 9 && text.starts_with("IR11") {
-            let from: u8 = text[4..6].parse().unwrap_or(0);
+            let from: u8 = text.get(4..6).and_then(|c| c.parse().ok()).unwrap_or(0);
             Some(match channels.iter().find(|c| **c >= from) {
                 Some(c) => UwaveLine::TransmitterInfo {
                     state: 2,

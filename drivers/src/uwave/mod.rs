@@ -4,7 +4,8 @@ pub mod codec;
 pub mod driver;
 pub mod mock;
 
-pub use codec::{Unit, UwaveCodec, UwaveLine, parse_line};
+pub use codec::{ReceiverInfo, Unit, UwaveCodec, UwaveLine, parse_line};
 pub use driver::{
-    AxisMap, Reading, SerialConnector, Transmitter, UwaveConfig, UwaveHandle, UwaveState,
+    AxisMap, ChannelReading, Reading, SerialConnector, Transmitter, UwaveConfig, UwaveHandle,
+    UwaveIdentity, UwaveState,
 };

@@ -3,7 +3,10 @@
 //! profile-position moves, and implements [`crate::smaract::Stage`] (one channel, pm per
 //! count configurable; in `stage`).
 
+mod identity;
 mod stage;
+
+pub use identity::{Cia402Identity, power_state};
 
 use std::time::Duration;
 
@@ -11,7 +14,8 @@ use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
 use super::canopen::{
-    SDO_RX, SDO_TX, SdoResponse, abort_text, download_request, obj, parse_response, upload_request,
+    SDO_RX, SDO_TX, SdoResponse, UploadSegment, abort_text, download_request, obj, parse_response,
+    parse_upload_segment, upload_request, upload_segment_request,
 };
 use super::frame::{CanConnect, CanFrame, FrameTransport};
 use crate::actor::{Reply, call};
@@ -140,6 +144,7 @@ impl<C: CanConnect> Actor<C> {
                 let r = parse_response(&f.data).map_err(|e| DriverError::from_codec(DEVICE, e))?;
                 let (i, s) = match &r {
                     SdoResponse::Upload { index, sub, .. }
+                    | SdoResponse::UploadSegmented { index, sub, .. }
                     | SdoResponse::DownloadAck { index, sub }
                     | SdoResponse::Abort { index, sub, .. } => (*index, *sub),
                 };
@@ -155,17 +160,93 @@ impl<C: CanConnect> Actor<C> {
                 what: format!("SDO reply for {index:#06x}:{sub}"),
                 after_ms: timeout.as_millis() as u64,
             }));
-        if let Err(e) = &r {
-            if e.breaks_link() {
-                self.bus = None;
-                let msg = e.to_string();
-                self.state.send_modify(|s| {
-                    s.connected = false;
-                    s.last_error = Some(msg);
-                });
-            }
-        }
+        self.note_error(&r);
         r
+    }
+
+    /// Reads the segments of an upload the server initiated as segmented (e.g. 0x1008
+    /// device name); `size` is the indicated total, checked at the end.
+    async fn segments(
+        &mut self,
+        index: u16,
+        sub: u8,
+        size: Option<u32>,
+    ) -> Result<Vec<u8>, DriverError> {
+        const MAX: usize = 4096;
+        let node = u16::from(self.cfg.node);
+        let timeout = self.cfg.timeout;
+        let bus = self.ensure().await?;
+        let work = async {
+            let mut out = Vec::new();
+            let mut toggle = false;
+            loop {
+                bus.send(CanFrame::new(
+                    SDO_RX + node,
+                    &upload_segment_request(toggle),
+                ))
+                .await
+                .map_err(io_err)?;
+                let f = loop {
+                    let f = bus.recv().await.map_err(io_err)?;
+                    if !f.extended && f.id == u32::from(SDO_TX + node) {
+                        break f;
+                    }
+                };
+                match parse_upload_segment(&f.data, toggle)
+                    .map_err(|e| DriverError::from_codec(DEVICE, e))?
+                {
+                    UploadSegment::Abort { code } => return Err(abort(index, sub, code)),
+                    UploadSegment::Data { data, last } => {
+                        out.extend_from_slice(&data);
+                        if out.len() > MAX {
+                            return Err(DriverError::Protocol {
+                                device: DEVICE,
+                                detail: format!(
+                                    "segmented upload of {index:#06x}:{sub} exceeds {MAX} bytes"
+                                ),
+                            });
+                        }
+                        if last {
+                            return Ok(out);
+                        }
+                    }
+                }
+                toggle = !toggle;
+            }
+        };
+        let r = tokio::time::timeout(timeout, work)
+            .await
+            .unwrap_or(Err(DriverError::Timeout {
+                device: DEVICE,
+                what: format!("SDO upload segment of {index:#06x}:{sub}"),
+                after_ms: timeout.as_millis() as u64,
+            }))
+            .and_then(|d| match size {
+                Some(n) if usize::try_from(n).ok() != Some(d.len()) => Err(DriverError::Protocol {
+                    device: DEVICE,
+                    detail: format!(
+                        "segmented upload of {index:#06x}:{sub} announced {n} bytes, got {}",
+                        d.len()
+                    ),
+                }),
+                _ => Ok(d),
+            });
+        self.note_error(&r);
+        r
+    }
+
+    /// Drops the bus after an error that breaks the link, and publishes it.
+    fn note_error<T>(&mut self, r: &Result<T, DriverError>) {
+        if let Err(e) = r
+            && e.breaks_link()
+        {
+            self.bus = None;
+            let msg = e.to_string();
+            self.state.send_modify(|s| {
+                s.connected = false;
+                s.last_error = Some(msg);
+            });
+        }
     }
 
     async fn handle(&mut self, op: Op) {
@@ -173,6 +254,9 @@ impl<C: CanConnect> Actor<C> {
             Op::Read(i, s, reply) => {
                 let r = match self.sdo(upload_request(i, s), i, s).await {
                     Ok(SdoResponse::Upload { data, .. }) => Ok(data),
+                    Ok(SdoResponse::UploadSegmented { size, .. }) => {
+                        self.segments(i, s, size).await
+                    }
                     Ok(SdoResponse::Abort { code, .. }) => Err(abort(i, s, code)),
                     Ok(other) => Err(DriverError::Protocol {
                         device: DEVICE,
@@ -266,7 +350,7 @@ impl Cia402Handle {
         }
     }
 
-    /// SDO upload of object `index:sub`.
+    /// SDO upload of object `index:sub` (expedited, or segmented when the drive says so).
     pub async fn read(&self, index: u16, sub: u8) -> Result<Vec<u8>, DriverError> {
         call(&self.tx, DEVICE, |r| Op::Read(index, sub, r)).await
     }

@@ -3,7 +3,10 @@
 //! the calibd RAPID module, refused locally when outside joint limits or step limits
 //! (the move logic is in `moves`).
 
+mod identity;
 mod moves;
+
+pub use identity::{DEFAULT_CALIB_MODULE, RwsIdentity, TASK, parse_modules};
 
 use std::time::Duration;
 
@@ -93,6 +96,7 @@ enum Op {
     State(Reply<ControllerState>),
     MoveAbsJ([f64; 6], Reply<[f64; 6]>),
     MoveRelTool([f64; 3], Reply<[f64; 6]>),
+    Identity(String, Reply<RwsIdentity>),
 }
 
 impl std::fmt::Debug for Op {
@@ -104,6 +108,7 @@ impl std::fmt::Debug for Op {
             Op::State(_) => write!(f, "State"),
             Op::MoveAbsJ(q, _) => write!(f, "MoveAbsJ({q:?})"),
             Op::MoveRelTool(d, _) => write!(f, "MoveRelTool({d:?})"),
+            Op::Identity(m, _) => write!(f, "Identity({m})"),
         }
     }
 }
@@ -175,6 +180,17 @@ impl RwsHandle {
         call(&self.tx, DEVICE, |r| Op::MoveRelTool(dp_mm, r)).await
     }
 
+    /// Controller name, RobotWare version, whether the calibd RAPID module `calib_module`
+    /// ([`DEFAULT_CALIB_MODULE`] unless the lab renamed it) is loaded in T_ROB1, and the
+    /// controller state. A missing module is reported in the identity (see
+    /// [`RwsIdentity::module_error`]), not as an error.
+    pub async fn identity(&self, calib_module: &str) -> Result<RwsIdentity, DriverError> {
+        call(&self.tx, DEVICE, |r| {
+            Op::Identity(calib_module.to_string(), r)
+        })
+        .await
+    }
+
     /// Watch channel with link state and the last joints read.
     pub fn state(&self) -> watch::Receiver<RwsState> {
         self.state.clone()
@@ -238,6 +254,10 @@ impl<C: Connect> Actor<C> {
                 }
                 Op::MoveRelTool(d, r) => {
                     let res = self.move_rel_tool(d).await;
+                    drop(r.send(res))
+                }
+                Op::Identity(m, r) => {
+                    let res = self.identity(m).await;
                     drop(r.send(res))
                 }
             }

@@ -1,8 +1,9 @@
 //! RWS 1.0 mock of an IRC5 with an IRB 120: HTTP Digest auth (realm
 //! `validusers@robapi.abb`), session cookies, JSON (`Content-Type: application/json`) for
 //! joint/robtarget, RAPID PERS variables, execution, controller state and op mode; the calibd
-//! RAPID module (`drivers/rapid/CalibServer.mod`) is simulated on an [`ArmModel`]. The
-//! resources are in `route`.
+//! RAPID module (`drivers/rapid/CalibServer.mod`) is simulated on an [`ArmModel`]. System
+//! info and the module list of T_ROB1 come from [`ControllerInfo`]. The resources are in
+//! `route`.
 
 mod route;
 use route::route;
@@ -67,9 +68,56 @@ struct Motion {
     duration: Duration,
 }
 
+/// What the mock controller says about itself (`GET /rw/system`) and which RAPID modules
+/// T_ROB1 holds (`GET /rw/rapid/modules?task=T_ROB1`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ControllerInfo {
+    /// System name (`sys-system.name`).
+    pub name: String,
+    /// RobotWare version (`rwversion`).
+    pub rwversion: String,
+    /// RobotWare version name (`rwversionname`).
+    pub rwversionname: String,
+    /// Program modules loaded in T_ROB1 (the system modules `BASE` and `user` are always
+    /// listed too).
+    pub program_modules: Vec<String>,
+}
+
+impl Default for ControllerInfo {
+    /// A virtual IRC5 named `IRB120-sim` on RobotWare 6.15 with the calibd module loaded.
+    fn default() -> Self {
+        ControllerInfo {
+            name: "IRB120-sim".into(),
+            rwversion: "6.15.1013".into(),
+            rwversionname: "6.15.01.00".into(),
+            program_modules: vec!["CalibServer".into()],
+        }
+    }
+}
+
+/// Everything the RWS mock is configured with: the accepted account and the controller's
+/// identity.
+#[derive(Debug, Clone)]
+pub struct RwsMockOptions {
+    /// The account Digest authentication accepts.
+    pub credentials: Credentials,
+    /// System info and RAPID modules.
+    pub controller: ControllerInfo,
+}
+
+impl From<Credentials> for RwsMockOptions {
+    fn from(credentials: Credentials) -> Self {
+        RwsMockOptions {
+            credentials,
+            controller: ControllerInfo::default(),
+        }
+    }
+}
+
 /// Controller state shared by all connections.
 struct Robot {
     model: Box<dyn ArmModel>,
+    info: ControllerInfo,
     vars: HashMap<String, String>,
     joints: [f64; 6],
     motion: Option<Motion>,
@@ -82,7 +130,7 @@ struct Robot {
 }
 
 impl Robot {
-    fn new(model: Box<dyn ArmModel>) -> Self {
+    fn new(model: Box<dyn ArmModel>, info: ControllerInfo) -> Self {
         let home = model.home_deg();
         let mut vars = HashMap::new();
         vars.insert("calib_q".into(), format_jointtarget(&home));
@@ -92,6 +140,7 @@ impl Robot {
         }
         Robot {
             model,
+            info,
             vars,
             joints: home,
             motion: None,
@@ -187,19 +236,23 @@ pub struct Credentials {
 }
 
 /// Builds the simulate-mode handler with the default IRB 120.
-pub(crate) fn handler(account: impl Into<Credentials>, faults: Faults) -> Handler {
-    handler_with(Box::new(Irb120), account, faults)
+pub(crate) fn handler(opts: impl Into<RwsMockOptions>, faults: Faults) -> Handler {
+    handler_with(Box::new(Irb120), opts, faults)
 }
 
-/// Builds a simulate-mode handler around any arm model (`account`: [`Credentials`], or the
-/// `calibd mock` arguments).
+/// Builds a simulate-mode handler around any arm model (`opts`: [`RwsMockOptions`],
+/// [`Credentials`] with the default controller identity, or the `calibd mock` arguments).
 pub fn handler_with(
     model: Box<dyn ArmModel>,
-    account: impl Into<Credentials>,
+    opts: impl Into<RwsMockOptions>,
     faults: Faults,
 ) -> Handler {
-    let robot = Arc::new(Mutex::new(Robot::new(model)));
-    let Credentials { user, password } = account.into();
+    let RwsMockOptions {
+        credentials,
+        controller,
+    } = opts.into();
+    let robot = Arc::new(Mutex::new(Robot::new(model, controller)));
+    let Credentials { user, password } = credentials;
     Arc::new(move |io, conn| {
         let s = Server {
             robot: robot.clone(),

@@ -78,6 +78,26 @@ pub(super) fn route(r: &mut Robot, req: &Request) -> Response {
              "taskstate": "started", "excstate": if r.running { "started" } else { "stopped" },
              "active": "On", "motiontask": "TRUE"}]}}),
         ),
+        ("GET", "/rw/system", _) => state(json!({"_type": "sys-system", "_title": "system",
+            "name": r.info.name, "rwversion": r.info.rwversion,
+            "sysid": "{4C5C6B6E-3A0B-4F4B-9E64-4952423132305F}",
+            "starttm": "2026-11-25 T 08:00:00", "rwversionname": r.info.rwversionname})),
+        ("GET", "/rw/rapid/modules", _) => {
+            let task = q.iter().find(|(k, _)| k == "task").map(|(_, v)| v.as_str());
+            if task != Some("T_ROB1") {
+                return error(400, -1073445876, "Task not found");
+            }
+            let item = |name: &str, ty: &str| json!({"_type": "rap-module-info-li", "_title": name, "name": name, "type": ty});
+            let mut items: Vec<serde_json::Value> = r
+                .info
+                .program_modules
+                .iter()
+                .map(|m| item(m, "ProgMod"))
+                .collect();
+            items.push(item("BASE", "SysMod"));
+            items.push(item("user", "SysMod"));
+            json_response(200, json!({"_links": {}, "_embedded": {"_state": items}}))
+        }
         ("GET", "/rw/panel/ctrlstate", _) => {
             let s = if r.motors_on { "motoron" } else { "motoroff" };
             state(json!({"_type": "pnl-ctrlstate", "_title": "ctrlstate", "ctrlstate": s}))

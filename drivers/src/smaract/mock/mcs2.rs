@@ -29,7 +29,10 @@ pub(super) fn mcs2_reply(s: &mut Sim, cmd: &str) -> Option<String> {
         return Some(s.axes.len().to_string());
     }
     if head == ":DEV:SNUM?" {
-        return Some("MCS2-00001234".into());
+        return Some(super::MCS2_SERIAL.into());
+    }
+    if head == ":DEV:NAME?" {
+        return Some(super::MCS2_NAME.into());
     }
     if head == ":DEV:STAT?" {
         return Some("0".into());

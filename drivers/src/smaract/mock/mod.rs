@@ -16,6 +16,13 @@ use crate::mock_kit::fault::Fate;
 use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 use mcs2::mcs2_reply;
 
+/// Serial number the MCS2 mock reports (`:DEV:SNUM?`).
+pub const MCS2_SERIAL: &str = "MCS2-00001234";
+/// Device name the MCS2 mock reports (`:DEV:NAME?`).
+pub const MCS2_NAME: &str = "MCS2-sim";
+/// System id the MCS mock reports (`:GSI`).
+pub const MCS_SYSTEM_ID: i64 = 3_118_167_526;
+
 /// The positioners behind a controller: the hook for piezo-stage twins.
 pub trait StageModel: Send + 'static {
     /// Number of channels.
@@ -26,6 +33,11 @@ pub trait StageModel: Send + 'static {
     fn speed_pm_s(&self, ch: u8) -> f64;
     /// Position reached when commanded to `target_pm` (the closed-loop residual).
     fn settle(&self, ch: u8, target_pm: i64) -> i64;
+    /// Whether the channels start referenced (a commissioned cell's stages keep their
+    /// reference; a fresh controller's need a reference search).
+    fn referenced_at_start(&self) -> bool {
+        false
+    }
 }
 
 /// Default: three SLC-1730 stages, ±10.5 mm, 20 mm/s, settling 2 nm short of the target.
@@ -82,7 +94,7 @@ impl Sim {
         let axis = Axis {
             pos: 0,
             activity: Activity::Idle,
-            referenced: false,
+            referenced: model.referenced_at_start(),
             fault: false,
         };
         Sim {
@@ -296,6 +308,12 @@ fn mcs_reply(s: &mut Sim, cmd: &str) -> String {
     };
     if m == "SCM" {
         return ":E-1,0".into();
+    }
+    if m == "GSI" && args.is_empty() {
+        return format!(":ID{MCS_SYSTEM_ID}");
+    }
+    if m == "GNC" && args.is_empty() {
+        return format!(":N{}", s.axes.len());
     }
     let Some(ch) = s.channel(ch_txt) else {
         return if matches!(

@@ -10,7 +10,9 @@
 //! which is held back until the late reply came or `late_reply_grace` ran out. After
 //! `reopen_after_timeouts` consecutive timeouts the port is closed and reopened.
 
+mod identity;
 mod search;
+pub use identity::{ChannelReading, UwaveIdentity, transmitter_state_text};
 pub use search::Transmitter;
 
 use std::collections::{HashMap, VecDeque};
@@ -20,7 +22,7 @@ use futures_util::{FutureExt, SinkExt, StreamExt};
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
-use super::codec::{Unit, UwaveCodec, UwaveLine};
+use super::codec::{ReceiverInfo, Unit, UwaveCodec, UwaveLine};
 use crate::actor::{Reply, call, next_or_pending};
 use crate::error::DriverError;
 use crate::link::{Backoff, BoxFuture, Connect, Link, Once};
@@ -163,6 +165,8 @@ enum Request {
     Latest(u8, Reply<Reading>),
     Fresh(u8, Reply<Reading>),
     Search(Reply<Vec<Transmitter>>),
+    ReceiverInfo(Reply<ReceiverInfo>),
+    Cached(Vec<u8>, Reply<identity::Cached>),
 }
 
 struct Waiter {
@@ -191,6 +195,8 @@ impl std::fmt::Debug for Request {
             Request::Latest(c, _) => write!(f, "Latest({c})"),
             Request::Fresh(c, _) => write!(f, "Fresh({c})"),
             Request::Search(_) => write!(f, "Search"),
+            Request::ReceiverInfo(_) => write!(f, "ReceiverInfo"),
+            Request::Cached(c, _) => write!(f, "Cached({c:?})"),
         }
     }
 }
@@ -221,6 +227,7 @@ impl UwaveHandle {
             timeouts: 0,
             reopen_due: false,
             search: None,
+            info_waiters: Vec::new(),
             to_send: None,
         };
         tokio::spawn(actor.run());
@@ -258,6 +265,21 @@ impl UwaveHandle {
         call(&self.tx, DEVICE, Request::Search).await
     }
 
+    /// Receiver info: sends `IR1000gg0` and parses the `RI1` reply.
+    pub async fn receiver_info(&self) -> Result<ReceiverInfo, DriverError> {
+        call(&self.tx, DEVICE, Request::ReceiverInfo).await
+    }
+
+    /// Receiver info, the registered transmitters and the latest cached reading (with its
+    /// age, never refused as stale) of each configured indicator ([`UwaveConfig::axes`]).
+    pub async fn identity(&self) -> Result<UwaveIdentity, DriverError> {
+        let receiver = self.receiver_info().await?;
+        let transmitters = self.transmitters().await?;
+        let channels: Vec<u8> = self.axes.iter().map(|a| a.channel).collect();
+        let cached = call(&self.tx, DEVICE, |r| Request::Cached(channels, r)).await?;
+        Ok(UwaveIdentity::new(receiver, transmitters, cached))
+    }
+
     /// Watch channel with the link state.
     pub fn state(&self) -> watch::Receiver<UwaveState> {
         self.state.clone()
@@ -281,6 +303,8 @@ struct Actor<C: Connect> {
     reopen_due: bool,
     /// A transmitter search in progress.
     search: Option<search::Search>,
+    /// Receiver-info requests waiting for `RI1`.
+    info_waiters: identity::InfoWaiters,
     /// Request bytes to send after handling a line (next search step).
     to_send: Option<Vec<u8>>,
 }
@@ -294,6 +318,7 @@ impl<C: Connect> Actor<C> {
                 .iter()
                 .map(|w| w.deadline)
                 .chain(self.search.as_ref().map(|s| s.deadline))
+                .chain(self.info_waiters.iter().map(|w| w.0))
                 .chain(self.owed.values().copied())
                 .min()
                 .unwrap_or_else(|| Instant::now() + Duration::from_secs(3600));
@@ -390,6 +415,10 @@ impl<C: Connect> Actor<C> {
     async fn handle(&mut self, req: Request) {
         match req {
             Request::Search(reply) => self.start_search(reply).await,
+            Request::ReceiverInfo(reply) => self.start_receiver_info(reply).await,
+            Request::Cached(channels, reply) => {
+                let _ = reply.send(Ok(self.cached(&channels)));
+            }
             Request::Latest(ch, reply) => {
                 let limit = self.cfg.staleness;
                 let r = match self.cache.get(&ch) {
@@ -523,7 +552,8 @@ impl<C: Connect> Actor<C> {
                     None => self.fail_where(|_| true, |c| Err(err(c))),
                 }
             }
-            UwaveLine::TransmitterInfo { .. } | UwaveLine::ReceiverInfo { .. } => {}
+            UwaveLine::ReceiverInfo { raw } => self.on_receiver_info(&raw),
+            UwaveLine::TransmitterInfo { .. } => {}
         }
     }
 
@@ -542,6 +572,7 @@ impl<C: Connect> Actor<C> {
     fn drop_link(&mut self, e: &DriverError) {
         tracing::warn!(device = DEVICE, error = %e, "link dropped");
         self.fail_search(e.duplicate());
+        self.expire_receiver_info(Instant::now(), Some(e));
         self.link.reset();
         // Replies owed on the old link will not come on a new one.
         self.owed.clear();
@@ -569,6 +600,7 @@ impl<C: Connect> Actor<C> {
     fn expire(&mut self) {
         let now = Instant::now();
         self.expire_search(now);
+        self.expire_receiver_info(now, None);
         self.owed.retain(|ch, until| {
             let keep = *until > now;
             if !keep {

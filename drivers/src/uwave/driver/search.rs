@@ -12,7 +12,7 @@ use crate::link::Connect;
 use crate::uwave::codec::UwaveLine;
 
 /// A registered transmitter as reported by a `TI1` line.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
 pub struct Transmitter {
     /// Channel (00-99).
     pub channel: u8,
@@ -52,12 +52,17 @@ impl<C: Connect> Actor<C> {
             let _ = reply.send(Err(e));
             return;
         }
-        self.to_send = Some(self.search_request(0));
+        self.queue(self.search_request(0));
         self.search = Some(Search {
             found: Vec::new(),
             deadline: Instant::now() + self.cfg.timeout,
             reply,
         });
+    }
+
+    /// Queues request bytes for [`Actor::flush`] (after those already queued).
+    pub(super) fn queue(&mut self, bytes: Vec<u8>) {
+        self.to_send.get_or_insert_with(Vec::new).extend(bytes);
     }
 
     /// Sends the pending request bytes, if any.
@@ -101,7 +106,7 @@ impl<C: Connect> Actor<C> {
                 if *channel >= 99 {
                     self.finish_search(Ok(()));
                 } else {
-                    self.to_send = Some(self.search_request(channel + 1));
+                    self.queue(self.search_request(channel + 1));
                 }
                 true
             }
