@@ -10,12 +10,11 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use futures_util::{SinkExt, StreamExt};
+use futures_util::StreamExt;
 use tokio_util::codec::Framed;
 
 use super::PROTOCOL;
 use super::codec::{ErrorCode, Identity, Incoming, Reply, Request, ServerCodec};
-use crate::mock_kit::fault::Fate;
 use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 
 /// How often a running move updates the model's joints.
@@ -337,21 +336,11 @@ async fn session(io: BoxIo, conn: Conn, ctl: Arc<Controller>, faults: Faults) {
             },
         };
         let injected = |_| error(ErrorCode::Fault, "joint controller fault (injected)");
-        let reply = match faults
-            .apply(
-                f.get_mut(),
-                &conn.token,
-                reply,
-                |r| r.text().into_bytes(),
-                injected,
-            )
+        let wire = |r: &Reply| r.text().into_bytes();
+        if !faults
+            .send(&mut f, &conn.token, reply, wire, injected)
             .await
         {
-            Fate::Send(r) => r,
-            Fate::Skipped => continue,
-            Fate::Close => return,
-        };
-        if f.send(reply).await.is_err() {
             return;
         }
     }

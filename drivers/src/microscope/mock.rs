@@ -10,7 +10,6 @@ use futures_util::{SinkExt, StreamExt};
 use tokio_util::codec::Framed;
 
 use super::codec::{Reply, Request, ServerCodec};
-use crate::mock_kit::fault::Fate;
 use crate::mock_kit::{BoxIo, Conn, Faults, Handler};
 
 /// What the microscope sees: the hook for a digital twin of the robot under the camera.
@@ -154,21 +153,8 @@ async fn session(
             code: 3,
             text: "camera busy".into(),
         };
-        let reply = match faults
-            .apply(
-                f.get_mut(),
-                &conn.token,
-                reply,
-                |r| r.text().into_bytes(),
-                busy,
-            )
-            .await
-        {
-            Fate::Send(r) => r,
-            Fate::Skipped => continue,
-            Fate::Close => return,
-        };
-        if f.send(reply).await.is_err() {
+        let wire = |r: &Reply| r.text().into_bytes();
+        if !faults.send(&mut f, &conn.token, reply, wire, busy).await {
             return;
         }
     }

@@ -123,6 +123,30 @@ pub(crate) enum Fate<T> {
 }
 
 impl Faults {
+    /// [`Faults::apply`], then send what survives on the session's framing `f`: whether
+    /// the session goes on.
+    pub(crate) async fn send<C, T>(
+        &self,
+        f: &mut tokio_util::codec::Framed<BoxIo, C>,
+        token: &CancellationToken,
+        reply: T,
+        wire: impl FnOnce(&T) -> Vec<u8>,
+        device_error: impl FnOnce(T) -> T,
+    ) -> bool
+    where
+        C: tokio_util::codec::Encoder<T>,
+    {
+        use futures_util::SinkExt;
+        match self
+            .apply(f.get_mut(), token, reply, wire, device_error)
+            .await
+        {
+            Fate::Send(r) => f.send(r).await.is_ok(),
+            Fate::Skipped => true,
+            Fate::Close => false,
+        }
+    }
+
     /// Counts one reply and applies the fault planned for it, the same way in every mock:
     /// `delay` waits [`DELAY_FAULT`] then sends, `drop` closes, `stall` reads and discards
     /// until the client leaves, `garbage` writes [`GARBAGE`] instead, `truncate` writes the

@@ -112,3 +112,26 @@ impl Identity for StageIdentity {
         }
     }
 }
+
+/// State and position of each of `channels` below the controller's `count`, and the
+/// channels at or above it (not queried).
+pub(crate) async fn channels(
+    stage: &dyn crate::Stage,
+    channels: &[u8],
+    count: u32,
+) -> Result<(Vec<ChannelIdentity>, Vec<u8>), crate::DriverError> {
+    let (present, missing): (Vec<u8>, Vec<u8>) =
+        channels.iter().partition(|c| u32::from(**c) < count);
+    let mut out = Vec::with_capacity(present.len());
+    for ch in present {
+        let s = stage.status(ch).await?;
+        out.push(ChannelIdentity {
+            channel: ch,
+            referenced: s.referenced,
+            fault: s.fault,
+            state_raw: s.raw,
+            position_pm: stage.position(ch).await?,
+        });
+    }
+    Ok((out, missing))
+}

@@ -1,7 +1,7 @@
 //! SmarAct MCS (MCS1) ASCII protocol: `:CMD<ch>,args\n` → one reply line in synchronous
 //! mode (`:SCM0`); positions in nm; errors `:E<ch>,<code>` (devices.md §3a).
 
-use super::identity::{ChannelIdentity, StageIdentity};
+use super::identity::StageIdentity;
 use super::line::{LineClient, LineState};
 use super::stage::{Stage, StageConfig, StageStatus, wait_until};
 use crate::error::DriverError;
@@ -194,20 +194,8 @@ impl McsHandle {
             device: DEVICE,
             detail: format!(":GNC = {count} is not a channel count"),
         })?;
-        let (present, missing_channels): (Vec<u8>, Vec<u8>) = channels
-            .iter()
-            .partition(|c| u32::from(**c) < channel_count);
-        let mut out = Vec::with_capacity(present.len());
-        for ch in present {
-            let s = self.status_of(ch).await?;
-            out.push(ChannelIdentity {
-                channel: ch,
-                referenced: s.referenced,
-                fault: s.fault,
-                state_raw: s.raw,
-                position_pm: self.position(ch).await?,
-            });
-        }
+        let (out, missing_channels) =
+            super::identity::channels(self, channels, channel_count).await?;
         Ok(StageIdentity {
             controller: DEVICE,
             serial_number: system_id.to_string(),

@@ -7,7 +7,7 @@
 //! errors read right after a command are that command's. Code 0 ("No error") ends a drain
 //! and is never an error.
 
-use super::identity::{ChannelIdentity, StageIdentity};
+use super::identity::StageIdentity;
 use super::line::{ErrorQueue, LineClient, LineState};
 use super::stage::{Stage, StageConfig, StageStatus, wait_until};
 use crate::error::DriverError;
@@ -108,20 +108,8 @@ impl Mcs2Handle {
                 device: DEVICE,
                 detail: format!(":DEV:NOCH? = {noch:?} is not a channel count"),
             })?;
-        let (present, missing_channels): (Vec<u8>, Vec<u8>) = channels
-            .iter()
-            .partition(|c| u32::from(**c) < channel_count);
-        let mut out = Vec::with_capacity(present.len());
-        for ch in present {
-            let s = self.status_of(ch).await?;
-            out.push(ChannelIdentity {
-                channel: ch,
-                referenced: s.referenced,
-                fault: s.fault,
-                state_raw: s.raw,
-                position_pm: self.position(ch).await?,
-            });
-        }
+        let (out, missing_channels) =
+            super::identity::channels(self, channels, channel_count).await?;
         Ok(StageIdentity {
             controller: DEVICE,
             serial_number,
