@@ -234,7 +234,8 @@ impl Lab {
     }
 
     /// Re-check every device until `stop`: every `down` while a device is failing, every
-    /// `up` otherwise (probes are read-only requests, safe during a campaign).
+    /// `up` otherwise (probes are read-only requests, safe during a campaign; each may wait
+    /// up to 10 s behind a move the device is executing before it counts as unanswered).
     pub async fn watch(
         self: std::sync::Arc<Self>,
         up: Duration,
@@ -243,7 +244,7 @@ impl Lab {
     ) {
         loop {
             let failed = self
-                .check(Duration::from_secs(3))
+                .check(Duration::from_secs(10))
                 .await
                 .iter()
                 .filter(|r| matches!(r.status, DeviceStatus::Failed { .. }))
