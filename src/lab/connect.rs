@@ -3,6 +3,7 @@
 //! wraps it in its adapter. The simulated lab (`crate::sim`) produces the same description
 //! with loopback addresses; a lab's configuration file will produce it for real devices.
 
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -15,7 +16,7 @@ use calibd_drivers::qtm::{QtmConfig, QtmHandle};
 use calibd_drivers::rws::{RwsConfig, RwsHandle};
 use calibd_drivers::smaract::{Mcs2Handle, McsHandle};
 use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle};
-use calibd_drivers::{Backoff, Stage, StageConfig, TcpConnector};
+use calibd_drivers::{Backoff, Recorder, Stage, StageConfig, TcpConnector};
 
 use super::adapters::{
     JointInterface, Microscope, PerJoint, QtmStream, RwsRobot, SmaractStages, StageEnvelope,
@@ -197,7 +198,7 @@ fn backoff() -> Backoff {
     }
 }
 
-fn ball_centring(d: BallCentringCell) -> Result<TricalCell, LabError> {
+fn ball_centring(d: BallCentringCell, rec: &Rec) -> Result<TricalCell, LabError> {
     let chain = d.model.to_chain().map_err(|e| LabError::Cell {
         cell: d.name.clone(),
         message: format!("model: {e}"),
@@ -227,7 +228,7 @@ fn ball_centring(d: BallCentringCell) -> Result<TricalCell, LabError> {
         *r = (l[0].to_degrees(), l[1].to_degrees());
     }
     let rws = RwsHandle::connect(
-        TcpConnector::new(d.rws.address.clone()),
+        rec.tcp(&d.rws.address, &d.name, "abb")?,
         RwsConfig {
             host: d.rws.address.clone(),
             user: d.rws.user.clone(),
@@ -245,7 +246,7 @@ fn ball_centring(d: BallCentringCell) -> Result<TricalCell, LabError> {
         SerialConnector {
             path: d.uwave.path.clone(),
             baud: d.uwave.baud,
-            recorder: None,
+            recorder: rec.recorder(&d.name, "uwave")?,
         },
         UwaveConfig {
             timeout: Duration::from_millis(500),
@@ -301,11 +302,46 @@ fn ball_centring(d: BallCentringCell) -> Result<TricalCell, LabError> {
     })
 }
 
+/// Where the lab's traffic is recorded, if anywhere.
+struct Rec(Option<PathBuf>);
+
+impl Rec {
+    /// A recorder for `cell`'s `device`, if recording.
+    fn recorder(&self, cell: &str, device: &str) -> Result<Option<Recorder>, LabError> {
+        let Some(dir) = &self.0 else {
+            return Ok(None);
+        };
+        let path = dir.join(format!("{cell}.{device}.jsonl"));
+        Recorder::create(
+            &path,
+            device,
+            &format!("cell {cell}, recorded by calibd's lab"),
+        )
+        .map(Some)
+        .map_err(|e| LabError::Cell {
+            cell: cell.into(),
+            message: format!("recording to {}: {e}", path.display()),
+        })
+    }
+
+    /// A TCP connector to `addr`, recording if asked.
+    fn tcp(&self, addr: &str, cell: &str, device: &str) -> Result<TcpConnector, LabError> {
+        Ok(TcpConnector {
+            addr: addr.to_string(),
+            recorder: self.recorder(cell, device)?,
+        })
+    }
+}
+
 /// A probe as the lab keeps it.
 type Probe = Box<dyn Fn() -> ProbeFuture + Send + Sync>;
 
 /// The stage controller of a 3-PF cell, the channels of q1..q3 on it, and its probe.
-fn stages(s: &StagesLink) -> (Arc<dyn Stage>, [u8; 3], Probe) {
+fn stages(
+    s: &StagesLink,
+    cell: &str,
+    rec: &Rec,
+) -> Result<(Arc<dyn Stage>, [u8; 3], Probe), LabError> {
     let cfg = StageConfig {
         timeout: Duration::from_secs(1),
         move_timeout: Duration::from_secs(10),
@@ -334,16 +370,16 @@ fn stages(s: &StagesLink) -> (Arc<dyn Stage>, [u8; 3], Probe) {
     };
     match &s.backend {
         StageBackend::Mcs2(a) => {
-            let h = Arc::new(Mcs2Handle::connect(TcpConnector::new(a.clone()), cfg));
+            let h = Arc::new(Mcs2Handle::connect(rec.tcp(a, cell, "mcs2")?, cfg));
             let p = probe(h.clone(), move |h| probes::mcs2(h, ch));
-            (h, ch, Box::new(p))
+            Ok((h, ch, Box::new(p)))
         }
         StageBackend::Mcs(a) => {
-            let h = Arc::new(McsHandle::connect(TcpConnector::new(a.clone()), cfg));
+            let h = Arc::new(McsHandle::connect(rec.tcp(a, cell, "mcs")?, cfg));
             let p = probe(h.clone(), move |h| probes::mcs(h, ch));
-            (h, ch, Box::new(p))
+            Ok((h, ch, Box::new(p)))
         }
-        StageBackend::Socketcand { address, bus } => drives(&|node| {
+        StageBackend::Socketcand { address, bus } => Ok(drives(&|node| {
             Cia402Handle::connect(
                 SocketcandConnector {
                     addr: address.clone(),
@@ -352,22 +388,22 @@ fn stages(s: &StagesLink) -> (Arc<dyn Stage>, [u8; 3], Probe) {
                 },
                 drive(node),
             )
-        }),
-        StageBackend::SocketCan(iface) => drives(&|node| {
+        })),
+        StageBackend::SocketCan(iface) => Ok(drives(&|node| {
             Cia402Handle::connect(
                 SocketCanConnector {
                     iface: iface.clone(),
                 },
                 drive(node),
             )
-        }),
+        })),
     }
 }
 
-fn pcr(d: PcrCellLink) -> PcrCell {
-    let (stage, channels, stage_probe) = stages(&d.stages);
+fn pcr(d: PcrCellLink, rec: &Rec) -> Result<PcrCell, LabError> {
+    let (stage, channels, stage_probe) = stages(&d.stages, &d.name, rec)?;
     let scope = MicroscopeHandle::connect(
-        TcpConnector::new(d.microscope.clone()),
+        rec.tcp(&d.microscope, &d.name, "microscope")?,
         MicroscopeConfig {
             timeout: Duration::from_secs(1),
             backoff: backoff(),
@@ -397,18 +433,18 @@ fn pcr(d: PcrCellLink) -> PcrCell {
             probe(scope.clone(), probes::microscope),
         ),
     ];
-    PcrCell {
+    Ok(PcrCell {
         stages: Arc::new(SmaractStages::new(stage, channels, st_at).within(envelope)),
         microscope: Arc::new(Microscope::new(scope, mi_at)),
         model: Mutex::new(d.model),
         links,
         name: d.name,
-    }
+    })
 }
 
-fn mocap(d: MocapCellLink) -> Result<MocapCell, LabError> {
+fn mocap(d: MocapCellLink, rec: &Rec) -> Result<MocapCell, LabError> {
     let qtm = QtmHandle::connect(
-        TcpConnector::new(d.qtm.clone()),
+        rec.tcp(&d.qtm, &d.name, "qtm")?,
         QtmConfig {
             timeout: Duration::from_secs(2),
             backoff: backoff(),
@@ -416,7 +452,7 @@ fn mocap(d: MocapCellLink) -> Result<MocapCell, LabError> {
         },
     );
     let joints = JointsHandle::connect(
-        TcpConnector::new(d.joints.address.clone()),
+        rec.tcp(&d.joints.address, &d.name, "joints")?,
         JointsConfig {
             timeout: Duration::from_secs(2),
             backoff: backoff(),
@@ -465,12 +501,22 @@ impl Lab {
     /// they connect and reconnect in the background, so an absent device is reported by
     /// the first request, never here).
     pub fn connect(cells: Vec<CellLink>) -> Result<Lab, super::LabError> {
+        Lab::connect_recording(cells, None)
+    }
+
+    /// [`Lab::connect`], teeing every device's traffic to `<dir>/<cell>.<device>.jsonl`
+    /// (`calibd-transcript/1`) when `dir` is given: a session becomes replayable fixtures.
+    pub fn connect_recording(
+        cells: Vec<CellLink>,
+        dir: Option<&Path>,
+    ) -> Result<Lab, super::LabError> {
+        let rec = &Rec(dir.map(Path::to_path_buf));
         let mut lab = Lab::empty();
         for c in cells {
             let cell = match c {
-                CellLink::BallCentring(d) => Cell::BallCentring(ball_centring(d)?),
-                CellLink::Pcr(d) => Cell::Pcr(pcr(d)),
-                CellLink::Mocap(d) => Cell::Mocap(mocap(d)?),
+                CellLink::BallCentring(d) => Cell::BallCentring(ball_centring(d, rec)?),
+                CellLink::Pcr(d) => Cell::Pcr(pcr(d, rec)?),
+                CellLink::Mocap(d) => Cell::Mocap(mocap(d, rec)?),
             };
             lab.insert(cell)?;
         }

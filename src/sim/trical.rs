@@ -30,6 +30,8 @@ pub struct SimTricalOptions {
     pub rws_faults: Vec<calibd_drivers::mock::FaultSpec>,
     /// While set, the indicators stop sending (a stalled receiver).
     pub indicator_stall: Arc<std::sync::atomic::AtomicBool>,
+    /// Data-request template the receiver answers (empty: readings only stream).
+    pub uwave_request: String,
 }
 
 impl Default for SimTricalOptions {
@@ -40,6 +42,7 @@ impl Default for SimTricalOptions {
             max_joint_step_deg: 30.0,
             rws_faults: Vec::new(),
             indicator_stall: Arc::default(),
+            uwave_request: String::new(),
         }
     }
 }
@@ -177,6 +180,7 @@ pub async fn start_at(
     .map_err(|e| mock_err("rws", e))?;
     let mut uw_args = MockArgs::new(MockDevice::Uwave);
     uw_args.rate_hz = o.indicator_rate_hz;
+    uw_args.uwave_request = o.uwave_request.clone();
     let ind: Arc<Mutex<dyn IndicatorModel>> = Arc::new(Mutex::new(TwinIndicators {
         cell,
         stall: o.indicator_stall.clone(),
@@ -203,7 +207,7 @@ pub async fn start_at(
             path: uw_mock.addr.clone(),
             baud: 57_600,
             axes: [axis(0), axis(1), axis(2)],
-            request_template: String::new(),
+            request_template: o.uwave_request.clone(),
         },
         ballbar,
         model: file,
