@@ -3,6 +3,8 @@
 //! over the cell's devices that journal every measurement before the next move.
 
 pub mod centre;
+pub mod commission;
+pub mod jog;
 pub mod mocap;
 pub mod pcr;
 pub mod trical;
