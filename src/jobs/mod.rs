@@ -226,7 +226,7 @@ pub const KINDS: &[KindInfo] = &[
     kind!(
         "cell.zero_check",
         "commissioning: the three indicators read 0.000 mm on the mated coupling (operator prompt, journalled readings)",
-        cell::commission::prepare_zero
+        cell::zero::prepare_zero
     ),
     kind!(
         "cell.identify_tcp",

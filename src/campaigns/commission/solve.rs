@@ -110,7 +110,7 @@ pub fn solve_tcp(
             "the largest pairwise rotation is {max_rotation_deg:.1} deg, below {min_rotation_deg} deg"
         )));
     }
-    if !(s_min >= min_singular_value) {
+    if s_min.is_nan() || s_min < min_singular_value {
         return Err(refuse(format!(
             "the smallest singular value of A is {s_min:.4}, below {min_singular_value} (the rotations turn about nearly one axis)"
         )));

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use super::results::{IndicatorOff, ZeroCheck};
 use crate::campaigns::engine::{self, Step, StepError};
 use crate::campaigns::operator;
-use crate::jobs::cell::commission::ZeroCheckJob;
+use crate::jobs::cell::zero::ZeroCheckJob;
 use crate::jobs::{Cx, JobError, Output, Produced, Table};
 use crate::procedures::{Indicators, Journal};
 use crate::util::Monitor;

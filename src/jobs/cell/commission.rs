@@ -1,5 +1,5 @@
 //! The commissioning kinds of a ball-centring cell, checked before anything moves:
-//! `cell.zero_check` (the indicators read 0.000 on the mated coupling), `cell.identify_tcp`
+//! `cell.zero_check` ([`super::zero`]), `cell.identify_tcp`
 //! (the TCP from centred configurations on one ball) and `cell.locate_balls` (the balls in
 //! the robot frame and the base frame). Each is a resumable campaign that pauses with an
 //! operator prompt where the operator acts; see [`crate::campaigns::commission`].
@@ -12,7 +12,7 @@ use serde_json::Value;
 use super::{CentringSpec, RetrySpec, default_cell, trical_devices};
 use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, parse_spec};
 
-fn positive(field: &str, v: f64) -> Result<(), JobError> {
+pub(super) fn positive(field: &str, v: f64) -> Result<(), JobError> {
     if v.is_finite() && v > 0.0 {
         Ok(())
     } else {
@@ -23,7 +23,7 @@ fn positive(field: &str, v: f64) -> Result<(), JobError> {
     }
 }
 
-fn check_retry(r: &RetrySpec) -> Result<(), JobError> {
+pub(super) fn check_retry(r: &RetrySpec) -> Result<(), JobError> {
     if r.attempts == 0 {
         return Err(JobError::invalid(
             "options.retry.attempts",
@@ -31,83 +31,6 @@ fn check_retry(r: &RetrySpec) -> Result<(), JobError> {
         ));
     }
     Ok(())
-}
-
-/// Options of `cell.zero_check`.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ZeroOptions {
-    /// Largest |reading| accepted as zero (mm).
-    pub tolerance_mm: f64,
-    /// Wait before each reading (ms).
-    pub settle_ms: u64,
-    /// Longest wait for a reading (ms).
-    pub reading_timeout_ms: u64,
-    /// Retry of device faults.
-    pub retry: RetrySpec,
-}
-
-impl Default for ZeroOptions {
-    fn default() -> Self {
-        Self {
-            tolerance_mm: 0.005,
-            settle_ms: 200,
-            reading_timeout_ms: 2000,
-            retry: RetrySpec::default(),
-        }
-    }
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ZeroSpec {
-    #[allow(dead_code)]
-    kind: String,
-    #[serde(default = "default_cell")]
-    cell: String,
-    #[serde(default = "five")]
-    readings: usize,
-    #[serde(default)]
-    options: ZeroOptions,
-}
-
-fn five() -> usize {
-    5
-}
-
-/// A validated `cell.zero_check` job.
-#[derive(Debug)]
-pub struct ZeroCheckJob {
-    /// The cell.
-    pub cell: String,
-    /// Readings of the three indicators to take.
-    pub readings: usize,
-    /// Options.
-    pub options: ZeroOptions,
-}
-
-/// Validate a `cell.zero_check` job.
-pub fn prepare_zero(doc: &Value, _: &Inputs<'_>) -> Result<ZeroCheckJob, JobError> {
-    let s: ZeroSpec = parse_spec(doc)?;
-    if !(1..=1000).contains(&s.readings) {
-        return Err(JobError::invalid(
-            "readings",
-            format!("{} is not in 1..=1000", s.readings),
-        ));
-    }
-    positive("options.tolerance_mm", s.options.tolerance_mm)?;
-    if s.options.reading_timeout_ms == 0 {
-        return Err(JobError::invalid(
-            "options.reading_timeout_ms",
-            "must be at least 1",
-        ));
-    }
-    check_retry(&s.options.retry)?;
-    Ok(ZeroCheckJob {
-        cell: s.cell,
-        readings: s.readings,
-        options: s.options,
-    })
 }
 
 /// Options of `cell.identify_tcp`.
@@ -253,13 +176,14 @@ pub fn prepare_balls(doc: &Value, _: &Inputs<'_>) -> Result<LocateBallsJob, JobE
             "must be >= 0",
         ));
     }
-    if let Some(t) = s.options.tcp_std_mm {
-        if t.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
-            return Err(JobError::invalid(
-                "options.tcp_std_mm",
-                "every value must be >= 0",
-            ));
-        }
+    if s.options
+        .tcp_std_mm
+        .is_some_and(|t| t.iter().any(|v| !(v.is_finite() && *v >= 0.0)))
+    {
+        return Err(JobError::invalid(
+            "options.tcp_std_mm",
+            "every value must be >= 0",
+        ));
     }
     s.options.centring.validate("options.centring")?;
     check_retry(&s.options.retry)?;
@@ -269,6 +193,7 @@ pub fn prepare_balls(doc: &Value, _: &Inputs<'_>) -> Result<LocateBallsJob, JobE
     })
 }
 
+/// `Kind` of a commissioning campaign: resumable, on the TriCal cell's devices.
 macro_rules! campaign_kind {
     ($job:ty, $run:path) => {
         impl Kind for $job {
@@ -285,7 +210,8 @@ macro_rules! campaign_kind {
     };
 }
 
-campaign_kind!(ZeroCheckJob, crate::campaigns::commission::zero::campaign);
+pub(super) use campaign_kind;
+
 campaign_kind!(IdentifyTcpJob, crate::campaigns::commission::tcp::campaign);
 campaign_kind!(
     LocateBallsJob,

@@ -8,6 +8,7 @@ pub mod jog;
 pub mod mocap;
 pub mod pcr;
 pub mod trical;
+pub mod zero;
 
 use std::time::Duration;
 
