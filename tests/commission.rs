@@ -311,3 +311,42 @@ async fn commissioning_recovers_the_true_tcp_and_balls_and_a_campaign_then_reach
     assert!(after < 0.010, "{before} -> {after}");
     stop.cancel();
 }
+
+#[test]
+fn the_example_jobs_prepare_and_bad_documents_name_the_field() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+    for f in [
+        "commission_zero_check.json",
+        "commission_identify_tcp.json",
+        "commission_locate_balls.json",
+        "cell_jog.json",
+    ] {
+        let doc: Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join(f)).unwrap()).unwrap();
+        let job = calibd::jobs::prepare(&doc, &calibd::jobs::NoReferences).unwrap();
+        assert_eq!(job.resumable(), f.starts_with("commission"), "{f}");
+        assert!(!job.devices().is_empty(), "{f}");
+    }
+    let bad = [
+        (
+            json!({"kind": "cell.identify_tcp", "configurations": 2}),
+            "configurations",
+        ),
+        (json!({"kind": "cell.identify_tcp", "ball": 4}), "ball"),
+        (
+            json!({"kind": "cell.zero_check", "options": {"tolerance_mm": -1}}),
+            "tolerance_mm",
+        ),
+        (
+            json!({"kind": "cell.locate_balls", "options": {"tcp_std_mm": [0, -1, 0]}}),
+            "tcp_std_mm",
+        ),
+        (json!({"kind": "cell.jog", "q_deg": [0, "x"]}), "q_deg"),
+    ];
+    for (doc, field) in bad {
+        let e = calibd::jobs::prepare(&doc, &calibd::jobs::NoReferences)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(field), "{doc}: {e}");
+    }
+}
