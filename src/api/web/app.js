@@ -149,7 +149,7 @@ async function showJob(id) {
       el("span", { id: "detail-progress" },
         j.state === "running" && j.stage ? ` — ${j.stage} (${Math.round(100 * j.progress)} %) ${j.message || ""}` : ""),
       j.error && !prompt ? el("div", { class: "msg err" }, j.error) : ""),
-    prompt ? el("div", { class: "prompt" }, el("strong", {}, "Operator: "), prompt,
+    prompt ? el("div", { class: "prompt" }, el("strong", {}, "Operator: "), prompt, liveIndicators(j),
       el("div", {}, el("button", { type: "button", class: "continue", onclick: () => resumeJob(j.id) }, "continue"))) : "",
     el("p", { class: "hint" }, `submitted ${time(j.submitted_at)} by ${j.submitted_by || "?"}` +
       (j.finished_at ? `, finished ${time(j.finished_at)}` : "")),
@@ -186,6 +186,25 @@ async function showJob(id) {
     parts.push(el("h3", {}, "Downloads"), links, el("details", {}, el("summary", {}, "result JSON"), el("pre", {}, JSON.stringify(r, null, 2))));
   }
   if (selected === id) d.replaceChildren(...parts);
+}
+
+/** Live readings of a waiting TriCal job's indicators, polled each second while shown. */
+function liveIndicators(j) {
+  const uw = (j.devices || []).find((d) => d.endsWith(".uwave"));
+  if (!uw) return "";
+  const cell = uw.slice(0, -".uwave".length);
+  const span = el("div", { class: "indicators" }, "indicators: …");
+  const poll = async () => {
+    if (!span.isConnected && span.dataset.started) return;
+    span.dataset.started = "1";
+    try {
+      const r = await api(`/v1/cells/${encodeURIComponent(cell)}/indicators`);
+      span.textContent = r.reading_mm ? "indicators (mm): " + r.reading_mm.map((x) => x.toFixed(3)).join("  ") : "indicators: " + r.error;
+    } catch (e) { span.textContent = "indicators: " + e.message; }
+    setTimeout(poll, 1000);
+  };
+  poll();
+  return span;
 }
 
 /** Tables of the commissioning kinds' results (zero check, TCP, balls). */
