@@ -187,6 +187,28 @@ async fn responses_match_the_contract() {
         None,
     )
     .await;
+    let (st, _) = call(
+        &s,
+        &c,
+        M::GET,
+        "/v1/cells/{name}/indicators",
+        "/v1/cells/irb120/indicators",
+        Some(VIEWER),
+        None,
+    )
+    .await;
+    assert_eq!(st, 200);
+    let (st, _) = call(
+        &s,
+        &c,
+        M::GET,
+        "/v1/cells/{name}/indicators",
+        "/v1/cells/nope/indicators",
+        Some(VIEWER),
+        None,
+    )
+    .await;
+    assert_eq!(st, 404);
     let (st, created) = call(
         &s,
         &c,

@@ -19,6 +19,7 @@ pub(super) fn router() -> Router<AppState> {
         .route("/examples/{name}", get(example))
         .route("/devices", get(devices))
         .route("/cells", get(cells))
+        .route("/cells/{name}/indicators", get(indicators))
         .route("/lab", get(lab))
 }
 
@@ -79,6 +80,30 @@ async fn devices(State(s): State<AppState>, caller: Caller) -> Result<Json<Value
 async fn cells(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     Ok(Json(json!({"cells": s.service.cells().await?})))
+}
+
+/// One fresh reading of a ball-centring cell's three indicators (mm, or why there is
+/// none): the page shows them live while a commissioning step waits for the operator.
+async fn indicators(
+    State(s): State<AppState>,
+    caller: Caller,
+    ApiPath(name): ApiPath<String>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    let cell = s
+        .service
+        .lab()
+        .trical(&name)
+        .map_err(|e| ApiError::NotFound(e.to_string()))?;
+    let read = tokio::time::timeout(std::time::Duration::from_secs(1), cell.indicators.read());
+    let (reading, error) = match read.await {
+        Ok(Ok(v)) => (Some(v), None),
+        Ok(Err(e)) => (None, Some(e.to_string())),
+        Err(_) => (None, Some("no reading within 1 s".to_string())),
+    };
+    Ok(Json(
+        json!({"cell": name, "reading_mm": reading, "error": error}),
+    ))
 }
 
 /// `GET /v1/lab` query: `refresh=true` probes every device now instead of returning the

@@ -52,6 +52,15 @@ pub enum CampaignError {
     /// Cancelled by the operator.
     #[error("cancelled")]
     Cancelled,
+    /// The campaign waits for the operator at `index` (a prompt, not a fault): paused, and
+    /// the operator's resume is the confirmation.
+    #[error("waiting for the operator at step {index}: {prompt}")]
+    Waiting {
+        /// The step that waits (journal index).
+        index: usize,
+        /// What the operator must do before continuing.
+        prompt: String,
+    },
 }
 
 impl From<CampaignError> for JobError {
@@ -59,6 +68,7 @@ impl From<CampaignError> for JobError {
         match e {
             CampaignError::Paused { index, reason } => JobError::Paused { index, reason },
             CampaignError::Cancelled => JobError::Cancelled,
+            CampaignError::Waiting { index, prompt } => JobError::Waiting { index, prompt },
             CampaignError::Journal(m) => JobError::Failed(format!(
                 "the measurement journal failed: {m}; nothing more is measured"
             )),
@@ -86,6 +96,9 @@ pub enum StepError {
     Skip(String),
     /// Cancelled by the operator while measuring.
     Cancelled,
+    /// The operator must act first (see [`crate::campaigns::operator`]): the campaign
+    /// pauses at once with this prompt, without retries and without a journal entry.
+    Wait(String),
 }
 
 /// One kind of measurement step: how a campaign measures one planned item.
@@ -216,6 +229,10 @@ pub async fn run<S: Step>(
                     break;
                 }
                 Err(StepError::Cancelled) => return Err(CampaignError::Cancelled),
+                Err(StepError::Wait(prompt)) => {
+                    tracing::info!(index, %prompt, "waiting for the operator");
+                    return Err(CampaignError::Waiting { index, prompt });
+                }
                 Err(StepError::Fault(reason)) => {
                     if attempt >= retry.attempts {
                         return Err(CampaignError::Paused { index, reason });

@@ -57,7 +57,9 @@ pub struct Centring<'a> {
     pub options: &'a CentringOptions,
 }
 
-fn is_device_fault(e: &CentringError) -> bool {
+/// Whether a centring error is a device fault (retried, then a pause) rather than a
+/// property of the configuration (skipped).
+pub(crate) fn is_device_fault(e: &CentringError) -> bool {
     matches!(
         e,
         CentringError::Device(

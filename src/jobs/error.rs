@@ -60,6 +60,16 @@ pub enum JobError {
         /// The last fault.
         reason: String,
     },
+    /// A campaign waits for the operator (jog, mate, confirm): paused; resuming it is the
+    /// operator's confirmation. The text starts with `waiting for the operator:` (the page
+    /// shows it as a prompt with a "continue" button).
+    #[error("waiting for the operator: {prompt}")]
+    Waiting {
+        /// The step that waits (journal index).
+        index: usize,
+        /// What the operator must do before continuing.
+        prompt: String,
+    },
     /// A device-driven kind run without a lab.
     #[error(
         "`{kind}` drives devices: run it in the daemon (`calibd serve` + `calibd submit`) or with `calibd run --lab sim`"

@@ -224,6 +224,26 @@ pub const KINDS: &[KindInfo] = &[
         cell::trical::prepare
     ),
     kind!(
+        "cell.zero_check",
+        "commissioning: the three indicators read 0.000 mm on the mated coupling (operator prompt, journalled readings)",
+        cell::zero::prepare_zero
+    ),
+    kind!(
+        "cell.identify_tcp",
+        "commissioning: the TCP from configurations jogged onto one ball and centred, proposed to the cell",
+        cell::commission::prepare_tcp
+    ),
+    kind!(
+        "cell.locate_balls",
+        "commissioning: each ball jogged onto and centred, its position in the robot frame and the base frame, proposed to the cell",
+        cell::commission::prepare_balls
+    ),
+    kind!(
+        "cell.jog",
+        "move a ball-centring cell's robot to given joints within its envelope (a teach-pendant jog)",
+        cell::jog::prepare
+    ),
+    kind!(
         "cell.mocap_campaign",
         "motion-capture campaign: play NOCP (or given) postures, record and pre-process markers, identify",
         cell::mocap::prepare

@@ -268,7 +268,9 @@ async fn conclude(svc: &Service, id: i64, run: Result<jobs::Completed, JobError>
                 )
             }
         }
-        Err(e @ JobError::Paused { .. }) => Outcome::Ended(JobState::Paused, Some(e.to_string())),
+        Err(e @ (JobError::Paused { .. } | JobError::Waiting { .. })) => {
+            Outcome::Ended(JobState::Paused, Some(e.to_string()))
+        }
         Err(e) => Outcome::Ended(JobState::Failed, Some(e.to_string())),
     }
 }

@@ -141,15 +141,20 @@ async function showJob(id) {
   const d = $("#detail");
   d.hidden = false;
   const j = await api("/v1/jobs/" + id);
+  // A commissioning step waiting for the operator: its pause reason is the prompt.
+  const waiting = "waiting for the operator: ";
+  const prompt = j.state === "paused" && j.error && j.error.startsWith(waiting) ? j.error.slice(waiting.length) : "";
   const parts = [el("h2", {}, `Job ${j.id}: ${j.kind}`),
     el("p", {}, el("span", { class: "state state-" + j.state, id: "detail-state" }, j.state),
       el("span", { id: "detail-progress" },
         j.state === "running" && j.stage ? ` — ${j.stage} (${Math.round(100 * j.progress)} %) ${j.message || ""}` : ""),
-      j.error ? el("div", { class: "msg err" }, j.error) : ""),
+      j.error && !prompt ? el("div", { class: "msg err" }, j.error) : ""),
+    prompt ? el("div", { class: "prompt" }, el("strong", {}, "Operator: "), prompt, liveIndicators(j),
+      el("div", {}, el("button", { type: "button", class: "continue", onclick: () => resumeJob(j.id) }, "continue"))) : "",
     el("p", { class: "hint" }, `submitted ${time(j.submitted_at)} by ${j.submitted_by || "?"}` +
       (j.finished_at ? `, finished ${time(j.finished_at)}` : "")),
     el("button", { type: "button", onclick: () => rerun(j.id) }, "re-run"),
-    j.state === "paused" || j.state === "interrupted"
+    (j.state === "paused" && !prompt) || j.state === "interrupted"
       ? el("button", { type: "button", onclick: () => resumeJob(j.id) }, "resume") : ""];
   if (j.state === "succeeded") {
     const r = await api(`/v1/jobs/${id}/result`);
@@ -163,6 +168,7 @@ async function showJob(id) {
       const s = statsTable(t, r[k]);
       if (s) parts.push(...s);
     }
+    parts.push(...commissioning(r));
     if (Array.isArray(r.sizes)) {
       parts.push(el("h3", {}, "Dispersion (mean validation error)"),
         table(["n", "min", "q1", "median", "q3", "max"], r.sizes.map((s) => [s.n, s.mean_error.min, s.mean_error.q1, s.mean_error.median, s.mean_error.q3, s.mean_error.max])));
@@ -180,6 +186,51 @@ async function showJob(id) {
     parts.push(el("h3", {}, "Downloads"), links, el("details", {}, el("summary", {}, "result JSON"), el("pre", {}, JSON.stringify(r, null, 2))));
   }
   if (selected === id) d.replaceChildren(...parts);
+}
+
+/** Live readings of a waiting TriCal job's indicators, polled each second while shown. */
+function liveIndicators(j) {
+  const uw = (j.devices || []).find((d) => d.endsWith(".uwave"));
+  if (!uw) return "";
+  const cell = uw.slice(0, -".uwave".length);
+  const span = el("div", { class: "indicators" }, "indicators: …");
+  const poll = async () => {
+    if (!span.isConnected && span.dataset.started) return;
+    span.dataset.started = "1";
+    try {
+      const r = await api(`/v1/cells/${encodeURIComponent(cell)}/indicators`);
+      span.textContent = r.reading_mm ? "indicators (mm): " + r.reading_mm.map((x) => x.toFixed(3)).join("  ") : "indicators: " + r.error;
+    } catch (e) { span.textContent = "indicators: " + e.message; }
+    setTimeout(poll, 1000);
+  };
+  poll();
+  return span;
+}
+
+/** Tables of the commissioning kinds' results (zero check, TCP, balls). */
+function commissioning(r) {
+  const out = [];
+  const xyz = (v) => (v || []).map((x) => fmt(x)).join(", ");
+  if (r.out_of_tolerance && r.mean_mm) {
+    out.push(el("h3", {}, `Zero check: ${r.passed ? "passed" : "out of tolerance"} (±${r.tolerance_mm} mm)`),
+      table(["indicator", "mean (mm)", "max |reading| (mm)"], [0, 1, 2].map((k) => [k + 1, r.mean_mm[k], r.max_abs_mm[k]])),
+      el("p", { class: r.passed ? "hint" : "msg err" }, r.message));
+  }
+  if (r.tcp_mm && r.points) {
+    out.push(el("h3", {}, "TCP (flange frame, mm)"),
+      table(["", "x", "y", "z"], [["identified", ...r.tcp_mm], ["std", ...r.tcp_std_mm], ["previous", ...r.previous_tcp_mm]]),
+      el("p", { class: "hint" }, `spread of the centred points ${fmt(r.spread_rms_mm)} mm (previous TCP ${fmt(r.previous_spread_rms_mm)} mm); largest rotation ${fmt(r.max_rotation_deg)} deg`),
+      table(["configuration", "distance (mm)", "previous (mm)"], r.points.map((p) => [p.configuration, p.distance_mm, p.previous_distance_mm])));
+  }
+  if (r.balls && r.distances) {
+    out.push(el("h3", {}, "Balls in the robot frame (mm)"),
+      table(["ball", "position", "std", "fit residual"], r.balls.map((b) => [b.ball, xyz(b.in_robot_mm), xyz(b.std_mm), b.fit_residual_mm])),
+      table(["pair", "measured (mm)", "std", "ballbar (mm)", "difference (mm)"], r.distances.map((d) => [d.pair, d.measured_mm, d.std_mm, d.ballbar_mm, d.difference_mm])),
+      el("h3", {}, "Base frame {0} in {W}"),
+      table(["", "x (mm)", "y", "z", "a (deg)", "b", "c"], [["fitted", r.base], ["previous", r.previous_base]].map(([n, b]) => [n, b.x_mm, b.y_mm, b.z_mm, b.a_deg, b.b_deg, b.c_deg])),
+      el("p", { class: "hint" }, `balls against the plate: ${fmt(r.fit_residual_rms_mm)} mm RMS (previous base ${fmt(r.previous_residual_rms_mm)} mm)`));
+  }
+  return out;
 }
 
 async function download(path, name) {

@@ -3,9 +3,12 @@
 //! over the cell's devices that journal every measurement before the next move.
 
 pub mod centre;
+pub mod commission;
+pub mod jog;
 pub mod mocap;
 pub mod pcr;
 pub mod trical;
+pub mod zero;
 
 use std::time::Duration;
 
