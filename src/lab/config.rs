@@ -552,16 +552,16 @@ impl Reader<'_> {
                     format!("indicators.axes: sign {} must be 1 or -1", a.sign),
                 ));
             }
-            if let Some([lo, hi]) = a.range_mm {
-                if !(lo < hi && a.zero_mm >= lo && a.zero_mm <= hi) {
-                    return Err(self.err(
-                        &ind.axes.span(),
-                        format!(
-                            "indicators.axes: channel {} zero_mm {} outside its range [{lo}, {hi}] mm",
-                            a.channel, a.zero_mm
-                        ),
-                    ));
-                }
+            if let Some([lo, hi]) = a.range_mm
+                && !(lo < hi && a.zero_mm >= lo && a.zero_mm <= hi)
+            {
+                return Err(self.err(
+                    &ind.axes.span(),
+                    format!(
+                        "indicators.axes: channel {} zero_mm {} outside its range [{lo}, {hi}] mm",
+                        a.channel, a.zero_mm
+                    ),
+                ));
             }
             Ok(AxisMap {
                 channel: a.channel,
@@ -667,10 +667,8 @@ impl Reader<'_> {
                 ));
             }
         };
-        if let Some(p) = spec.pm_per_count {
-            if p <= 0 {
-                return Err(self.err(&st.span(), "stages.pm_per_count must be positive".into()));
-            }
+        if spec.pm_per_count.is_some_and(|p| p <= 0) {
+            return Err(self.err(&st.span(), "stages.pm_per_count must be positive".into()));
         }
         let scope = self.need(c, &s.microscope, "microscope")?;
         Ok(PcrCellLink {

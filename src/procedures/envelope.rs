@@ -122,10 +122,12 @@ impl<R: Robot> Robot for MotionLimiter<R> {
                     env.max_joint_step.to_degrees()
                 )));
             }
-            if let Some(w) = &env.workspace_mm {
-                if let Some(why) = w.outside(&w.tcp_mm(q).0) {
-                    return Err(Self::refuse(why));
-                }
+            if let Some(why) = env
+                .workspace_mm
+                .as_ref()
+                .and_then(|w| w.outside(&w.tcp_mm(q).0))
+            {
+                return Err(Self::refuse(why));
             }
             self.inner.move_joints(q).await
         })
