@@ -6,10 +6,15 @@
 //! Rz(theta) Dz(d)`) and `../shared/spec/humanoid.md` (URDF: `origin * Dx Dy Dz Rx Ry Rz *
 //! Rot(axis, theta)`), with `theta = q + offset + c * tau`. Internally angles are radians
 //! and lengths are in the model's length unit (mm for DH files, m for URDF).
+//!
+//! Prismatic joints (see [`JointKind`]): MDH `Rz(theta_offset) Dz(d + q)`, URDF `origin *
+//! errors * Dtrans(axis, q + offset)` with the offset a length. A mimic joint ([`Mimic`])
+//! takes `multiplier * q[leader] + mimic offset` as its variable and has no column of its own.
 
 use nalgebra::Vector3;
 
 use super::ModelError;
+use super::joint::{JointKind, Mimic, Motion as JointMotion};
 use super::params::{JointField, ParamId, Quantity, URDF_ERRORS, XYZABC};
 use crate::geometry::{Frame, Motion};
 
@@ -45,13 +50,16 @@ pub struct Joint {
     pub name: String,
     /// Geometry.
     pub geometry: Geometry,
-    /// False for a fixed URDF joint (no joint variable).
-    pub revolute: bool,
-    /// Joint offset (theta_offset for MDH), rad.
+    /// Revolute, prismatic or fixed.
+    pub kind: JointKind,
+    /// For a mimic joint: how its variable follows another joint's (no table column).
+    pub mimic: Option<Mimic>,
+    /// Joint offset: theta_offset (rad) for MDH rows of any kind; for URDF the offset of the
+    /// variable (rad for revolute, model length unit for prismatic joints).
     pub offset: f64,
-    /// Compliance, rad/(N*m).
+    /// Compliance, rad/(N*m) (revolute joints with their own variable only).
     pub compliance: f64,
-    /// Limits of the joint variable q (rad), if any.
+    /// Limits of the joint variable q (rad, or length for prismatic joints), if any.
     pub limits: Option<[f64; 2]>,
     /// Effort limit (N*m), if known (URDF).
     pub effort: Option<f64>,
@@ -126,8 +134,10 @@ pub struct Chain {
     pre: Vec<Frame>,
     /// Cached base and tool frames with the values they were built from.
     ends: [([f64; 6], Frame); 2],
-    /// Index of the joint of each joint variable (revolute joints only).
+    /// Index of the joint of each joint variable (moving joints that are not mimic joints).
     actuated: Vec<usize>,
+    /// Joint variable of each joint, if it has its own.
+    var_of: Vec<Option<usize>>,
     /// Index of the first parameter of each joint in the flat parameter list.
     param_start: Vec<usize>,
 }
@@ -164,6 +174,7 @@ impl Chain {
             pre: Vec::new(),
             ends: [([f64::NAN; 6], Frame::identity()); 2],
             actuated: Vec::new(),
+            var_of: Vec::new(),
             param_start: Vec::new(),
         };
         c.refresh();
@@ -175,8 +186,12 @@ impl Chain {
         self.pre = self.joints.iter().map(pre_frame).collect();
         self.refresh_ends();
         self.actuated = (0..self.joints.len())
-            .filter(|&j| self.joints[j].revolute)
+            .filter(|&j| self.joints[j].has_variable())
             .collect();
+        self.var_of = vec![None; self.joints.len()];
+        for (k, &j) in self.actuated.iter().enumerate() {
+            self.var_of[j] = Some(k);
+        }
         let mut start = 0;
         self.param_start = self
             .joints
@@ -214,12 +229,14 @@ impl Chain {
         }
     }
 
-    /// `t * pre_j * motion_j(theta)`: one joint of the forward pass.
+    /// `t * pre_j * motion_j`: one joint of the forward pass.
     #[inline]
-    fn advance(&self, t: &Frame, j: usize, theta: f64) -> Frame {
+    fn advance(&self, t: &Frame, j: usize, m: JointMotion) -> Frame {
         let a = t.mul(&self.pre[j]);
+        let theta = m.theta;
         match &self.joints[j].geometry {
             Geometry::Mdh { d, .. } => {
+                let d = *d + m.shift;
                 // a * Rz(theta) * Dz(d): rotate the first two columns, move along the third.
                 let (s, c) = theta.sin_cos();
                 let (c0, c1, c2) = (
@@ -230,21 +247,25 @@ impl Chain {
                 let mut r = a.r;
                 r.set_column(0, &(c0 * c + c1 * s));
                 r.set_column(1, &(c1 * c - c0 * s));
-                Frame {
-                    r,
-                    p: a.p + c2 * *d,
-                }
+                Frame { r, p: a.p + c2 * d }
             }
-            Geometry::Urdf { axis, .. } => a.mul(&Frame::rot_axis(axis, theta)),
+            Geometry::Urdf { axis, .. } => match self.joints[j].kind {
+                JointKind::Revolute => a.mul(&Frame::rot_axis(axis, theta)),
+                JointKind::Prismatic => Frame {
+                    r: a.r,
+                    p: a.p + a.r * (axis * m.shift),
+                },
+                JointKind::Fixed => a,
+            },
         }
     }
 
-    /// Number of joint variables (revolute joints).
+    /// Number of joint variables (moving joints that are not mimic joints).
     pub fn dof(&self) -> usize {
         self.actuated.len()
     }
 
-    /// Indices of the revolute joints, in joint-variable order.
+    /// Indices of the joints with their own variable, in joint-variable order.
     pub fn actuated(&self) -> &[usize] {
         &self.actuated
     }
@@ -290,10 +311,14 @@ impl Chain {
                 (Geometry::Mdh { .. }, JointField::D) => format!("d{}", j + 1),
                 (Geometry::Mdh { .. }, JointField::Offset) => format!("theta_offset{}", j + 1),
                 (Geometry::Mdh { .. }, JointField::Compliance) => format!("c{}", j + 1),
+                (Geometry::Mdh { .. }, JointField::Multiplier) => format!("multiplier{}", j + 1),
                 (_, JointField::Err(k)) => {
                     format!("{}.{}", self.joints[j].name, URDF_ERRORS[k as usize])
                 }
-                (_, JointField::Offset) => format!("{}.offset", self.joints[j].name),
+                (_, JointField::Offset | JointField::LinearOffset) => {
+                    format!("{}.offset", self.joints[j].name)
+                }
+                (_, JointField::Multiplier) => format!("{}.multiplier", self.joints[j].name),
                 (_, JointField::Compliance) => format!("{}.c", self.joints[j].name),
                 (_, other) => format!("{}.{other:?}", self.joints[j].name),
             },
@@ -316,8 +341,11 @@ impl Chain {
             ParamId::Joint(j, f) => {
                 let joint = &self.joints[j];
                 match (&joint.geometry, f) {
-                    (_, JointField::Offset) => joint.offset,
+                    (_, JointField::Offset | JointField::LinearOffset) => joint.offset,
                     (_, JointField::Compliance) => joint.compliance,
+                    (_, JointField::Multiplier) => {
+                        joint.mimic.as_ref().map_or(f64::NAN, |m| m.multiplier)
+                    }
                     (Geometry::Mdh { alpha, .. }, JointField::Alpha) => *alpha,
                     (Geometry::Mdh { a, .. }, JointField::A) => *a,
                     (Geometry::Mdh { beta, .. }, JointField::Beta) => *beta,
@@ -354,8 +382,13 @@ impl Chain {
             ParamId::Joint(j, f) => {
                 let joint = &mut self.joints[j];
                 match (&mut joint.geometry, f) {
-                    (_, JointField::Offset) => joint.offset = v,
+                    (_, JointField::Offset | JointField::LinearOffset) => joint.offset = v,
                     (_, JointField::Compliance) => joint.compliance = v,
+                    (_, JointField::Multiplier) => {
+                        if let Some(m) = joint.mimic.as_mut() {
+                            m.multiplier = v;
+                        }
+                    }
                     (Geometry::Mdh { alpha, .. }, JointField::Alpha) => *alpha = v,
                     (Geometry::Mdh { a, .. }, JointField::A) => *a = v,
                     (Geometry::Mdh { beta, .. }, JointField::Beta) => *beta = v,
@@ -367,10 +400,57 @@ impl Chain {
         }
     }
 
-    /// Joint angles theta (rad) of the revolute joints: q + offset + c * tau.
-    fn theta(&self, j: usize, q: f64, tau: f64) -> f64 {
+    /// Value of joint `j`'s variable: its own `q[k]`, a mimic joint's `multiplier *
+    /// q[leader] + offset`, 0 for a fixed joint.
+    fn value(&self, j: usize, q: &[f64]) -> f64 {
+        match (&self.joints[j].mimic, self.var_of[j]) {
+            (Some(m), _) => m.multiplier * q[m.leader] + m.offset,
+            (None, Some(k)) => q[k],
+            (None, None) => 0.0,
+        }
+    }
+
+    /// Static torque of joint `j` (0 for a joint without its own variable).
+    fn tau_of(&self, j: usize, tau: Option<&[f64]>) -> f64 {
+        match (self.var_of[j], tau) {
+            (Some(k), Some(t)) => t[k],
+            _ => 0.0,
+        }
+    }
+
+    /// Rotation and translation of joint `j` at `q`: revolute `theta = value + offset + c *
+    /// tau`; prismatic URDF `shift = value + offset`; MDH rows keep `theta = offset` when
+    /// they do not rotate and add the value of a prismatic row to `d`.
+    fn motion(&self, j: usize, q: &[f64], tau: Option<&[f64]>) -> JointMotion {
         let joint = &self.joints[j];
-        q + joint.offset + joint.compliance * tau
+        let v = self.value(j, q);
+        let mdh = matches!(joint.geometry, Geometry::Mdh { .. });
+        match joint.kind {
+            JointKind::Revolute => JointMotion {
+                theta: v + joint.offset + joint.compliance * self.tau_of(j, tau),
+                shift: 0.0,
+            },
+            JointKind::Prismatic if mdh => JointMotion {
+                theta: joint.offset,
+                shift: v,
+            },
+            JointKind::Prismatic => JointMotion {
+                theta: 0.0,
+                shift: v + joint.offset,
+            },
+            JointKind::Fixed => JointMotion {
+                theta: if mdh { joint.offset } else { 0.0 },
+                shift: 0.0,
+            },
+        }
+    }
+
+    /// Physical quantity of joint variable `k` (angle or length), for table units.
+    pub fn variable_quantity(&self, k: usize) -> Quantity {
+        match self.joints[self.actuated[k]].kind {
+            JointKind::Prismatic => Quantity::Length,
+            _ => Quantity::Angle,
+        }
     }
 
     /// Output frame of every joint in frame {0}, for joint variables `q` (rad) and optional
@@ -378,14 +458,8 @@ impl Chain {
     pub fn joint_frames(&self, q: &[f64], tau: Option<&[f64]>, out: &mut Vec<Frame>) {
         out.clear();
         let mut t = Frame::identity();
-        let mut k = 0;
-        for (j, joint) in self.joints.iter().enumerate() {
-            if joint.revolute {
-                t = self.advance(&t, j, self.theta(j, q[k], tau.map_or(0.0, |t| t[k])));
-                k += 1;
-            } else {
-                t = t.mul(&self.pre[j]);
-            }
+        for j in 0..self.joints.len() {
+            t = self.advance(&t, j, self.motion(j, q, tau));
             out.push(t);
         }
     }
@@ -393,14 +467,8 @@ impl Chain {
     /// Flange frame (output of the last joint) in {0}.
     pub fn flange(&self, q: &[f64], tau: Option<&[f64]>) -> Frame {
         let mut t = Frame::identity();
-        let mut k = 0;
-        for (j, joint) in self.joints.iter().enumerate() {
-            if joint.revolute {
-                t = self.advance(&t, j, self.theta(j, q[k], tau.map_or(0.0, |t| t[k])));
-                k += 1;
-            } else {
-                t = t.mul(&self.pre[j]);
-            }
+        for j in 0..self.joints.len() {
+            t = self.advance(&t, j, self.motion(j, q, tau));
         }
         t
     }
@@ -412,8 +480,9 @@ impl Chain {
             .mul(&self.tool_frame())
     }
 
-    /// Static motor torques (N*m) of the revolute joints that hold the chain against gravity
-    /// at `q` (zero velocity and acceleration), compliance off.
+    /// Static motor torques (N*m; N for prismatic joints) of the joint variables that hold
+    /// the chain against gravity at `q` (zero velocity and acceleration), compliance off. A
+    /// mimic joint's load reaches its leader's variable times the multiplier (virtual work).
     pub fn static_torques(&self, q: &[f64]) -> Vec<f64> {
         let mut frames = Vec::with_capacity(self.joints.len());
         self.joint_frames(q, None, &mut frames);
@@ -425,7 +494,6 @@ impl Chain {
     pub fn torques_from_frames(&self, frames: &[Frame]) -> Vec<f64> {
         let metre = self.units.metre();
         let mut tau = vec![0.0; self.dof()];
-        let mut k = tau.len();
         let (mut mass, mut moment) = (0.0, Vector3::zeros());
         for j in (0..self.joints.len()).rev() {
             let f = &frames[j];
@@ -433,13 +501,22 @@ impl Chain {
                 mass += pm.mass;
                 moment += f.apply(&pm.com) * pm.mass;
             }
-            if self.joints[j].revolute {
-                // The joint axis passes through the output frame's origin (the motion rotates
-                // about its own axis); its direction is the motion axis in that frame.
-                k -= 1;
-                let axis = f.r * joint_axis(&self.joints[j]);
-                let arm = (moment - f.p * mass) * metre;
-                tau[k] = axis.dot(&arm.cross(&(-self.gravity)));
+            let joint = &self.joints[j];
+            // The joint axis passes through the output frame's origin (the motion rotates
+            // about its own axis); its direction is the motion axis in that frame.
+            let axis = f.r * joint_axis(joint);
+            let load = match joint.kind {
+                JointKind::Revolute => {
+                    let arm = (moment - f.p * mass) * metre;
+                    axis.dot(&arm.cross(&(-self.gravity)))
+                }
+                JointKind::Prismatic => mass * axis.dot(&(-self.gravity)),
+                JointKind::Fixed => continue,
+            };
+            match (&joint.mimic, self.var_of[j]) {
+                (Some(m), _) => tau[m.leader] += m.multiplier * load,
+                (None, Some(k)) => tau[k] += load,
+                (None, None) => {}
             }
         }
         tau
@@ -476,7 +553,6 @@ impl Chain {
         let nb = self.param_index(ParamId::Base(0)).unwrap_or(0);
         push_xyzabc_gens(&Frame::identity(), &self.base, nb, &mut recs);
         let mut t = Frame::from_xyzabc(&self.base);
-        let mut k = 0;
         let last = if body >= self.joints.len() {
             self.joints.len()
         } else {
@@ -485,59 +561,52 @@ impl Chain {
         for j in 0..last {
             let joint = &self.joints[j];
             let ps = self.param_start[j];
-            let th = if joint.revolute {
-                self.theta(j, q[k], tau.map_or(0.0, |t| t[k]))
-            } else {
-                0.0
-            };
-            let tau_k = if joint.revolute {
-                tau.map_or(0.0, |t| t[k])
-            } else {
-                0.0
+            let m = self.motion(j, q, tau);
+            let tau_k = self.tau_of(j, tau);
+            let fields = joint_fields(joint);
+            let col = |f: JointField| fields.iter().position(|x| *x == f).map(|c| ps + c);
+            // A mimic joint's multiplier moves it by the leader's variable per unit.
+            let q_lead = joint.mimic.as_ref().map_or(0.0, |mm| q[mm.leader]);
+            let mut push = |f: JointField, g: Gen, coef: f64| {
+                if let Some(c) = col(f) {
+                    recs.push((c, g, coef));
+                }
             };
             match &joint.geometry {
                 Geometry::Mdh { alpha, a, beta, d } => {
                     let f0 = t;
-                    recs.push((
-                        ps,
-                        Gen::Rot {
-                            axis: f0.r.column(0).into(),
-                            origin: f0.p,
-                        },
-                        1.0,
-                    ));
+                    let x0 = Gen::Rot {
+                        axis: f0.r.column(0).into(),
+                        origin: f0.p,
+                    };
+                    push(JointField::Alpha, x0, 1.0);
                     let f1 = f0.mul(&Frame::rot_x(*alpha));
-                    recs.push((
-                        ps + 1,
-                        Gen::Trans {
-                            dir: f1.r.column(0).into(),
-                        },
-                        1.0,
-                    ));
+                    let dx = Gen::Trans {
+                        dir: f1.r.column(0).into(),
+                    };
+                    push(JointField::A, dx, 1.0);
                     let f1 = f1.mul(&Frame::trans(*a, 0.0, 0.0));
-                    recs.push((
-                        ps + 2,
-                        Gen::Rot {
-                            axis: f1.r.column(1).into(),
-                            origin: f1.p,
-                        },
-                        1.0,
-                    ));
+                    let y1 = Gen::Rot {
+                        axis: f1.r.column(1).into(),
+                        origin: f1.p,
+                    };
+                    push(JointField::Beta, y1, 1.0);
                     let f2 = f1.mul(&Frame::rot_y(*beta));
                     let zg = Gen::Rot {
                         axis: f2.r.column(2).into(),
                         origin: f2.p,
                     };
-                    recs.push((ps + 4, zg, 1.0));
-                    recs.push((ps + 5, zg, tau_k));
-                    recs.push((
-                        ps + 3,
-                        Gen::Trans {
-                            dir: f2.r.column(2).into(),
-                        },
-                        1.0,
-                    ));
-                    t = f2.mul(&Frame::rot_z(th)).mul(&Frame::trans(0.0, 0.0, *d));
+                    let zt = Gen::Trans {
+                        dir: f2.r.column(2).into(),
+                    };
+                    push(JointField::Offset, zg, 1.0);
+                    push(JointField::Compliance, zg, tau_k);
+                    push(JointField::D, zt, 1.0);
+                    let mg = if joint.kind == JointKind::Prismatic { zt } else { zg };
+                    push(JointField::Multiplier, mg, q_lead);
+                    t = f2
+                        .mul(&Frame::rot_z(m.theta))
+                        .mul(&Frame::trans(0.0, 0.0, *d + m.shift));
                 }
                 Geometry::Urdf {
                     origin,
@@ -553,9 +622,9 @@ impl Chain {
                         Motion::Ry,
                         Motion::Rz,
                     ];
-                    for (e, m) in motions.iter().enumerate() {
-                        let dir: Vector3<f64> = f.r * m.axis();
-                        let g = if m.is_rotation() {
+                    for (e, mo) in motions.iter().enumerate() {
+                        let dir: Vector3<f64> = f.r * mo.axis();
+                        let g = if mo.is_rotation() {
                             Gen::Rot {
                                 axis: dir,
                                 origin: f.p,
@@ -563,23 +632,26 @@ impl Chain {
                         } else {
                             Gen::Trans { dir }
                         };
-                        recs.push((ps + e, g, 1.0));
-                        f = f.mul(&m.frame(errors[e]));
+                        push(JointField::Err(e as u8), g, 1.0);
+                        f = f.mul(&mo.frame(errors[e]));
                     }
-                    if joint.revolute {
-                        let g = Gen::Rot {
-                            axis: f.r * axis,
-                            origin: f.p,
-                        };
-                        recs.push((ps + 6, g, 1.0));
-                        recs.push((ps + 7, g, tau_k));
-                        f = f.mul(&Frame::rot_axis(axis, th));
+                    let dir = f.r * axis;
+                    match joint.kind {
+                        JointKind::Revolute => {
+                            let g = Gen::Rot { axis: dir, origin: f.p };
+                            push(JointField::Offset, g, 1.0);
+                            push(JointField::Compliance, g, tau_k);
+                            push(JointField::Multiplier, g, q_lead);
+                        }
+                        JointKind::Prismatic => {
+                            let g = Gen::Trans { dir };
+                            push(JointField::LinearOffset, g, 1.0);
+                            push(JointField::Multiplier, g, q_lead);
+                        }
+                        JointKind::Fixed => {}
                     }
-                    t = f;
+                    t = self.advance(&t, j, m);
                 }
-            }
-            if joint.revolute {
-                k += 1;
             }
         }
         if body >= self.joints.len() {
@@ -655,12 +727,19 @@ fn push_xyzabc_gens(frame: &Frame, v: &[f64; 6], col0: usize, recs: &mut Vec<(us
     ));
 }
 
-/// The parameter fields a joint has, in flat-list order.
+/// The parameter fields a joint has, in flat-list order: compliance only for a revolute
+/// joint with its own variable, the multiplier only for a mimic joint.
 fn joint_fields(j: &Joint) -> &'static [JointField] {
     use JointField::*;
-    match (&j.geometry, j.revolute) {
-        (Geometry::Mdh { .. }, _) => &[Alpha, A, Beta, D, Offset, Compliance],
-        (Geometry::Urdf { .. }, true) => &[
+    let mimic = j.mimic.is_some();
+    match (&j.geometry, j.kind, mimic) {
+        (Geometry::Mdh { .. }, JointKind::Revolute, false) => {
+            &[Alpha, A, Beta, D, Offset, Compliance]
+        }
+        (Geometry::Mdh { .. }, JointKind::Fixed, _) => &[Alpha, A, Beta, D, Offset],
+        (Geometry::Mdh { .. }, _, true) => &[Alpha, A, Beta, D, Offset, Multiplier],
+        (Geometry::Mdh { .. }, JointKind::Prismatic, false) => &[Alpha, A, Beta, D, Offset],
+        (Geometry::Urdf { .. }, JointKind::Revolute, false) => &[
             Err(0),
             Err(1),
             Err(2),
@@ -670,7 +749,32 @@ fn joint_fields(j: &Joint) -> &'static [JointField] {
             Offset,
             Compliance,
         ],
-        (Geometry::Urdf { .. }, false) => &[Err(0), Err(1), Err(2), Err(3), Err(4), Err(5)],
+        (Geometry::Urdf { .. }, JointKind::Revolute, true) => &[
+            Err(0),
+            Err(1),
+            Err(2),
+            Err(3),
+            Err(4),
+            Err(5),
+            Offset,
+            Multiplier,
+        ],
+        (Geometry::Urdf { .. }, JointKind::Prismatic, false) => {
+            &[Err(0), Err(1), Err(2), Err(3), Err(4), Err(5), LinearOffset]
+        }
+        (Geometry::Urdf { .. }, JointKind::Prismatic, true) => &[
+            Err(0),
+            Err(1),
+            Err(2),
+            Err(3),
+            Err(4),
+            Err(5),
+            LinearOffset,
+            Multiplier,
+        ],
+        (Geometry::Urdf { .. }, JointKind::Fixed, _) => {
+            &[Err(0), Err(1), Err(2), Err(3), Err(4), Err(5)]
+        }
     }
 }
 

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::ModelError;
 use super::chain::{Chain, Geometry, Joint, PointMass, Units};
+use super::joint::{JointKind, Mimic, link_mimics};
 
 /// A DH model file, field for field.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -76,11 +77,65 @@ pub struct DhJoint {
     pub d: f64,
     /// theta_offset[i].
     pub theta_offset: f64,
-    /// c[i].
+    /// c[i] (revolute rows with their own variable only).
     #[serde(default)]
     pub compliance: f64,
-    /// [lower, upper] of q[i].
+    /// [lower, upper] of q[i] (angle unit; length unit for a prismatic row).
     pub limits: [f64; 2],
+    /// What the row's variable moves: `revolute` (theta, the default) or `prismatic` (d).
+    #[serde(default, rename = "type", skip_serializing_if = "RowType::is_revolute")]
+    pub row_type: RowType,
+    /// A coupling row: its variable follows another row's instead of a table column.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mimic: Option<DhMimic>,
+}
+
+/// The variable of a DH row: theta (revolute), d (prismatic), or none (fixed).
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum RowType {
+    /// `theta = q + theta_offset`.
+    #[default]
+    Revolute,
+    /// `d_total = d + q`, theta = theta_offset constant.
+    Prismatic,
+    /// No variable and no table column: a constant transform (e.g. a mount or branch point);
+    /// its `limits` are ignored.
+    Fixed,
+}
+
+impl RowType {
+    /// For `skip_serializing_if`: revolute is the default and is not written.
+    pub fn is_revolute(&self) -> bool {
+        *self == RowType::Revolute
+    }
+
+    /// The chain joint kind.
+    pub fn kind(self) -> JointKind {
+        match self {
+            RowType::Revolute => JointKind::Revolute,
+            RowType::Prismatic => JointKind::Prismatic,
+            RowType::Fixed => JointKind::Fixed,
+        }
+    }
+}
+
+/// A DH coupling row: `variable = multiplier * leader's variable + offset`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DhMimic {
+    /// Name of the leader row (a row with its own variable in the same chain).
+    pub joint: String,
+    /// Follower unit per leader unit in file units (1 between two rows of the same type).
+    #[serde(default = "one")]
+    pub multiplier: f64,
+    /// Constant in the follower's file unit (deg/rad or mm/m).
+    #[serde(default)]
+    pub offset: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// A pose x, y, z, a, b, c (`Dx Dy Dz Rz(a) Ry(b) Rx(c)`).
@@ -178,35 +233,111 @@ impl DhFile {
     }
 
     fn units(&self) -> Result<Units, ModelError> {
-        let mm = match self.units.length.as_str() {
+        self.units.to_units()
+    }
+}
+
+impl DhUnits {
+    /// The unit system, checked (`units.length`, `units.angle`, ... named on error).
+    pub fn to_units(&self) -> Result<Units, ModelError> {
+        let mm = match self.length.as_str() {
             "mm" => true,
             "m" => false,
             other => return Err(field("units.length", format!("`{other}` is not mm or m"))),
         };
-        let deg = match self.units.angle.as_str() {
+        let deg = match self.angle.as_str() {
             "deg" => true,
             "rad" => false,
             other => return Err(field("units.angle", format!("`{other}` is not deg or rad"))),
         };
         let want = if deg { "deg/(N*m)" } else { "rad/(N*m)" };
-        if self.units.compliance != want {
+        if self.compliance != want {
             return Err(field(
                 "units.compliance",
                 format!(
                     "`{}` must be `{want}` with angles in {}",
-                    self.units.compliance, self.units.angle
+                    self.compliance, self.angle
                 ),
             ));
         }
-        if self.units.mass != "kg" {
-            return Err(field(
-                "units.mass",
-                format!("`{}` is not kg", self.units.mass),
-            ));
+        if self.mass != "kg" {
+            return Err(field("units.mass", format!("`{}` is not kg", self.mass)));
         }
         Ok(Units { mm, deg })
     }
+}
 
+impl DhJoint {
+    /// The chain joint of this row (MDH geometry, internal units; `k` = rad per file angle
+    /// unit), its mimic unresolved; `at` names the row in errors (e.g. `joints[3]`).
+    pub(crate) fn to_joint(&self, k: f64, at: &str) -> Result<Joint, ModelError> {
+        let j = self;
+        let vals = [
+            j.alpha,
+            j.a,
+            j.beta,
+            j.d,
+            j.theta_offset,
+            j.compliance,
+            j.limits[0],
+            j.limits[1],
+        ];
+        if vals.iter().any(|v| !v.is_finite()) {
+            return Err(field(at, "every number must be finite"));
+        }
+        if j.limits[0] >= j.limits[1] {
+            return Err(field(
+                format!("{at}.limits"),
+                format!("lower {} is not below upper {}", j.limits[0], j.limits[1]),
+            ));
+        }
+        let kind = j.row_type.kind();
+        if j.compliance != 0.0 && (kind != JointKind::Revolute || j.mimic.is_some()) {
+            return Err(field(
+                format!("{at}.compliance"),
+                "only a revolute row with its own variable has a compliance",
+            ));
+        }
+        // Internal per file unit of this row's variable.
+        let unit = |t: RowType| if t == RowType::Prismatic { 1.0 } else { k };
+        let mimic = match (&j.mimic, kind) {
+            (None, _) => None,
+            (Some(_), JointKind::Fixed) => {
+                return Err(field(format!("{at}.mimic"), "a fixed row has no variable"));
+            }
+            (Some(m), _) => {
+                if !m.multiplier.is_finite() || !m.offset.is_finite() {
+                    return Err(field(format!("{at}.mimic"), "numbers must be finite"));
+                }
+                Some(Mimic {
+                    leader: usize::MAX,
+                    leader_name: m.joint.clone(),
+                    // Converted to follower-internal per leader-internal in link_mimics.
+                    multiplier: m.multiplier * unit(j.row_type),
+                    offset: m.offset * unit(j.row_type),
+                })
+            }
+        };
+        let lim = unit(j.row_type);
+        Ok(Joint {
+            name: j.name.clone(),
+            geometry: Geometry::Mdh {
+                alpha: j.alpha * k,
+                a: j.a,
+                beta: j.beta * k,
+                d: j.d,
+            },
+            kind,
+            mimic,
+            offset: j.theta_offset * k,
+            compliance: j.compliance * k,
+            limits: (kind != JointKind::Fixed).then_some([j.limits[0] * lim, j.limits[1] * lim]),
+            effort: None,
+        })
+    }
+}
+
+impl DhFile {
     /// Build the chain (internal units: radians, the file's length unit).
     pub fn to_chain(&self) -> Result<Chain, ModelError> {
         if self.kind != "serial" {
@@ -223,40 +354,9 @@ impl DhFile {
         }
         let mut joints = Vec::with_capacity(self.joints.len());
         for (i, j) in self.joints.iter().enumerate() {
-            let vals = [
-                j.alpha,
-                j.a,
-                j.beta,
-                j.d,
-                j.theta_offset,
-                j.compliance,
-                j.limits[0],
-                j.limits[1],
-            ];
-            if vals.iter().any(|v| !v.is_finite()) {
-                return Err(field(format!("joints[{i}]"), "every number must be finite"));
-            }
-            if j.limits[0] >= j.limits[1] {
-                return Err(field(
-                    format!("joints[{i}].limits"),
-                    format!("lower {} is not below upper {}", j.limits[0], j.limits[1]),
-                ));
-            }
-            joints.push(Joint {
-                name: j.name.clone(),
-                geometry: Geometry::Mdh {
-                    alpha: j.alpha * k,
-                    a: j.a,
-                    beta: j.beta * k,
-                    d: j.d,
-                },
-                revolute: true,
-                offset: j.theta_offset * k,
-                compliance: j.compliance * k,
-                limits: Some([j.limits[0] * k, j.limits[1] * k]),
-                effort: None,
-            });
+            joints.push(j.to_joint(k, &format!("joints[{i}]"))?);
         }
+        link_mimics(&mut joints, k).map_err(|(i, reason)| field(format!("joints[{i}].mimic"), reason))?;
         let g = Vector3::from(self.gravity.direction_in_base);
         if !(g.norm() > 0.0) || !self.gravity.magnitude.is_finite() {
             return Err(field(
@@ -343,6 +443,9 @@ impl DhFile {
             }
             entry.theta_offset = joint.offset * to;
             entry.compliance = joint.compliance * to;
+            if let (Some(m), Some(e)) = (&joint.mimic, entry.mimic.as_mut()) {
+                e.multiplier = m.multiplier * mimic_scale(chain, joint, m, to);
+            }
         }
         out.base = Xyzabc::from_internal(&chain.base, to);
         out.tool = Xyzabc::from_internal(&chain.tool, to);
@@ -360,6 +463,16 @@ impl DhFile {
         }
         out
     }
+}
+
+/// File multiplier per internal multiplier of a coupling (`to` = file per internal angle).
+fn mimic_scale(chain: &Chain, follower: &Joint, m: &Mimic, to: f64) -> f64 {
+    let per = |kind: JointKind| if kind == JointKind::Prismatic { 1.0 } else { to };
+    let leader = chain
+        .actuated()
+        .get(m.leader)
+        .map_or(JointKind::Revolute, |&j| chain.joints[j].kind);
+    per(follower.kind) / per(leader)
 }
 
 #[cfg(test)]

@@ -2,14 +2,17 @@
 
 pub mod chain;
 pub mod dh;
+pub mod dh_tree;
 pub mod humanoid;
 pub mod ik;
+pub mod joint;
 pub mod params;
 pub mod pcr;
 pub mod srdf;
 pub mod urdf;
 
 pub use chain::{Chain, Geometry, Joint, PointMass};
+pub use joint::{JointKind, Mimic};
 pub use params::{JointField, ParamId, Quantity};
 
 /// Errors in a model file or model parameters.

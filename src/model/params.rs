@@ -37,6 +37,10 @@ pub enum JointField {
     Offset,
     /// Joint compliance c (rad/(N*m) internally).
     Compliance,
+    /// Offset of a prismatic URDF joint's variable (a length, not an angle).
+    LinearOffset,
+    /// Multiplier of a mimic joint's coupling (dimensionless).
+    Multiplier,
 }
 
 /// Address of one parameter of a chain model.
@@ -67,7 +71,8 @@ impl ParamId {
                 }
             }
             ParamId::Joint(_, f) => match f {
-                JointField::A | JointField::D => Quantity::Length,
+                JointField::A | JointField::D | JointField::LinearOffset => Quantity::Length,
+                JointField::Multiplier => Quantity::Scalar,
                 JointField::Err(k) if *k < 3 => Quantity::Length,
                 JointField::Compliance => Quantity::Compliance,
                 _ => Quantity::Angle,
@@ -82,7 +87,7 @@ impl ParamId {
     /// Smaller is kept first; a dependent column later in the order is the one dropped.
     pub fn priority(&self) -> u8 {
         match self {
-            ParamId::Joint(_, JointField::Offset) => 0,
+            ParamId::Joint(_, JointField::Offset | JointField::LinearOffset) => 0,
             ParamId::Joint(_, JointField::A | JointField::D) => 1,
             ParamId::Joint(_, JointField::Err(k)) if *k < 3 => 1,
             ParamId::Joint(_, JointField::Compliance) => 3,

@@ -9,6 +9,7 @@ use nalgebra::Vector3;
 
 use super::ModelError;
 use super::chain::{Chain, Geometry, Joint, PointMass, Units};
+use super::joint::{JointKind, Mimic};
 use crate::geometry::Frame;
 
 /// Standard gravity (m/s^2).
@@ -87,25 +88,31 @@ impl UrdfModel {
         let mut joints = Vec::with_capacity(path.len());
         for &ji in &path {
             let j = &self.robot.joints[ji];
-            let revolute = match j.joint_type {
-                urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => true,
-                urdf_rs::JointType::Fixed => false,
+            let kind = match j.joint_type {
+                urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => {
+                    JointKind::Revolute
+                }
+                urdf_rs::JointType::Prismatic => JointKind::Prismatic,
+                urdf_rs::JointType::Fixed => JointKind::Fixed,
                 ref other => {
                     return Err(ModelError::Chain(format!(
-                        "joint `{}` is {other:?}: only revolute, continuous and fixed joints are supported",
+                        "joint `{}` is {other:?}: only revolute, continuous, prismatic and fixed joints are supported",
                         j.name
                     )));
                 }
             };
+            let moves = kind != JointKind::Fixed;
             let axis = Vector3::from(*j.axis.xyz);
-            if revolute && !(axis.norm() > 0.0) {
+            if moves && !(axis.norm() > 0.0 && axis.iter().all(|v| v.is_finite())) {
                 return Err(ModelError::Field {
                     field: format!("joint `{}` axis", j.name),
                     reason: "zero axis".into(),
                 });
             }
-            let limits = (j.joint_type == urdf_rs::JointType::Revolute
-                && j.limit.lower.is_finite()
+            let limits = (matches!(
+                j.joint_type,
+                urdf_rs::JointType::Revolute | urdf_rs::JointType::Prismatic
+            ) && j.limit.lower.is_finite()
                 && j.limit.upper.is_finite()
                 && j.limit.lower < j.limit.upper)
                 .then_some([j.limit.lower, j.limit.upper]);
@@ -116,13 +123,15 @@ impl UrdfModel {
                     errors: [0.0; 6],
                     axis: axis.normalize(),
                 },
-                revolute,
+                kind,
+                mimic: None,
                 offset: 0.0,
                 compliance: 0.0,
                 limits,
-                effort: (revolute && j.limit.effort > 0.0).then_some(j.limit.effort),
+                effort: (moves && j.limit.effort > 0.0).then_some(j.limit.effort),
             });
         }
+        self.resolve_mimics(&path, &mut joints)?;
         let masses = self.masses_along(&path);
         Ok(Chain::new(
             joints,
@@ -135,6 +144,51 @@ impl UrdfModel {
                 deg: false,
             },
         ))
+    }
+
+    /// Couple the chain's `<mimic>` joints to their leaders, which must be moving joints of
+    /// the same chain with their own variable (a mimic of a mimic is refused).
+    fn resolve_mimics(&self, path: &[usize], joints: &mut [Joint]) -> Result<(), ModelError> {
+        let vars: Vec<&str> = path
+            .iter()
+            .map(|&ji| &self.robot.joints[ji])
+            .filter(|j| j.mimic.is_none() && j.joint_type != urdf_rs::JointType::Fixed)
+            .map(|j| j.name.as_str())
+            .collect();
+        for (joint, &ji) in joints.iter_mut().zip(path) {
+            let Some(m) = &self.robot.joints[ji].mimic else {
+                continue;
+            };
+            if joint.kind == JointKind::Fixed {
+                continue;
+            }
+            let leader = vars.iter().position(|v| *v == m.joint).ok_or_else(|| {
+                let why = if self.robot.joints.iter().any(|j| j.name == m.joint) {
+                    "is not a moving joint with its own variable on the same chain"
+                } else {
+                    "is not a joint of the URDF"
+                };
+                ModelError::Field {
+                    field: format!("joint `{}` mimic", joint.name),
+                    reason: format!("leader `{}` {why}", m.joint),
+                }
+            })?;
+            let multiplier = m.multiplier.unwrap_or(1.0);
+            let offset = m.offset.unwrap_or(0.0);
+            if !multiplier.is_finite() || !offset.is_finite() {
+                return Err(ModelError::Field {
+                    field: format!("joint `{}` mimic", joint.name),
+                    reason: "multiplier and offset must be finite".into(),
+                });
+            }
+            joint.mimic = Some(Mimic {
+                leader,
+                leader_name: m.joint.clone(),
+                multiplier,
+                offset,
+            });
+        }
+        Ok(())
     }
 
     /// Point masses of the chain's links and of everything hanging off them.
@@ -196,8 +250,13 @@ impl UrdfModel {
                 continue;
             };
             let mut o = origin.mul(&Frame::from_urdf_errors(errors));
-            if joint.revolute {
-                o = o.mul(&Frame::rot_axis(axis, joint.offset));
+            match joint.kind {
+                JointKind::Revolute => o = o.mul(&Frame::rot_axis(axis, joint.offset)),
+                JointKind::Prismatic => {
+                    let t = axis * joint.offset;
+                    o = o.mul(&Frame::trans(t.x, t.y, t.z));
+                }
+                JointKind::Fixed => {}
             }
             let v = o.to_xyzabc();
             let tag = format!(
@@ -207,6 +266,19 @@ impl UrdfModel {
             text = replace_origin(&text, &joint.name, &tag).ok_or_else(|| {
                 ModelError::Chain(format!("joint `{}` not found in the URDF text", joint.name))
             })?;
+            if let Some(m) = &joint.mimic {
+                // The identified offset is in the origin; the multiplier goes to `<mimic>`.
+                let tag = format!(
+                    "<mimic joint=\"{}\" multiplier=\"{}\" offset=\"{}\"/>",
+                    m.leader_name, m.multiplier, m.offset
+                );
+                text = replace_child(&text, &joint.name, "mimic", &tag).ok_or_else(|| {
+                    ModelError::Chain(format!(
+                        "the <mimic> of joint `{}` not found in the URDF text",
+                        joint.name
+                    ))
+                })?;
+            }
         }
         Ok(text)
     }
@@ -214,6 +286,13 @@ impl UrdfModel {
 
 /// Replace (or insert) the `<origin .../>` of the `<joint name=.. type=..>` element.
 fn replace_origin(text: &str, name: &str, new_tag: &str) -> Option<String> {
+    replace_child(text, name, "origin", new_tag)
+}
+
+/// Replace (or insert) the `<element .../>` child of the `<joint name=.. type=..>` element.
+fn replace_child(text: &str, name: &str, element: &str, new_tag: &str) -> Option<String> {
+    let open = format!("<{element}");
+    let close_tag = format!("</{element}>");
     let mut from = 0;
     while let Some(rel) = text[from..].find("<joint") {
         let start = from + rel;
@@ -233,14 +312,14 @@ fn replace_origin(text: &str, name: &str, new_tag: &str) -> Option<String> {
         let body = &text[head_end + 1..end];
         let mut out = String::with_capacity(text.len() + new_tag.len());
         out.push_str(&text[..=head_end]);
-        if let Some(o) = body.find("<origin") {
+        if let Some(o) = body.find(open.as_str()) {
             let o_abs = head_end + 1 + o;
             let close = o_abs + text[o_abs..].find('>')?;
             // `<origin ... />` or `<origin ...></origin>`.
             let after = if text[o_abs..=close].ends_with("/>") {
                 close + 1
             } else {
-                close + 1 + text[close + 1..].find("</origin>")? + "</origin>".len()
+                close + 1 + text[close + 1..].find(close_tag.as_str())? + close_tag.len()
             };
             out.push_str(&text[head_end + 1..o_abs]);
             out.push_str(new_tag);

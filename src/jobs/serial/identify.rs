@@ -238,7 +238,6 @@ fn check_points(
     balls: usize,
 ) -> Result<(), JobError> {
     let dof = model.chain.dof();
-    let k = model.chain.units.to_file(crate::model::Quantity::Angle);
     for (i, m) in meas.iter().enumerate() {
         if m.q.len() != dof {
             return Err(JobError::row(
@@ -248,6 +247,7 @@ fn check_points(
             ));
         }
         if let Some((j, v, l)) = model.chain.limit_violation(&m.q) {
+            let k = model.chain.units.to_file(model.chain.variable_quantity(j));
             return Err(JobError::row(
                 field,
                 i + 1,
@@ -255,7 +255,7 @@ fn check_points(
                     "q{} = {} {} is outside the joint limits [{}, {}]",
                     j + 1,
                     v * k,
-                    model.angle_unit(),
+                    model.joint_unit(j),
                     l[0] * k,
                     l[1] * k
                 ),

@@ -153,15 +153,24 @@ impl SerialModel {
         self.chain.units.name(Quantity::Length)
     }
 
-    /// Joint values of every row of `t` (radians), checked against the limits.
+    /// Unit of joint column `k` (0-based): the angle unit, or the length unit of a prismatic
+    /// joint. A mimic joint has no column.
+    pub fn joint_unit(&self, k: usize) -> &'static str {
+        self.chain.units.name(self.chain.variable_quantity(k))
+    }
+
+    /// Joint values of every row of `t` (radians, or the length unit of prismatic joints),
+    /// checked against the limits.
     pub fn joints(&self, field: &str, t: &Table) -> Result<Vec<Vec<f64>>, JobError> {
         let cols = t.cols(field, &self.joint_columns())?;
-        let k = 1.0 / self.chain.units.to_file(Quantity::Angle);
+        let ks: Vec<f64> = (0..cols.len())
+            .map(|k| 1.0 / self.chain.units.to_file(self.chain.variable_quantity(k)))
+            .collect();
         let mut out = Vec::with_capacity(t.rows.len());
         for (i, row) in t.rows.iter().enumerate() {
-            let q: Vec<f64> = cols.iter().map(|&c| row[c] * k).collect();
+            let q: Vec<f64> = cols.iter().zip(&ks).map(|(&c, k)| row[c] * k).collect();
             if let Some((j, v, l)) = self.chain.limit_violation(&q) {
-                let u = 1.0 / k;
+                let u = 1.0 / ks[j];
                 return Err(JobError::row(
                     field,
                     i + 1,
@@ -169,7 +178,7 @@ impl SerialModel {
                         "q{} = {} {} is outside the joint limits [{}, {}]",
                         j + 1,
                         v * u,
-                        self.angle_unit(),
+                        self.joint_unit(j),
                         l[0] * u,
                         l[1] * u
                     ),

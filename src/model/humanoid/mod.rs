@@ -298,10 +298,17 @@ impl Humanoid {
         let mut joints = Vec::with_capacity(path.len());
         let mut vars = Vec::new();
         for cj in &chain.joints {
+            if cj.kind == super::JointKind::Prismatic || cj.mimic.is_some() {
+                return Err(chain_err(format!(
+                    "joint `{}` is prismatic or a mimic joint: the humanoid model supports revolute and fixed joints only (use a serial chain)",
+                    cj.name
+                )));
+            }
+            let revolute = cj.has_variable();
             let idx = match self.joints.iter().position(|j| j.name == cj.name) {
                 Some(i) => i,
                 None => {
-                    let var = if cj.revolute {
+                    let var = if revolute {
                         Some(self.variables.iter().position(|v| v == &cj.name).ok_or_else(
                             || {
                                 chain_err(format!(
@@ -315,9 +322,9 @@ impl Humanoid {
                     };
                     self.joints.push(TreeJoint {
                         name: cj.name.clone(),
-                        revolute: cj.revolute,
+                        revolute,
                         var,
-                        elastic: cj.revolute && elastic.joints.contains(&cj.name),
+                        elastic: revolute && elastic.joints.contains(&cj.name),
                     });
                     self.joints.len() - 1
                 }
