@@ -2,7 +2,10 @@
 //! rows. Errors injected into the slide's offset (d3, a length), the coupled wrist's offset
 //! and multiplier, the coupled slide's offset and multiplier and a few revolute parameters
 //! are recovered to the noise level from laser-tracker points, and the serial
-//! identification also runs on one named chain of a DH tree file.
+//! identification also runs on one named chain of a DH tree file; `serial.fk` reads a tree
+//! file's chain with its prismatic columns in mm.
+
+mod common;
 
 use nalgebra::Vector3;
 
@@ -86,10 +89,14 @@ fn check(rows: &[(String, f64, f64, f64)], nominal: &Chain) {
             calibd::model::Quantity::Length => 0.005,
             _ => 1e-4,
         };
+        let f = nominal.units.to_file(id.quantity());
         println!(
-            "{name:>16} [{}]: injected {injected:+.6}, recovered {got:+.6}, diff {:+.2e}, std {std:.2e}",
+            "{name:>16} [{}]: injected {:+.6}, recovered {:+.6}, diff {:+.2e}, std {:.2e}",
             nominal.units.name(id.quantity()),
-            got - injected
+            injected * f,
+            got * f,
+            (got - injected) * f,
+            std * f
         );
         assert!(
             (got - injected).abs() < tol && (got - injected).abs() < 4.0 * std,
@@ -140,4 +147,33 @@ fn serial_identification_runs_on_a_named_chain_of_a_tree_file() {
     println!("status {status}");
     assert_eq!(status, "converged");
     check(&rows, &nominal);
+}
+
+/// `examples/serial_fk_tree.json`: the right arm of the tree file; q2 (lift) and q6 (forearm
+/// slide) are mm, the others deg; the coupled wrist has no column. Poses equal the chain's.
+#[test]
+fn fk_job_reads_a_tree_chain_with_prismatic_columns_in_mm() {
+    let doc = common::example("serial_fk_tree.json");
+    let done = common::run_in_examples(&doc).expect("fk job");
+    let poses = done.result["poses"].as_array().expect("poses");
+    let f = DhTreeFile::parse(TREE, "two_arm_tree.json").expect("parses");
+    let chain = f.chain("right_arm", "two_arm_tree.json").expect("chain");
+    for (row, pose) in doc["joints"].as_array().expect("rows").iter().zip(poses) {
+        let q: Vec<f64> = (1..=7)
+            .map(|k| {
+                let v = row[format!("q{k}")].as_f64().expect("number");
+                if k == 2 || k == 6 { v } else { v.to_radians() }
+            })
+            .collect();
+        let p = chain.tcp(&q, None).p;
+        for (a, want) in ["x", "y", "z"].iter().zip(p.iter()) {
+            let got = pose[*a].as_f64().expect("coordinate");
+            assert!((got - want).abs() < 1e-9, "{a}: {got} vs {want}");
+        }
+    }
+    // A tree model without a chain name is refused, naming the field.
+    let mut bad = doc.clone();
+    bad.as_object_mut().expect("object").remove("chain");
+    let e = common::run_in_examples(&bad).expect_err("refused").to_string();
+    assert!(e.contains("chain") && e.contains("name"), "{e}");
 }

@@ -13,7 +13,8 @@ use serde::{Deserialize, Serialize};
 
 use super::ModelError;
 use super::chain::{Chain, Geometry, Units};
-use super::dh::{DhJoint, DhMimic, DhUnits, RowType, Xyzabc};
+use super::dh::{DhFile, DhJoint, DhMimic, DhUnits, Gravity, RowType, Xyzabc};
+use super::{JointField, ParamId, Quantity};
 use super::joint::link_mimics;
 use crate::geometry::Frame;
 
@@ -39,7 +40,7 @@ pub struct DhTreeFile {
     pub base: Xyzabc,
     /// Gravity magnitude (m/s^2) and direction in the root frame; default 9.80665 along -z.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub gravity: Option<super::dh::Gravity>,
+    pub gravity: Option<Gravity>,
     /// Free text.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub notes: Option<String>,
@@ -263,6 +264,70 @@ impl DhTreeFile {
             Vec::new(),
             units,
         ))
+    }
+}
+
+impl DhTreeFile {
+    /// The chain `name` as a serial DH file (modified DH, the file's units): what a serial
+    /// job identifies and writes back as its calibrated model. Its `identify` list is every
+    /// row parameter except compliances (rank detection holds what the data cannot see).
+    pub fn serial_file(&self, name: &str, file: &str) -> Result<DhFile, ModelError> {
+        let chain = self.chain(name, file)?;
+        let to = chain.units.to_file(Quantity::Angle);
+        let mut joints = Vec::with_capacity(chain.joints.len());
+        for j in &chain.joints {
+            let Geometry::Mdh { alpha, a, beta, d } = j.geometry else {
+                continue;
+            };
+            let row = self.rows.iter().find(|r| r.name == j.name);
+            joints.push(DhJoint {
+                name: j.name.clone(),
+                alpha: alpha * to,
+                a,
+                beta: beta * to,
+                d,
+                theta_offset: j.offset * to,
+                compliance: j.compliance * to,
+                // File units; rows without their own variable may have none (ignored).
+                limits: row.and_then(|r| r.limits).unwrap_or([-1.0, 1.0]),
+                row_type: row.map_or(RowType::Revolute, |r| r.row_type),
+                mimic: row.and_then(|r| r.mimic.clone()),
+            });
+        }
+        let x = |v: &[f64; 6]| Xyzabc {
+            x: v[0],
+            y: v[1],
+            z: v[2],
+            a: v[3] * to,
+            b: v[4] * to,
+            c: v[5] * to,
+        };
+        let g = chain.gravity;
+        let mut out = DhFile {
+            kind: "serial".into(),
+            name: format!("{} / {name}", self.name),
+            units: self.units.clone(),
+            joints,
+            base: x(&chain.base),
+            tool: x(&chain.tool),
+            gravity: Gravity {
+                magnitude: g.norm(),
+                direction_in_base: [g.x, g.y, g.z],
+            },
+            links: Vec::new(),
+            payload: None,
+            identify: Vec::new(),
+            sources: None,
+            notes: Some(format!("chain `{name}` of the {:?} DH tree file {file}", self.convention)),
+            calibration: None,
+        };
+        out.identify = chain
+            .param_ids()
+            .into_iter()
+            .filter(|id| matches!(id, ParamId::Joint(_, f) if *f != JointField::Compliance))
+            .map(|id| chain.param_name(id))
+            .collect();
+        Ok(out)
     }
 }
 

@@ -188,3 +188,27 @@ fn bad_tree_files_name_file_row_and_field() {
     let e = load(&text, "t.json").chain("left_arm", "t.json").unwrap_err().to_string();
     assert!(e.contains("t.json") && e.contains("l_shoulder") && e.contains("limits"), "{e}");
 }
+
+/// A chain written as a serial DH file (what a serial job writes back) keeps its FK and its
+/// parameter names, for both conventions.
+#[test]
+fn serial_files_of_tree_chains_keep_the_fk() {
+    for (text, file) in [(CLASSIC, "classic.json"), (MODIFIED, "modified.json")] {
+        let f = load(text, file);
+        for name in ["torso", "left_arm", "right_arm"] {
+            let tree = f.chain(name, file).expect("tree chain");
+            let serial = f.serial_file(name, file).expect("serial file");
+            let back = DhFile::parse(&serde_json::to_string(&serial).expect("json"))
+                .expect("reparses")
+                .to_chain()
+                .expect("serial chain");
+            for q in qs(&tree) {
+                let (a, b) = (tree.tcp(&q, None), back.tcp(&q, None));
+                assert!((a.p - b.p).norm() < 1e-9 && (a.r - b.r).norm() < 1e-12, "{file} {name}");
+            }
+            for n in &serial.identify {
+                assert!(tree.param_by_name(n).is_ok() && back.param_by_name(n).is_ok(), "{n}");
+            }
+        }
+    }
+}

@@ -1,6 +1,7 @@
 //! The serial-arm job kinds (`serial.fk`, `serial.identify`, `serial.design`,
 //! `serial.dispersion`) and what they share: loading a DH or URDF model, joint columns in
-//! the model's units with limit checks, ball plates and measurement tables.
+//! the model's units with limit checks, ball plates and measurement tables. A DH tree file
+//! (`"kind": "tree"`) is used through one named chain, as the serial DH file of that path.
 
 pub mod design;
 pub mod dispersion;
@@ -17,14 +18,19 @@ use crate::model::dh::DhFile;
 use crate::model::urdf::UrdfModel;
 use crate::model::{Chain, ParamId, Quantity};
 
-/// `"chain": {"root": .., "tip": ..}` for URDF models.
+/// `"chain": {"root": .., "tip": ..}` for URDF models, `{"name": ..}` for DH tree files.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ChainSpec {
-    /// Root link (the robot frame {0}).
+    /// Root link (the robot frame {0}); URDF only.
+    #[serde(default)]
     pub root: String,
-    /// Tip link (the TCP frame).
+    /// Tip link (the TCP frame); URDF only.
+    #[serde(default)]
     pub tip: String,
+    /// A named chain of a DH tree file.
+    #[serde(default)]
+    pub name: Option<String>,
 }
 
 /// Where a serial model came from, to write a calibrated file of the same kind.
@@ -71,6 +77,12 @@ pub fn load_model(
                 "a URDF model needs \"chain\": {\"root\": .., \"tip\": ..}",
             )
         })?;
+        if spec.name.is_some() || spec.root.is_empty() || spec.tip.is_empty() {
+            return Err(JobError::invalid(
+                "chain",
+                "a URDF model needs \"chain\": {\"root\": .., \"tip\": ..} (no name)",
+            ));
+        }
         let text = inputs.text("model", model)?;
         let urdf = UrdfModel::parse(&text)?;
         let c = urdf.chain(&spec.root, &spec.tip)?;
@@ -83,10 +95,28 @@ pub fn load_model(
             },
         })
     } else {
-        if chain.is_some() {
-            return Err(JobError::invalid("chain", "only URDF models take a chain"));
+        let value = inputs.json("model", model)?;
+        if value.get("kind").and_then(Value::as_str) == Some("tree") {
+            // A DH tree file: the named chain, as the serial DH file of that path.
+            let name = chain.and_then(|c| c.name.as_deref()).ok_or_else(|| {
+                JobError::invalid("chain", "a DH tree model needs \"chain\": {\"name\": ..}")
+            })?;
+            let label = model.as_str().unwrap_or("model");
+            let text = value.to_string();
+            let tree = crate::model::dh_tree::DhTreeFile::parse(&text, label)?;
+            let file = tree.serial_file(name, label)?;
+            return Ok(SerialModel {
+                chain: file.to_chain()?,
+                source: Source::Dh(file),
+            });
         }
-        let file = DhFile::from_value(inputs.json("model", model)?)?;
+        if chain.is_some() {
+            return Err(JobError::invalid(
+                "chain",
+                "only URDF models and DH tree files take a chain",
+            ));
+        }
+        let file = DhFile::from_value(value)?;
         Ok(SerialModel {
             chain: file.to_chain()?,
             source: Source::Dh(file),
