@@ -17,6 +17,7 @@ use calibd::model::{Chain, JointKind, ParamId};
 use calibd::util::{NoMonitor, Rng};
 
 const SLIDE_DH: &str = include_str!("data/robots/slide_arm.json");
+const SLIDE_URDF: &str = include_str!("data/robots/slide_gripper.urdf");
 const TREE: &str = include_str!("data/robots/two_arm_tree.json");
 const NOISE_MM: f64 = 0.01;
 
@@ -32,13 +33,19 @@ fn random_q(c: &Chain, rng: &mut Rng) -> Vec<f64> {
         .collect()
 }
 
-/// Tracker points of the true chain with Gaussian noise (mm).
+/// Tracker noise in the chain's length unit.
+fn noise(c: &Chain) -> f64 {
+    NOISE_MM * 1e-3 / c.units.metre()
+}
+
+/// Tracker points of the true chain with Gaussian noise of `NOISE_MM`.
 fn tracker(truth: &Chain, n: usize, seed: u64) -> Vec<PointMeasurement> {
     let mut rng = Rng::new(seed);
+    let sigma = noise(truth);
     (0..n)
         .map(|_| {
             let q = random_q(truth, &mut rng);
-            let e = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * NOISE_MM;
+            let e = Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma;
             PointMeasurement {
                 target: Target::Point(truth.tcp(&q, None).p + e),
                 q,
@@ -60,12 +67,22 @@ fn recover(nominal: &Chain, errors: &[(ParamId, f64)]) -> (Vec<(String, f64, f64
     let problem = PointProblem::new(nominal.clone(), ids.clone(), plate, tracker(&truth, 120, 5))
         .expect("problem");
     let opts = SolveOptions {
-        noise: Some(NOISE_MM),
+        noise: Some(noise(nominal)),
         ..SolveOptions::default()
     };
-    let sol = solve(&problem, &problem.unknowns(), &problem.initial(), &opts, &NoMonitor)
-        .expect("solve");
-    assert!(sol.unidentifiable.is_empty(), "held: {:?}", sol.unidentifiable);
+    let sol = solve(
+        &problem,
+        &problem.unknowns(),
+        &problem.initial(),
+        &opts,
+        &NoMonitor,
+    )
+    .expect("solve");
+    assert!(
+        sol.unidentifiable.is_empty(),
+        "held: {:?}",
+        sol.unidentifiable
+    );
     let fitted = problem.model(&sol.x);
     let rows = ids
         .iter()
@@ -74,7 +91,12 @@ fn recover(nominal: &Chain, errors: &[(ParamId, f64)]) -> (Vec<(String, f64, f64
         .map(|((id, (_, dv)), p)| {
             // Reported std in file units, back to internal units.
             let std = p.std.unwrap_or(f64::NAN) / nominal.units.to_file(id.quantity());
-            (nominal.param_name(*id), *dv, fitted.param(*id) - nominal.param(*id), std)
+            (
+                nominal.param_name(*id),
+                *dv,
+                fitted.param(*id) - nominal.param(*id),
+                std,
+            )
         })
         .collect();
     (rows, sol.status().to_string())
@@ -82,11 +104,12 @@ fn recover(nominal: &Chain, errors: &[(ParamId, f64)]) -> (Vec<(String, f64, f64
 
 /// Each recovered error within 4 standard deviations of the injected one, and within a
 /// physical noise-level bound: 5 um for lengths, 1e-4 for angles (rad) and multipliers.
+/// Printed in file units (deg for DH angles).
 fn check(rows: &[(String, f64, f64, f64)], nominal: &Chain) {
     for (name, injected, got, std) in rows {
         let id = nominal.param_by_name(name).expect("name");
         let tol = match id.quantity() {
-            calibd::model::Quantity::Length => 0.005,
+            calibd::model::Quantity::Length => 0.005e-3 / nominal.units.metre(),
             _ => 1e-4,
         };
         let f = nominal.units.to_file(id.quantity());
@@ -107,7 +130,10 @@ fn check(rows: &[(String, f64, f64, f64)], nominal: &Chain) {
 
 #[test]
 fn prismatic_and_mimic_errors_are_recovered_on_a_twin() {
-    let nominal = DhFile::parse(SLIDE_DH).expect("parses").to_chain().expect("chain");
+    let nominal = DhFile::parse(SLIDE_DH)
+        .expect("parses")
+        .to_chain()
+        .expect("chain");
     assert_eq!(nominal.dof(), 4, "two coupling rows take no column");
     let deg = 1f64.to_radians();
     let by = |n: &str| nominal.param_by_name(n).expect("name");
@@ -129,10 +155,38 @@ fn prismatic_and_mimic_errors_are_recovered_on_a_twin() {
 }
 
 #[test]
+fn urdf_prismatic_and_mimic_errors_are_recovered_on_a_twin() {
+    let nominal = calibd::model::urdf::UrdfModel::parse(SLIDE_URDF)
+        .expect("parses")
+        .chain("base_link", "tcp")
+        .expect("chain");
+    let by = |n: &str| nominal.param_by_name(n).expect("name");
+    let deg = 1f64.to_radians();
+    let errors = [
+        (by("lift.offset"), 0.05 * deg),
+        (by("extend.offset"), 4e-4),
+        (by("extend.rx"), -0.03 * deg),
+        (by("bend2.offset"), 0.1 * deg),
+        (by("bend2.multiplier"), 0.002),
+        (by("grip2.offset"), 2e-4),
+        (by("grip2.multiplier"), -0.004),
+    ];
+    let (rows, status) = recover(&nominal, &errors);
+    println!("status {status}");
+    assert_eq!(status, "converged");
+    check(&rows, &nominal);
+}
+
+#[test]
 fn serial_identification_runs_on_a_named_chain_of_a_tree_file() {
     let f = DhTreeFile::parse(TREE, "two_arm_tree.json").expect("parses");
     let nominal = f.chain("right_arm", "two_arm_tree.json").expect("chain");
-    assert!(nominal.joints.iter().any(|j| j.kind == JointKind::Prismatic));
+    assert!(
+        nominal
+            .joints
+            .iter()
+            .any(|j| j.kind == JointKind::Prismatic)
+    );
     assert!(nominal.joints.iter().any(|j| j.mimic.is_some()));
     let deg = 1f64.to_radians();
     let by = |n: &str| nominal.param_by_name(n).expect("name");
@@ -174,6 +228,8 @@ fn fk_job_reads_a_tree_chain_with_prismatic_columns_in_mm() {
     // A tree model without a chain name is refused, naming the field.
     let mut bad = doc.clone();
     bad.as_object_mut().expect("object").remove("chain");
-    let e = common::run_in_examples(&bad).expect_err("refused").to_string();
+    let e = common::run_in_examples(&bad)
+        .expect_err("refused")
+        .to_string();
     assert!(e.contains("chain") && e.contains("name"), "{e}");
 }

@@ -602,7 +602,11 @@ impl Chain {
                     push(JointField::Offset, zg, 1.0);
                     push(JointField::Compliance, zg, tau_k);
                     push(JointField::D, zt, 1.0);
-                    let mg = if joint.kind == JointKind::Prismatic { zt } else { zg };
+                    let mg = if joint.kind == JointKind::Prismatic {
+                        zt
+                    } else {
+                        zg
+                    };
                     push(JointField::Multiplier, mg, q_lead);
                     t = f2
                         .mul(&Frame::rot_z(m.theta))
@@ -638,7 +642,10 @@ impl Chain {
                     let dir = f.r * axis;
                     match joint.kind {
                         JointKind::Revolute => {
-                            let g = Gen::Rot { axis: dir, origin: f.p };
+                            let g = Gen::Rot {
+                                axis: dir,
+                                origin: f.p,
+                            };
                             push(JointField::Offset, g, 1.0);
                             push(JointField::Compliance, g, tau_k);
                             push(JointField::Multiplier, g, q_lead);

@@ -356,7 +356,8 @@ impl DhFile {
         for (i, j) in self.joints.iter().enumerate() {
             joints.push(j.to_joint(k, &format!("joints[{i}]"))?);
         }
-        link_mimics(&mut joints, k).map_err(|(i, reason)| field(format!("joints[{i}].mimic"), reason))?;
+        link_mimics(&mut joints, k)
+            .map_err(|(i, reason)| field(format!("joints[{i}].mimic"), reason))?;
         let g = Vector3::from(self.gravity.direction_in_base);
         if !(g.norm() > 0.0) || !self.gravity.magnitude.is_finite() {
             return Err(field(
@@ -467,7 +468,13 @@ impl DhFile {
 
 /// File multiplier per internal multiplier of a coupling (`to` = file per internal angle).
 fn mimic_scale(chain: &Chain, follower: &Joint, m: &Mimic, to: f64) -> f64 {
-    let per = |kind: JointKind| if kind == JointKind::Prismatic { 1.0 } else { to };
+    let per = |kind: JointKind| {
+        if kind == JointKind::Prismatic {
+            1.0
+        } else {
+            to
+        }
+    };
     let leader = chain
         .actuated()
         .get(m.leader)

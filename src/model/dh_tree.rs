@@ -14,8 +14,8 @@ use serde::{Deserialize, Serialize};
 use super::ModelError;
 use super::chain::{Chain, Geometry, Units};
 use super::dh::{DhFile, DhJoint, DhMimic, DhUnits, Gravity, RowType, Xyzabc};
-use super::{JointField, ParamId, Quantity};
 use super::joint::link_mimics;
+use super::{JointField, ParamId, Quantity};
 use crate::geometry::Frame;
 
 /// A DH tree file, field for field.
@@ -106,9 +106,8 @@ impl DhTreeFile {
     /// Parse a tree file from JSON text; `file` names it in errors.
     pub fn parse(text: &str, file: &str) -> Result<Self, ModelError> {
         let de = &mut serde_json::Deserializer::from_str(text);
-        let f: Self = serde_path_to_error::deserialize(de).map_err(|e| {
-            ModelError::Parse(format!("{file}: {} (at `{}`)", e.inner(), e.path()))
-        })?;
+        let f: Self = serde_path_to_error::deserialize(de)
+            .map_err(|e| ModelError::Parse(format!("{file}: {} (at `{}`)", e.inner(), e.path())))?;
         f.check(file)?;
         Ok(f)
     }
@@ -135,11 +134,17 @@ impl DhTreeFile {
             if r.parent != self.root && !self.rows.iter().any(|o| o.name == r.parent) {
                 return Err(err(
                     format!("{at}.parent"),
-                    format!("unknown parent `{}` (not a row, not the root `{}`)", r.parent, self.root),
+                    format!(
+                        "unknown parent `{}` (not a row, not the root `{}`)",
+                        r.parent, self.root
+                    ),
                 ));
             }
             self.path(i).map_err(|cycle| {
-                err(format!("{at}.parent"), format!("rows form a cycle: {}", cycle.join(" -> ")))
+                err(
+                    format!("{at}.parent"),
+                    format!("rows form a cycle: {}", cycle.join(" -> ")),
+                )
             })?;
         }
         for (i, c) in self.chains.iter().enumerate() {
@@ -150,7 +155,10 @@ impl DhTreeFile {
                 ));
             }
             if self.chains[..i].iter().any(|o| o.name == c.name) {
-                return Err(err(format!("chains[{i}].name"), format!("`{}` is used twice", c.name)));
+                return Err(err(
+                    format!("chains[{i}].name"),
+                    format!("`{}` is used twice", c.name),
+                ));
             }
         }
         Ok(())
@@ -161,12 +169,19 @@ impl DhTreeFile {
         let mut out = vec![end];
         let mut here = end;
         while self.rows[here].parent != self.root {
-            let Some(p) = self.rows.iter().position(|r| r.name == self.rows[here].parent) else {
+            let Some(p) = self
+                .rows
+                .iter()
+                .position(|r| r.name == self.rows[here].parent)
+            else {
                 break;
             };
             if out.contains(&p) {
-                let mut names: Vec<String> =
-                    out.iter().rev().map(|&k| self.rows[k].name.clone()).collect();
+                let mut names: Vec<String> = out
+                    .iter()
+                    .rev()
+                    .map(|&k| self.rows[k].name.clone())
+                    .collect();
                 names.push(self.rows[p].name.clone());
                 return Err(names);
             }
@@ -187,15 +202,34 @@ impl DhTreeFile {
         let spec = self.chains.iter().find(|c| c.name == name).ok_or_else(|| {
             err(
                 "chains".into(),
-                format!("no chain named `{name}` (chains: {})", self.chain_names().join(", ")),
+                format!(
+                    "no chain named `{name}` (chains: {})",
+                    self.chain_names().join(", ")
+                ),
             )
         })?;
-        let units: Units = self.units.to_units().map_err(|e| err("units".into(), e.to_string()))?;
-        let k = if units.deg { std::f64::consts::PI / 180.0 } else { 1.0 };
-        let end = self.rows.iter().position(|r| r.name == spec.end).ok_or_else(|| {
-            err(format!("chain `{name}`.end"), format!("unknown end row `{}`", spec.end))
-        })?;
-        let path = self.path(end).map_err(|c| err("rows".into(), format!("cycle {}", c.join(" -> "))))?;
+        let units: Units = self
+            .units
+            .to_units()
+            .map_err(|e| err("units".into(), e.to_string()))?;
+        let k = if units.deg {
+            std::f64::consts::PI / 180.0
+        } else {
+            1.0
+        };
+        let end = self
+            .rows
+            .iter()
+            .position(|r| r.name == spec.end)
+            .ok_or_else(|| {
+                err(
+                    format!("chain `{name}`.end"),
+                    format!("unknown end row `{}`", spec.end),
+                )
+            })?;
+        let path = self
+            .path(end)
+            .map_err(|c| err("rows".into(), format!("cycle {}", c.join(" -> "))))?;
         let mut joints = Vec::with_capacity(path.len());
         // (alpha, a, beta) carried from the previous classic row.
         let mut carry = (0.0, 0.0, 0.0);
@@ -235,7 +269,9 @@ impl DhTreeFile {
             field: format!("{file}: rows[{}] (`{}`).mimic", path[i], joints[i].name),
             reason,
         })?;
-        let chain_tool = spec.tool.map_or(Frame::identity(), |t| Frame::from_xyzabc(&xyzabc(t, k)));
+        let chain_tool = spec
+            .tool
+            .map_or(Frame::identity(), |t| Frame::from_xyzabc(&xyzabc(t, k)));
         // A classic end row's own a, alpha, beta are the first part of the tool.
         let (alpha, a, beta) = carry;
         let tail = Frame::rot_x(alpha * k)
@@ -246,7 +282,7 @@ impl DhTreeFile {
             None => Vector3::new(0.0, 0.0, -super::urdf::G),
             Some(g) => {
                 let d = Vector3::from(g.direction_in_base);
-                if !(d.norm() > 0.0) || !g.magnitude.is_finite() {
+                if !d.iter().all(|v| v.is_finite()) || d.norm() == 0.0 || !g.magnitude.is_finite() {
                     return Err(err(
                         "gravity".into(),
                         "direction must be a non-zero vector and magnitude finite".into(),
@@ -255,7 +291,11 @@ impl DhTreeFile {
                 d.normalize() * g.magnitude
             }
         };
-        debug_assert!(joints.iter().all(|j| matches!(j.geometry, Geometry::Mdh { .. })));
+        debug_assert!(
+            joints
+                .iter()
+                .all(|j| matches!(j.geometry, Geometry::Mdh { .. }))
+        );
         Ok(Chain::new(
             joints,
             xyzabc(self.base, k),
@@ -318,7 +358,10 @@ impl DhTreeFile {
             payload: None,
             identify: Vec::new(),
             sources: None,
-            notes: Some(format!("chain `{name}` of the {:?} DH tree file {file}", self.convention)),
+            notes: Some(format!(
+                "chain `{name}` of the {:?} DH tree file {file}",
+                self.convention
+            )),
             calibration: None,
         };
         out.identify = chain

@@ -38,7 +38,11 @@ fn qs(c: &Chain) -> Vec<Vec<f64>> {
 fn classic_by_hand(f: &DhTreeFile, end: &str, tool: [f64; 3], q: &[f64]) -> Vector3<f64> {
     let deg = std::f64::consts::PI / 180.0;
     let mut names = vec![end.to_string()];
-    while let Some(r) = f.rows.iter().find(|r| &r.name == names.last().expect("non-empty")) {
+    while let Some(r) = f
+        .rows
+        .iter()
+        .find(|r| &r.name == names.last().expect("non-empty"))
+    {
         if r.parent == f.root {
             break;
         }
@@ -60,7 +64,11 @@ fn classic_by_hand(f: &DhTreeFile, end: &str, tool: [f64; 3], q: &[f64]) -> Vect
             (None, _) => {
                 let raw = q[k];
                 k += 1;
-                if r.row_type == RowType::Prismatic { raw } else { raw / deg }
+                if r.row_type == RowType::Prismatic {
+                    raw
+                } else {
+                    raw / deg
+                }
             }
         };
         vals.push((n.clone(), v));
@@ -81,7 +89,10 @@ fn classic_by_hand(f: &DhTreeFile, end: &str, tool: [f64; 3], q: &[f64]) -> Vect
 fn classic_chains_match_the_rows_multiplied_by_hand() {
     let f = load(CLASSIC, "two_arm_tree.json");
     assert_eq!(f.chain_names(), ["torso", "left_arm", "right_arm"]);
-    for (name, end, tool) in [("left_arm", "l_hand", [0.0, 0.0, 20.0]), ("right_arm", "r_wrist2", [5.0, 0.0, 30.0])] {
+    for (name, end, tool) in [
+        ("left_arm", "l_hand", [0.0, 0.0, 20.0]),
+        ("right_arm", "r_wrist2", [5.0, 0.0, 30.0]),
+    ] {
         let c = f.chain(name, "two_arm_tree.json").expect("chain");
         // Left: torso, lift, 4 arm joints (the fixed hand has no column); right: torso, lift,
         // 4 arm joints and the slide (the coupled wrist has no column).
@@ -89,7 +100,10 @@ fn classic_chains_match_the_rows_multiplied_by_hand() {
         for q in qs(&c) {
             let want = classic_by_hand(&f, end, tool, &q);
             let got = c.tcp(&q, None).p;
-            assert!((got - want).norm() < 1e-9, "{name} {q:?}: {got:?} vs {want:?}");
+            assert!(
+                (got - want).norm() < 1e-9,
+                "{name} {q:?}: {got:?} vs {want:?}"
+            );
         }
     }
 }
@@ -98,10 +112,16 @@ fn classic_chains_match_the_rows_multiplied_by_hand() {
 fn classic_and_modified_files_of_one_robot_agree() {
     let (fc, fm) = (load(CLASSIC, "classic"), load(MODIFIED, "modified"));
     for name in ["torso", "left_arm", "right_arm"] {
-        let (a, b) = (fc.chain(name, "classic").expect("c"), fm.chain(name, "modified").expect("m"));
+        let (a, b) = (
+            fc.chain(name, "classic").expect("c"),
+            fm.chain(name, "modified").expect("m"),
+        );
         for q in qs(&a) {
             let (ta, tb) = (a.tcp(&q, None), b.tcp(&q, None));
-            assert!((ta.p - tb.p).norm() < 1e-9 && (ta.r - tb.r).norm() < 1e-12, "{name} {q:?}");
+            assert!(
+                (ta.p - tb.p).norm() < 1e-9 && (ta.r - tb.r).norm() < 1e-12,
+                "{name} {q:?}"
+            );
         }
     }
 }
@@ -116,7 +136,8 @@ fn serial_file(f: &DhTreeFile, path: &[&str], tool: Value) -> DhFile {
                 "theta_offset": r.theta_offset, "limits": r.limits.unwrap_or([-1.0, 1.0]),
                 "type": r.row_type});
             if let Some(m) = &r.mimic {
-                v["mimic"] = json!({"joint": m.joint, "multiplier": m.multiplier, "offset": m.offset});
+                v["mimic"] =
+                    json!({"joint": m.joint, "multiplier": m.multiplier, "offset": m.offset});
             }
             v
         })
@@ -136,18 +157,46 @@ fn serial_file(f: &DhTreeFile, path: &[&str], tool: Value) -> DhFile {
 fn tree_chains_equal_the_arms_as_serial_files() {
     let f = load(MODIFIED, "modified");
     let arms = [
-        ("left_arm", vec!["torso", "torso_lift", "l_shoulder", "l_upper", "l_elbow", "l_wrist", "l_hand"],
-         json!({"x": 10, "y": 0, "z": 20, "a": 0, "b": 0, "c": 0})),
-        ("right_arm", vec!["torso", "torso_lift", "r_shoulder", "r_upper", "r_elbow", "r_forearm", "r_wrist", "r_wrist2"],
-         json!({"x": 20, "y": 0, "z": 30, "a": 0, "b": 0, "c": 0})),
+        (
+            "left_arm",
+            vec![
+                "torso",
+                "torso_lift",
+                "l_shoulder",
+                "l_upper",
+                "l_elbow",
+                "l_wrist",
+                "l_hand",
+            ],
+            json!({"x": 10, "y": 0, "z": 20, "a": 0, "b": 0, "c": 0}),
+        ),
+        (
+            "right_arm",
+            vec![
+                "torso",
+                "torso_lift",
+                "r_shoulder",
+                "r_upper",
+                "r_elbow",
+                "r_forearm",
+                "r_wrist",
+                "r_wrist2",
+            ],
+            json!({"x": 20, "y": 0, "z": 30, "a": 0, "b": 0, "c": 0}),
+        ),
     ];
     for (name, path, tool) in arms {
         let tree = f.chain(name, "modified").expect("tree chain");
-        let serial = serial_file(&f, &path, tool).to_chain().expect("serial chain");
+        let serial = serial_file(&f, &path, tool)
+            .to_chain()
+            .expect("serial chain");
         assert_eq!(tree.param_ids().len(), serial.param_ids().len());
         for q in qs(&tree) {
             let (a, b) = (tree.tcp(&q, None), serial.tcp(&q, None));
-            assert!((a.p - b.p).norm() < 1e-9 && (a.r - b.r).norm() < 1e-12, "{name} {q:?}");
+            assert!(
+                (a.p - b.p).norm() < 1e-9 && (a.r - b.r).norm() < 1e-12,
+                "{name} {q:?}"
+            );
         }
     }
 }
@@ -162,17 +211,38 @@ fn edited(from: &str, to: &str) -> String {
 fn bad_tree_files_name_file_row_and_field() {
     let cases = [
         // Unknown parent.
-        (edited(r#""parent": "l_upper""#, r#""parent": "l_uper""#), vec!["t.json", "rows[4]", "l_elbow", "parent", "l_uper"]),
+        (
+            edited(r#""parent": "l_upper""#, r#""parent": "l_uper""#),
+            vec!["t.json", "rows[4]", "l_elbow", "parent", "l_uper"],
+        ),
         // A cycle: torso hangs below its own descendant.
-        (edited(r#""name": "torso", "parent": "base""#, r#""name": "torso", "parent": "l_wrist""#), vec!["t.json", "torso", "parent", "cycle"]),
+        (
+            edited(
+                r#""name": "torso", "parent": "base""#,
+                r#""name": "torso", "parent": "l_wrist""#,
+            ),
+            vec!["t.json", "torso", "parent", "cycle"],
+        ),
         // Missing convention.
-        (edited(r#""convention": "classic","#, ""), vec!["t.json", "convention"]),
+        (
+            edited(r#""convention": "classic","#, ""),
+            vec!["t.json", "convention"],
+        ),
         // An unknown convention.
-        (edited(r#""convention": "classic""#, r#""convention": "craig""#), vec!["t.json", "convention", "craig"]),
+        (
+            edited(r#""convention": "classic""#, r#""convention": "craig""#),
+            vec!["t.json", "convention", "craig"],
+        ),
         // Unknown chain end.
-        (edited(r#""end": "l_hand""#, r#""end": "l_fist""#), vec!["t.json", "chains[1]", "left_arm", "end", "l_fist"]),
+        (
+            edited(r#""end": "l_hand""#, r#""end": "l_fist""#),
+            vec!["t.json", "chains[1]", "left_arm", "end", "l_fist"],
+        ),
         // Duplicate row name.
-        (edited(r#""name": "r_upper""#, r#""name": "l_upper""#), vec!["t.json", "rows[8]", "l_upper", "twice"]),
+        (
+            edited(r#""name": "r_upper""#, r#""name": "l_upper""#),
+            vec!["t.json", "rows[8]", "l_upper", "twice"],
+        ),
     ];
     for (text, want) in cases {
         let e = DhTreeFile::parse(&text, "t.json").unwrap_err().to_string();
@@ -185,8 +255,14 @@ fn bad_tree_files_name_file_row_and_field() {
     assert!(e.contains("left_leg") && e.contains("right_arm"), "{e}");
     // A row with its own variable and no limits, found when its chain is built.
     let text = edited(r#", "limits": [-170, 170]}"#, "}");
-    let e = load(&text, "t.json").chain("left_arm", "t.json").unwrap_err().to_string();
-    assert!(e.contains("t.json") && e.contains("l_shoulder") && e.contains("limits"), "{e}");
+    let e = load(&text, "t.json")
+        .chain("left_arm", "t.json")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("t.json") && e.contains("l_shoulder") && e.contains("limits"),
+        "{e}"
+    );
 }
 
 /// A chain written as a serial DH file (what a serial job writes back) keeps its FK and its
@@ -204,10 +280,16 @@ fn serial_files_of_tree_chains_keep_the_fk() {
                 .expect("serial chain");
             for q in qs(&tree) {
                 let (a, b) = (tree.tcp(&q, None), back.tcp(&q, None));
-                assert!((a.p - b.p).norm() < 1e-9 && (a.r - b.r).norm() < 1e-12, "{file} {name}");
+                assert!(
+                    (a.p - b.p).norm() < 1e-9 && (a.r - b.r).norm() < 1e-12,
+                    "{file} {name}"
+                );
             }
             for n in &serial.identify {
-                assert!(tree.param_by_name(n).is_ok() && back.param_by_name(n).is_ok(), "{n}");
+                assert!(
+                    tree.param_by_name(n).is_ok() && back.param_by_name(n).is_ok(),
+                    "{n}"
+                );
             }
         }
     }

@@ -53,7 +53,10 @@ impl super::chain::Joint {
 /// divide its multiplier (given per leader file unit) by the leader's internal-per-file
 /// factor: `k` (rad per file angle unit) for a revolute leader, 1 for a prismatic one.
 /// Errors give the index of the offending joint and the reason.
-pub(crate) fn link_mimics(joints: &mut [super::chain::Joint], k: f64) -> Result<(), (usize, String)> {
+pub(crate) fn link_mimics(
+    joints: &mut [super::chain::Joint],
+    k: f64,
+) -> Result<(), (usize, String)> {
     let vars: Vec<(String, JointKind)> = joints
         .iter()
         .filter(|j| j.has_variable())

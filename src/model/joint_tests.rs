@@ -56,8 +56,8 @@ fn jacobian_discrepancy(c: &Chain, q: &[f64], local: Vector3<f64>) -> f64 {
         let (mut a, mut b) = (c.clone(), c.clone());
         a.set_param(*id, c.param(*id) + h);
         b.set_param(*id, c.param(*id) - h);
-        let fd = (a.tcp(q, Some(&tau)).apply(&local) - b.tcp(q, Some(&tau)).apply(&local))
-            / (2.0 * h);
+        let fd =
+            (a.tcp(q, Some(&tau)).apply(&local) - b.tcp(q, Some(&tau)).apply(&local)) / (2.0 * h);
         let err = (fd - jac[k]).norm() / (1.0 + fd.norm());
         assert!(
             err < 1e-6,
@@ -77,7 +77,13 @@ fn urdf_prismatic_and_mimic_jacobian_matches_central_differences() {
     // turn, lift, extend, bend, grip: the two mimic joints have no variable.
     assert_eq!(c.dof(), 5);
     let names: Vec<String> = c.param_ids().iter().map(|id| c.param_name(*id)).collect();
-    for n in ["extend.offset", "grip2.offset", "bend2.offset", "bend2.multiplier", "grip2.multiplier"] {
+    for n in [
+        "extend.offset",
+        "grip2.offset",
+        "bend2.offset",
+        "bend2.multiplier",
+        "grip2.multiplier",
+    ] {
         assert!(names.iter().any(|x| x == n), "{n} missing from {names:?}");
     }
     assert!(!names.iter().any(|x| x == "extend.c" || x == "bend2.c"));
@@ -86,7 +92,11 @@ fn urdf_prismatic_and_mimic_jacobian_matches_central_differences() {
     assert_eq!(c.units.name(id.quantity()), "m");
     let mut worst: f64 = 0.0;
     for q in [[0.3, -0.4, 0.25, 0.7, 0.02], [-1.2, 0.9, 0.05, -1.3, 0.035]] {
-        worst = worst.max(jacobian_discrepancy(&c, &q, Vector3::new(0.01, -0.02, 0.03)));
+        worst = worst.max(jacobian_discrepancy(
+            &c,
+            &q,
+            Vector3::new(0.01, -0.02, 0.03),
+        ));
     }
     eprintln!("URDF prismatic + mimic: max relative Jacobian discrepancy {worst:.2e}");
 }
@@ -99,7 +109,10 @@ fn dh_prismatic_and_coupling_rows_jacobian_matches_central_differences() {
     assert!(c.joints[4].mimic.is_some() && c.joints[5].mimic.is_some());
     let d3 = c.param_by_name("d3").expect("d3");
     assert_eq!(d3.quantity(), Quantity::Length);
-    assert!(c.param_by_name("c3").is_err(), "a prismatic row has no compliance");
+    assert!(
+        c.param_by_name("c3").is_err(),
+        "a prismatic row has no compliance"
+    );
     let mut worst: f64 = 0.0;
     for q in [[0.3, -0.4, 80.0, 0.7], [-1.2, 0.9, 150.0, -1.3]] {
         worst = worst.max(jacobian_discrepancy(&c, &q, Vector3::new(1.0, -2.0, 3.0)));
@@ -114,17 +127,24 @@ fn dh_gantry_positions_in_closed_form() {
     let text = SLIDE_DH.to_string();
     let mut f = DhFile::parse(&text).expect("parses");
     f.joints.truncate(3);
-    for (j, (alpha, theta, d)) in f
-        .joints
-        .iter_mut()
-        .zip([(0.0, 0.0, 100.0), (-90.0, -90.0, 50.0), (-90.0, 0.0, 20.0)])
+    for (j, (alpha, theta, d)) in
+        f.joints
+            .iter_mut()
+            .zip([(0.0, 0.0, 100.0), (-90.0, -90.0, 50.0), (-90.0, 0.0, 20.0)])
     {
         j.row_type = crate::model::dh::RowType::Prismatic;
         j.mimic = None;
         (j.alpha, j.a, j.beta, j.theta_offset, j.d) = (alpha, 0.0, 0.0, theta, d);
         j.limits = [-500.0, 500.0];
     }
-    f.tool = crate::model::dh::Xyzabc { x: 0.0, y: 0.0, z: 0.0, a: 0.0, b: 0.0, c: 0.0 };
+    f.tool = crate::model::dh::Xyzabc {
+        x: 0.0,
+        y: 0.0,
+        z: 0.0,
+        a: 0.0,
+        b: 0.0,
+        c: 0.0,
+    };
     f.identify.clear();
     let c = f.to_chain().expect("gantry");
     for q in [[0.0, 0.0, 0.0], [12.5, -40.0, 310.0], [-200.0, 75.0, 3.0]] {
@@ -166,7 +186,10 @@ fn urdf_gantry_positions_in_closed_form() {
     let id = c.param_by_name("z.offset").expect("name");
     c.set_param(id, 0.003);
     let p = c.tcp(&[0.5, 0.5, 0.2], None).p;
-    assert!((p - Vector3::new(0.6, 0.7, 1.0 - 0.203 - 0.05)).norm() < 1e-12, "{p:?}");
+    assert!(
+        (p - Vector3::new(0.6, 0.7, 1.0 - 0.203 - 0.05)).norm() < 1e-12,
+        "{p:?}"
+    );
     assert_eq!(c.variable_quantity(2), Quantity::Length);
 }
 
@@ -181,7 +204,11 @@ fn static_loads_with_prismatic_and_mimic_are_the_potential_gradient() {
         c.joint_frames(q, None, &mut frames);
         c.masses
             .iter()
-            .map(|m| -m.mass * c.gravity.dot(&(frames[m.body].apply(&m.com) * c.units.metre())))
+            .map(|m| {
+                -m.mass
+                    * c.gravity
+                        .dot(&(frames[m.body].apply(&m.com) * c.units.metre()))
+            })
             .sum::<f64>()
     };
     let tau = c.static_torques(&q);
@@ -191,7 +218,11 @@ fn static_loads_with_prismatic_and_mimic_are_the_potential_gradient() {
         a[k] += h;
         b[k] -= h;
         let fd = (energy(&a) - energy(&b)) / (2.0 * h);
-        assert!((fd - tau[k]).abs() < 1e-6 * (1.0 + fd.abs()), "variable {k}: {} vs {fd}", tau[k]);
+        assert!(
+            (fd - tau[k]).abs() < 1e-6 * (1.0 + fd.abs()),
+            "variable {k}: {} vs {fd}",
+            tau[k]
+        );
     }
     // The lift carries everything: several N*m; the slide holds a few N.
     assert!(tau[1].abs() > 1.0 && tau[2].abs() > 0.1, "{tau:?}");
@@ -202,10 +233,18 @@ fn urdf_write_back_keeps_prismatic_offsets_and_mimic_multipliers() {
     let m = UrdfModel::parse(SLIDE_URDF).expect("parses");
     let c = perturbed(m.chain("base_link", "tcp").expect("chain"));
     let text = m.write_calibrated(&c).expect("written");
-    let back = UrdfModel::parse(&text).expect("reparses").chain("base_link", "tcp").expect("chain");
+    let back = UrdfModel::parse(&text)
+        .expect("reparses")
+        .chain("base_link", "tcp")
+        .expect("chain");
     let q = [0.3, -0.4, 0.25, 0.7, 0.02];
     let (a, b) = (c.flange(&q, None), back.flange(&q, None));
-    assert!((a.p - b.p).norm() < 1e-12 && (a.r - b.r).norm() < 1e-12, "{:?} vs {:?}", a.p, b.p);
+    assert!(
+        (a.p - b.p).norm() < 1e-12 && (a.r - b.r).norm() < 1e-12,
+        "{:?} vs {:?}",
+        a.p,
+        b.p
+    );
 }
 
 #[test]
@@ -220,20 +259,40 @@ fn dh_write_back_keeps_coupling_multipliers() {
 #[test]
 fn bad_mimic_leaders_and_prismatic_compliance_are_named() {
     let bad = SLIDE_URDF.replace(r#"<mimic joint="bend""#, r#"<mimic joint="nope""#);
-    let e = UrdfModel::parse(&bad).expect("parses").chain("base_link", "tcp").unwrap_err();
+    let e = UrdfModel::parse(&bad)
+        .expect("parses")
+        .chain("base_link", "tcp")
+        .unwrap_err();
     let e = e.to_string();
     assert!(e.contains("bend2") && e.contains("nope"), "{e}");
     // A mimic of a mimic has no variable to follow.
     let bad = SLIDE_URDF.replace(r#"<mimic joint="grip""#, r#"<mimic joint="bend2""#);
-    let e = UrdfModel::parse(&bad).expect("parses").chain("base_link", "tcp").unwrap_err();
+    let e = UrdfModel::parse(&bad)
+        .expect("parses")
+        .chain("base_link", "tcp")
+        .unwrap_err();
     assert!(e.to_string().contains("grip2"), "{e}");
     let bad = SLIDE_DH.replace(r#""joint": "j4""#, r#""joint": "j9""#);
-    let e = DhFile::parse(&bad).expect("parses").to_chain().unwrap_err().to_string();
+    let e = DhFile::parse(&bad)
+        .expect("parses")
+        .to_chain()
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("joints[4].mimic") && e.contains("j9"), "{e}");
-    let bad = SLIDE_DH.replace(r#""d": 100, "theta_offset": 0,"#, r#""d": 100, "theta_offset": 0, "compliance": 0.01,"#);
-    let e = DhFile::parse(&bad).expect("parses").to_chain().unwrap_err().to_string();
+    let bad = SLIDE_DH.replace(
+        r#""d": 100, "theta_offset": 0,"#,
+        r#""d": 100, "theta_offset": 0, "compliance": 0.01,"#,
+    );
+    let e = DhFile::parse(&bad)
+        .expect("parses")
+        .to_chain()
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("joints[2].compliance"), "{e}");
-    let bad = SLIDE_DH.replace(r#""type": "prismatic", "alpha": -90"#, r#""type": "telescopic", "alpha": -90"#);
+    let bad = SLIDE_DH.replace(
+        r#""type": "prismatic", "alpha": -90"#,
+        r#""type": "telescopic", "alpha": -90"#,
+    );
     let e = DhFile::parse(&bad).unwrap_err().to_string();
     assert!(e.contains("joints[2]") && e.contains("telescopic"), "{e}");
 }
@@ -249,7 +308,10 @@ fn prismatic_offsets_are_lengths_for_the_identification() {
         c.param_by_name("bend2.offset").expect("name"),
     ];
     let u = crate::measure::point::chain_unknowns(&c, &ids);
-    assert_eq!((u[0].unit.as_str(), u[1].unit.as_str(), u[2].unit.as_str()), ("m", "1", "rad"));
+    assert_eq!(
+        (u[0].unit.as_str(), u[1].unit.as_str(), u[2].unit.as_str()),
+        ("m", "1", "rad")
+    );
     assert!(!crate::identify::trust::is_angle(&u[0]) && !crate::identify::trust::is_angle(&u[1]));
     assert!(crate::identify::trust::is_angle(&u[2]));
     let d = slide_dh();

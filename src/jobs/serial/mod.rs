@@ -134,7 +134,8 @@ impl SerialModel {
     }
 
     /// Default parameters to identify: the DH file's list; for URDF every placement error,
-    /// the offsets of the moving joints, and the base (rank detection prunes the rest).
+    /// the offsets of the moving joints (mimic joints included, not their multipliers: a
+    /// gear ratio is named explicitly), and the base (rank detection prunes the rest).
     pub fn default_identify(&self) -> Vec<ParamId> {
         match &self.source {
             Source::Dh(f) => f
@@ -149,7 +150,12 @@ impl SerialModel {
                 .filter(|id| {
                     !matches!(
                         id,
-                        ParamId::Tool(_) | ParamId::Joint(_, crate::model::JointField::Compliance)
+                        ParamId::Tool(_)
+                            | ParamId::Joint(
+                                _,
+                                crate::model::JointField::Compliance
+                                    | crate::model::JointField::Multiplier
+                            )
                     )
                 })
                 .collect(),
