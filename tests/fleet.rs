@@ -99,7 +99,7 @@ async fn batch(http: &reqwest::Client, ds: &[&Daemon], url: &str, n: usize) -> D
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn three_daemons_share_one_queue() {
-    let cluster = match Cluster::start() {
+    let cluster = match tokio::task::block_in_place(Cluster::start) {
         Ok(Some(c)) => c,
         Ok(None) => {
             eprintln!("skipped: PostgreSQL not installed");
@@ -107,7 +107,7 @@ async fn three_daemons_share_one_queue() {
         }
         Err(e) => panic!("{e}"),
     };
-    let store = cluster.fresh_db().unwrap();
+    let store = tokio::task::block_in_place(|| cluster.fresh_db()).unwrap();
     let data = tempfile::tempdir().unwrap();
     let http = reqwest::Client::new();
 
@@ -229,6 +229,7 @@ async fn three_daemons_share_one_queue() {
     let starts: Vec<&String> = logs.iter().filter(|m| m.starts_with("started on")).collect();
     assert_eq!(starts.len(), 2, "{logs:?}");
     assert_ne!(starts[1], &format!("started on {owner}"));
-    let _ = c.child.wait();
+
     drop((a, b, c));
+    tokio::task::block_in_place(|| drop(cluster));
 }
