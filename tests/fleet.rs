@@ -116,7 +116,7 @@ async fn three_daemons_share_one_queue() {
     let t1 = batch(&http, &[&a], &store, 300).await;
     let b = spawn("b", &store, data.path());
     let t2 = batch(&http, &[&a, &b], &store, 300).await;
-    let mut c = spawn("c", &store, data.path());
+    let c = spawn("c", &store, data.path());
     // An SSE client on A, for the jobs of the 3-daemon batch.
     let sse = http.get(format!("{}/v1/events", a.url)).send().await.unwrap();
     let mut sse = sse.bytes_stream();
