@@ -130,7 +130,7 @@ fn a_sqlite_history_copies_into_postgres() {
         media_type: "text/csv".into(),
         content: b"x\n1\n".to_vec(),
     };
-    s.finish_job(a, &serde_json::json!({"ok": 1}), Some("x\n"), &[art.clone()], None)
+    s.finish_job(a, &serde_json::json!({"ok": 1}), Some("x\n"), std::slice::from_ref(&art), None)
         .unwrap();
     let b = s.insert_job(&job("serial.identify")).unwrap();
     s.put_dataset("m.csv", "text/csv", b"q1\n1\n").unwrap();
