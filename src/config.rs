@@ -123,6 +123,24 @@ pub struct Config {
     pub lab: String,
     /// Seed of the simulated lab's twins.
     pub lab_seed: u64,
+    /// Where jobs and results are stored: unset (the SQLite file in `data`, the default),
+    /// `sqlite:FOLDER`, or a `postgres://USER@HOST:PORT/DB` URL (several daemons on one
+    /// database). The URL carries no password: see `password_file`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub store: Option<String>,
+    /// File holding the PostgreSQL password (first line). `CALIBD_STORE_PASSWORD` gives it
+    /// instead; neither is ever logged.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub password_file: Option<PathBuf>,
+    /// This daemon's name in a fleet (PostgreSQL store): unique, stable across restarts.
+    /// Default: the host name.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// In a fleet, whether this daemon runs the schedules (exactly one daemon should).
+    pub fleet_scheduler: bool,
+    /// In a fleet, how long a claimed job stays with this daemon without a heartbeat (s);
+    /// after that another daemon re-queues it.
+    pub fleet_lease_s: u64,
 }
 
 impl Default for Config {
@@ -143,6 +161,11 @@ impl Default for Config {
             auth: AuthConfig::default(),
             lab: "sim".into(),
             lab_seed: 7,
+            store: None,
+            password_file: None,
+            name: None,
+            fleet_scheduler: false,
+            fleet_lease_s: 15,
         }
     }
 }
@@ -172,6 +195,20 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ("CALIBD_DEVICES", "devices: comma-separated names"),
     ("CALIBD_LAB", "lab: sim, none or a lab file path"),
     ("CALIBD_LAB_SEED", "lab_seed: integer"),
+    (
+        "CALIBD_STORE",
+        "store: sqlite:FOLDER or postgres://USER@HOST:PORT/DB",
+    ),
+    ("CALIBD_NAME", "name: this daemon's name in a fleet"),
+    ("CALIBD_FLEET_LEASE_S", "fleet_lease_s: integer"),
+    (
+        "CALIBD_FLEET_SCHEDULER",
+        "fleet_scheduler: true or false",
+    ),
+    (
+        "CALIBD_STORE_PASSWORD_FILE",
+        "password_file: file with the PostgreSQL password",
+    ),
     (
         "CALIBD_ANONYMOUS_READ",
         "auth.anonymous_read: true or false",
@@ -238,6 +275,43 @@ impl Config {
         Ok(c)
     }
 
+    /// Where the store is: `store`, or the SQLite file in `data` when unset. The password
+    /// comes from `password_file`, else from `CALIBD_STORE_PASSWORD` read through `env`.
+    pub fn store_location(
+        &self,
+        env: &dyn Fn(&str) -> Option<String>,
+    ) -> Result<crate::store::Location, ConfigError> {
+        let Some(store) = &self.store else {
+            return Ok(crate::store::Location::Sqlite(self.data.clone()));
+        };
+        let password = match &self.password_file {
+            Some(p) => {
+                let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Read {
+                    path: p.clone(),
+                    source,
+                })?;
+                Some(text.lines().next().unwrap_or("").to_string())
+            }
+            None => env("CALIBD_STORE_PASSWORD"),
+        };
+        crate::store::Location::parse(store, password).map_err(|e| ConfigError::Env {
+            name: "CALIBD_STORE",
+            value: String::from("(the store setting)"),
+            message: e.to_string(),
+        })
+    }
+
+    /// This daemon's name in a fleet: `name`, else the host name.
+    pub fn daemon_name(&self) -> String {
+        self.name.clone().unwrap_or_else(|| {
+            std::fs::read_to_string("/proc/sys/kernel/hostname")
+                .map(|h| h.trim().to_string())
+                .ok()
+                .filter(|h| !h.is_empty())
+                .unwrap_or_else(|| "calibd".into())
+        })
+    }
+
     /// Override settings from environment variables.
     pub fn apply_env(&mut self, env: &dyn Fn(&str) -> Option<String>) -> Result<(), ConfigError> {
         for (name, _) in ENV_VARS {
@@ -278,6 +352,11 @@ impl Config {
                     self.lab = v.trim().into();
                 }
                 "CALIBD_LAB_SEED" => self.lab_seed = parse(name, &v)?,
+                "CALIBD_NAME" => self.name = Some(v.trim().to_string()),
+                "CALIBD_FLEET_LEASE_S" => self.fleet_lease_s = parse(name, &v)?,
+                "CALIBD_FLEET_SCHEDULER" => self.fleet_scheduler = parse(name, &v)?,
+                "CALIBD_STORE" => self.store = Some(v.trim().to_string()),
+                "CALIBD_STORE_PASSWORD_FILE" => self.password_file = Some(PathBuf::from(v)),
                 "CALIBD_ANONYMOUS_READ" => self.auth.anonymous_read = parse(name, &v)?,
                 "CALIBD_TOKENS" => {
                     let mut tokens = Vec::new();

@@ -32,6 +32,22 @@ enum LabCommand {
 }
 
 #[derive(Debug, Subcommand)]
+enum StoreCommand {
+    /// Copy every job, result, dataset, schedule and journal into an empty database.
+    Copy {
+        /// Source: `sqlite:FOLDER` (the daemon's data folder).
+        #[arg(long)]
+        from: String,
+        /// Target: a `postgres://USER@HOST:PORT/DB` URL (no password in it).
+        #[arg(long)]
+        to: String,
+        /// File holding the target's password (else CALIBD_STORE_PASSWORD).
+        #[arg(long)]
+        password_file: Option<PathBuf>,
+    },
+}
+
+#[derive(Debug, Subcommand)]
 enum Command {
     /// Run a job file in-process, without a daemon, and print or write its result.
     Run {
@@ -73,6 +89,17 @@ enum Command {
         /// Settings file (TOML); every setting can also come from a CALIBD_* variable.
         #[arg(long, env = "CALIBD_CONFIG")]
         config: Option<PathBuf>,
+        /// Workers only (a fleet on a PostgreSQL store): no HTTP listener, no lab, no
+        /// schedules; claim numerical jobs from the shared queue.
+        #[arg(long)]
+        workers_only: bool,
+    },
+    /// The store: `calibd store copy --from sqlite:FOLDER --to postgres://…` moves a lab's
+    /// history into an empty PostgreSQL database (password: CALIBD_STORE_PASSWORD or
+    /// --password-file).
+    Store {
+        #[command(subcommand)]
+        command: StoreCommand,
     },
     /// The lab: `calibd lab check` connects to every configured device and prints who
     /// answered, and what to fix where one did not.
@@ -271,7 +298,40 @@ fn lab_check(config: Option<PathBuf>, timeout_s: f64, json: bool) -> Result<()> 
     Ok(())
 }
 
-fn serve(listen: Option<String>, data: Option<PathBuf>, config: Option<PathBuf>) -> Result<()> {
+fn store_copy(from: &str, to: &str, password_file: Option<&Path>) -> Result<()> {
+    use calibd::store::{Location, Store};
+    let password = match password_file {
+        Some(p) => Some(
+            std::fs::read_to_string(p)
+                .with_context(|| format!("reading {}", p.display()))?
+                .lines()
+                .next()
+                .unwrap_or("")
+                .to_string(),
+        ),
+        None => std::env::var("CALIBD_STORE_PASSWORD").ok(),
+    };
+    let src = Location::parse(from, None)?;
+    match &src {
+        Location::Sqlite(dir) if dir.join("calibd.sqlite3").exists() => {}
+        Location::Sqlite(dir) => bail!("no calibd.sqlite3 in {}", dir.display()),
+        Location::Postgres(_) => bail!("--from must be sqlite:FOLDER"),
+    }
+    let dst = Location::parse(to, password)?;
+    let src = Store::open_location(&src)?;
+    let dst = Store::open_location(&dst)?;
+    for (table, n) in src.copy_to(&dst)? {
+        println!("{table}: {n} rows");
+    }
+    Ok(())
+}
+
+fn serve(
+    listen: Option<String>,
+    data: Option<PathBuf>,
+    config: Option<PathBuf>,
+    workers_only: bool,
+) -> Result<()> {
     let mut cfg = calibd::config::Config::load(config.as_deref(), &|k| std::env::var(k).ok())?;
     if let Some(l) = listen {
         cfg.listen = l;
@@ -280,6 +340,16 @@ fn serve(listen: Option<String>, data: Option<PathBuf>, config: Option<PathBuf>)
         cfg.data = d;
     }
     init_tracing(cfg.log_format == calibd::config::LogFormat::Json);
+    if workers_only {
+        return runtime()?.block_on(async move {
+            calibd::server::run_workers(&cfg, shutdown_signal(), |_| {
+                tracing::info!(workers = cfg.worker_count(), "calibd {} workers ready", env!("CARGO_PKG_VERSION"));
+                println!("calibd workers ready");
+            })
+            .await?;
+            Ok(())
+        });
+    }
     runtime()?.block_on(async move {
         let listener = tokio::net::TcpListener::bind(&cfg.listen)
             .await
@@ -556,7 +626,16 @@ fn main() -> Result<()> {
             listen,
             data,
             config,
-        } => serve(listen, data, config),
+            workers_only,
+        } => serve(listen, data, config, workers_only),
+        Command::Store {
+            command:
+                StoreCommand::Copy {
+                    from,
+                    to,
+                    password_file,
+                },
+        } => store_copy(&from, &to, password_file.as_deref()),
         Command::Lab {
             command:
                 LabCommand::Check {

@@ -35,6 +35,9 @@ pub enum ServeError {
     /// The lab's devices.
     #[error("lab: {0}")]
     Lab(String),
+    /// The settings (the store location).
+    #[error("{0}")]
+    Config(String),
 }
 
 impl From<crate::lab::LabError> for ServeError {
@@ -62,7 +65,20 @@ pub async fn start(
 ) -> Result<(AppState, crate::service::Workers, Startup), ServeError> {
     // The recorder first, so the service's gauges are recorded from the start.
     let metrics = api::metrics_handle();
-    let store = Store::open(&config.data)?;
+    let store = match &config.store {
+        // The default, exactly as before: the SQLite file in the data folder.
+        None => Store::open(&config.data)?,
+        Some(_) => {
+            let location = config
+                .store_location(&|k| std::env::var(k).ok())
+                .map_err(|e| ServeError::Config(e.to_string()))?;
+            tracing::info!(store = %location.display(), "opening the store");
+            // Connecting blocks (and PostgreSQL's client runs its own small runtime).
+            tokio::task::spawn_blocking(move || Store::open_location(&location))
+                .await
+                .map_err(|e| StoreError::Internal(e.to_string()))??
+        }
+    };
     let mut auth = Auth::new(&config.auth.tokens, config.auth.anonymous_read)?;
     let mut startup = Startup {
         operator_token_file: None,
@@ -103,19 +119,25 @@ pub async fn start(
             shutdown.clone(),
         ));
     }
-    let (service, workers) = Service::start_with_lab(
-        store,
-        ServiceConfig {
-            workers: config.worker_count(),
-            max_queued: config.max_queued,
-            devices: config.devices.clone(),
-        },
-        lab,
-        shutdown.clone(),
-    )
-    .await?;
+    let service_config = ServiceConfig {
+        workers: config.worker_count(),
+        max_queued: config.max_queued,
+        devices: config.devices.clone(),
+    };
+    let fleet = store.is_shared();
+    let (service, workers) = if fleet {
+        let mut fc = crate::service::FleetConfig::named(&config.daemon_name());
+        fc.lease = Duration::from_secs(config.fleet_lease_s.max(1));
+        fc.cells = lab.as_ref().map(|l| l.cell_names()).unwrap_or_default();
+        tracing::info!(name = %fc.name, cells = ?fc.cells, "joining the fleet on the shared store");
+        Service::start_fleet(store, service_config, lab, fc, shutdown.clone()).await?
+    } else {
+        Service::start_with_lab(store, service_config, lab, shutdown.clone()).await?
+    };
     let scheduler = Scheduler::new(clock);
-    tokio::spawn(scheduler.clone().run(service.clone(), shutdown.clone()));
+    if !fleet || config.fleet_scheduler {
+        tokio::spawn(scheduler.clone().run(service.clone(), shutdown.clone()));
+    }
     let state = AppState {
         service,
         scheduler,
@@ -143,6 +165,35 @@ pub async fn start(
         shutdown,
     };
     Ok((state, workers, startup))
+}
+
+/// Run a workers-only daemon (`calibd serve --workers-only`): no HTTP listener, no lab,
+/// no schedules; its workers claim numerical jobs from the shared store until `signal`.
+pub async fn run_workers(
+    config: &Config,
+    signal: impl Future<Output = ()> + Send + 'static,
+    on_start: impl FnOnce(&Startup),
+) -> Result<(), ServeError> {
+    let mut config = config.clone();
+    config.lab = "none".into();
+    config.fleet_scheduler = false;
+    if config.store.is_none() {
+        return Err(ServeError::Config(
+            "--workers-only needs a shared store: set `store` to a postgres:// URL".into(),
+        ));
+    }
+    let token = CancellationToken::new();
+    let (_state, workers, startup) = start(&config, Clock::system(), token.clone()).await?;
+    on_start(&startup);
+    signal.await;
+    token.cancel();
+    if tokio::time::timeout(STOP_GRACE, workers.join())
+        .await
+        .is_err()
+    {
+        tracing::warn!("jobs did not stop within {STOP_GRACE:?}");
+    }
+    Ok(())
 }
 
 /// Run the daemon on `listener` until `signal` completes, then stop: event streams close,

@@ -131,6 +131,11 @@ impl Lab {
         self.cells.values()
     }
 
+    /// The cells' names, sorted.
+    pub fn cell_names(&self) -> Vec<String> {
+        self.cells.keys().cloned().collect()
+    }
+
     /// The cell `name`.
     pub fn cell(&self, name: &str) -> Option<&Cell> {
         self.cells.get(name)

@@ -5,6 +5,7 @@
 
 mod cells;
 mod events;
+mod fleet;
 mod queue;
 mod types;
 mod worker;
@@ -18,6 +19,7 @@ use tokio::sync::{Notify, broadcast, mpsc};
 use tokio_util::sync::CancellationToken;
 
 pub use events::Event;
+pub use fleet::FleetConfig;
 pub use queue::{Entry, Queue};
 pub use types::{
     DeviceStatus, Origin, ScheduleOrigin, ServiceConfig, ServiceError, StoreResolver, Submitter,
@@ -48,6 +50,8 @@ struct Shared {
     progress_tx: mpsc::UnboundedSender<Event>,
     shutdown: CancellationToken,
     lab: Arc<crate::lab::Lab>,
+    /// Set when several daemons share a PostgreSQL store.
+    fleet: std::sync::OnceLock<fleet::Fleet>,
 }
 
 /// Handle to the job service; cheap to clone.
@@ -85,8 +89,36 @@ impl Service {
     /// each cell gets its current model from the store.
     pub async fn start_with_lab(
         store: Store,
+        config: ServiceConfig,
+        lab: Option<Arc<crate::lab::Lab>>,
+        shutdown: CancellationToken,
+    ) -> Result<(Service, worker::Workers), ServiceError> {
+        Self::start_inner(store, config, lab, None, shutdown).await
+    }
+
+    /// [`Service::start_with_lab`] as one daemon of a fleet on a shared (PostgreSQL) store:
+    /// workers claim jobs from the database, and events travel between the daemons. No
+    /// recovery pass: the jobs of a daemon that died are re-queued when its lease expires.
+    pub async fn start_fleet(
+        store: Store,
+        config: ServiceConfig,
+        lab: Option<Arc<crate::lab::Lab>>,
+        fleet: FleetConfig,
+        shutdown: CancellationToken,
+    ) -> Result<(Service, worker::Workers), ServiceError> {
+        if !store.is_shared() {
+            return Err(ServiceError::Store(crate::store::StoreError::Unsupported(
+                "a fleet needs a PostgreSQL store",
+            )));
+        }
+        Self::start_inner(store, config, lab, Some(fleet), shutdown).await
+    }
+
+    async fn start_inner(
+        store: Store,
         mut config: ServiceConfig,
         lab: Option<Arc<crate::lab::Lab>>,
+        fleet: Option<FleetConfig>,
         shutdown: CancellationToken,
     ) -> Result<(Service, worker::Workers), ServiceError> {
         for d in lab.iter().flat_map(|l| l.device_names()) {
@@ -107,9 +139,17 @@ impl Service {
                 progress_tx,
                 shutdown,
                 lab: lab.unwrap_or_default(),
+                fleet: std::sync::OnceLock::new(),
             }),
         };
         cells::load_current_models(&svc).await;
+        if let Some(fc) = fleet {
+            let f = fleet::join(&svc, fc).await?;
+            let _ = svc.shared.fleet.set(f);
+            svc.update_gauges();
+            let workers = worker::start(svc.clone(), progress_rx, config.workers.max(1));
+            return Ok((svc, workers));
+        }
         let st = store.clone();
         let recovered = blocking(move || Ok(st.recover()?)).await?;
         for id in &recovered.interrupted {
@@ -165,7 +205,15 @@ impl Service {
         self.shared.events.subscribe()
     }
 
+    /// True when this daemon is one of a fleet on a shared store.
+    pub fn is_fleet(&self) -> bool {
+        self.shared.fleet.get().is_some()
+    }
+
     fn publish(&self, e: Event) {
+        if let Some(f) = self.shared.fleet.get() {
+            f.send(&e);
+        }
         // No subscriber is fine.
         let _ = self.shared.events.send(e);
     }
@@ -246,12 +294,17 @@ impl Service {
             return Ok((id, false));
         }
         let kind = job.kind.clone();
-        lock(&self.shared.queue).push(Entry {
-            id,
-            priority,
-            devices: job.devices(),
-            job: Some(Arc::new(job)),
-        });
+        if self.is_fleet() {
+            // In the database's queue: a worker of any daemon claims it.
+            self.shared.wake.notify_one();
+        } else {
+            lock(&self.shared.queue).push(Entry {
+                id,
+                priority,
+                devices: job.devices(),
+                job: Some(Arc::new(job)),
+            });
+        }
         metrics::counter!("calibd_jobs_submitted_total", "kind" => kind.clone()).increment(1);
         self.update_gauges();
         self.publish(Event::State {

@@ -64,6 +64,11 @@ impl Queue {
         Some(e)
     }
 
+    /// Hold devices for a job taken elsewhere (claimed from a shared store).
+    pub fn hold(&mut self, devices: &[String]) {
+        self.held.extend(devices.iter().cloned());
+    }
+
     /// Release devices held by a finished job.
     pub fn release(&mut self, devices: &[String]) {
         for d in devices {

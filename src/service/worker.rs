@@ -44,9 +44,16 @@ pub(super) fn start(svc: Service, progress: mpsc::UnboundedReceiver<Event>, n: u
                 let entry = tokio::select! {
                     biased;
                     _ = stop.cancelled() => break,
-                    e = next(&svc) => e,
+                    e = next_any(&svc) => e,
                 };
                 if stop.is_cancelled() {
+                    if let Some(f) = svc.shared.fleet.get() {
+                        // Claimed just as the daemon stops: back to the shared queue.
+                        let (st, name) = (svc.shared.store.clone(), f.config.name.clone());
+                        let _ = tokio::task::spawn_blocking(move || st.release_owned(&name)).await;
+                        lock(&svc.shared.queue).release(&entry.devices);
+                        break;
+                    }
                     // Taken just as the daemon stops: leave it queued for the next start.
                     let mut q = lock(&svc.shared.queue);
                     q.release(&entry.devices);
@@ -58,6 +65,14 @@ pub(super) fn start(svc: Service, progress: mpsc::UnboundedReceiver<Event>, n: u
         }));
     }
     Workers { tasks }
+}
+
+/// The next job: claimed from the shared store in a fleet, else from the local queue.
+async fn next_any(svc: &Service) -> Entry {
+    match svc.shared.fleet.get() {
+        Some(f) => super::fleet::next(svc, f).await,
+        None => next(svc).await,
+    }
 }
 
 /// Wait for the next runnable job.
@@ -139,7 +154,12 @@ async fn run_one(svc: &Service, entry: Entry) {
         },
     );
     let st = store.clone();
-    let started = tokio::task::spawn_blocking(move || st.start_job(id)).await;
+    let started = if svc.is_fleet() {
+        // Claimed: already `running`, leased to this daemon.
+        Ok(Ok(true))
+    } else {
+        tokio::task::spawn_blocking(move || st.start_job(id)).await
+    };
     if !matches!(started, Ok(Ok(true))) {
         // Cancelled (or failed to record) between queue and start.
         lock(&svc.shared.running).remove(&id);
@@ -208,6 +228,10 @@ async fn run_one(svc: &Service, entry: Entry) {
         let st = store.clone();
         let e2 = error.clone().unwrap_or_default();
         let _ = tokio::task::spawn_blocking(move || st.pause_job(id, &e2)).await;
+    } else if let (JobState::Interrupted, Some(f)) = (state, svc.shared.fleet.get()) {
+        // The daemon stops: the job goes back to the shared queue for another daemon.
+        let (st, name) = (store.clone(), f.config.name.clone());
+        let _ = tokio::task::spawn_blocking(move || st.release_owned(&name)).await;
     } else if state != JobState::Succeeded {
         let st = store.clone();
         let e2 = error.clone();

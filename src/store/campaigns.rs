@@ -35,6 +35,9 @@ pub struct CellModel {
 impl Store {
     /// Append one journal entry of job `job`; an index already present is refused.
     pub fn append_measurement(&self, job: i64, e: &JournalEntry) -> Result<(), StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.append_measurement(job, e);
+        }
         let status = match e.status {
             EntryStatus::Measured => "measured",
             EntryStatus::Skipped => "skipped",
@@ -50,6 +53,9 @@ impl Store {
 
     /// The journal of job `job`, in index order.
     pub fn measurements(&self, job: i64) -> Result<Vec<JournalEntry>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.measurements(job);
+        }
         self.read(|c| {
             let mut st = c.prepare_cached(
                 "SELECT idx, status, data FROM measurements WHERE job_id = ?1 ORDER BY idx",
@@ -80,6 +86,9 @@ impl Store {
 
     /// A running job paused on device faults; false if it was not running.
     pub fn pause_job(&self, id: i64, reason: &str) -> Result<bool, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.pause_job(id, reason);
+        }
         self.write(|c| {
             let tx = c.transaction()?;
             let n = tx.execute(
@@ -96,6 +105,9 @@ impl Store {
 
     /// Queue a paused or interrupted job again; false if it is in neither state.
     pub fn resume_job(&self, id: i64, why: &str) -> Result<bool, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.resume_job(id, why);
+        }
         self.write(|c| {
             let tx = c.transaction()?;
             let n = tx.execute(
@@ -113,6 +125,9 @@ impl Store {
 
     /// The current model of `cell`, if one was accepted.
     pub fn current_cell_model(&self, cell: &str) -> Result<Option<CellModel>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.current_cell_model(cell);
+        }
         Ok(self
             .cell_models(cell)?
             .into_iter()
@@ -121,6 +136,9 @@ impl Store {
 
     /// The model history of `cell`, newest first.
     pub fn cell_models(&self, cell: &str) -> Result<Vec<CellModel>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.cell_models(cell);
+        }
         self.read(|c| {
             let mut st = c.prepare_cached(
                 "SELECT id, cell, job_id, state, reason, validation, model, at FROM cell_models \

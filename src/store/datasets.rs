@@ -29,6 +29,9 @@ impl Store {
         media_type: &str,
         content: &[u8],
     ) -> Result<DatasetInfo, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.put_dataset(name, media_type, content);
+        }
         let id = crate::jobs::input::sha256_hex(content);
         self.write(|c| {
             c.execute(
@@ -44,6 +47,9 @@ impl Store {
 
     /// A dataset's description.
     pub fn dataset_info(&self, id: &str) -> Result<Option<DatasetInfo>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.dataset_info(id);
+        }
         self.read(|c| {
             Ok(c.query_row(
                 "SELECT id, name, media_type, size, created_at FROM datasets WHERE id = ?1",
@@ -64,6 +70,9 @@ impl Store {
 
     /// A dataset's content.
     pub fn dataset(&self, id: &str) -> Result<Option<Vec<u8>>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.dataset(id);
+        }
         self.read(|c| {
             Ok(
                 c.query_row("SELECT content FROM datasets WHERE id = ?1", [id], |r| {
@@ -76,6 +85,9 @@ impl Store {
 
     /// Every dataset, newest first.
     pub fn datasets(&self) -> Result<Vec<DatasetInfo>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.datasets();
+        }
         self.read(|c| {
             let mut st = c.prepare_cached(
                 "SELECT id, name, media_type, size, created_at FROM datasets ORDER BY created_at DESC, id",

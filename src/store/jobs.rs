@@ -67,6 +67,9 @@ pub(super) fn log_tx(
 impl Store {
     /// Persist a new job as `queued`; returns its id.
     pub fn insert_job(&self, j: &NewJob) -> Result<i64, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.insert_job(j);
+        }
         self.insert_job_once(j).map(|(id, _)| id)
     }
 
@@ -75,6 +78,9 @@ impl Store {
     /// transaction, so a submission cut by a crash either left both or neither. The same
     /// key with a different request is a conflict.
     pub fn insert_job_once(&self, j: &NewJob) -> Result<(i64, bool), StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.insert_job_once(j);
+        }
         let doc = serde_json::to_string(&j.doc)?;
         let devices = serde_json::to_string(&j.devices)?;
         let hashes = serde_json::to_string(&j.inputs_sha256)?;
@@ -125,6 +131,9 @@ impl Store {
 
     /// One job.
     pub fn job(&self, id: i64) -> Result<Option<JobRecord>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.job(id);
+        }
         self.read(|c| {
             let raw = c
                 .query_row(
@@ -139,6 +148,9 @@ impl Store {
 
     /// The document a job was submitted with.
     pub fn job_doc(&self, id: i64) -> Result<Option<Value>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.job_doc(id);
+        }
         self.read(|c| {
             let s: Option<String> = c
                 .query_row("SELECT doc FROM jobs WHERE id = ?1", [id], |r| r.get(0))
@@ -149,6 +161,9 @@ impl Store {
 
     /// Jobs matching `f`, newest first.
     pub fn jobs(&self, f: &JobFilter) -> Result<Vec<JobRecord>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.jobs(f);
+        }
         self.read(|c| {
             let mut st = c.prepare_cached(&format!(
                 "SELECT {COLUMNS} FROM jobs WHERE (?1 IS NULL OR state = ?1) AND (?2 IS NULL OR kind = ?2) \
@@ -164,6 +179,9 @@ impl Store {
 
     /// Number of jobs in each state.
     pub fn count_by_state(&self) -> Result<Vec<(JobState, i64)>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.count_by_state();
+        }
         self.read(|c| {
             let mut st = c.prepare_cached("SELECT state, COUNT(*) FROM jobs GROUP BY state")?;
             let rows = st.query_map([], |r| Ok((r.get::<_, String>(0)?, r.get::<_, i64>(1)?)))?;
@@ -180,6 +198,9 @@ impl Store {
 
     /// Mark a queued job running; false if it was no longer queued.
     pub fn start_job(&self, id: i64) -> Result<bool, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.start_job(id);
+        }
         self.write(|c| {
             let tx = c.transaction()?;
             let n = tx.execute(
@@ -203,6 +224,9 @@ impl Store {
         message: Option<&str>,
         history: bool,
     ) -> Result<(), StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.record_progress(id, fraction, stage, message, history);
+        }
         self.write(|c| {
             let tx = c.transaction()?;
             tx.execute(
@@ -227,6 +251,9 @@ impl Store {
         state: JobState,
         error: Option<&str>,
     ) -> Result<bool, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.end_job(id, state, error);
+        }
         debug_assert!(state.is_final());
         self.write(|c| {
             let tx = c.transaction()?;
@@ -254,11 +281,17 @@ impl Store {
 
     /// Append a log line (job-specific or daemon-wide).
     pub fn log(&self, job: Option<i64>, level: &str, message: &str) -> Result<(), StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.log(job, level, message);
+        }
         self.write(|c| Ok(log_tx(c, job, level, message)?))
     }
 
     /// A job's log lines, oldest first.
     pub fn logs(&self, id: i64) -> Result<Vec<LogLine>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.logs(id);
+        }
         self.read(|c| {
             let mut st = c.prepare_cached(
                 "SELECT at, level, message FROM logs WHERE job_id = ?1 ORDER BY id",
@@ -276,6 +309,9 @@ impl Store {
 
     /// A job's progress history, oldest first.
     pub fn progress_history(&self, id: i64) -> Result<Vec<ProgressPoint>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.progress_history(id);
+        }
         self.read(|c| {
             let mut st = c.prepare_cached(
                 "SELECT at, fraction, stage, message FROM progress WHERE job_id = ?1 ORDER BY rowid",
@@ -294,6 +330,9 @@ impl Store {
 
     /// At start-up: mark jobs that were running `interrupted` and return the queued ones.
     pub fn recover(&self) -> Result<Recovered, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.recover();
+        }
         self.write(|c| {
             let tx = c.transaction()?;
             let interrupted: Vec<i64> = {

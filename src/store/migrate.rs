@@ -120,6 +120,11 @@ const STEPS: &[&str] = &[
     );",
 ];
 
+/// The schema steps (shared with the PostgreSQL backend, which translates them).
+pub(crate) fn steps() -> &'static [&'static str] {
+    STEPS
+}
+
 /// The schema version this binary writes.
 pub const SCHEMA_VERSION: i64 = STEPS.len() as i64;
 

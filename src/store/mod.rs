@@ -7,12 +7,16 @@
 //! [`Store::recover`] turns into `interrupted` on the next start.
 
 mod campaigns;
+mod copy;
 mod datasets;
 mod jobs;
 mod migrate;
+mod pg;
 mod records;
 mod results;
 mod schedules;
+mod shared;
+pub mod testpg;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -21,12 +25,15 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use rusqlite::{Connection, OpenFlags};
 
 pub use campaigns::{CellModel, StoreJournal};
+pub use copy::Copied;
 pub use datasets::DatasetInfo;
 pub use jobs::{
     IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered,
 };
 pub use migrate::SCHEMA_VERSION;
+pub use pg::{Location, PgLocation};
 pub use results::ArtefactInfo;
+pub use shared::Claimed;
 pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};
 
 /// Why a storage operation failed.
@@ -36,6 +43,12 @@ pub enum StoreError {
     /// SQLite refused or failed.
     #[error("store: database: {0}")]
     Sqlite(#[from] rusqlite::Error),
+    /// PostgreSQL refused or failed (or could not be reached).
+    #[error("store: PostgreSQL: {0}")]
+    Postgres(#[from] postgres::Error),
+    /// The `store` setting is not a `sqlite:PATH` or `postgres://` location.
+    #[error("store: {0}")]
+    Location(String),
     /// A stored JSON document could not be read or written.
     #[error("store: JSON: {0}")]
     Json(#[from] serde_json::Error),
@@ -66,6 +79,9 @@ pub enum StoreError {
     /// A record with this name or id already exists.
     #[error("store: {0} already exists")]
     Conflict(String),
+    /// The operation needs another backend.
+    #[error("store: {0}")]
+    Unsupported(&'static str),
     /// The task doing the storage failed (it panicked).
     #[error("store: internal error: {0}")]
     Internal(String),
@@ -78,7 +94,15 @@ pub struct Store {
 }
 
 #[derive(Debug)]
-struct Inner {
+enum Inner {
+    /// The embedded SQLite file (the default).
+    Sqlite(Sqlite),
+    /// A PostgreSQL database shared by several daemons.
+    Postgres(pg::Pg),
+}
+
+#[derive(Debug)]
+struct Sqlite {
     /// The only connection that writes: SQLite serialises writers anyway, and one
     /// connection keeps "busy" errors impossible.
     writer: Mutex<Connection>,
@@ -157,18 +181,49 @@ impl Store {
             readers.push(Mutex::new(r));
         }
         Ok(Store {
-            inner: Arc::new(Inner {
+            inner: Arc::new(Inner::Sqlite(Sqlite {
                 writer: Mutex::new(writer),
                 readers,
                 next_reader: AtomicUsize::new(0),
                 path,
-            }),
+            })),
         })
     }
 
-    /// The database file.
+    /// Open the store at `location`: [`Location::Sqlite`] as [`Store::open`] does, or
+    /// connect to PostgreSQL and migrate it. Blocking: from async code, call it inside
+    /// `spawn_blocking`.
+    pub fn open_location(location: &Location) -> Result<Store, StoreError> {
+        match location {
+            Location::Sqlite(dir) => Store::open(dir),
+            Location::Postgres(pg) => Ok(Store {
+                inner: Arc::new(Inner::Postgres(pg::Pg::connect(pg)?)),
+            }),
+        }
+    }
+
+    /// The database file (empty for PostgreSQL).
     pub fn path(&self) -> &Path {
-        &self.inner.path
+        match &*self.inner {
+            Inner::Sqlite(s) => &s.path,
+            Inner::Postgres(_) => Path::new(""),
+        }
+    }
+
+    /// The PostgreSQL backend, if this store is one.
+    fn pg(&self) -> Option<&pg::Pg> {
+        match &*self.inner {
+            Inner::Postgres(p) => Some(p),
+            Inner::Sqlite(_) => None,
+        }
+    }
+
+    /// The SQLite backend; every public method sends PostgreSQL stores elsewhere first.
+    fn sqlite(&self) -> Result<&Sqlite, StoreError> {
+        match &*self.inner {
+            Inner::Sqlite(s) => Ok(s),
+            Inner::Postgres(_) => Err(StoreError::Internal("SQLite call on a PostgreSQL store".into())),
+        }
     }
 
     /// Run `f` on the writer connection.
@@ -176,7 +231,7 @@ impl Store {
         &self,
         f: impl FnOnce(&mut Connection) -> Result<T, StoreError>,
     ) -> Result<T, StoreError> {
-        let mut c = lock(&self.inner.writer);
+        let mut c = lock(&self.sqlite()?.writer);
         f(&mut c)
     }
 
@@ -185,14 +240,15 @@ impl Store {
         &self,
         f: impl FnOnce(&Connection) -> Result<T, StoreError>,
     ) -> Result<T, StoreError> {
-        let n = self.inner.readers.len();
-        let start = self.inner.next_reader.fetch_add(1, Ordering::Relaxed);
+        let db = self.sqlite()?;
+        let n = db.readers.len();
+        let start = db.next_reader.fetch_add(1, Ordering::Relaxed);
         for k in 0..n {
-            if let Ok(c) = self.inner.readers[(start + k) % n].try_lock() {
+            if let Ok(c) = db.readers[(start + k) % n].try_lock() {
                 return f(&c);
             }
         }
-        let c = lock(&self.inner.readers[start % n]);
+        let c = lock(&db.readers[start % n]);
         f(&c)
     }
 }

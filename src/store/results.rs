@@ -31,6 +31,9 @@ impl Store {
         artefacts: &[Artefact],
         decision: Option<&Decision>,
     ) -> Result<bool, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.finish_job(id, result, main_table_csv, artefacts, decision);
+        }
         let text = serde_json::to_string(result)?;
         self.write(|c| {
             let tx = c.transaction()?;
@@ -79,6 +82,9 @@ impl Store {
 
     /// A job's result document.
     pub fn result(&self, id: i64) -> Result<Option<Value>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.result(id);
+        }
         self.read(|c| {
             let s: Option<String> = c
                 .query_row("SELECT result FROM results WHERE job_id = ?1", [id], |r| {
@@ -91,6 +97,9 @@ impl Store {
 
     /// A job's main table as CSV.
     pub fn main_table_csv(&self, id: i64) -> Result<Option<String>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.main_table_csv(id);
+        }
         self.read(|c| {
             Ok(c.query_row(
                 "SELECT main_table_csv FROM results WHERE job_id = ?1",
@@ -104,6 +113,9 @@ impl Store {
 
     /// A job's artefacts, by name.
     pub fn artefacts(&self, id: i64) -> Result<Vec<ArtefactInfo>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.artefacts(id);
+        }
         self.read(|c| {
             let mut st = c.prepare_cached(
                 "SELECT name, media_type, length(content) FROM artefacts WHERE job_id = ?1 ORDER BY name",
@@ -121,6 +133,9 @@ impl Store {
 
     /// One artefact with its content.
     pub fn artefact(&self, id: i64, name: &str) -> Result<Option<Artefact>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.artefact(id, name);
+        }
         self.read(|c| {
             Ok(c.query_row(
                 "SELECT name, media_type, content FROM artefacts WHERE job_id = ?1 AND name = ?2",

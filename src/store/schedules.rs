@@ -169,6 +169,9 @@ impl Store {
         created_by: Option<&str>,
         checked_until: &str,
     ) -> Result<i64, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.insert_schedule(s, created_by, checked_until);
+        }
         let job = serde_json::to_string(&s.job)?;
         self.write(|c| {
             c.execute(
@@ -188,6 +191,9 @@ impl Store {
         s: &NewSchedule,
         checked_until: &str,
     ) -> Result<bool, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.update_schedule(id, s, checked_until);
+        }
         let job = serde_json::to_string(&s.job)?;
         self.write(|c| {
             let n = c
@@ -203,11 +209,17 @@ impl Store {
 
     /// Delete a schedule (its run records stay); false if there is none.
     pub fn delete_schedule(&self, id: i64) -> Result<bool, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.delete_schedule(id);
+        }
         self.write(|c| Ok(c.execute("DELETE FROM schedules WHERE id = ?1", [id])? == 1))
     }
 
     /// One schedule.
     pub fn schedule(&self, id: i64) -> Result<Option<ScheduleRecord>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.schedule(id);
+        }
         self.read(|c| {
             c.query_row(
                 &format!("SELECT {COLUMNS} FROM schedules WHERE id = ?1"),
@@ -222,6 +234,9 @@ impl Store {
 
     /// Every schedule, by id.
     pub fn schedules(&self) -> Result<Vec<ScheduleRecord>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.schedules();
+        }
         self.read(|c| {
             let mut st =
                 c.prepare_cached(&format!("SELECT {COLUMNS} FROM schedules ORDER BY id"))?;
@@ -239,6 +254,9 @@ impl Store {
         outcome: &str,
         message: Option<&str>,
     ) -> Result<(), StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.record_schedule_run(schedule, due, outcome, message);
+        }
         self.write(|c| {
             let tx = c.transaction()?;
             record_run_tx(&tx, schedule, due, outcome, None, message)?;
@@ -249,6 +267,9 @@ impl Store {
 
     /// A schedule's occurrences, newest first.
     pub fn schedule_runs(&self, id: i64, limit: usize) -> Result<Vec<ScheduleRun>, StoreError> {
+        if let Some(pg) = self.pg() {
+            return pg.schedule_runs(id, limit);
+        }
         self.read(|c| {
             let mut st = c.prepare_cached(
                 "SELECT due_at, at, outcome, job_id, message FROM schedule_runs WHERE schedule_id = ?1 \

@@ -2,6 +2,9 @@ use serde_json::json;
 
 use super::*;
 
+#[path = "tests_shared.rs"]
+mod shared;
+
 fn job(kind: &str) -> NewJob {
     NewJob {
         kind: kind.into(),
@@ -17,10 +20,67 @@ fn job(kind: &str) -> NewJob {
     }
 }
 
-#[test]
-fn job_life_and_result_in_one_piece() {
-    let dir = tempfile::tempdir().unwrap();
-    let s = Store::open(dir.path()).unwrap();
+/// Where a store test runs: a fresh SQLite folder or a fresh PostgreSQL database.
+pub(super) enum Fixture {
+    Sqlite(tempfile::TempDir),
+    Postgres(Location),
+}
+
+impl Fixture {
+    /// A fresh SQLite folder.
+    pub(super) fn sqlite() -> Fixture {
+        Fixture::Sqlite(tempfile::tempdir().unwrap())
+    }
+
+    /// A fresh database on the process's throw-away cluster; None (and says so) when
+    /// PostgreSQL is not installed.
+    pub(super) fn postgres() -> Option<Fixture> {
+        match testpg::Cluster::shared() {
+            Some(c) => {
+                let url = c.fresh_db().unwrap();
+                Some(Fixture::Postgres(Location::parse(&url, None).unwrap()))
+            }
+            None => {
+                eprintln!("skipped: PostgreSQL not installed");
+                None
+            }
+        }
+    }
+
+    /// Open (again) the store of this fixture.
+    pub(super) fn open(&self) -> Store {
+        match self {
+            Fixture::Sqlite(d) => Store::open(d.path()).unwrap(),
+            Fixture::Postgres(l) => Store::open_location(l).unwrap(),
+        }
+    }
+}
+
+/// Each listed test runs once on SQLite (`sqlite::NAME`) and once on PostgreSQL
+/// (`postgres::NAME`, which passes with "skipped" when PostgreSQL is not installed).
+macro_rules! on_both {
+    ($($name:ident),* $(,)?) => {
+        mod sqlite {
+            $(#[test] fn $name() { super::$name(&super::Fixture::sqlite()) })*
+        }
+        mod postgres {
+            $(#[test] fn $name() {
+                if let Some(f) = super::Fixture::postgres() { super::$name(&f) }
+            })*
+        }
+    };
+}
+
+on_both!(
+    job_life_and_result_in_one_piece,
+    recovery_marks_running_jobs_interrupted_and_returns_queued_ones,
+    datasets_are_content_addressed,
+    schedules_are_unique_by_name_and_record_runs,
+    idempotent_submission_and_campaign_state,
+);
+
+fn job_life_and_result_in_one_piece(f: &Fixture) {
+    let s = f.open();
     let id = s.insert_job(&job("serial.fk")).unwrap();
     assert_eq!(s.job(id).unwrap().unwrap().state, JobState::Queued);
     assert!(s.start_job(id).unwrap());
@@ -63,11 +123,9 @@ fn job_life_and_result_in_one_piece() {
     assert_eq!(s.progress_history(id).unwrap().len(), 1);
 }
 
-#[test]
-fn recovery_marks_running_jobs_interrupted_and_returns_queued_ones() {
-    let dir = tempfile::tempdir().unwrap();
+fn recovery_marks_running_jobs_interrupted_and_returns_queued_ones(f: &Fixture) {
     let (a, b, c) = {
-        let s = Store::open(dir.path()).unwrap();
+        let s = f.open();
         let a = s.insert_job(&job("serial.fk")).unwrap();
         let b = s.insert_job(&job("serial.identify")).unwrap();
         let c = s.insert_job(&job("serial.fk")).unwrap();
@@ -77,7 +135,7 @@ fn recovery_marks_running_jobs_interrupted_and_returns_queued_ones() {
             .unwrap();
         (a, b, c)
     };
-    let s = Store::open(dir.path()).unwrap();
+    let s = f.open();
     let r = s.recover().unwrap();
     assert_eq!(r.interrupted, vec![a]);
     assert_eq!(r.queued.iter().map(|q| q.0).collect::<Vec<_>>(), vec![b]);
@@ -118,10 +176,8 @@ fn recovery_marks_running_jobs_interrupted_and_returns_queued_ones() {
     assert_eq!(q.len(), 1);
 }
 
-#[test]
-fn datasets_are_content_addressed() {
-    let dir = tempfile::tempdir().unwrap();
-    let s = Store::open(dir.path()).unwrap();
+fn datasets_are_content_addressed(f: &Fixture) {
+    let s = f.open();
     let a = s.put_dataset("m.csv", "text/csv", b"q1\n1\n").unwrap();
     let b = s.put_dataset("again.csv", "text/csv", b"q1\n1\n").unwrap();
     assert_eq!(a, b, "the same content is one dataset");
@@ -131,10 +187,8 @@ fn datasets_are_content_addressed() {
     assert_eq!(s.datasets().unwrap().len(), 1);
 }
 
-#[test]
-fn schedules_are_unique_by_name_and_record_runs() {
-    let dir = tempfile::tempdir().unwrap();
-    let s = Store::open(dir.path()).unwrap();
+fn schedules_are_unique_by_name_and_record_runs(f: &Fixture) {
+    let s = f.open();
     let spec = NewSchedule {
         name: "nightly".into(),
         cron: "0 2 * * *".into(),
@@ -175,6 +229,63 @@ fn schedules_are_unique_by_name_and_record_runs() {
     );
     assert!(s.delete_schedule(id).unwrap());
     assert!(s.schedule(id).unwrap().is_none());
+}
+
+fn idempotent_submission_and_campaign_state(f: &Fixture) {
+    use crate::procedures::{EntryStatus, JournalEntry};
+    let s = f.open();
+    let mut j = job("serial.fk");
+    j.idempotency = Some(IdempotencyKey {
+        key: "k1".into(),
+        request_sha256: "aa".into(),
+    });
+    let (id, new) = s.insert_job_once(&j).unwrap();
+    assert!(new);
+    assert_eq!(s.insert_job_once(&j).unwrap(), (id, false));
+    j.idempotency = Some(IdempotencyKey {
+        key: "k1".into(),
+        request_sha256: "bb".into(),
+    });
+    assert!(matches!(s.insert_job_once(&j), Err(StoreError::Conflict(_))));
+    assert_eq!(s.job_doc(id).unwrap().unwrap()["kind"], "serial.fk");
+    // A campaign's journal, pause and resume.
+    assert!(s.start_job(id).unwrap());
+    for (index, status) in [(0, EntryStatus::Measured), (1, EntryStatus::Skipped)] {
+        let e = JournalEntry {
+            index,
+            status,
+            data: json!({"i": index}),
+        };
+        s.append_measurement(id, &e).unwrap();
+    }
+    let dup = JournalEntry {
+        index: 1,
+        status: EntryStatus::Measured,
+        data: json!({}),
+    };
+    assert!(s.append_measurement(id, &dup).is_err(), "an index is journalled once");
+    let journal = s.measurements(id).unwrap();
+    assert_eq!(journal.len(), 2);
+    assert_eq!((journal[1].index, journal[1].status), (1, EntryStatus::Skipped));
+    assert!(s.pause_job(id, "indicator lost").unwrap());
+    assert_eq!(s.job(id).unwrap().unwrap().state, JobState::Paused);
+    assert!(s.resume_job(id, "operator").unwrap());
+    assert!(!s.resume_job(id, "twice").unwrap());
+    assert!(s.start_job(id).unwrap());
+    let d = crate::lab::Decision {
+        cell: "c1".into(),
+        accepted: true,
+        reason: "ok".into(),
+        validation: json!({"rms": 0.01}),
+        model: json!({"dh": []}),
+    };
+    assert!(s.finish_job(id, &json!({}), None, &[], Some(&d)).unwrap());
+    let m = s.current_cell_model("c1").unwrap().unwrap();
+    assert_eq!((m.job_id, m.reason.as_str()), (Some(id), "ok"));
+    assert_eq!(s.cell_models("c1").unwrap().len(), 1);
+    let counts = s.count_by_state().unwrap();
+    assert_eq!(counts, vec![(JobState::Succeeded, 1)]);
+    s.log(None, "info", "daemon-wide").unwrap();
 }
 
 #[cfg(unix)]

@@ -1,0 +1,87 @@
+//! Several daemons on one database (PostgreSQL only): daemon registration and cell
+//! ownership, claiming queued jobs, leases and their heartbeat, re-queueing the jobs of a
+//! daemon that died. On the embedded SQLite store these calls are refused: one daemon owns
+//! the file, and its in-memory queue is the queue.
+
+use std::time::Duration;
+
+pub use super::pg::Claimed;
+use super::{Store, StoreError};
+
+impl Store {
+    /// True when several daemons can share this store (PostgreSQL).
+    pub fn is_shared(&self) -> bool {
+        self.pg().is_some()
+    }
+
+    fn shared(&self) -> Result<&super::pg::Pg, StoreError> {
+        self.pg().ok_or(StoreError::Unsupported(
+            "several daemons need a PostgreSQL store",
+        ))
+    }
+
+    /// Record daemon `name` (or refresh its heartbeat) and take `cells` for it; a cell held
+    /// by a daemon whose heartbeat is older than `stale` is taken over, one held by a live
+    /// daemon is a [`StoreError::Conflict`].
+    pub fn register_daemon(
+        &self,
+        name: &str,
+        cells: &[String],
+        stale: Duration,
+    ) -> Result<(), StoreError> {
+        self.shared()?.register_daemon(name, cells, stale)
+    }
+
+    /// Each cell and the daemon holding it, by cell name.
+    pub fn cell_owners(&self) -> Result<Vec<(String, String)>, StoreError> {
+        self.shared()?.cell_owners()
+    }
+
+    /// Claim the next queued job daemon `owner` can run (all its devices among `devices`;
+    /// numerical jobs need none): it becomes `running`, leased to `owner` for `lease`.
+    pub fn claim(
+        &self,
+        owner: &str,
+        devices: &[String],
+        lease: Duration,
+    ) -> Result<Option<Claimed>, StoreError> {
+        self.shared()?.claim(owner, devices, lease)
+    }
+
+    /// Renew `owner`'s heartbeat and the leases of its running jobs; returns how many it holds.
+    pub fn heartbeat(&self, owner: &str, lease: Duration) -> Result<u64, StoreError> {
+        self.shared()?.heartbeat(owner, lease)
+    }
+
+    /// Re-queue running jobs whose lease expired; returns their ids.
+    pub fn requeue_expired(&self) -> Result<Vec<i64>, StoreError> {
+        self.shared()?.requeue_expired()
+    }
+
+    /// The daemon holding a job (none when it is not running on a shared store).
+    pub fn job_owner(&self, id: i64) -> Result<Option<String>, StoreError> {
+        self.shared()?.job_owner(id)
+    }
+
+    /// Put `owner`'s running jobs back in the queue; returns their ids.
+    pub fn release_owned(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
+        self.shared()?.release_owned(owner)
+    }
+
+    /// Send a notification to every daemon listening on `channel`.
+    pub fn notify(&self, channel: &str, payload: &str) -> Result<(), StoreError> {
+        self.shared()?.notify(channel, payload)
+    }
+
+    /// Listen on `channels` (identifiers) and call `on(channel, payload)` for each
+    /// notification until `stop()` is true (checked at least every `tick`). Blocking.
+    pub fn listen(
+        &self,
+        channels: &[&str],
+        tick: Duration,
+        stop: &dyn Fn() -> bool,
+        on: &mut dyn FnMut(&str, &str),
+    ) -> Result<(), StoreError> {
+        self.shared()?.listen(channels, tick, stop, on)
+    }
+}
