@@ -2,6 +2,7 @@
 
 pub mod chain;
 pub mod dh;
+pub mod elastic;
 pub mod humanoid;
 pub mod ik;
 pub mod params;
