@@ -36,11 +36,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Ok(());
     };
     let (model, obs) = calibd::measure::justin::setup(&dh, &guess, &csv, lumping)?;
-    let report = calibd::measure::justin::run(&model, &obs, 5, 2021, &calibd::util::NoMonitor)?;
+    let report = calibd::measure::justin::run(&model, &obs, 5, 2021, &Steps)?;
     println!("lumping: {lumping:?}");
     print!("{}", calibd::measure::justin::table(&report));
     for s in &report.steps {
         println!("{}: held {:?}", s.name, s.held);
     }
     Ok(())
+}
+
+/// Prints each finished cumulative step (the messages that end in `mm`).
+struct Steps;
+
+impl calibd::util::Monitor for Steps {
+    fn progress(&self, _fraction: f64, stage: &str) {
+        if stage.ends_with("(mean / std / max)") {
+            eprintln!("{stage}");
+        }
+    }
+    fn is_cancelled(&self) -> bool {
+        false
+    }
 }

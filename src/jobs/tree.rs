@@ -123,8 +123,8 @@ struct ElasticSpec {
     joint: Vec<String>,
     #[serde(default)]
     lateral: Vec<String>,
-    /// `subtree` (default: linear lumped coefficients) or `bodies` (link weights shared by
-    /// the joints, bilinear).
+    /// `bodies` (default: link weights shared by the joints that carry them, bilinear) or
+    /// `subtree` (linear coefficients of a mass moment constant in each joint frame).
     #[serde(default)]
     lumping: LumpingSpec,
 }
@@ -132,8 +132,8 @@ struct ElasticSpec {
 #[derive(Debug, Default, Clone, Copy, Deserialize)]
 #[serde(rename_all = "snake_case")]
 enum LumpingSpec {
-    #[default]
     Subtree,
+    #[default]
     Bodies,
 }
 

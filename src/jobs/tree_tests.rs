@@ -79,7 +79,7 @@ fn all() -> ElasticOptions {
 #[test]
 fn tree_identify_runs_the_cumulative_steps_with_lumped_and_lateral_elasticity() {
     let twin = ElasticTwin::new(&all(), 150, 1e-4, 5);
-    let doc = twin_job(&twin, json!({"joint": ["*"], "lateral": ["*"]}), Some(3));
+    let doc = twin_job(&twin, json!({"joint": ["*"], "lateral": ["*"], "lumping": "subtree"}), Some(3));
     let job = prepare(&doc, &Inputs::new(&NoReferences)).expect("prepares");
     let r = job.calibrate(&NoMonitor).expect("runs").result;
     let means: Vec<f64> = r.steps.iter().map(|s| s.error_mm.mean).collect();

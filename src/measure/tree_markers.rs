@@ -6,7 +6,9 @@
 use nalgebra::{DMatrix, Vector3};
 use serde::Serialize;
 
-use crate::identify::{IdentifyError, Pivoting, Problem, Solution, SolveOptions, Unknown, solve};
+use crate::identify::{
+    IdentifyError, Pivoting, Prior, Problem, Solution, SolveOptions, Unknown, solve, solve_map,
+};
 use crate::model::elastic::{ElasticTree, Groups, TParam, TreeSample};
 use crate::util::{Monitor, Rng, Summary};
 
@@ -189,6 +191,10 @@ pub struct TreeFit {
 /// Starting compliance of the bodies lumping (rad/(N*m)): a stiff arm joint.
 pub const SEED_COMPLIANCE: f64 = 2e-5;
 
+/// Prior standard deviation of link weights and compliances (bodies lumping), in physical
+/// scales (5 N*m, 20 N, 5e-5 rad/(N*m)).
+pub const BILINEAR_PRIOR_SCALES: f64 = 10.0;
+
 /// Fit the groups `groups` (plus root pose and markers) starting from `model` (bodies
 /// lumping: compliances still at zero start from [`SEED_COMPLIANCE`]), with gravity
 /// features from `model`.
@@ -215,7 +221,35 @@ pub fn fit(
     // directions of these over-parameterised trees for hundreds of iterations.
     so.lm.ftol = 1e-10;
     let unknowns = problem.unknowns();
-    let solution = solve(&problem, &unknowns, &x0, &so, monitor)?;
+    let bilinear = problem.free.iter().any(|&g| {
+        matches!(model.params[g], TParam::Weight(..) | TParam::Compliance(..))
+    });
+    let solution = if bilinear {
+        // Link weights and compliances are only determined as products, and weakly along
+        // some directions: a weak Gaussian prior (10 physical scales around the start) keeps
+        // LM from wandering along them. The data weigh in with the start's residual RMS.
+        let mut r0 = vec![0.0; problem.residual_count()];
+        problem.residuals(&x0, &mut r0)?;
+        let rms = (r0.iter().map(|v| v * v).sum::<f64>() / r0.len().max(1) as f64).sqrt();
+        let prior = Prior {
+            sigma: problem
+                .free
+                .iter()
+                .map(|&g| match model.params[g] {
+                    p @ (TParam::Weight(..) | TParam::Compliance(..)) => {
+                        Some(BILINEAR_PRIOR_SCALES * p.plausible_range())
+                    }
+                    _ => None,
+                })
+                .collect(),
+            mean: x0.clone(),
+            noise: rms.max(1e-9),
+            weight: 1.0,
+        };
+        solve_map(&problem, &unknowns, &x0, &prior, &so, monitor)?.0
+    } else {
+        solve(&problem, &unknowns, &x0, &so, monitor)?
+    };
     Ok(TreeFit {
         model: problem.model(&solution.x),
         names: unknowns.into_iter().map(|u| u.name).collect(),
@@ -287,6 +321,11 @@ pub fn cumulative(
             status: f.solution.status().into(),
             condition_number: f.solution.condition_number,
         });
+        let m = &steps[steps.len() - 1].error_mm;
+        monitor.progress(
+            steps.len() as f64 / (last.min(4) + 1) as f64,
+            &format!("{name}: {:.2} / {:.2} / {:.2} mm (mean / std / max)", m.mean, m.std, m.max),
+        );
         fitted = Some(f);
     }
     match fitted {
