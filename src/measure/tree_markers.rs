@@ -141,8 +141,8 @@ impl Problem for TreeProblem {
             model.marker_jacobians(&o.sample, |m, _, jac| {
                 if let Some(row) = (start..k).find(|&r| self.rows[r].1 == m) {
                     for (c, &g) in self.free.iter().enumerate() {
-                        for a in 0..3 {
-                            j[(3 * row + a, c)] = jac[g][a];
+                        for (a, v) in jac[g].iter().enumerate() {
+                            j[(3 * row + a, c)] = *v;
                         }
                     }
                 }
@@ -191,9 +191,9 @@ pub struct TreeFit {
 /// Starting compliance of the bodies lumping (rad/(N*m)): a stiff arm joint.
 pub const SEED_COMPLIANCE: f64 = 2e-5;
 
-/// Prior standard deviation of link weights and compliances (bodies lumping), in physical
-/// scales (5 N*m, 20 N, 5e-5 rad/(N*m)).
-pub const BILINEAR_PRIOR_SCALES: f64 = 10.0;
+/// Prior standard deviation of the elasticity parameters, in physical scales (1 mrad for
+/// lumped coefficients; 5 N*m, 20 N, 5e-5 rad/(N*m) for weights and compliances).
+pub const ELASTIC_PRIOR_SCALES: f64 = 10.0;
 
 /// Fit the groups `groups` (plus root pose and markers) starting from `model` (bodies
 /// lumping: compliances still at zero start from [`SEED_COMPLIANCE`]), with gravity
@@ -221,13 +221,14 @@ pub fn fit(
     // directions of these over-parameterised trees for hundreds of iterations.
     so.lm.ftol = 1e-10;
     let unknowns = problem.unknowns();
-    let bilinear = problem.free.iter().any(|&g| {
-        matches!(model.params[g], TParam::Weight(..) | TParam::Compliance(..))
-    });
-    let solution = if bilinear {
-        // Link weights and compliances are only determined as products, and weakly along
-        // some directions: a weak Gaussian prior (10 physical scales around the start) keeps
-        // LM from wandering along them. The data weigh in with the start's residual RMS.
+    let elastic = |p: TParam| {
+        matches!(p, TParam::Weight(..) | TParam::Compliance(..) | TParam::Elastic(..))
+    };
+    let solution = if problem.free.iter().any(|&g| elastic(model.params[g])) {
+        // Elasticity is weakly determined along some directions (products of weights and
+        // compliances; coefficients close to geometry): a weak Gaussian prior, 10 physical
+        // scales around the start, keeps LM from crawling along them. The data weigh in with
+        // the start's residual RMS as their noise.
         let mut r0 = vec![0.0; problem.residual_count()];
         problem.residuals(&x0, &mut r0)?;
         let rms = (r0.iter().map(|v| v * v).sum::<f64>() / r0.len().max(1) as f64).sqrt();
@@ -235,11 +236,9 @@ pub fn fit(
             sigma: problem
                 .free
                 .iter()
-                .map(|&g| match model.params[g] {
-                    p @ (TParam::Weight(..) | TParam::Compliance(..)) => {
-                        Some(BILINEAR_PRIOR_SCALES * p.plausible_range())
-                    }
-                    _ => None,
+                .map(|&g| {
+                    let p = model.params[g];
+                    elastic(p).then(|| ELASTIC_PRIOR_SCALES * p.plausible_range())
                 })
                 .collect(),
             mean: x0.clone(),

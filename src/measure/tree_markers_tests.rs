@@ -115,6 +115,6 @@ fn twin_with_link_weights_is_recovered_by_the_bodies_lumping() {
     let sol = &c.last.solution;
     assert_eq!(sol.status(), "converged", "{:?} {:?} after {}", sol.degenerate, sol.stop, sol.iterations);
     assert!(means[4] < 1.8 * noise * 1e3, "training {:.4} mm", means[4]);
-    assert!(held.mean < 0.5 * noise * 1e3, "held-out vs truth {:.4} mm", held.mean);
+    assert!(held.mean < 0.8 * noise * 1e3, "held-out vs truth {:.4} mm", held.mean);
     assert!(means[2] > 10.0 * means[4], "elasticity must matter in this twin");
 }

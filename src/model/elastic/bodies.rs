@@ -48,8 +48,8 @@ impl ElasticTree {
         let mut t = [0.0; 3];
         for (b, f) in loads {
             let h = &self.weights[*b];
-            for a in 0..3 {
-                t[a] += (0..4).map(|k| f[a][k] * h[k]).sum::<f64>();
+            for (ta, fa) in t.iter_mut().zip(f) {
+                *ta += fa.iter().zip(h).map(|(x, y)| x * y).sum::<f64>();
             }
         }
         t

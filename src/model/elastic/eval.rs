@@ -206,9 +206,9 @@ impl ElasticTree {
                             if w0 == usize::MAX {
                                 continue;
                             }
-                            for a in 0..3 {
-                                for k in 0..4 {
-                                    jac[w0 + k] += d_axis[a] * (c[a] * f[a][k]);
+                            for ((da, ca), fa) in d_axis.iter().zip(c).zip(f) {
+                                for (jk, fk) in jac[w0..w0 + 4].iter_mut().zip(fa) {
+                                    *jk += da * (ca * fk);
                                 }
                             }
                         }
@@ -219,9 +219,7 @@ impl ElasticTree {
                 *v = base.r * *v;
             }
             let d = xyzabc_point_derivatives(&self.base, &p);
-            for k in 0..6 {
-                jac[base_first + k] = d[k];
-            }
+            jac[base_first..base_first + 6].copy_from_slice(&d);
             let rw = base.r * frames[marker.row].out.r;
             let mfirst = base_first + 6 + 3 * m;
             for a in 0..3 {

@@ -33,8 +33,8 @@ pub const COMPONENT: [usize; 6] = [0, 1, 1, 2, 0, 2];
 /// direction in its frame is `u`.
 pub fn deflection(k: &[f64; 6], u: &Vector3<f64>) -> [f64; 3] {
     let mut d = [0.0; 3];
-    for c in 0..6 {
-        d[AXIS[c]] += k[c] * u[COMPONENT[c]];
+    for (c, kc) in k.iter().enumerate() {
+        d[AXIS[c]] += kc * u[COMPONENT[c]];
     }
     d
 }
@@ -68,8 +68,8 @@ mod tests {
         let tau = r.cross(&f);
         let d = deflection(&lumped(c, &(r * m)), &u);
         let want = [c[0] * tau.z, c[1] * tau.x, c[2] * tau.y];
-        for a in 0..3 {
-            assert!((d[a] - want[a]).abs() < 1e-15, "axis {a}: {} vs {}", d[a], want[a]);
+        for (a, (x, y)) in d.iter().zip(want).enumerate() {
+            assert!((x - y).abs() < 1e-15, "axis {a}: {x} vs {y}");
         }
     }
 }

@@ -325,15 +325,15 @@ impl ElasticTree {
         if self.lumping != Lumping::Bodies {
             return;
         }
-        for i in 0..self.rows.len() {
-            for a in 0..3 {
+        for (i, ci) in self.compliance.iter_mut().enumerate() {
+            for (a, v) in ci.iter_mut().enumerate() {
                 let on = if a == 0 {
                     groups.joint && self.joint_elastic[i]
                 } else {
                     groups.lateral && self.lateral_elastic[i]
                 };
-                if on && self.compliance[i][a] == 0.0 {
-                    self.compliance[i][a] = c;
+                if on && *v == 0.0 {
+                    *v = c;
                 }
             }
         }
