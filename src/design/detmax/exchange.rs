@@ -153,8 +153,21 @@ impl<'a> Design<'a> {
             // U = P B_a^T (m x r); E = B_all U (rows x r).
             let bat = op(&all[pool.row0[a]..], rows, 1);
             gemm((m, m, r), 1.0, op(&self.p, m, 1), bat, 0.0, u, r, 1);
-            let all_op = op(all, 1, rows);
-            gemm((rows, m, r), 1.0, all_op, op(u, r, 1), 0.0, e, r, 1);
+            match r {
+                2 => narrow::<2>(all, rows, &u[..m * 2], e),
+                3 => narrow::<3>(all, rows, &u[..m * 3], e),
+                6 => narrow::<6>(all, rows, &u[..m * 6], e),
+                _ => gemm(
+                    (rows, m, r),
+                    1.0,
+                    op(all, 1, rows),
+                    op(u, r, 1),
+                    0.0,
+                    e,
+                    r,
+                    1,
+                ),
+            }
             // P' = P - sign (U S^-1) U^T.
             let sv = op(&sinv, r, 1);
             gemm((m, r, r), 1.0, op(u, r, 1), sv, 0.0, us, r, 1);
@@ -223,6 +236,24 @@ impl<'a> Design<'a> {
     }
 }
 
+/// E = B_all U for a narrow U (m x R, row-major) and B_all column-major (rows x m), E
+/// row-major: one pass over B per column, no packing (the general GEMM packs both operands,
+/// which costs more than the product itself when R is 2 to 6).
+fn narrow<const R: usize>(all: &[f64], rows: usize, u: &[f64], e: &mut [f64]) {
+    let e = &mut e[..rows * R];
+    e.fill(0.0);
+    for (c, uc) in u.chunks_exact(R).enumerate() {
+        let mut w = [0.0; R];
+        w.copy_from_slice(uc);
+        let bc = &all[c * rows..(c + 1) * rows];
+        for (er, &b) in e.chunks_exact_mut(R).zip(bc) {
+            for x in 0..R {
+                er[x] += b * w[x];
+            }
+        }
+    }
+}
+
 /// A strided operand.
 fn op(data: &[f64], rs: usize, cs: usize) -> Strided<'_> {
     Strided { data, rs, cs }
@@ -258,5 +289,38 @@ fn update_uniform<const R: usize>(d: &mut [f64], e: &[f64], sinv: &[f64], sign: 
                 di[x * R + y] -= sign * v;
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::util::Rng;
+
+    /// The unpacked narrow product equals the general GEMM to rounding.
+    #[test]
+    fn narrow_product_equals_the_general_one() {
+        let mut rng = Rng::new(4);
+        let (rows, m) = (37, 11);
+        let all: Vec<f64> = (0..rows * m).map(|_| rng.normal()).collect();
+        let u: Vec<f64> = (0..m * 3).map(|_| rng.normal()).collect();
+        let (mut a, mut b) = (vec![1.0; rows * 3], vec![0.0; rows * 3]);
+        narrow::<3>(&all, rows, &u, &mut a);
+        gemm(
+            (rows, m, 3),
+            1.0,
+            op(&all, 1, rows),
+            op(&u, 3, 1),
+            0.0,
+            &mut b,
+            3,
+            1,
+        );
+        let err = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        assert!(err < 1e-12, "{err:e}");
     }
 }
