@@ -47,9 +47,13 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial`, `pcr`, `humanoid`, `drivers` or `api` (the daemon under many concurrent
-        /// clients).
+        /// Area: `serial`, `pcr`, `humanoid`, `all` (those three), `drivers` or `api` (the
+        /// daemon under many concurrent clients).
         area: String,
+        /// Also write every figure (median, min, max, peak memory) of `serial`, `pcr`,
+        /// `humanoid` or `all` to this JSON file, to compare a run with an earlier one.
+        #[arg(long)]
+        json: Option<PathBuf>,
     },
     /// List the job kinds.
     Kinds,
@@ -479,11 +483,15 @@ fn main() -> Result<()> {
             out,
             artefacts,
         } => run_job(&job, out.as_deref(), artefacts.as_deref()),
-        Command::Bench { area } => {
-            let figs = match area.as_str() {
-                "serial" => calibd::bench::serial::run(),
-                "humanoid" => calibd::bench::humanoid::run(),
-                "pcr" => calibd::bench::pcr::run(),
+        Command::Bench { area, json } => {
+            let numerical = |a: &str| match a {
+                "serial" => Some(calibd::bench::serial::run()),
+                "humanoid" => Some(calibd::bench::humanoid::run()),
+                "pcr" => Some(calibd::bench::pcr::run()),
+                _ => None,
+            };
+            let areas: Vec<&str> = match area.as_str() {
+                "all" => vec!["serial", "pcr", "humanoid"],
                 "api" => {
                     let report =
                         runtime()?.block_on(calibd::bench::api::run(Default::default()))?;
@@ -493,13 +501,29 @@ fn main() -> Result<()> {
                 "drivers" => {
                     return Ok(calibd_drivers::bench::run_and_print(&mut std::io::stdout())?);
                 }
+                other if numerical_area(other) => vec![other],
                 other => {
                     bail!(
-                        "unknown benchmark area `{other}` (known: serial, pcr, humanoid, drivers, api)"
+                        "unknown benchmark area `{other}` (known: serial, pcr, humanoid, all, drivers, api)"
                     )
                 }
             };
-            calibd::bench::print(&mut std::io::stdout(), &figs)?;
+            let mut report = Vec::new();
+            for a in areas {
+                let figures = numerical(a).unwrap_or_default();
+                println!("== {a}");
+                calibd::bench::print(&mut std::io::stdout(), &figures)?;
+                report.push(calibd::bench::Area {
+                    area: a.to_string(),
+                    figures,
+                });
+            }
+            if let Some(path) = json {
+                let text = serde_json::to_string_pretty(&calibd::bench::Report::new(report))?;
+                std::fs::write(&path, text + "\n")
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+                eprintln!("figures written to {}", path.display());
+            }
             Ok(())
         }
         Command::Mock(args) => {
@@ -590,4 +614,9 @@ fn main() -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// The benchmark areas whose figures `--json` can write.
+fn numerical_area(a: &str) -> bool {
+    matches!(a, "serial" | "pcr" | "humanoid")
 }

@@ -8,20 +8,61 @@ pub mod serial;
 
 use std::time::{Duration, Instant};
 
+use serde::Serialize;
+
 /// One printed figure.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize)]
 pub struct Figure {
     /// What was measured.
     pub name: String,
     /// Median time per operation.
+    #[serde(rename = "median_per_op_s", serialize_with = "secs")]
     pub per_op: Duration,
+    /// Fastest run, per operation.
+    #[serde(rename = "min_per_op_s", serialize_with = "secs")]
+    pub min: Duration,
+    /// Slowest run, per operation.
+    #[serde(rename = "max_per_op_s", serialize_with = "secs")]
+    pub max: Duration,
+    /// Timed runs.
+    pub runs: usize,
     /// Operations per timed run.
     pub ops: usize,
     /// The target, for the printout.
+    #[serde(rename = "target_per_op_s", serialize_with = "opt_secs")]
     pub target: Option<Duration>,
+    /// Peak resident memory of the process during the runs (bytes; Linux only: the
+    /// high-water mark is reset before the first run).
+    pub peak_rss_bytes: Option<u64>,
 }
 
-/// Median over `runs` of the time of `f`, divided by `ops` operations per call.
+fn secs<S: serde::Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_f64(d.as_secs_f64())
+}
+
+fn opt_secs<S: serde::Serializer>(d: &Option<Duration>, s: S) -> Result<S::Ok, S::Error> {
+    match d {
+        Some(d) => s.serialize_f64(d.as_secs_f64()),
+        None => s.serialize_none(),
+    }
+}
+
+/// Resets the process's resident-memory high-water mark (Linux `clear_refs`); false when
+/// the platform cannot.
+fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
+/// The process's resident-memory high-water mark (bytes), from `/proc/self/status`.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Median, min and max over `runs` of the time of `f`, divided by `ops` operations per
+/// call, with the peak resident memory of the runs.
 pub fn time<F: FnMut()>(
     name: &str,
     runs: usize,
@@ -29,6 +70,7 @@ pub fn time<F: FnMut()>(
     target: Option<Duration>,
     mut f: F,
 ) -> Figure {
+    let reset = reset_peak_rss();
     let mut times: Vec<Duration> = (0..runs.max(1))
         .map(|_| {
             let t = Instant::now();
@@ -37,11 +79,51 @@ pub fn time<F: FnMut()>(
         })
         .collect();
     times.sort();
+    let per = |d: Duration| d / ops.max(1) as u32;
     Figure {
         name: name.into(),
-        per_op: times[times.len() / 2] / ops.max(1) as u32,
+        per_op: per(times[times.len() / 2]),
+        min: per(times[0]),
+        max: per(times[times.len() - 1]),
+        runs: times.len(),
         ops,
         target,
+        peak_rss_bytes: if reset { peak_rss_bytes() } else { None },
+    }
+}
+
+/// Every figure of a benchmark run, as written by `calibd bench ... --json FILE` so a run
+/// can be compared with an earlier one.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    /// calibd version.
+    pub version: &'static str,
+    /// When the run ended (UTC, RFC 3339).
+    pub finished_at: String,
+    /// Logical CPUs of the machine.
+    pub cpus: usize,
+    /// Figures per area (`serial`, `pcr`, `humanoid`).
+    pub areas: Vec<Area>,
+}
+
+/// The figures of one benchmark area.
+#[derive(Debug, Clone, Serialize)]
+pub struct Area {
+    /// `serial`, `pcr` or `humanoid`.
+    pub area: String,
+    /// Its figures, in the printed order.
+    pub figures: Vec<Figure>,
+}
+
+impl Report {
+    /// A report of `areas` finished now.
+    pub fn new(areas: Vec<Area>) -> Self {
+        Self {
+            version: env!("CARGO_PKG_VERSION"),
+            finished_at: chrono::Utc::now().to_rfc3339(),
+            cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            areas,
+        }
     }
 }
 
@@ -71,11 +153,16 @@ pub fn print(out: &mut dyn std::io::Write, figures: &[Figure]) -> std::io::Resul
             Some(_) => "SLOWER THAN TARGET",
             None => "",
         };
+        let mem = f
+            .peak_rss_bytes
+            .map(|b| format!("{:.0} MB", b as f64 / 1e6))
+            .unwrap_or_default();
         writeln!(
             out,
-            "{:<58} {:>12} {:<22} {}",
+            "{:<58} {:>12} {:>8} {:<22} {}",
             f.name,
             fmt(f.per_op),
+            mem,
             target,
             verdict
         )?;
