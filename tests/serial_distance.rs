@@ -176,7 +176,7 @@ fn drawwire() -> Option<(Vec<String>, Vec<Vec<f64>>)> {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/data/real/abb_irb120_drawwire/robotcali_new.csv");
     let Ok(text) = std::fs::read_to_string(&path) else {
-        println!("skipped: {} not present", path.display());
+        println!("skipped: draw-wire data {} not found", path.display());
         return None;
     };
     let mut lines = text.lines();

@@ -14,6 +14,7 @@ pub mod input;
 pub mod pcr;
 pub mod serial;
 pub mod table;
+pub mod tree;
 
 use std::collections::BTreeMap;
 use std::future::Future;
@@ -207,6 +208,11 @@ pub const KINDS: &[KindInfo] = &[
         "humanoid.identify",
         "whole-body elasto-geometric calibration of a humanoid from motion-capture markers",
         humanoid::identify::prepare
+    ),
+    kind!(
+        "tree.identify",
+        "elasto-geometric calibration of a modified-DH tree (torso + arms) from markers, lumped joint and lateral elasticity without torques",
+        tree::prepare
     ),
     kind!(
         "humanoid.validate",

@@ -4,11 +4,13 @@
 
 pub mod ballplate;
 pub mod distance;
+pub mod justin;
 pub mod marker_fit;
 pub mod markers;
 pub mod mocap;
 pub mod pcr;
 pub mod point;
+pub mod tree_markers;
 
 pub use ballplate::BallPlate;
 pub use distance::{DistanceMeasurement, DistanceProblem};

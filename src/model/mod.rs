@@ -3,6 +3,7 @@
 pub mod chain;
 pub mod dh;
 pub mod dh_tree;
+pub mod elastic;
 pub mod humanoid;
 pub mod ik;
 pub mod joint;

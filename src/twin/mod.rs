@@ -2,6 +2,7 @@
 //! with noise, used by tests, examples, benchmarks and the simulated lab. Seeded, no I/O.
 
 pub mod cell;
+pub mod elastic;
 pub mod humanoid;
 pub mod pcr;
 pub mod serial;

@@ -1,0 +1,400 @@
+//! `tree.identify`: elasto-geometric calibration of a tree of modified-DH rows (a humanoid
+//! upper body: torso and arms) from marker positions, with elasticity identified *without
+//! torques or masses*: lumped joint and lateral compliance (issue 13, item 5). Runs the
+//! cumulative steps (frames; + offsets; + full geometry; + joint compliance; + lateral
+//! compliance), reports the last fit's parameters and, optionally, a K-fold held-out error.
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use crate::geometry::Frame;
+use crate::identify::ParamReport;
+use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
+use crate::measure::tree_markers::{Step, TreeObservation, cumulative, k_fold};
+use crate::model::elastic::{
+    Drive, ElasticOptions, ElasticTree, Lumping, RowKind, TreeMarker, TreeRow,
+};
+use crate::report::Run;
+use crate::util::{Monitor, Summary};
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Spec {
+    #[allow(dead_code)]
+    kind: String,
+    tree: TreeSpec,
+    samples: Value,
+    variables: Vec<String>,
+    markers: Vec<MarkerSpec>,
+    #[serde(default)]
+    base: Option<BaseSpec>,
+    #[serde(default)]
+    options: Options,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TreeSpec {
+    /// Only `modified_dh` (Craig + Hayati beta) is accepted: the convention is stated.
+    convention: String,
+    rows: Vec<RowSpec>,
+}
+
+/// A row: `mdh` (a revolute joint) or `fixed` (a mount, a flange).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RowSpec {
+    name: String,
+    #[serde(default)]
+    parent: Option<String>,
+    #[serde(default)]
+    mdh: Option<MdhSpec>,
+    #[serde(default)]
+    fixed: Option<FixedSpec>,
+    /// The measured variable (a column of `variables`).
+    #[serde(default)]
+    variable: Option<String>,
+    /// A passive joint: `[[variable, coefficient], ...]`.
+    #[serde(default)]
+    coupled: Option<Vec<(String, f64)>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MdhSpec {
+    alpha_deg: f64,
+    a_m: f64,
+    #[serde(default)]
+    beta_deg: f64,
+    theta_deg: f64,
+    d_m: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FixedSpec {
+    xyz_m: [f64; 3],
+    /// `Rz(a) Ry(b) Rx(c)`.
+    #[serde(default)]
+    abc_deg: [f64; 3],
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MarkerSpec {
+    name: String,
+    row: String,
+    #[serde(default)]
+    initial_m: [f64; 3],
+}
+
+/// Starting root pose in the measurement frame.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BaseSpec {
+    xyz_m: [f64; 3],
+    #[serde(default)]
+    abc_deg: [f64; 3],
+}
+
+/// `options`.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Options {
+    #[serde(default)]
+    elastic: ElasticSpec,
+    /// K of a K-fold held-out figure of the last model (none if absent).
+    #[serde(default)]
+    folds: Option<usize>,
+    #[serde(default)]
+    seed: u64,
+    #[serde(default)]
+    max_iterations: Option<usize>,
+}
+
+/// Rows with lumped elasticity; `"*"` means every revolute row.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ElasticSpec {
+    #[serde(default)]
+    joint: Vec<String>,
+    #[serde(default)]
+    lateral: Vec<String>,
+    /// `bodies` (default: link weights shared by the joints that carry them, bilinear) or
+    /// `subtree` (linear coefficients of a mass moment constant in each joint frame).
+    #[serde(default)]
+    lumping: LumpingSpec,
+}
+
+#[derive(Debug, Default, Clone, Copy, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum LumpingSpec {
+    Subtree,
+    #[default]
+    Bodies,
+}
+
+/// A validated `tree.identify` job.
+#[derive(Debug)]
+pub struct TreeIdentifyJob {
+    model: ElasticTree,
+    obs: Vec<TreeObservation>,
+    last: usize,
+    folds: Option<usize>,
+    seed: u64,
+    max_iterations: usize,
+    warnings: Vec<String>,
+}
+
+fn finite(field: &str, v: &[f64]) -> Result<(), JobError> {
+    match v.iter().find(|x| !x.is_finite()) {
+        Some(x) => Err(JobError::invalid(field, format!("{x} is not finite"))),
+        None => Ok(()),
+    }
+}
+
+fn rows(s: &Spec) -> Result<Vec<TreeRow>, JobError> {
+    if s.tree.convention != "modified_dh" {
+        return Err(JobError::invalid(
+            "tree.convention",
+            format!("`{}`: only `modified_dh` (Rx(alpha) Dx(a) Ry(beta) Rz(theta + q) Dz(d)) is accepted", s.tree.convention),
+        ));
+    }
+    let var = |field: &str, v: &str| {
+        s.variables.iter().position(|x| x == v).ok_or_else(|| {
+            JobError::invalid(field, format!("`{v}` is not one of `variables`"))
+        })
+    };
+    let mut out: Vec<TreeRow> = Vec::new();
+    for (i, r) in s.tree.rows.iter().enumerate() {
+        let f = format!("tree.rows[{i}]");
+        let parent = match &r.parent {
+            None => None,
+            Some(p) => Some(out.iter().position(|o| &o.name == p).ok_or_else(|| {
+                JobError::invalid(format!("{f}.parent"), format!("`{p}` is not a row defined before it"))
+            })?),
+        };
+        let kind = match (&r.mdh, &r.fixed) {
+            (Some(m), None) => {
+                finite(&format!("{f}.mdh"), &[m.alpha_deg, m.a_m, m.beta_deg, m.theta_deg, m.d_m])?;
+                let drive = match (&r.variable, &r.coupled) {
+                    (Some(v), None) => Drive::Variable(var(&format!("{f}.variable"), v)?),
+                    (None, Some(c)) if !c.is_empty() => Drive::Coupled(
+                        c.iter()
+                            .map(|(v, k)| Ok((var(&format!("{f}.coupled"), v)?, *k)))
+                            .collect::<Result<_, JobError>>()?,
+                    ),
+                    _ => {
+                        return Err(JobError::invalid(
+                            f,
+                            "an `mdh` row needs exactly one of `variable` and `coupled`",
+                        ));
+                    }
+                };
+                RowKind::Revolute {
+                    geometry: [
+                        m.alpha_deg.to_radians(),
+                        m.a_m,
+                        m.beta_deg.to_radians(),
+                        m.theta_deg.to_radians(),
+                        m.d_m,
+                    ],
+                    drive,
+                }
+            }
+            (None, Some(x)) => {
+                finite(&format!("{f}.fixed"), &[x.xyz_m, x.abc_deg].concat())?;
+                let a = x.abc_deg.map(f64::to_radians);
+                RowKind::Fixed {
+                    frame: Frame::from_xyzabc(&[x.xyz_m[0], x.xyz_m[1], x.xyz_m[2], a[0], a[1], a[2]]),
+                    errors: [0.0; 6],
+                }
+            }
+            _ => return Err(JobError::invalid(f, "a row is either `mdh` or `fixed`")),
+        };
+        out.push(TreeRow {
+            name: r.name.clone(),
+            parent,
+            kind,
+        });
+    }
+    Ok(out)
+}
+
+/// Validate a `tree.identify` job.
+pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobError> {
+    let s: Spec = parse_spec(doc)?;
+    let tree_rows = rows(&s)?;
+    let revolute: Vec<String> = tree_rows
+        .iter()
+        .filter(|r| matches!(r.kind, RowKind::Revolute { .. }))
+        .map(|r| r.name.clone())
+        .collect();
+    let expand = |v: &[String]| -> Vec<String> {
+        if v.iter().any(|x| x == "*") { revolute.clone() } else { v.to_vec() }
+    };
+    let elastic = ElasticOptions {
+        joint: expand(&s.options.elastic.joint),
+        lateral: expand(&s.options.elastic.lateral),
+        lumping: match s.options.elastic.lumping {
+            LumpingSpec::Subtree => Lumping::Subtree,
+            LumpingSpec::Bodies => Lumping::Bodies,
+        },
+    };
+    let mut markers = Vec::new();
+    for (i, m) in s.markers.iter().enumerate() {
+        finite(&format!("markers[{i}].initial_m"), &m.initial_m)?;
+        let row = tree_rows.iter().position(|r| r.name == m.row).ok_or_else(|| {
+            JobError::invalid(format!("markers[{i}].row"), format!("no row `{}`", m.row))
+        })?;
+        markers.push(TreeMarker {
+            name: m.name.clone(),
+            row,
+            local: m.initial_m.into(),
+        });
+    }
+    let mut model = ElasticTree::new(tree_rows, markers, s.variables.len(), &elastic)
+        .map_err(|e| JobError::invalid("tree", e.to_string()))?;
+    if let Some(b) = &s.base {
+        finite("base", &[b.xyz_m, b.abc_deg].concat())?;
+        let a = b.abc_deg.map(f64::to_radians);
+        model.base = [b.xyz_m[0], b.xyz_m[1], b.xyz_m[2], a[0], a[1], a[2]];
+    }
+    let table = inputs.table("samples", &s.samples)?;
+    let q_cols = table.cols("samples", &s.variables)?;
+    let mut used: BTreeSet<usize> = q_cols.iter().copied().collect();
+    let mut m_cols = Vec::new();
+    for m in &model.markers {
+        let names: Vec<String> = ["x", "y", "z"].iter().map(|a| format!("{}_{a}", m.name)).collect();
+        let c = table.cols("samples", &names)?;
+        used.extend(c.iter().copied());
+        m_cols.push(c);
+    }
+    let warnings = table
+        .columns
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !used.contains(i))
+        .map(|(_, c)| format!("samples: column {c} is not used by tree.identify"))
+        .collect();
+    let obs: Vec<TreeObservation> = table
+        .rows
+        .iter()
+        .map(|row| TreeObservation {
+            sample: model.sample(q_cols.iter().map(|&c| row[c]).collect()),
+            points: m_cols
+                .iter()
+                .map(|c| Some(nalgebra::Vector3::new(row[c[0]], row[c[1]], row[c[2]])))
+                .collect(),
+        })
+        .collect();
+    if obs.len() < 2 {
+        return Err(JobError::invalid("samples", "at least two samples are needed"));
+    }
+    if let Some(k) = s.options.folds
+        && !(2..=obs.len()).contains(&k)
+    {
+        return Err(JobError::invalid("options.folds", format!("{k}: between 2 and the number of samples")));
+    }
+    let last = if !elastic.lateral.is_empty() {
+        4
+    } else if !elastic.joint.is_empty() {
+        3
+    } else {
+        2
+    };
+    Ok(TreeIdentifyJob {
+        model,
+        obs,
+        last,
+        folds: s.options.folds,
+        seed: s.options.seed,
+        max_iterations: s.options.max_iterations.unwrap_or(200),
+        warnings,
+    })
+}
+
+/// Held-out figure of the last model.
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldOut {
+    /// K.
+    pub folds: usize,
+    /// Seed of the split.
+    pub seed: u64,
+    /// Marker position errors on the held-out folds (mm).
+    pub error_mm: Summary,
+}
+
+/// The result of `tree.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct TreeCalibration {
+    /// Cumulative steps: frames; + offsets; + geometry; + joint; + lateral compliance.
+    pub steps: Vec<Step>,
+    /// The last fit's parameters (lengths m, angles rad, lumped coefficients rad at full
+    /// gravity load).
+    pub parameters: Vec<ParamReport>,
+    /// Parameters held at their start value in the last fit.
+    pub unidentifiable: Vec<String>,
+    /// `converged`, `degenerate` or `not_converged` (last fit).
+    pub status: String,
+    /// Condition number of the physically scaled Jacobian (last fit).
+    pub condition_number: f64,
+    /// Mean marker error of the last model (mm).
+    pub error_after_mean_mm: f64,
+    /// K-fold held-out errors of the last model, when asked for.
+    pub held_out: Option<HeldOut>,
+    /// What the lumped coefficients mean.
+    pub elasticity_note: &'static str,
+    /// Unused table columns.
+    pub warnings: Vec<String>,
+}
+
+const NOTE: &str = "gravity along -z of the tree root; lumping `subtree`: coefficients kz_g*, kx_g*, ky_g* (rad at full gravity load) multiply the unit gravity direction in the joint frame (joint deflection about z, lateral about x and y); lumping `bodies`: compliances c_z, c_x, c_y (rad/(N*m)) times the gravity torque of link weights w (N) and weight moments w_m* (N*m), only their products determined";
+
+impl TreeIdentifyJob {
+    /// Run the cumulative fits and the optional K-fold.
+    pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<TreeCalibration>, JobError> {
+        let fail = |e: crate::identify::IdentifyError| JobError::Failed(e.to_string());
+        let c = cumulative(&self.model, &self.obs, self.last, self.max_iterations, monitor).map_err(fail)?;
+        let held_out = match self.folds {
+            Some(k) => {
+                let e = k_fold(&self.model, &self.obs, self.last, k, self.seed, self.max_iterations, monitor).map_err(fail)?;
+                Some(HeldOut {
+                    folds: k,
+                    seed: self.seed,
+                    error_mm: Summary::of(&e, "mm"),
+                })
+            }
+            None => None,
+        };
+        let sol = &c.last.solution;
+        Ok(Run {
+            result: TreeCalibration {
+                error_after_mean_mm: c.steps.last().map_or(f64::NAN, |s| s.error_mm.mean),
+                steps: c.steps.clone(),
+                parameters: sol.params.clone(),
+                unidentifiable: sol.unidentifiable.clone(),
+                status: sol.status().into(),
+                condition_number: sol.condition_number,
+                held_out,
+                elasticity_note: NOTE,
+                warnings: self.warnings.clone(),
+            },
+            main_table: None,
+            artefacts: Vec::new(),
+        })
+    }
+}
+
+impl Kind for TreeIdentifyJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::calibrate)
+    }
+}
+
+#[cfg(test)]
+#[path = "tree_tests.rs"]
+mod tests;
