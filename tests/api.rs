@@ -299,7 +299,7 @@ async fn a_job_file_naming_a_missing_file_is_refused_with_its_name() {
     let client = calibd::client::Client::new(&s.url, Some(SUBMITTER.into()));
     let e = client.load_job_file(&job).await.unwrap_err().to_string();
     assert!(
-        e.contains("model.json") && e.contains("does not exist"),
+        e.contains("model.json") && e.contains("data/joints.csv") && e.contains("do not exist"),
         "{e}"
     );
     // Without a token, a refusal says where the CLI looked for one.

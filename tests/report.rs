@@ -139,7 +139,6 @@ fn serial_report_shows_the_result_numbers_and_plots() {
             "errors_per_configuration.svg",
             "validation_errors.svg",
             "errors_per_axis.svg",
-            "error_histogram.svg",
         ],
     );
     assert!(html.contains("Held-out validation errors"));
@@ -151,9 +150,9 @@ fn pcr_report_shows_table_3_and_the_validation_errors() {
     check(
         &done,
         &[
-            "/model_error/calibration/e_p/nominal/mean",
-            "/model_error/calibration/e_p/identified/mean",
-            "/model_error/validation/e_p/identified/mean",
+            "/model_error/calibration/e_P/nominal/mean",
+            "/model_error/calibration/e_P/identified/mean",
+            "/model_error/validation/e_P/identified/mean",
         ],
         &["errors_per_configuration.svg", "validation_errors.svg"],
     );

@@ -78,7 +78,6 @@ pub fn app(state: AppState) -> Router {
     let timeout = state.request_timeout;
     let v1 = Router::new()
         .merge(jobs::router())
-        .merge(report::router())
         .merge(datasets::router())
         .merge(schedules::router())
         .merge(events::router())

@@ -3,11 +3,9 @@
 //! Content-Security-Policy allows the inline style and nothing else (no script, no
 //! fetch, a sandboxed origin), `nosniff` as every response.
 
-use axum::Router;
 use axum::extract::State;
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
-use axum::routing::get;
 use serde_json::Value;
 
 use super::{ApiError, ApiPath, AppState, Caller, blocking};
@@ -18,11 +16,8 @@ use crate::report::html::{ReportInput, cell_name, render};
 pub(super) const REPORT_CSP: &str = "default-src 'none'; style-src 'unsafe-inline'; img-src data:; \
 base-uri 'none'; form-action 'none'; frame-ancestors 'none'; sandbox";
 
-pub(super) fn router() -> Router<AppState> {
-    Router::new().route("/jobs/{id}/report", get(report))
-}
-
-async fn report(
+/// The handler of `GET /v1/jobs/{id}/report` (routed with the other job routes).
+pub(super) async fn report(
     State(s): State<AppState>,
     caller: Caller,
     ApiPath(id): ApiPath<i64>,

@@ -142,7 +142,7 @@ pub fn print_summary(r: &Value) {
         println!("held-out marker RMSE (cross-validation) {b:.4} -> {a:.4} mm");
     }
     for set in ["calibration", "validation"] {
-        let e = &r["model_error"][set]["e_p"];
+        let e = &r["model_error"][set]["e_P"];
         if let (Some(b), Some(a)) = (
             e["nominal"]["mean"].as_f64(),
             e["identified"]["mean"].as_f64(),

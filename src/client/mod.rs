@@ -242,6 +242,7 @@ impl Client {
         let mut doc: Value = serde_json::from_str(&text)
             .map_err(|e| file_err(path, format!("not valid JSON: {e}")))?;
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        let mut missing = Vec::new();
         if let Value::Object(m) = &mut doc {
             for (k, v) in m.iter_mut() {
                 let Value::String(s) = v else { continue };
@@ -251,13 +252,7 @@ impl Client {
                 let p = dir.join(&*s);
                 if !p.is_file() {
                     if looks_like_file(s) {
-                        return Err(file_err(
-                            &p,
-                            format!(
-                                "the job's `{k}` names the file `{s}`, which does not exist \
-                                 (paths are relative to the job file's folder)"
-                            ),
-                        ));
+                        missing.push(format!("`{k}`: {s} ({})", p.display()));
                     }
                     continue;
                 }
@@ -271,6 +266,15 @@ impl Client {
                 let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("input");
                 *v = Value::String(self.upload(name, media, content).await?);
             }
+        }
+        if !missing.is_empty() {
+            return Err(file_err(
+                path,
+                format!(
+                    "names files that do not exist (paths are relative to the job file's folder): {}",
+                    missing.join(", ")
+                ),
+            ));
         }
         Ok(doc)
     }

@@ -9,9 +9,9 @@
 const HEADLINES = [
   ["Marker RMSE, calibration set", "/rmse_before_mm", "/rmse_after_mm", "mm"],
   ["Held-out marker RMSE (cross-validation)", "/cross_validation/rmse_nominal_mm", "/cross_validation/rmse_calibrated_mm", "mm"],
-  ["Position error e_P mean, calibration set", "/model_error/calibration/e_p/nominal/mean", "/model_error/calibration/e_p/identified/mean", "/model_error/calibration/e_p/unit"],
+  ["Position error e_P mean, calibration set", "/model_error/calibration/e_P/nominal/mean", "/model_error/calibration/e_P/identified/mean", "/model_error/calibration/e_P/unit"],
   ["Orientation error e_θ mean, calibration set", "/model_error/calibration/e_theta/nominal/mean", "/model_error/calibration/e_theta/identified/mean", "/model_error/calibration/e_theta/unit"],
-  ["Position error e_P mean, validation set", "/model_error/validation/e_p/nominal/mean", "/model_error/validation/e_p/identified/mean", "/model_error/validation/e_p/unit"],
+  ["Position error e_P mean, validation set", "/model_error/validation/e_P/nominal/mean", "/model_error/validation/e_P/identified/mean", "/model_error/validation/e_P/unit"],
   ["Held-out error mean, validation set", "/validation/before/mean", "/validation/after/mean", "/validation/after/unit"],
   ["Held-out error max, validation set", "/validation/before/max", "/validation/after/max", "/validation/after/unit"],
   ["Residual mean, calibration set", "/residuals/before/mean", "/residuals/after/mean", "/residuals/after/unit"],

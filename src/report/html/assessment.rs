@@ -63,7 +63,7 @@ pub(super) fn validation(r: &Value) -> String {
             .iter()
             .filter(|s| t.contains_key(**s))
         {
-            for e in ["e_p", "e_theta"] {
+            for e in ["e_P", "e_theta"] {
                 for m in ["nominal", "identified"] {
                     let p = format!("/model_error/{set}/{e}/{m}");
                     let _ = write!(

@@ -76,12 +76,12 @@ fn lines(r: &Value) -> Vec<Line> {
         ),
     ] {
         let p = format!("/model_error/{set}");
-        let up = unit_at(r, &format!("{p}/e_p/unit"), "µm");
+        let up = unit_at(r, &format!("{p}/e_P/unit"), "µm");
         let ut = unit_at(r, &format!("{p}/e_theta/unit"), "mrad");
         pair(
             label_p,
-            &format!("{p}/e_p/nominal/mean"),
-            &format!("{p}/e_p/identified/mean"),
+            &format!("{p}/e_P/nominal/mean"),
+            &format!("{p}/e_P/identified/mean"),
             up,
         );
         pair(
