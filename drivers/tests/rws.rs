@@ -260,3 +260,29 @@ async fn identity_reports_a_missing_calib_module_with_the_fix() {
     );
     m.stop().await;
 }
+
+/// A fault on any request of a move (the reply lost after the controller acted on it) never
+/// makes the next move report success without moving: whatever happened to the faulted move,
+/// the one after it ends at its own target. The first move (to where the robot stands) leaves
+/// the driver with a cached command number, as in a campaign.
+#[tokio::test]
+async fn a_lost_reply_during_a_move_never_fakes_the_next_move() {
+    let home = [0.0, 0.0, 0.0, 0.0, 30.0, 0.0];
+    let first = [1.0, -0.5, 0.8, 0.0, 31.0, 0.0];
+    let second = [1.5, -0.2, 1.0, 0.5, 30.5, 0.3];
+    for n in 1..=24 {
+        let (m, h) = start(&[&format!("garbage@{n}")]).await;
+        if h.move_abs_j(home).await.is_ok() {
+            let _ = h.move_abs_j(first).await;
+        }
+        // The fault may land in this move instead; it fires once, so a second try is clean.
+        let q = match h.move_abs_j(second).await {
+            Ok(q) => q,
+            Err(_) => h.move_abs_j(second).await.unwrap(),
+        };
+        assert!(close(&q, &second, 1e-3), "garbage@{n}: reported {q:?}");
+        let now = h.joints_deg().await.unwrap();
+        assert!(close(&now, &second, 1e-3), "garbage@{n}: robot at {now:?}");
+        m.stop().await;
+    }
+}

@@ -68,6 +68,7 @@ pub(crate) fn is_device_fault(e: &CentringError) -> bool {
                 | DeviceError::Protocol { .. }
                 | DeviceError::Fault { .. }
         ) | CentringError::ReadingTimeout { .. }
+            | CentringError::NotSettled { .. }
     )
 }
 

@@ -21,6 +21,11 @@ pub struct CentringOptions {
     pub max_step_mm: f64,
     /// Wait after each move before reading.
     pub settle: Duration,
+    /// A reading counts once the next one agrees with it within this (mm): a line produced
+    /// while the arm still moved (or delivered late by a loaded link) is never taken.
+    pub settle_tol_mm: f64,
+    /// Most readings taken while waiting for two consecutive ones to agree.
+    pub settle_readings: usize,
     /// Longest wait for one reading.
     pub reading_timeout: Duration,
     /// Largest joint change of one approach move (rad): a move to the start configuration
@@ -35,6 +40,8 @@ impl Default for CentringOptions {
             max_iterations: 20,
             max_step_mm: 6.0,
             settle: Duration::from_millis(200),
+            settle_tol_mm: 0.002,
+            settle_readings: 8,
             reading_timeout: Duration::from_secs(2),
             approach_step: 15f64.to_radians(),
         }
@@ -71,6 +78,18 @@ pub enum CentringError {
         /// The limit.
         limit_mm: f64,
     },
+    /// Consecutive readings never agreed: the arm or the ball still moves.
+    #[error(
+        "indicators not settled: {readings} readings, consecutive ones differ by up to {spread_mm:.4} mm (tolerance {tol_mm} mm)"
+    )]
+    NotSettled {
+        /// Readings taken.
+        readings: usize,
+        /// Largest difference between consecutive readings.
+        spread_mm: f64,
+        /// The tolerance.
+        tol_mm: f64,
+    },
     /// No reading within the timeout.
     #[error("no indicator reading within {timeout_ms} ms")]
     ReadingTimeout {
@@ -94,7 +113,31 @@ pub enum CentringError {
     Cancelled,
 }
 
+/// A settled reading: fresh readings until two consecutive ones agree within
+/// `settle_tol_mm`; the later one is returned.
 async fn read(ind: &dyn Indicators, opts: &CentringOptions) -> Result<[f64; 3], CentringError> {
+    let mut last = read_once(ind, opts).await?;
+    let mut spread: f64 = 0.0;
+    for _ in 1..opts.settle_readings.max(2) {
+        let r = read_once(ind, opts).await?;
+        let d = (0..3).map(|k| (r[k] - last[k]).abs()).fold(0.0, f64::max);
+        if d <= opts.settle_tol_mm {
+            return Ok(r);
+        }
+        spread = spread.max(d);
+        last = r;
+    }
+    Err(CentringError::NotSettled {
+        readings: opts.settle_readings.max(2),
+        spread_mm: spread,
+        tol_mm: opts.settle_tol_mm,
+    })
+}
+
+async fn read_once(
+    ind: &dyn Indicators,
+    opts: &CentringOptions,
+) -> Result<[f64; 3], CentringError> {
     match tokio::time::timeout(opts.reading_timeout, ind.read()).await {
         Ok(r) => Ok(r?),
         Err(_) => Err(CentringError::ReadingTimeout {

@@ -86,6 +86,7 @@ impl CentringSpec {
             settle: Duration::from_millis(self.settle_ms),
             reading_timeout: Duration::from_millis(self.reading_timeout_ms),
             approach_step: cell.envelope.max_joint_step,
+            ..CentringOptions::default()
         })
     }
 

@@ -183,4 +183,91 @@ mod tests {
             "{e}"
         );
     }
+
+    /// Indicators whose every reading is the one before it (one line always queued on the
+    /// link): the first reading after a move is from before the move.
+    struct Lagging {
+        inner: FakeIndicators,
+        queued: Mutex<Option<[f64; 3]>>,
+    }
+
+    impl Indicators for Lagging {
+        fn read(&self) -> DeviceFuture<'_, [f64; 3]> {
+            Box::pin(async move {
+                let now = self.inner.read().await?;
+                let mut q = self.queued.lock().map_err(|_| DeviceError::Fault {
+                    device: "indicators".into(),
+                    message: "poisoned".into(),
+                })?;
+                Ok(q.replace(now).unwrap_or(now))
+            })
+        }
+    }
+
+    /// A reading produced before the last move is never acted on: with a stale line
+    /// before every fresh one, the loop makes the same moves to the same pose as with
+    /// prompt indicators.
+    #[tokio::test]
+    async fn a_reading_from_before_the_move_is_not_acted_on() {
+        let twin = SerialTwin::irb120(1);
+        let mut rng = Rng::new(3);
+        let centre_w = twin.plate.centres[0].unwrap();
+        let q_true = loop {
+            if let Some(q) = twin.reach(&twin.random_q(&mut rng), &centre_w) {
+                break q;
+            }
+        };
+        let q_d: Vec<f64> = q_true.iter().map(|v| v + 0.2f64.to_radians()).collect();
+        let run = |lag: bool| {
+            let cell: SharedCell = Arc::new(Mutex::new(SimulatedCell::new(twin.clone(), 4)));
+            let q_d = q_d.clone();
+            async move {
+                let robot = FakeRobot(cell.clone());
+                let prompt = FakeIndicators(cell);
+                if lag {
+                    let ind = Lagging {
+                        inner: prompt,
+                        queued: Mutex::new(None),
+                    };
+                    centre(&robot, &ind, &q_d, &opts(), &NoMonitor).await
+                } else {
+                    centre(&robot, &prompt, &q_d, &opts(), &NoMonitor).await
+                }
+            }
+        };
+        let a = run(false).await.unwrap();
+        let b = run(true).await.unwrap();
+        assert!(a.iterations >= 2, "{} moves", a.iterations);
+        assert_eq!(a.iterations, b.iterations);
+        assert_eq!(a.q, b.q);
+        assert!((twin.true_tcp(&b.q) - centre_w).norm() < 0.012);
+        // Readings that never agree (the arm keeps moving) stop the loop with a reason.
+        let cell: SharedCell = Arc::new(Mutex::new(SimulatedCell::new(twin.clone(), 4)));
+        struct Drifting(Mutex<f64>);
+        impl Indicators for Drifting {
+            fn read(&self) -> DeviceFuture<'_, [f64; 3]> {
+                Box::pin(async move {
+                    let mut v = self.0.lock().map_err(|_| DeviceError::Fault {
+                        device: "indicators".into(),
+                        message: "poisoned".into(),
+                    })?;
+                    *v += 0.005;
+                    Ok([*v, 0.0, 0.0])
+                })
+            }
+        }
+        let e = centre(
+            &FakeRobot(cell),
+            &Drifting(Mutex::new(0.0)),
+            &q_d,
+            &opts(),
+            &NoMonitor,
+        )
+        .await
+        .unwrap_err();
+        assert!(
+            matches!(e, CentringError::NotSettled { readings: 8, .. }),
+            "{e}"
+        );
+    }
 }

@@ -85,6 +85,11 @@ impl<C: Connect> Actor<C> {
             None => parse_num(&self.read("calib_seq").await?)?,
         } + 1;
         self.write("calib_cmd", &cmd.to_string()).await?;
+        // A write whose reply is lost may still have reached the controller: forget the
+        // cached number until this one is confirmed, so the next command re-reads it
+        // instead of writing the same number again (which the calib server would not see
+        // as a new command, and whose old ack would pass for this move's).
+        self.seq = None;
         self.write("calib_seq", &seq.to_string()).await?;
         self.seq = Some(seq);
         let deadline = Instant::now() + self.cfg.move_timeout;

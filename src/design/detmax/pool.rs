@@ -1,0 +1,180 @@
+//! The candidate pool of a D-optimal design: one Jacobian block per configuration, each
+//! reduced to its rank so the exchange updates work on the smallest equivalent block.
+//!
+//! A block B_i enters the design only through B_i^T B_i. A posture seen by marker clusters
+//! has 3 rows per marker but at most 6 independent rows per rigid cluster (54 rows, rank 18
+//! for three clusters of six markers): replacing B_i by C_i = R_k Π^T from a column-pivoted
+//! QR (B_i Π = Q R, k the numerical rank) keeps C_i^T C_i = B_i^T B_i and every determinant,
+//! while the rank-k updates cost (k/r)^2 to (k/r)^3 of the full ones.
+
+use nalgebra::DMatrix;
+
+/// Blocks with at most this many rows are kept as they are (serial designs: 3 rows per
+/// configuration, already full rank); larger ones are reduced to their rank.
+const KEEP_ROWS: usize = 6;
+
+/// Relative size of R's diagonal below which a direction carries no information.
+const RANK_TOL: f64 = 1e-12;
+
+/// The candidate configurations: one (reduced) Jacobian block per configuration.
+#[derive(Debug, Clone)]
+pub struct Pool {
+    pub(super) m: usize,
+    /// Rows of each (reduced) block.
+    pub(super) rows: Vec<usize>,
+    /// All blocks stacked, column-major (rows x m), for the matrix products of the updates.
+    pub(super) stacked: DMatrix<f64>,
+    /// First row of each block in `stacked`.
+    pub(super) row0: Vec<usize>,
+    /// The common row count when every block has the same one.
+    pub(super) uniform: Option<usize>,
+}
+
+impl Pool {
+    /// A pool from per-configuration blocks (all with the same column count); blocks of more
+    /// than six rows are reduced to their rank (same information matrix, fewer rows).
+    pub fn from_blocks(blocks: &[DMatrix<f64>]) -> Self {
+        let reduced: Vec<DMatrix<f64>> = blocks
+            .iter()
+            .map(|b| {
+                if b.nrows() > KEEP_ROWS {
+                    reduce(b)
+                } else {
+                    b.clone()
+                }
+            })
+            .collect();
+        Self::exact(&reduced)
+    }
+
+    /// A pool holding the blocks exactly as given (the reference the reduced pool is tested
+    /// against).
+    pub fn exact(blocks: &[DMatrix<f64>]) -> Self {
+        let m = blocks.first().map_or(0, |b| b.ncols());
+        let rows: Vec<usize> = blocks.iter().map(|b| b.nrows()).collect();
+        let mut row0 = Vec::with_capacity(blocks.len());
+        let mut total = 0;
+        for r in &rows {
+            row0.push(total);
+            total += r;
+        }
+        let mut stacked = DMatrix::zeros(total, m);
+        for (b, &r) in blocks.iter().zip(&row0) {
+            stacked.rows_mut(r, b.nrows()).copy_from(b);
+        }
+        let uniform = match rows.first() {
+            Some(&r) if rows.iter().all(|&x| x == r) => Some(r),
+            _ => None,
+        };
+        Self {
+            m,
+            rows,
+            stacked,
+            row0,
+            uniform,
+        }
+    }
+
+    /// A pool from a stacked matrix with `rows` rows per configuration.
+    pub fn from_stacked(j: &DMatrix<f64>, rows: usize) -> Self {
+        let blocks: Vec<DMatrix<f64>> = (0..j.nrows() / rows.max(1))
+            .map(|i| j.rows(i * rows, rows).clone_owned())
+            .collect();
+        Self::from_blocks(&blocks)
+    }
+
+    /// Number of configurations.
+    pub fn len(&self) -> usize {
+        self.rows.len()
+    }
+
+    /// True if empty.
+    pub fn is_empty(&self) -> bool {
+        self.rows.is_empty()
+    }
+
+    /// Number of parameters (columns).
+    pub fn params(&self) -> usize {
+        self.m
+    }
+
+    /// Rows of configuration `i`'s block after reduction (its rank for large blocks).
+    pub fn block_rows(&self, i: usize) -> usize {
+        self.rows[i]
+    }
+
+    /// Configuration `i`'s block (rows x m).
+    pub(super) fn block(&self, i: usize) -> nalgebra::DMatrixView<'_, f64> {
+        self.stacked.rows(self.row0[i], self.rows[i])
+    }
+
+    /// log det of the information matrix of a subset (or -inf if singular).
+    pub fn log_det(&self, subset: &[usize]) -> f64 {
+        let j = self.stacked(subset);
+        match j.tr_mul(&j).cholesky() {
+            Some(c) => 2.0 * c.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>(),
+            None => f64::NEG_INFINITY,
+        }
+    }
+
+    /// The stacked Jacobian of a subset.
+    pub fn stacked(&self, subset: &[usize]) -> DMatrix<f64> {
+        let rows: usize = subset.iter().map(|&i| self.rows[i]).sum();
+        let mut out = DMatrix::zeros(rows, self.m);
+        let mut r0 = 0;
+        for &i in subset {
+            let r = self.rows[i];
+            out.rows_mut(r0, r).copy_from(&self.block(i));
+            r0 += r;
+        }
+        out
+    }
+
+    /// Sum of squares of every entry (the scale of the start's ridge).
+    pub(super) fn frobenius2(&self) -> f64 {
+        self.stacked.iter().map(|v| v * v).sum()
+    }
+}
+
+/// C with C^T C = B^T B and as many rows as B has rank: the leading rows of R from a
+/// column-pivoted QR of B, with the columns put back in order.
+fn reduce(b: &DMatrix<f64>) -> DMatrix<f64> {
+    let (_, r, p) = b.clone().col_piv_qr().unpack();
+    let diag: Vec<f64> = (0..r.nrows().min(r.ncols()))
+        .map(|j| r[(j, j)].abs())
+        .collect();
+    let top = diag.iter().copied().fold(0.0f64, f64::max);
+    let k = diag.iter().take_while(|&&v| v > RANK_TOL * top).count();
+    let mut c = r.rows(0, k).clone_owned();
+    p.inv_permute_columns(&mut c);
+    c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::util::Rng;
+
+    /// A 54 x 20 block of rank 9 (three rigid 3-row groups repeated six times, as marker
+    /// clusters) reduces to 9 rows with the same information matrix.
+    #[test]
+    fn reduction_keeps_the_information_matrix_and_finds_the_rank() {
+        let mut rng = Rng::new(3);
+        let base = DMatrix::from_fn(9, 20, |_, _| rng.normal());
+        let mix = DMatrix::from_fn(54, 9, |_, _| rng.normal());
+        let b = &mix * &base;
+        let c = reduce(&b);
+        assert_eq!(c.nrows(), 9);
+        let (bb, cc) = (b.tr_mul(&b), c.tr_mul(&c));
+        let err = (&bb - &cc).abs().max() / bb.abs().max();
+        assert!(err < 1e-12, "relative difference {err:e}");
+        // A full-rank block keeps all its rows' worth of information.
+        let full = DMatrix::from_fn(12, 20, |_, _| rng.normal());
+        let c = reduce(&full);
+        assert_eq!(c.nrows(), 12);
+        let err = (full.tr_mul(&full) - c.tr_mul(&c)).abs().max();
+        assert!(err < 1e-10, "{err:e}");
+        // An all-zero block carries nothing.
+        assert_eq!(reduce(&DMatrix::zeros(9, 4)).nrows(), 0);
+    }
+}
