@@ -130,7 +130,7 @@ enum Command {
     /// List jobs, newest first.
     Jobs {
         /// Only jobs in this state.
-        #[arg(long)]
+        #[arg(long, value_parser = ["queued", "running", "paused", "succeeded", "failed", "cancelled", "interrupted"])]
         state: Option<String>,
         /// Only jobs of this kind.
         #[arg(long)]
@@ -155,6 +155,10 @@ enum Command {
         /// Folder for result.json, the artefacts and the main table.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Write the printable HTML report (self-contained: open it in a browser, print
+        /// it, sign it off) to this file.
+        #[arg(long, value_name = "FILE")]
+        report: Option<PathBuf>,
         #[command(flatten)]
         remote: Remote,
     },
@@ -213,7 +217,13 @@ struct Remote {
 impl Remote {
     fn client(&self) -> calibd::client::Client {
         let token = calibd::client::Client::find_token(self.token.clone(), &self.data);
-        calibd::client::Client::new(&self.server, token)
+        let found = token.is_some();
+        let c = calibd::client::Client::new(&self.server, token);
+        if found {
+            c
+        } else {
+            c.with_token_search(calibd::client::Client::token_places(&self.data))
+        }
     }
 }
 
@@ -668,7 +678,18 @@ fn main() -> Result<()> {
         Command::Cancel { id, remote: r } => remote(&r, |c| async move {
             calibd::client::commands::cancel(&c, id).await
         }),
-        Command::Result { id, out, remote: r } => remote(&r, |c| async move {
+        Command::Result {
+            id,
+            out,
+            report,
+            remote: r,
+        } => remote(&r, |c| async move {
+            if let Some(file) = &report {
+                calibd::client::commands::report(&c, id, file).await?;
+                if out.is_none() {
+                    return Ok(());
+                }
+            }
             calibd::client::commands::result(&c, id, out.as_deref()).await
         }),
         Command::Health { server, timeout } => {

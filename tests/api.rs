@@ -259,6 +259,57 @@ async fn progress_streams_live_and_an_identification_ends_with_its_artefacts() {
         .unwrap();
     let model: Value = model.json().await.unwrap();
     assert_eq!(model, r["calibrated_model"]);
+    // The printable report: HTML that runs nothing, with the result's numbers and plots.
+    let rep = s
+        .req(Method::GET, &format!("/v1/jobs/{id}/report"), Some(VIEWER))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(rep.status().as_u16(), 200);
+    assert_eq!(rep.headers()["content-type"], "text/html; charset=utf-8");
+    assert_eq!(rep.headers()["x-content-type-options"], "nosniff");
+    let csp = rep.headers()["content-security-policy"]
+        .to_str()
+        .unwrap()
+        .to_string();
+    assert!(
+        csp.contains("sandbox") && !csp.contains("script-src"),
+        "{csp}"
+    );
+    let html = rep.text().await.unwrap();
+    let after = calibd::report::html::number(r["validation"]["after"]["mean"].as_f64().unwrap());
+    assert!(html.contains(&format!("data-pointer=\"/validation/after/mean\">{after}<")));
+    assert!(html.contains("<figure data-name=\"errors_per_configuration.svg\"><svg"));
+    assert!(!html.contains("<script"));
+    // Errors are the API's JSON: no such job, and a job without a result.
+    let (st, e) = s.get("/v1/jobs/999999/report").await;
+    assert_eq!((st, e["error"]["code"].as_str()), (404, Some("not_found")));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_file_naming_a_missing_file_is_refused_with_its_name() {
+    let s = start(|_| {}).await;
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.json");
+    std::fs::write(
+        &job,
+        r#"{"kind": "serial.fk", "model": "model.json", "joints": "data/joints.csv"}"#,
+    )
+    .unwrap();
+    let client = calibd::client::Client::new(&s.url, Some(SUBMITTER.into()));
+    let e = client.load_job_file(&job).await.unwrap_err().to_string();
+    assert!(
+        e.contains("model.json") && e.contains("data/joints.csv") && e.contains("do not exist"),
+        "{e}"
+    );
+    // Without a token, a refusal says where the CLI looked for one.
+    let places = calibd::client::Client::token_places(dir.path());
+    let anon = calibd::client::Client::new(&s.url, None).with_token_search(places);
+    let e = anon.get("/v1/jobs").await.unwrap_err().to_string();
+    assert!(
+        e.contains("operator.token") && e.contains("CALIBD_TOKEN"),
+        "{e}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -1,12 +1,18 @@
 // Drives the calibd web page in headless Chromium: load the page, enter the token, load the
 // IRB 120 identification example, submit it, watch it finish through the live job list,
 // check the result tables and plots, download the calibrated model, check that an uploaded
-// HTML dataset opens as an inert download (no script runs), save a screenshot.
+// HTML dataset opens as an inert download (no script runs), save a screenshot. Then open a
+// finished PCR and humanoid job (JOBS env), check their headline numbers and that each
+// plot's "after" series is drawn at a visible size, and follow a running TriCal campaign's
+// live journal. Screenshots go next to SCREENSHOT.png.
 // Usage: node browser.mjs URL TOKEN SCREENSHOT.png
 import { chromium } from "playwright-core";
 import { readFileSync } from "node:fs";
 
 const [url, token, shot] = process.argv.slice(2);
+const dir = shot.replace(/\/[^/]*$/, "");
+// JOBS="pcr:12,humanoid:13": finished jobs of the other methods to open.
+const jobIds = Object.fromEntries((process.env.JOBS || "").split(",").filter(Boolean).map((p) => p.split(":")));
 const fail = (msg) => { console.error("browser test FAILED: " + msg); process.exit(1); };
 const browser = await chromium.launch({
   executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
@@ -14,6 +20,23 @@ const browser = await chromium.launch({
     "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"],
 });
 const errors = [];
+
+/** The plots of the shown job: each named one is inline SVG, and its "after" marks (bars or
+ *  points, read from the SVG in the DOM) have a visible extent. */
+async function checkPlots(page, method, names) {
+  for (const name of names) {
+    const sel = `#detail figure[data-name="${name}"] svg`;
+    await page.waitForSelector(sel, { timeout: 20000 }).catch(() => fail(`${method}: no plot ${name}`));
+    const m = await page.$eval(sel, (svg) => {
+      const marks = [...svg.querySelectorAll('[data-series="after"]')];
+      const ext = marks.map((n) => n.getBoundingClientRect()).map((b) => Math.max(b.height, 0));
+      const before = [...svg.querySelectorAll('[data-series="before"]')].map((n) => n.getBoundingClientRect().height);
+      return { n: marks.length, visible: ext.filter((h) => h >= 2).length, min: Math.min(...ext), max: Math.max(...ext), beforeMax: Math.max(...before), dataset: (svg.querySelector(".dataset") || {}).textContent };
+    });
+    if (m.n === 0 || m.visible < 0.9 * m.n) fail(`${method} ${name}: after series not visible: ${JSON.stringify(m)}`);
+    console.log(`${method} ${name}: ${m.visible}/${m.n} after marks visible (${m.min.toFixed(1)}-${m.max.toFixed(1)} px; before up to ${m.beforeMax.toFixed(1)} px); data set: ${m.dataset}`);
+  }
+}
 try {
   const page = await browser.newPage({ viewport: { width: 1400, height: 1100 }, acceptDownloads: true });
   page.on("pageerror", (e) => errors.push(e.message));
@@ -37,10 +60,10 @@ try {
   console.log(`job ${id} succeeded in the job list`);
   await page.waitForSelector("#detail-state.state-succeeded", { timeout: 20000 });
   await page.waitForSelector("#detail table", { timeout: 20000 });
-  const rows = await page.$$eval("#detail table:first-of-type tbody tr", (r) => r.length);
+  const rows = await page.$$eval("#detail table.params tbody tr", (r) => r.length);
   if (rows < 20) fail(`parameters table has ${rows} rows`);
-  await page.waitForFunction(() => document.querySelectorAll("#detail .plots img").length >= 2, null, { timeout: 20000 });
-  await page.waitForFunction(() => [...document.querySelectorAll("#detail .plots img")].every((i) => i.complete && i.naturalWidth > 0));
+  await page.waitForSelector("#headline", { timeout: 20000 });
+  await checkPlots(page, "serial", ["errors_per_configuration.svg", "validation_errors.svg"]);
   const link = `#artefacts a[data-name="calibrated_model.json"]`;
   await page.waitForSelector(link);
   const [download] = await Promise.all([page.waitForEvent("download"), page.click(link)]);
@@ -49,6 +72,8 @@ try {
   console.log(`downloaded ${download.suggestedFilename()} (${Object.keys(model).length} top-level fields)`);
   await page.screenshot({ path: shot, fullPage: true });
   console.log(`screenshot: ${shot}`);
+  await page.screenshot({ path: `${dir}/serial-identify.png`, fullPage: true });
+  console.log(`screenshot: ${dir}/serial-identify.png`);
   if (errors.length) fail("page errors: " + errors.join("; "));
   // Stored XSS: a submitter uploads an HTML page as a dataset; opening its link must not run
   // it in the page's origin (where the token lives in localStorage).
@@ -80,6 +105,45 @@ try {
   const rws = await page.textContent('#lab tr[data-device="irb120.rws"]');
   if (!/ABB IRC5/.test(rws)) fail("the lab check row of irb120.rws says " + rws);
   console.log("lab check on the page: " + rws.replace(/\s+/g, " "));
+
+  // A finished job of the two other methods (submitted by the check with `calibd submit`).
+  for (const [method, id, plots] of [["pcr", jobIds.pcr, ["errors_per_configuration.svg", "validation_errors.svg"]],
+    ["humanoid", jobIds.humanoid, ["marker_rmse.svg", "validation_errors.svg"]]]) {
+    if (!id) fail(`no ${method} job id given (JOBS=${process.env.JOBS})`);
+    await page.goto(url, { waitUntil: "load" });
+    await page.waitForSelector(`#jobs tr[data-id="${id}"] td.state-succeeded`, { timeout: 600000 });
+    await page.click(`#jobs tr[data-id="${id}"]`);
+    await page.waitForSelector("#detail-state.state-succeeded", { timeout: 20000 });
+    await page.waitForSelector("#headline", { timeout: 20000 });
+    await checkPlots(page, method, plots);
+    if (method === "humanoid") {
+      const rmse = await page.$eval("#headline", (h) => {
+        const r = h.querySelector('tr[data-key="/rmse_after_mm"]');
+        return r ? [...r.children].map((c) => c.textContent) : null;
+      });
+      if (!rmse || !/Marker RMSE/.test(rmse[0]) || !(Number(rmse[1]) > Number(rmse[2]))) fail("the humanoid view does not show the marker RMSE before/after: " + rmse);
+      console.log(`humanoid headline: ${rmse.slice(0, 4).join(" | ")}`);
+    }
+    await page.screenshot({ path: `${dir}/${method}-identify.png`, fullPage: true });
+    console.log(`screenshot: ${dir}/${method}-identify.png`);
+  }
+
+  // A running campaign from the example list: its journal fills and its plot grows.
+  await page.goto(url, { waitUntil: "load" });
+  await page.waitForSelector('#example-select option[value="trical-campaign"]', { state: "attached" });
+  await page.selectOption("#example-select", "trical-campaign");
+  await page.click("#load-example");
+  await page.waitForFunction(() => document.querySelector("#job-text").value.includes("cell.trical_campaign"));
+  await page.click("#submit");
+  await page.waitForFunction(() => /job \d+ queued/.test(document.querySelector("#submit-msg").textContent), null, { timeout: 20000 });
+  const cid = (await page.textContent("#submit-msg")).match(/job (\d+)/)[1];
+  await page.waitForFunction(() => document.querySelectorAll("#campaign .journal-plot circle").length >= 3, null, { timeout: 300000 });
+  const state = await page.textContent("#detail-state");
+  const points = await page.$$eval("#campaign .journal-plot circle", (c) => c.length);
+  await page.screenshot({ path: `${dir}/campaign-running.png`, fullPage: true });
+  console.log(`campaign job ${cid} (${state}): ${points} configurations in the live journal plot; screenshot: ${dir}/campaign-running.png`);
+  await page.evaluate(async ([t, id]) => fetch(`/v1/jobs/${id}/cancel`, { method: "POST", headers: { Authorization: "Bearer " + t } }), [token, cid]);
+  if (errors.length) fail("page errors: " + errors.join("; "));
 
   console.log("browser test passed");
 } catch (e) {

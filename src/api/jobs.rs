@@ -1,4 +1,5 @@
-//! `/v1/jobs`: submit, list, get, cancel, re-run, result, main table, artefacts, logs.
+//! `/v1/jobs`: submit, list, get, cancel, re-run, result, report, main table, artefacts,
+//! logs.
 
 use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
@@ -23,6 +24,7 @@ pub(super) fn router() -> Router<AppState> {
         .route("/jobs/{id}/measurements", get(measurements))
         .route("/jobs/{id}/rerun", post(rerun))
         .route("/jobs/{id}/result", get(result))
+        .route("/jobs/{id}/report", get(super::report::report))
         .route("/jobs/{id}/table", get(table))
         .route("/jobs/{id}/artefacts", get(artefacts))
         .route("/jobs/{id}/artefacts/{name}", get(artefact))

@@ -29,6 +29,7 @@ pub async fn submit(
 pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
     let mut err = std::io::stderr();
     let tty = std::io::IsTerminal::is_terminal(&err);
+    let width = terminal_width();
     let mut last_stage = String::new();
     let job = c
         .watch(id, |m| {
@@ -44,7 +45,10 @@ pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
                         None => progress_line(f, stage),
                     };
                     if tty {
-                        let _ = write!(err, "\r{line:<110}");
+                        // One line, redrawn: cut to the terminal's width (a wrapped line
+                        // cannot be returned to with `\r`) and clear what was there.
+                        let _ = write!(err, "\r\x1b[2K{}", fit(&line, width));
+                        let _ = err.flush();
                     } else if stage != last_stage || v["message"].is_string() {
                         let _ = writeln!(err, "{line}");
                     }
@@ -68,6 +72,26 @@ pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
         println!("job {id} {state}: {e}");
     }
     Ok(job)
+}
+
+/// The terminal's width in columns: `COLUMNS` when set, else 80.
+fn terminal_width() -> usize {
+    std::env::var("COLUMNS")
+        .ok()
+        .and_then(|c| c.trim().parse::<usize>().ok())
+        .filter(|w| *w >= 20)
+        .unwrap_or(80)
+}
+
+/// `line` cut to fit in `width - 1` columns (characters), with an ellipsis when cut.
+pub fn fit(line: &str, width: usize) -> String {
+    let max = width.saturating_sub(1).max(1);
+    if line.chars().count() <= max {
+        return line.to_string();
+    }
+    let mut s: String = line.chars().take(max.saturating_sub(1)).collect();
+    s.push('…');
+    s
 }
 
 fn stats_line(name: &str, v: &Value) -> Option<String> {
@@ -96,7 +120,38 @@ pub fn print_summary(r: &Value) {
         r["duration_s"].as_f64().unwrap_or(0.0)
     );
     if let Some(p) = r["parameters"].as_array() {
-        println!("{} parameters identified", p.len());
+        let identified = p
+            .iter()
+            .filter(|x| x["identifiable"].as_bool().unwrap_or(true))
+            .count();
+        println!(
+            "{identified} of {} parameters identified ({} held)",
+            p.len(),
+            p.len() - identified
+        );
+    }
+    let mm = |k: &str| r[k].as_f64().map(|v| format!("{v:.4}"));
+    if let (Some(b), Some(a)) = (mm("rmse_before_mm"), mm("rmse_after_mm")) {
+        println!("marker RMSE {b} -> {a} mm");
+    }
+    let cv = &r["cross_validation"];
+    if let (Some(b), Some(a)) = (
+        cv["rmse_nominal_mm"].as_f64(),
+        cv["rmse_calibrated_mm"].as_f64(),
+    ) {
+        println!("held-out marker RMSE (cross-validation) {b:.4} -> {a:.4} mm");
+    }
+    for set in ["calibration", "validation"] {
+        let e = &r["model_error"][set]["e_P"];
+        if let (Some(b), Some(a)) = (
+            e["nominal"]["mean"].as_f64(),
+            e["identified"]["mean"].as_f64(),
+        ) {
+            println!(
+                "{set} e_P mean {b:.2} -> {a:.2} {}",
+                e["unit"].as_str().unwrap_or("um")
+            );
+        }
     }
     if let Some(u) = r["unidentifiable"].as_array().filter(|u| !u.is_empty()) {
         println!(
@@ -210,7 +265,25 @@ pub async fn cancel(c: &Client, id: i64) -> Result<(), ClientError> {
         .json()
         .await
         .map_err(|e| ClientError::Protocol(e.to_string()))?;
-    println!("job {id}: {}", v["state"].as_str().unwrap_or("?"));
+    match v["state"].as_str().unwrap_or("?") {
+        // A running job cannot be stopped mid-step: it was asked to, and stops at its
+        // next cancellation point (a campaign before its next move).
+        "running" => println!(
+            "job {id}: asked to stop; it is still running and stops at its next step (follow it with `calibd watch {id}`)"
+        ),
+        state => println!("job {id}: {state}"),
+    }
+    Ok(())
+}
+
+/// Write a job's printable HTML report to `file`.
+pub async fn report(c: &Client, id: i64, file: &Path) -> Result<(), ClientError> {
+    let html = c.get_bytes(&format!("/v1/jobs/{id}/report")).await?;
+    std::fs::write(file, html).map_err(|e| ClientError::File {
+        path: file.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    println!("{}", file.display());
     Ok(())
 }
 

@@ -67,6 +67,8 @@ fn retryable(e: &ClientError) -> bool {
 pub struct Client {
     base: String,
     token: Option<String>,
+    /// Where a token was looked for when none was found (said with a 401).
+    token_search: Option<String>,
     http: reqwest::Client,
 }
 
@@ -76,8 +78,24 @@ impl Client {
         Client {
             base: base.trim_end_matches('/').to_string(),
             token,
+            token_search: None,
             http: reqwest::Client::new(),
         }
+    }
+
+    /// Say where a token was looked for (when none was found): a refused request (401)
+    /// then names those places.
+    pub fn with_token_search(mut self, places: String) -> Client {
+        self.token_search = Some(places);
+        self
+    }
+
+    /// Where [`Client::find_token`] looks, as a sentence for messages.
+    pub fn token_places(data_dir: &Path) -> String {
+        format!(
+            "--token, the CALIBD_TOKEN variable, and {} (the daemon's data folder: --data or CALIBD_DATA)",
+            data_dir.join("operator.token").display()
+        )
     }
 
     /// The token from `CALIBD_TOKEN`-style value or the daemon's `DATA/operator.token`.
@@ -123,6 +141,12 @@ impl Client {
                     .map(String::from)
             })
             .unwrap_or(text);
+        let message = match (&self.token, &self.token_search) {
+            (None, Some(places)) if status == 401 => {
+                format!("{message}; no token was found: looked in {places}")
+            }
+            _ => message,
+        };
         Err(ClientError::Api { status, message })
     }
 
@@ -218,6 +242,7 @@ impl Client {
         let mut doc: Value = serde_json::from_str(&text)
             .map_err(|e| file_err(path, format!("not valid JSON: {e}")))?;
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        let mut missing = Vec::new();
         if let Value::Object(m) = &mut doc {
             for (k, v) in m.iter_mut() {
                 let Value::String(s) = v else { continue };
@@ -226,6 +251,9 @@ impl Client {
                 }
                 let p = dir.join(&*s);
                 if !p.is_file() {
+                    if looks_like_file(s) {
+                        missing.push(format!("`{k}`: {s} ({})", p.display()));
+                    }
                     continue;
                 }
                 let content = std::fs::read(&p).map_err(|e| file_err(&p, e.to_string()))?;
@@ -238,6 +266,15 @@ impl Client {
                 let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("input");
                 *v = Value::String(self.upload(name, media, content).await?);
             }
+        }
+        if !missing.is_empty() {
+            return Err(file_err(
+                path,
+                format!(
+                    "names files that do not exist (paths are relative to the job file's folder): {}",
+                    missing.join(", ")
+                ),
+            ));
         }
         Ok(doc)
     }
@@ -265,6 +302,25 @@ impl Client {
         }
         self.get(&format!("/v1/jobs/{id}")).await
     }
+}
+
+/// Whether a job file's string value names a file (a path or a known extension) rather
+/// than a dataset id or an inline value.
+pub fn looks_like_file(s: &str) -> bool {
+    let s = s.trim();
+    if s.is_empty() || s.contains('\n') {
+        return false;
+    }
+    let ext = Path::new(s)
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    s.contains('/')
+        || s.contains('\\')
+        || matches!(
+            ext.as_deref(),
+            Some("csv" | "json" | "urdf" | "xml" | "srdf" | "toml" | "txt" | "tsv")
+        )
 }
 
 /// A text progress bar line: `[#####.....]  50.0 % stage`.
@@ -295,5 +351,14 @@ mod tests {
             format!("[{}{}]  50.0 % lm", "#".repeat(15), ".".repeat(15))
         );
         assert!(progress_line(f64::NAN, "x").contains("  0.0 %"));
+    }
+
+    #[test]
+    fn file_names_are_told_from_dataset_ids() {
+        assert!(looks_like_file("measurements.csv"));
+        assert!(looks_like_file("../data/robots/irb120.json"));
+        assert!(!looks_like_file(&"ab".repeat(32)));
+        assert!(!looks_like_file("square"));
+        assert!(!looks_like_file("<robot name=\"x\">\n</robot>"));
     }
 }

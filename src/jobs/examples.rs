@@ -21,6 +21,34 @@ pub const EXAMPLES: &[(&str, &str)] = &[
         "irb120-dispersion",
         "serial.dispersion: IRB 120 twin, sizes 20/40/60, 10 repetitions each",
     ),
+    (
+        "trical-campaign",
+        "cell.trical_campaign: the IRB 120 cell measures 3 x 15 centrings (designed) and 15 validation centrings, identifies, decides the cell's model",
+    ),
+    (
+        "pcr-campaign",
+        "cell.pcr_campaign: the 3-PF cell measures 64 poses under the microscope (25 % held out), identifies, checks accuracy on a 2 mm square",
+    ),
+    (
+        "mocap-campaign",
+        "cell.mocap_campaign: the TALOS cell records up to 40 designed postures with motion capture, identifies geometry and elasticity",
+    ),
+];
+
+/// The campaign examples: the files of `examples/`, embedded.
+const CAMPAIGNS: &[(&str, &str)] = &[
+    (
+        "trical-campaign",
+        include_str!("../../examples/trical_campaign.json"),
+    ),
+    (
+        "pcr-campaign",
+        include_str!("../../examples/pcr_campaign.json"),
+    ),
+    (
+        "mocap-campaign",
+        include_str!("../../examples/mocap_campaign.json"),
+    ),
 ];
 
 /// The example job `name`.
@@ -29,7 +57,10 @@ pub fn example(name: &str) -> Option<Value> {
         "irb120-identify" => Some(twin_identify(40, 60)),
         "irb120-fk" => Some(twin_fk(20)),
         "irb120-dispersion" => Some(twin_dispersion(&[20, 40, 60], 10)),
-        _ => None,
+        other => CAMPAIGNS
+            .iter()
+            .find(|(n, _)| *n == other)
+            .and_then(|(_, text)| serde_json::from_str(text).ok()),
     }
 }
 
@@ -116,7 +147,12 @@ mod tests {
             let job = crate::jobs::prepare(&doc, &crate::jobs::NoReferences)
                 .unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(Some(job.kind.as_str()), doc["kind"].as_str());
-            assert!(job.devices().is_empty());
+            // Only the campaigns drive devices.
+            assert_eq!(
+                job.devices().is_empty(),
+                !name.ends_with("-campaign"),
+                "{name}"
+            );
         }
     }
 }

@@ -3,13 +3,15 @@
 //! histograms of those errors, and box plots of a dispersion study. Reports read results,
 //! never models; a result without the data a plot needs simply gets no plot.
 
+pub mod html;
+pub mod plots;
 pub mod svg;
 
 use serde::Serialize;
 use serde_json::Value;
 
 use crate::jobs::{Artefact, JobError, Output, Table};
-use svg::{COLOURS, Chart};
+pub use plots::ErrorSet;
 
 /// A kind's typed result with its main table and artefacts (plots included): what the
 /// campaigns and the service read instead of the JSON fields.
@@ -50,16 +52,31 @@ pub fn json_rows<S: serde::Serializer>(t: &Table, s: S) -> Result<S::Ok, S::Erro
     t.to_json_rows().serialize(s)
 }
 
-/// Plots of per-measurement errors before and after calibration (bars per configuration
-/// and a histogram), as SVG artefacts; kinds with residuals call it on their own errors.
-pub fn calibration_plots(before: &[f64], after: &[f64], unit: &str) -> Vec<Artefact> {
-    vec![
+/// The error plots of a calibration as SVG artefacts: per configuration, histogram and
+/// cumulative distribution of the calibration set's errors (`what`, e.g. "Position
+/// error"), and with a held-out validation set its errors per point and their
+/// distribution. Kinds with residuals call it on their own errors.
+pub fn calibration_plots(
+    what: &str,
+    calibration: &ErrorSet<'_>,
+    validation: Option<&ErrorSet<'_>>,
+) -> Vec<Artefact> {
+    let mut out = vec![
         svg_artefact(
             "errors_per_configuration.svg",
-            per_configuration(before, after, unit),
+            plots::per_configuration(what, calibration),
         ),
-        svg_artefact("error_histogram.svg", histogram(before, after, unit, 20)),
-    ]
+        svg_artefact("error_histogram.svg", plots::histogram(calibration, 4)),
+        svg_artefact("error_cdf.svg", plots::cdf(calibration)),
+    ];
+    if let Some(v) = validation.filter(|v| !v.before.is_empty() || !v.after.is_empty()) {
+        out.push(svg_artefact(
+            "validation_errors.svg",
+            plots::per_configuration(&format!("Held-out {}", what.to_lowercase()), v),
+        ));
+        out.push(svg_artefact("validation_cdf.svg", plots::cdf(v)));
+    }
+    out
 }
 
 /// One set size of a dispersion study, as the plots read it: quartiles (min, q1, median,
@@ -82,19 +99,21 @@ pub fn dispersion_plots(sizes: &[DispersionBox], unit: &str) -> Vec<Artefact> {
     }
     let mean: Vec<(f64, [f64; 5])> = sizes.iter().map(|s| (s.n, s.mean_error)).collect();
     let std: Vec<(f64, [f64; 5])> = sizes.iter().map(|s| (s.n, s.std_error)).collect();
+    let dataset = "validation set, over the repetitions of each calibration set size";
     vec![
         svg_artefact(
             "dispersion_mean_error.svg",
-            boxplots(&mean, "Mean validation error", unit),
+            plots::boxplots(&mean, "Mean validation error", dataset, unit),
         ),
         svg_artefact(
             "dispersion_std_error.svg",
-            boxplots(&std, "Std of validation error", unit),
+            plots::boxplots(&std, "Std of validation error", dataset, unit),
         ),
     ]
 }
 
-fn svg_artefact(name: &str, svg: String) -> Artefact {
+/// An SVG document as an artefact named `name`.
+pub fn svg_artefact(name: &str, svg: String) -> Artefact {
     Artefact {
         name: name.into(),
         media_type: "image/svg+xml".into(),
@@ -102,116 +121,36 @@ fn svg_artefact(name: &str, svg: String) -> Artefact {
     }
 }
 
-fn max_of(v: &[f64]) -> f64 {
-    v.iter()
-        .copied()
-        .filter(|x| x.is_finite())
-        .fold(0.0, f64::max)
-}
-
-/// Bars of the error of every configuration, before (behind) and after calibration.
-pub fn per_configuration(before: &[f64], after: &[f64], unit: &str) -> String {
-    let n = before.len().max(after.len());
-    let top = max_of(before).max(max_of(after)) * 1.05;
-    let mut c = Chart::new(
-        "Position error per configuration",
-        "configuration",
-        &format!("error ({unit})"),
-        (0.5, n as f64 + 0.5),
-        (0.0, top),
-    );
-    for (k, v) in before.iter().enumerate() {
-        c.bar(k as f64 + 0.6, k as f64 + 1.4, *v, COLOURS[0], 0.8);
-    }
-    for (k, v) in after.iter().enumerate() {
-        c.bar(k as f64 + 0.75, k as f64 + 1.25, *v, COLOURS[1], 1.0);
-    }
-    c.x_ticks();
-    c.legend("before calibration", COLOURS[0]);
-    c.legend("after calibration", COLOURS[1]);
-    c.finish()
-}
-
-/// Counts of `values` in `bins` equal bins over [0, hi).
-pub fn bin_counts(values: &[f64], hi: f64, bins: usize) -> Vec<usize> {
-    let mut counts = vec![0; bins];
-    for v in values.iter().filter(|v| v.is_finite()) {
-        let k = ((v / hi) * bins as f64)
-            .floor()
-            .clamp(0.0, (bins - 1) as f64) as usize;
-        counts[k] += 1;
-    }
-    counts
-}
-
-/// Histograms of the errors before and after, on the same bins.
-pub fn histogram(before: &[f64], after: &[f64], unit: &str, bins: usize) -> String {
-    let hi = max_of(before).max(max_of(after)).max(f64::MIN_POSITIVE);
-    let (cb, ca) = (bin_counts(before, hi, bins), bin_counts(after, hi, bins));
-    let top = cb.iter().chain(ca.iter()).copied().max().unwrap_or(1) as f64 * 1.1;
-    let mut c = Chart::new(
-        "Histogram of position errors",
-        &format!("error ({unit})"),
-        "configurations",
-        (0.0, hi),
-        (0.0, top),
-    );
-    let w = hi / bins as f64;
-    for (k, n) in cb.iter().enumerate() {
-        c.bar(k as f64 * w, (k + 1) as f64 * w, *n as f64, COLOURS[0], 0.6);
-    }
-    for (k, n) in ca.iter().enumerate() {
-        c.bar(k as f64 * w, (k + 1) as f64 * w, *n as f64, COLOURS[1], 0.6);
-    }
-    c.x_ticks();
-    c.legend("before calibration", COLOURS[0]);
-    c.legend("after calibration", COLOURS[1]);
-    c.finish()
-}
-
-/// Box plots (min, q1, median, q3, max) per set size.
-pub fn boxplots(boxes: &[(f64, [f64; 5])], title: &str, unit: &str) -> String {
-    let top = boxes.iter().map(|b| b.1[4]).fold(0.0, f64::max) * 1.05;
-    let k = boxes.len() as f64;
-    let mut c = Chart::new(
-        &format!("{title} per number of configurations"),
-        "configurations in the calibration set",
-        &format!("{title} ({unit})"),
-        (0.5, k + 0.5),
-        (0.0, top),
-    );
-    for (i, (n, q)) in boxes.iter().enumerate() {
-        let x = i as f64 + 1.0;
-        c.boxplot(x, 0.5, *q, COLOURS[2]);
-        let p = c.px(x);
-        c.x_label_at(p, &format!("{n}"));
-    }
-    c.finish()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn histogram_counts_every_value_once() {
-        let v = [0.0, 0.1, 0.24, 0.25, 0.99, 1.0];
-        // Bins of 0.25 over [0, 1): the maximum falls in the last bin.
-        assert_eq!(bin_counts(&v, 1.0, 4), vec![3, 1, 0, 2]);
-        assert_eq!(bin_counts(&v, 1.0, 4).iter().sum::<usize>(), v.len());
-    }
-
-    #[test]
     fn calibration_and_dispersion_plots_draw_every_value() {
-        let p = calibration_plots(&[1.5, 2.0], &[0.05, 0.04], "mm");
+        let set = ErrorSet {
+            before: &[1.5, 2.0],
+            after: &[0.05, 0.04],
+            unit: "mm",
+            dataset: "calibration set",
+        };
+        let p = calibration_plots("Position error", &set, None);
         let names: Vec<&str> = p.iter().map(|a| a.name.as_str()).collect();
         assert_eq!(
             names,
-            ["errors_per_configuration.svg", "error_histogram.svg"]
+            [
+                "errors_per_configuration.svg",
+                "error_histogram.svg",
+                "error_cdf.svg"
+            ]
         );
-        let svg = String::from_utf8(p[0].content.clone()).unwrap();
-        // Two before bars and two after bars.
-        assert_eq!(svg.matches("<rect x=").count(), 4 + 2, "{svg}");
+        let svg = String::from_utf8(p[0].content.clone()).unwrap_or_default();
+        assert_eq!(svg::series_marks(&svg, plots::BEFORE).len(), 2);
+        assert_eq!(svg::series_marks(&svg, plots::AFTER).len(), 2);
+        let v = ErrorSet {
+            dataset: "validation set",
+            ..set
+        };
+        assert_eq!(calibration_plots("Position error", &set, Some(&v)).len(), 5);
         let q = [1.0, 2.0, 3.0, 4.0, 5.0];
         let boxes = [DispersionBox {
             n: 20.0,
@@ -222,7 +161,7 @@ mod tests {
         assert_eq!(p.len(), 2);
         assert!(
             String::from_utf8(p[0].content.clone())
-                .unwrap()
+                .unwrap_or_default()
                 .contains(">20</text>")
         );
         assert!(dispersion_plots(&[], "mm").is_empty());

@@ -76,6 +76,7 @@ function handleEvent(name, data) {
       row(j);
       const live = document.getElementById("detail-progress");
       if (live && selected === data.id) live.textContent = ` — ${j.stage} (${Math.round(100 * j.progress)} %) ${j.message || ""}`;
+      if (selected === data.id) campaignProgress(data.id);
     }
   } else if (name === "state") {
     refreshJob(data.id).catch(() => {});
@@ -156,14 +157,16 @@ async function showJob(id) {
     el("button", { type: "button", onclick: () => rerun(j.id) }, "re-run"),
     (j.state === "paused" && !prompt) || j.state === "interrupted"
       ? el("button", { type: "button", onclick: () => resumeJob(j.id) }, "resume") : ""];
+  const campaign = /campaign/.test(j.kind) ? el("div", { id: "campaign" }) : null;
   if (j.state === "succeeded") {
     const r = await api(`/v1/jobs/${id}/result`);
     const a = await api(`/v1/jobs/${id}/artefacts`);
-    if (Array.isArray(r.parameters)) {
-      parts.push(el("h3", {}, "Parameters"),
-        table(["name", "unit", "nominal", "value", "std"], r.parameters.map((p) => [p.name, p.unit, p.nominal, p.value, p.std])));
-      if (r.unidentifiable && r.unidentifiable.length) parts.push(el("p", {}, "Unidentifiable: " + r.unidentifiable.join(", ")));
-    }
+    const head = headline(r);
+    if (head) parts.splice(2, 0, head);
+    const plots = el("div", { class: "plots" });
+    parts.push(plots);
+    inlinePlots(id, a.artefacts, plots);
+    if (Array.isArray(r.parameters)) parts.push(...paramTable(r));
     for (const [t, k] of [["Validation errors", "validation"], ["Residuals", "residuals"]]) {
       const s = statsTable(t, r[k]);
       if (s) parts.push(...s);
@@ -173,18 +176,15 @@ async function showJob(id) {
       parts.push(el("h3", {}, "Dispersion (mean validation error)"),
         table(["n", "min", "q1", "median", "q3", "max"], r.sizes.map((s) => [s.n, s.mean_error.min, s.mean_error.q1, s.mean_error.median, s.mean_error.q3, s.mean_error.max])));
     }
-    const plots = el("div", { class: "plots" });
-    parts.push(plots);
-    for (const f of a.artefacts.filter((f) => f.media_type === "image/svg+xml")) {
-      blobUrl(`/v1/jobs/${id}/artefacts/${encodeURIComponent(f.name)}`).then((u) => plots.append(el("img", { src: u, alt: f.name }))).catch(() => {});
-    }
     const links = el("ul", { id: "artefacts" });
+    links.append(el("li", {}, el("a", { href: "#", id: "report-link", onclick: (e) => { e.preventDefault(); download(`/v1/jobs/${id}/report`, `job-${id}-report.html`); } }, "printable report (HTML)"), " — open the file in a browser to read, print and sign it off"));
     for (const f of a.artefacts) {
       links.append(el("li", {}, el("a", { href: "#", "data-name": f.name, onclick: (e) => { e.preventDefault(); download(`/v1/jobs/${id}/artefacts/${encodeURIComponent(f.name)}`, f.name); } }, f.name), ` (${f.media_type}, ${f.size} bytes)`));
     }
     links.append(el("li", {}, el("a", { href: "#", onclick: (e) => { e.preventDefault(); download(`/v1/jobs/${id}/result`, `job-${id}-result.json`); } }, "result.json")));
     parts.push(el("h3", {}, "Downloads"), links, el("details", {}, el("summary", {}, "result JSON"), el("pre", {}, JSON.stringify(r, null, 2))));
   }
+  if (campaign) { parts.push(campaign); campaignView(id, campaign).catch(() => {}); }
   if (selected === id) d.replaceChildren(...parts);
 }
 
@@ -302,7 +302,7 @@ async function init() {
   $("#more").addEventListener("click", () => loadJobs(true));
   $("#lab-check").addEventListener("click", () => loadLab(true));
   $("#state-filter").addEventListener("change", () => loadJobs());
-  $("#job-file").addEventListener("change", async () => { const f = $("#job-file").files[0]; if (f) $("#job-text").value = await f.text(); });
+  $("#job-file").addEventListener("change", () => { const f = $("#job-file").files; if (f.length) loadJobFiles(f).catch((e) => { $("#submit-msg").className = "msg err"; $("#submit-msg").textContent = e.message; }); });
   $("#load-example").addEventListener("click", async () => {
     const name = $("#example-select").value;
     const doc = await api("/v1/examples/" + encodeURIComponent(name));
@@ -315,6 +315,7 @@ async function init() {
   await loadAll();
   setInterval(loadDevices, 5000);
   setInterval(loadLab, 10000);
+  setInterval(loadCells, 10000);
   stream();
 }
 
@@ -332,5 +333,6 @@ async function loadAll() {
   }
   loadDevices();
   loadLab();
+  loadCells();
 }
 init();

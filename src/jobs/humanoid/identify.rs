@@ -10,6 +10,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
+use super::plots::{Observation, humanoid_plots};
 use super::samples::{SampleSet, load_samples, samples_from_table};
 use super::{BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, load_model, load_model_text};
 use crate::identify::solve::Dependency;
@@ -485,6 +486,7 @@ impl IdentifyJob {
             .urdf
             .write_calibrated_chains(full.model.chains())?;
         let mut csv = String::from("row,marker,error_before_mm,error_after_mm\n");
+        let mut observations = Vec::new();
         let before = cal.frames.model.clone();
         for (k, s) in samples.iter().enumerate() {
             let (pb, pa) = (
@@ -493,13 +495,16 @@ impl IdentifyJob {
             );
             for (m, p) in s.points.iter().enumerate() {
                 if let Some(y) = p {
+                    let o = Observation {
+                        row: self.set.rows[k],
+                        before_mm: (pb[m] - y).norm() * 1e3,
+                        after_mm: (pa[m] - y).norm() * 1e3,
+                    };
                     csv.push_str(&format!(
                         "{},{},{},{}\n",
-                        self.set.rows[k],
-                        full.model.markers[m].name,
-                        (pb[m] - y).norm() * 1e3,
-                        (pa[m] - y).norm() * 1e3
+                        o.row, full.model.markers[m].name, o.before_mm, o.after_mm
                     ));
+                    observations.push(o);
                 }
             }
         }
@@ -547,21 +552,23 @@ impl IdentifyJob {
             calibrated_model: text.clone(),
             calibrated_urdf_note: "placement errors and offsets are folded into each joint's <origin>; compliances, the base frame and the marker positions are in `parameters`",
         };
+        let mut artefacts = vec![
+            Artefact {
+                name: "calibrated_model.urdf".into(),
+                media_type: "application/xml".into(),
+                content: text.into_bytes(),
+            },
+            Artefact {
+                name: "marker_residuals.csv".into(),
+                media_type: "text/csv".into(),
+                content: csv.into_bytes(),
+            },
+        ];
+        artefacts.extend(humanoid_plots(&result, &observations));
         Ok(Run {
             result,
             main_table: None,
-            artefacts: vec![
-                Artefact {
-                    name: "calibrated_model.urdf".into(),
-                    media_type: "application/xml".into(),
-                    content: text.into_bytes(),
-                },
-                Artefact {
-                    name: "marker_residuals.csv".into(),
-                    media_type: "text/csv".into(),
-                    content: csv.into_bytes(),
-                },
-            ],
+            artefacts,
         })
     }
 }

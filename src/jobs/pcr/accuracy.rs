@@ -379,10 +379,33 @@ impl AccuracyJob {
             per_pose,
             summary: summarise(&acc),
         };
+        // The plot: commanded against the mean attained position (mm).
+        let mm = |x: f64| x * 1e3;
+        let commanded: Vec<(f64, f64)> =
+            self.commanded.iter().map(|c| (mm(c.x), mm(c.y))).collect();
+        let attained: Vec<(f64, f64)> = reached
+            .iter()
+            .map(|p| {
+                let n = p.len().max(1) as f64;
+                let (sx, sy) = p.iter().fold((0.0, 0.0), |(a, b), q| (a + q.x, b + q.y));
+                (mm(sx / n), mm(sy / n))
+            })
+            .collect();
+        let dataset = format!(
+            "trajectory {}: {} poses x {} repetitions ({})",
+            self.name,
+            self.commanded.len(),
+            r,
+            result.source
+        );
+        let artefacts = vec![crate::report::svg_artefact(
+            "trajectory.svg",
+            crate::report::plots::trajectory(&commanded, &attained, "mm", &dataset),
+        )];
         Ok(Run {
             result,
             main_table: Some(t),
-            artefacts: vec![],
+            artefacts,
         })
     }
 }

@@ -14,7 +14,7 @@ use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, comput
 use crate::measure::pcr::steps::{CalibrationOptions, Step, calibrated_file, default_steps};
 use crate::measure::pcr::{PcrMeasurement, StepReport, Table3, identify_steps};
 use crate::model::pcr::PcrFile;
-use crate::report::Run;
+use crate::report::{ErrorSet, Run};
 use crate::util::{Monitor, Summary};
 
 #[derive(Debug, Deserialize)]
@@ -344,7 +344,41 @@ impl IdentifyJob {
         }
         let model_value =
             serde_json::to_value(&file).map_err(|e| JobError::Failed(e.to_string()))?;
-        let artefacts = vec![
+        let um = |v: &[f64]| -> Vec<f64> { v.iter().map(|x| x * 1e6).collect() };
+        let (cb, ca) = (
+            um(&cal.calibration_errors[0]),
+            um(&cal.calibration_errors[1]),
+        );
+        let cal_label = format!(
+            "calibration set: {} poses (nominal: the nominal model with its frames fitted)",
+            cb.len()
+        );
+        let held = cal.validation_errors.as_ref().map(|[b, a]| (um(b), um(a)));
+        let val_label = held.as_ref().map(|(b, _)| {
+            format!(
+                "validation set: {} held-out poses (not used in the fit)",
+                b.len()
+            )
+        });
+        let plots = crate::report::calibration_plots(
+            "Position error e_P",
+            &ErrorSet {
+                before: &cb,
+                after: &ca,
+                unit: "µm",
+                dataset: &cal_label,
+            },
+            held.as_ref()
+                .zip(val_label.as_deref())
+                .map(|((b, a), label)| ErrorSet {
+                    before: b,
+                    after: a,
+                    unit: "µm",
+                    dataset: label,
+                })
+                .as_ref(),
+        );
+        let mut artefacts = vec![
             Artefact {
                 name: "calibrated_model.json".into(),
                 media_type: "application/json".into(),
@@ -356,6 +390,7 @@ impl IdentifyJob {
                 content: res.to_csv().into_bytes(),
             },
         ];
+        artefacts.extend(plots);
         let result = PcrCalibration {
             parameters,
             unidentifiable: cal.unidentifiable.clone(),

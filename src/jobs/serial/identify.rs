@@ -15,6 +15,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
+use super::plots::{ResidualPlots, axis_rms, residual_artefacts};
 use super::{ChainSpec, PlateSpec, SerialModel, load_model};
 use crate::identify::solve::Dependency;
 use crate::identify::{
@@ -909,28 +910,6 @@ fn calibrated_file(
     Ok((file, art))
 }
 
-/// `residuals.csv` (measurement, before, after) and the error plots drawn from the same
-/// columns.
-fn residual_artefacts(before: &[f64], after: &[f64], unit: &str) -> Vec<Artefact> {
-    let mut res = Table::new(&["measurement", "before", "after"]);
-    for (i, (a, b)) in before.iter().zip(after).enumerate() {
-        res.push(vec![(i + 1) as f64, *a, *b]);
-    }
-    let mut out = vec![Artefact {
-        name: "residuals.csv".into(),
-        media_type: "text/csv".into(),
-        content: res.to_csv().into_bytes(),
-    }];
-    // The plots read the CSV's columns (as the service's report did): equal lengths.
-    let n = before.len().min(after.len());
-    out.extend(crate::report::calibration_plots(
-        &before[..n],
-        &after[..n],
-        unit,
-    ));
-    out
-}
-
 impl IdentifyJob {
     /// A `serial.identify` job from typed inputs (the campaigns' entry point; the JSON
     /// path parses its tables and calls this too): model, point measurements (radians),
@@ -1014,6 +993,7 @@ impl IdentifyJob {
                 unit,
             ));
         }
+        let mut held_out = None;
         if let Some(v) = &inp.validation {
             let cartesian: Vec<PointMeasurement> = v
                 .iter()
@@ -1021,11 +1001,16 @@ impl IdentifyJob {
                 .cloned()
                 .collect();
             if !cartesian.is_empty() {
+                let (vb, va) = (
+                    position_errors(&inp.model.chain, &cartesian),
+                    position_errors(&calibrated, &cartesian),
+                );
                 r.validation = Some(BeforeAfter {
-                    before: Summary::of(&position_errors(&inp.model.chain, &cartesian), unit),
-                    after: Summary::of(&position_errors(&calibrated, &cartesian), unit),
+                    before: Summary::of(&vb, unit),
+                    after: Summary::of(&va, unit),
                     meaning: None,
                 });
+                held_out = Some((vb, va));
             }
             if v.iter().any(|m| matches!(m.target, Target::Ball(_))) {
                 r.validation_coincidence = Some(coincidence_report(
@@ -1042,7 +1027,18 @@ impl IdentifyJob {
             r.warnings = Some(inp.warnings.clone());
         }
         let mut artefacts = vec![model_art];
-        artefacts.extend(residual_artefacts(&before, &after, unit));
+        // The first 3 rows per measurement are its x, y, z residuals (a prior adds rows).
+        let n3 = 3 * problem.measurements().len();
+        let rb: Vec<f64> = sol.residuals_before.iter().take(n3).copied().collect();
+        let ra: Vec<f64> = sol.residuals.iter().take(n3).copied().collect();
+        artefacts.extend(residual_artefacts(&ResidualPlots {
+            before: &before,
+            after: &after,
+            unit,
+            what: "Position error",
+            validation: held_out,
+            per_axis: Some((axis_rms(&rb), axis_rms(&ra))),
+        }));
         Ok(Run {
             result: r,
             main_table: None,
@@ -1097,6 +1093,7 @@ impl IdentifyJob {
             unit: unit.to_string(),
             meaning: "measured length = |TCP - anchor| + length_offset",
         });
+        let mut held_out = None;
         if let Some(v) = &inp.validation_distances {
             let before: Vec<f64> = distance_errors(&inp.model.chain, &anchor0, offset0, v)
                 .iter()
@@ -1106,6 +1103,7 @@ impl IdentifyJob {
                 .iter()
                 .map(|e| e.abs())
                 .collect();
+            held_out = Some((before.clone(), after.clone()));
             r.validation = Some(BeforeAfter {
                 before: Summary::of(&before, unit),
                 after: Summary::of(&after, unit),
@@ -1120,7 +1118,14 @@ impl IdentifyJob {
         let before: Vec<f64> = sol.residuals_before.iter().copied().collect();
         let after: Vec<f64> = sol.residuals.iter().copied().collect();
         let mut artefacts = vec![model_art];
-        artefacts.extend(residual_artefacts(&before, &after, unit));
+        artefacts.extend(residual_artefacts(&ResidualPlots {
+            before: &before,
+            after: &after,
+            unit,
+            what: "Distance error",
+            validation: held_out,
+            per_axis: None,
+        }));
         Ok(Run {
             result: r,
             main_table: None,
@@ -1215,7 +1220,11 @@ mod tests {
                 "calibrated_model.json",
                 "residuals.csv",
                 "errors_per_configuration.svg",
-                "error_histogram.svg"
+                "error_histogram.svg",
+                "error_cdf.svg",
+                "validation_errors.svg",
+                "validation_cdf.svg",
+                "errors_per_axis.svg"
             ]
         );
     }

@@ -7,6 +7,7 @@ pub mod design;
 pub mod dispersion;
 pub mod fk;
 pub mod identify;
+mod plots;
 pub mod prior;
 
 use serde::Deserialize;

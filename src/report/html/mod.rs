@@ -1,0 +1,272 @@
+//! The printable report of a job: one self-contained HTML document (inline CSS and SVG,
+//! no script, nothing fetched) with the job, its data sets and their hashes, the model,
+//! the headline numbers, the parameter table with each parameter's observability, the
+//! plots, validation, warnings, the software version and a section a quality engineer
+//! signs off.
+//!
+//! The report reads the stored job record, result JSON and artefacts, never models.
+//! Every user-supplied string is HTML-escaped. Every number shown from the result carries
+//! `data-pointer` (its JSON pointer in the result), so a test or a reader can check the
+//! report against the result JSON.
+
+mod assessment;
+mod sections;
+
+use std::fmt::Write;
+
+use serde_json::Value;
+use sha2::{Digest, Sha256};
+
+use super::svg::escape;
+use crate::jobs::Artefact;
+
+/// What a report is made of: the stored job, its result and artefacts, and the cell's
+/// model history (when the job calibrated a cell).
+#[derive(Debug, Clone, Copy)]
+pub struct ReportInput<'a> {
+    /// The job record (`GET /v1/jobs/{id}`).
+    pub job: &'a Value,
+    /// The result document (`GET /v1/jobs/{id}/result`).
+    pub result: &'a Value,
+    /// The job's artefacts; the SVG plots among them are embedded.
+    pub artefacts: &'a [Artefact],
+    /// The model history of the job's cell, newest first (`[]` when none).
+    pub cell_history: &'a [Value],
+    /// Version of the calibd that writes the report.
+    pub generator_version: &'a str,
+    /// When the report is written (RFC 3339).
+    pub generated_at: &'a str,
+}
+
+/// A number as the report prints it: 4 significant digits, exponent form for very small
+/// or large magnitudes.
+pub fn number(v: f64) -> String {
+    if !v.is_finite() {
+        return "—".into();
+    }
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if !(1e-3..1e5).contains(&a) {
+        format!("{v:.3e}")
+    } else {
+        let decimals = (3 - a.log10().floor() as i32).max(0) as usize;
+        format!("{v:.decimals$}")
+    }
+}
+
+/// A `<td>` with the number at `pointer` in the result (empty when absent).
+pub(crate) fn num_cell(result: &Value, pointer: &str) -> String {
+    match result.pointer(pointer).and_then(Value::as_f64) {
+        Some(v) => format!(
+            r#"<td class="num" data-pointer="{}">{}</td>"#,
+            escape(pointer),
+            number(v)
+        ),
+        None => r#"<td class="num">—</td>"#.into(),
+    }
+}
+
+/// The text of a JSON string (or the JSON of anything else), escaped.
+pub(crate) fn text(v: Option<&Value>) -> String {
+    match v {
+        None | Some(Value::Null) => "—".into(),
+        Some(Value::String(s)) => escape(s),
+        Some(other) => escape(&other.to_string()),
+    }
+}
+
+/// The job's cell: the result's `cell`, else the first device's prefix.
+pub(crate) fn cell_of(input: &ReportInput<'_>) -> Option<String> {
+    cell_name(input.job, input.result)
+}
+
+/// The cell a job calibrated: the result's `cell`, else the prefix of its first device
+/// (`cell.device`); none for an offline job.
+pub fn cell_name(job: &Value, result: &Value) -> Option<String> {
+    if let Some(c) = result.get("cell").and_then(Value::as_str) {
+        return Some(c.to_string());
+    }
+    job.get("devices")
+        .and_then(Value::as_array)
+        .and_then(|d| d.first())
+        .and_then(Value::as_str)
+        .and_then(|d| d.split_once('.'))
+        .map(|(cell, _)| cell.to_string())
+}
+
+const CSS: &str = "body{font-family:sans-serif;max-width:60rem;margin:1.5rem auto;padding:0 1rem;color:#111}\
+h1{font-size:1.5rem;margin-bottom:.2rem}h2{font-size:1.15rem;border-bottom:1px solid #999;margin-top:1.6rem}\
+table{border-collapse:collapse;margin:.4rem 0 .8rem}th,td{border:1px solid #bbb;padding:.15rem .45rem;font-size:.85rem;text-align:left}\
+td.num{text-align:right;font-variant-numeric:tabular-nums}.meta{color:#555;font-size:.85rem}\
+.headline td.num{font-size:1.05rem;font-weight:bold}.warn{color:#8a3b00}.held{color:#666}.weak{color:#8a3b00}\
+figure{margin:.6rem 0;break-inside:avoid}figure svg{max-width:100%;height:auto;border:1px solid #ddd}\
+.sign td{height:2rem;min-width:14rem}code{font-size:.8rem;word-break:break-all}\
+@media print{body{margin:0;max-width:none}h2{break-after:avoid}section{break-inside:avoid-page}}";
+
+/// The whole report.
+pub fn render(input: &ReportInput<'_>) -> String {
+    let (job, result) = (input.job, input.result);
+    let id = job.get("id").and_then(Value::as_i64).unwrap_or(0);
+    let kind = result
+        .get("kind")
+        .or_else(|| job.get("kind"))
+        .and_then(Value::as_str)
+        .unwrap_or("?");
+    let mut h = String::new();
+    let _ = write!(
+        h,
+        r#"<!doctype html><html lang="en"><head><meta charset="utf-8"><title>Calibration report: job {id} ({})</title><style>{CSS}</style></head><body>"#,
+        escape(kind)
+    );
+    let cell = cell_of(input);
+    let _ = write!(
+        h,
+        r#"<header><h1>Calibration report: job {id}, <code>{}</code>{}</h1><p class="meta">Written {} by calibd {}; the result was produced by calibd {}.</p></header>"#,
+        escape(kind),
+        cell.as_deref()
+            .map(|c| format!(", cell <code>{}</code>", escape(c)))
+            .unwrap_or_default(),
+        escape(input.generated_at),
+        escape(input.generator_version),
+        text(result.get("calibd_version")),
+    );
+    h.push_str(&sections::headline(result));
+    h.push_str(&job_section(input));
+    h.push_str(&sections::datasets(job, result));
+    h.push_str(&model_section(result));
+    h.push_str(&sections::parameters(input));
+    h.push_str(&assessment::validation(result));
+    h.push_str(&plots_section(input.artefacts));
+    h.push_str(&assessment::warnings(result));
+    h.push_str(&assessment::sign_off(input, cell.as_deref()));
+    h.push_str("</body></html>\n");
+    h
+}
+
+fn row(h: &mut String, name: &str, value: &str) {
+    let _ = write!(h, "<tr><th>{name}</th><td>{value}</td></tr>");
+}
+
+fn job_section(input: &ReportInput<'_>) -> String {
+    let j = input.job;
+    let r = input.result;
+    let mut h = String::from("<section><h2>Job</h2><table>");
+    row(&mut h, "id", &text(j.get("id")));
+    row(&mut h, "kind", &text(j.get("kind")));
+    row(&mut h, "state", &text(j.get("state")));
+    row(&mut h, "submitted by", &text(j.get("submitted_by")));
+    row(&mut h, "submitted at (UTC)", &text(j.get("submitted_at")));
+    row(&mut h, "started at (UTC)", &text(r.get("started_at")));
+    row(&mut h, "finished at (UTC)", &text(r.get("finished_at")));
+    if let Some(d) = r.get("duration_s").and_then(Value::as_f64) {
+        row(&mut h, "duration", &format!("{} s", number(d)));
+    }
+    if let Some(d) = j
+        .get("devices")
+        .and_then(Value::as_array)
+        .filter(|d| !d.is_empty())
+    {
+        let names: Vec<String> = d.iter().map(|x| text(Some(x))).collect();
+        row(&mut h, "devices", &names.join(", "));
+    }
+    if let Some(s) = j.get("schedule_id").filter(|v| !v.is_null()) {
+        row(&mut h, "submitted by schedule", &text(Some(s)));
+    }
+    if let Some(s) = j.get("rerun_of").filter(|v| !v.is_null()) {
+        row(&mut h, "re-run of job", &text(Some(s)));
+    }
+    h.push_str("</table></section>");
+    h
+}
+
+/// SHA-256 (hex) of a JSON value as the result stores it (a URDF: its text).
+fn sha256_of(v: &Value) -> String {
+    let bytes = match v {
+        Value::String(s) => s.clone().into_bytes(),
+        other => other.to_string().into_bytes(),
+    };
+    let d = Sha256::digest(&bytes);
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn model_section(result: &Value) -> String {
+    let Some(m) = result.get("calibrated_model") else {
+        return String::new();
+    };
+    let form = match m {
+        Value::String(_) => "URDF text (the calibrated joint origins folded in)",
+        Value::Object(o) if o.contains_key("dh") || o.contains_key("joints") => {
+            "DH model file (JSON)"
+        }
+        Value::Object(_) => "model file (JSON)",
+        _ => "model",
+    };
+    let mut h = String::from("<section><h2>Model</h2><table>");
+    row(&mut h, "calibrated model", form);
+    row(
+        &mut h,
+        "SHA-256 of the calibrated model",
+        &format!("<code>{}</code>", sha256_of(m)),
+    );
+    if let Some(n) = result.get("calibrated_urdf_note") {
+        row(&mut h, "note", &text(Some(n)));
+    }
+    if let Some(g) = result.get("gauge").and_then(Value::as_str) {
+        row(&mut h, "gauge", &escape(g));
+    }
+    h.push_str("</table><p class=\"meta\">The calibrated model is the artefact of the job (download it from the job; its hash is above). The model the job started from is named by its hash under Data sets.</p></section>");
+    h
+}
+
+/// Whether an artefact is an SVG this daemon drew (inline-safe: no script, no foreign
+/// content, no external references).
+fn embeddable_svg(a: &Artefact) -> Option<&str> {
+    if a.media_type != "image/svg+xml" {
+        return None;
+    }
+    let s = std::str::from_utf8(&a.content).ok()?.trim();
+    let lower = s.to_ascii_lowercase();
+    let bad = [
+        "<script",
+        "<foreignobject",
+        "href",
+        "<iframe",
+        "javascript:",
+    ];
+    (s.starts_with("<svg")
+        && s.ends_with("</svg>")
+        && !bad.iter().any(|b| lower.contains(b))
+        && !has_event_attribute(&lower))
+    .then_some(s)
+}
+
+/// Whether markup holds an ` on...=` attribute (an event handler).
+fn has_event_attribute(lower: &str) -> bool {
+    lower.match_indices(" on").any(|(i, _)| {
+        let rest = &lower[i + 3..];
+        let name_len = rest.bytes().take_while(u8::is_ascii_alphabetic).count();
+        name_len > 0 && rest[name_len..].trim_start().starts_with('=')
+    })
+}
+
+fn plots_section(artefacts: &[Artefact]) -> String {
+    let mut h = String::new();
+    for a in artefacts {
+        if let Some(svg) = embeddable_svg(a) {
+            let _ = write!(
+                h,
+                r#"<figure data-name="{}">{svg}<figcaption class="meta">{}</figcaption></figure>"#,
+                escape(&a.name),
+                escape(&a.name)
+            );
+        }
+    }
+    if h.is_empty() {
+        return String::new();
+    }
+    format!("<section><h2>Plots</h2>{h}</section>")
+}
+
+#[cfg(test)]
+mod tests;
