@@ -93,9 +93,12 @@ pub struct JobRecord {
     pub error: Option<String>,
     /// Name of the token that submitted it.
     pub submitted_by: Option<String>,
-    /// The schedule that submitted it.
+    /// The schedule that submitted it (absent, not null, for a job a person submitted: an
+    /// id field is either a real id or missing).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub schedule_id: Option<i64>,
-    /// The job this one re-runs.
+    /// The job this one re-runs (absent when it is not a re-run).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub rerun_of: Option<i64>,
 }
 
