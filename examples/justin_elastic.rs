@@ -20,10 +20,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Some(other) => return Err(format!("`{other}`: subtree or bodies").into()),
     };
     let dir = std::env::args().nth(2).map_or_else(
-        || {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-                .join("../shared/data/real/dlr_agile_justin")
-        },
+        || PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/real/dlr_agile_justin"),
         PathBuf::from,
     );
     let read = |f: &str| std::fs::read_to_string(dir.join(f));

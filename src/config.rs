@@ -201,10 +201,7 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ),
     ("CALIBD_NAME", "name: this daemon's name in a fleet"),
     ("CALIBD_FLEET_LEASE_S", "fleet_lease_s: integer"),
-    (
-        "CALIBD_FLEET_SCHEDULER",
-        "fleet_scheduler: true or false",
-    ),
+    ("CALIBD_FLEET_SCHEDULER", "fleet_scheduler: true or false"),
     (
         "CALIBD_STORE_PASSWORD_FILE",
         "password_file: file with the PostgreSQL password",

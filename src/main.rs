@@ -353,7 +353,11 @@ fn serve(
     if workers_only {
         return runtime()?.block_on(async move {
             calibd::server::run_workers(&cfg, shutdown_signal(), |_| {
-                tracing::info!(workers = cfg.worker_count(), "calibd {} workers ready", env!("CARGO_PKG_VERSION"));
+                tracing::info!(
+                    workers = cfg.worker_count(),
+                    "calibd {} workers ready",
+                    env!("CARGO_PKG_VERSION")
+                );
                 println!("calibd workers ready");
             })
             .await?;

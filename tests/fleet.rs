@@ -91,7 +91,11 @@ async fn batch(http: &reqwest::Client, ds: &[&Daemon], url: &str, n: usize) -> D
         if done - before >= n as i64 {
             break;
         }
-        assert!(t0.elapsed() < Duration::from_secs(240), "{} of {n} done", done - before);
+        assert!(
+            t0.elapsed() < Duration::from_secs(240),
+            "{} of {n} done",
+            done - before
+        );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     t0.elapsed()
@@ -118,7 +122,11 @@ async fn three_daemons_share_one_queue() {
     let t2 = batch(&http, &[&a, &b], &store, 300).await;
     let c = spawn("c", &store, data.path());
     // An SSE client on A, for the jobs of the 3-daemon batch.
-    let sse = http.get(format!("{}/v1/events", a.url)).send().await.unwrap();
+    let sse = http
+        .get(format!("{}/v1/events", a.url))
+        .send()
+        .await
+        .unwrap();
     let mut sse = sse.bytes_stream();
     let t3 = batch(&http, &[&a, &b, &c], &store, 300).await;
     for (n, t) in [(1, t1), (2, t2), (3, t3)] {
@@ -129,10 +137,19 @@ async fn three_daemons_share_one_queue() {
         );
     }
     // Exactly once: 900 jobs, each started once, each with one result.
-    assert_eq!(count(&store, "SELECT COUNT(*) FROM jobs WHERE state = 'succeeded'"), 900);
+    assert_eq!(
+        count(
+            &store,
+            "SELECT COUNT(*) FROM jobs WHERE state = 'succeeded'"
+        ),
+        900
+    );
     assert_eq!(count(&store, "SELECT COUNT(*) FROM results"), 900);
     assert_eq!(
-        count(&store, "SELECT COUNT(*) FROM logs WHERE message LIKE 'started on %'"),
+        count(
+            &store,
+            "SELECT COUNT(*) FROM logs WHERE message LIKE 'started on %'"
+        ),
         900
     );
     let by_daemon = tokio::task::block_in_place(|| {
@@ -163,8 +180,7 @@ async fn three_daemons_share_one_queue() {
     let mut seen_elsewhere = false;
     let t0 = Instant::now();
     while !seen_elsewhere && t0.elapsed() < Duration::from_secs(20) {
-        let Ok(Some(Ok(chunk))) =
-            tokio::time::timeout(Duration::from_secs(5), sse.next()).await
+        let Ok(Some(Ok(chunk))) = tokio::time::timeout(Duration::from_secs(5), sse.next()).await
         else {
             break;
         };
@@ -178,7 +194,10 @@ async fn three_daemons_share_one_queue() {
             }
         }
     }
-    assert!(seen_elsewhere, "the SSE client on A saw no job that B or C ran");
+    assert!(
+        seen_elsewhere,
+        "the SSE client on A saw no job that B or C ran"
+    );
 
     // SIGKILL mid-job: the job finishes on another daemon.
     let slow = calibd::jobs::examples::twin_dispersion(&[30, 60, 90], 300);
@@ -191,7 +210,10 @@ async fn three_daemons_share_one_queue() {
         if let Some(o) = o {
             break o;
         }
-        assert!(t0.elapsed() < Duration::from_secs(30), "nobody claimed the slow job");
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "nobody claimed the slow job"
+        );
         tokio::time::sleep(Duration::from_millis(10)).await;
     };
     let victim = match owner.as_str() {
@@ -200,7 +222,13 @@ async fn three_daemons_share_one_queue() {
         _ => &c.child,
     };
     let pid = victim.id();
-    assert!(Command::new("kill").args(["-9", &pid.to_string()]).status().unwrap().success());
+    assert!(
+        Command::new("kill")
+            .args(["-9", &pid.to_string()])
+            .status()
+            .unwrap()
+            .success()
+    );
     eprintln!("killed daemon {owner} (pid {pid}) while it ran job {id}");
     let t0 = Instant::now();
     loop {
@@ -213,12 +241,18 @@ async fn three_daemons_share_one_queue() {
         if state == "succeeded" {
             break;
         }
-        assert!(t0.elapsed() < Duration::from_secs(120), "job {id} is {state}");
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "job {id} is {state}"
+        );
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     let logs: Vec<String> = tokio::task::block_in_place(|| {
         db(&store)
-            .query(&format!("SELECT message FROM logs WHERE job_id = {id} ORDER BY id"), &[])
+            .query(
+                &format!("SELECT message FROM logs WHERE job_id = {id} ORDER BY id"),
+                &[],
+            )
             .unwrap()
             .iter()
             .map(|r| r.get(0))
@@ -226,7 +260,10 @@ async fn three_daemons_share_one_queue() {
     });
     eprintln!("job {id}: {logs:?}");
     assert!(logs.contains(&"re-queued: its daemon's lease expired".to_string()));
-    let starts: Vec<&String> = logs.iter().filter(|m| m.starts_with("started on")).collect();
+    let starts: Vec<&String> = logs
+        .iter()
+        .filter(|m| m.starts_with("started on"))
+        .collect();
     assert_eq!(starts.len(), 2, "{logs:?}");
     assert_ne!(starts[1], &format!("started on {owner}"));
 

@@ -9,9 +9,14 @@ use calibd::measure::tree_markers::cumulative;
 use calibd::util::NoMonitor;
 
 fn data() -> Option<(String, String, String)> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/real/dlr_agile_justin");
+    let dir =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/real/dlr_agile_justin");
     let read = |f: &str| std::fs::read_to_string(dir.join(f)).ok();
-    match (read("nominal_dh.yaml"), read("initial_guess.yaml"), read("measurements_flat.csv")) {
+    match (
+        read("nominal_dh.yaml"),
+        read("initial_guess.yaml"),
+        read("measurements_flat.csv"),
+    ) {
         (Some(a), Some(b), Some(c)) => Some((a, b, c)),
         _ => {
             println!("skipped: Agile Justin data {} not found", dir.display());
@@ -28,7 +33,9 @@ fn justin_cumulative_table_reaches_the_published_full_model() {
     let lumping = calibd::model::elastic::Lumping::Bodies;
     let (model, obs) = setup(&dh, &guess, &csv, lumping).expect("the data set loads");
     assert_eq!(obs.len(), 500);
-    let steps = cumulative(&model, &obs, 4, 200, &NoMonitor).expect("fits").steps;
+    let steps = cumulative(&model, &obs, 4, 200, &NoMonitor)
+        .expect("fits")
+        .steps;
     let report = calibd::measure::justin::JustinReport {
         steps: steps.clone(),
         held_out_mm: calibd::util::Summary::of(&[0.0], "mm"),
@@ -45,6 +52,9 @@ fn justin_cumulative_table_reaches_the_published_full_model() {
         assert!(w[1].error_mm.mean <= w[0].error_mm.mean + 1e-6);
     }
     let full = steps[4].error_mm.mean;
-    assert!(full <= PUBLISHED_MM[4][0], "full model {full:.2} mm vs published 3.12 mm");
+    assert!(
+        full <= PUBLISHED_MM[4][0],
+        "full model {full:.2} mm vs published 3.12 mm"
+    );
     assert_eq!(steps[4].status, "converged");
 }

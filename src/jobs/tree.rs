@@ -160,13 +160,17 @@ fn rows(s: &Spec) -> Result<Vec<TreeRow>, JobError> {
     if s.tree.convention != "modified_dh" {
         return Err(JobError::invalid(
             "tree.convention",
-            format!("`{}`: only `modified_dh` (Rx(alpha) Dx(a) Ry(beta) Rz(theta + q) Dz(d)) is accepted", s.tree.convention),
+            format!(
+                "`{}`: only `modified_dh` (Rx(alpha) Dx(a) Ry(beta) Rz(theta + q) Dz(d)) is accepted",
+                s.tree.convention
+            ),
         ));
     }
     let var = |field: &str, v: &str| {
-        s.variables.iter().position(|x| x == v).ok_or_else(|| {
-            JobError::invalid(field, format!("`{v}` is not one of `variables`"))
-        })
+        s.variables
+            .iter()
+            .position(|x| x == v)
+            .ok_or_else(|| JobError::invalid(field, format!("`{v}` is not one of `variables`")))
     };
     let mut out: Vec<TreeRow> = Vec::new();
     for (i, r) in s.tree.rows.iter().enumerate() {
@@ -174,12 +178,18 @@ fn rows(s: &Spec) -> Result<Vec<TreeRow>, JobError> {
         let parent = match &r.parent {
             None => None,
             Some(p) => Some(out.iter().position(|o| &o.name == p).ok_or_else(|| {
-                JobError::invalid(format!("{f}.parent"), format!("`{p}` is not a row defined before it"))
+                JobError::invalid(
+                    format!("{f}.parent"),
+                    format!("`{p}` is not a row defined before it"),
+                )
             })?),
         };
         let kind = match (&r.mdh, &r.fixed) {
             (Some(m), None) => {
-                finite(&format!("{f}.mdh"), &[m.alpha_deg, m.a_m, m.beta_deg, m.theta_deg, m.d_m])?;
+                finite(
+                    &format!("{f}.mdh"),
+                    &[m.alpha_deg, m.a_m, m.beta_deg, m.theta_deg, m.d_m],
+                )?;
                 let drive = match (&r.variable, &r.coupled) {
                     (Some(v), None) => Drive::Variable(var(&format!("{f}.variable"), v)?),
                     (None, Some(c)) if !c.is_empty() => Drive::Coupled(
@@ -209,7 +219,9 @@ fn rows(s: &Spec) -> Result<Vec<TreeRow>, JobError> {
                 finite(&format!("{f}.fixed"), &[x.xyz_m, x.abc_deg].concat())?;
                 let a = x.abc_deg.map(f64::to_radians);
                 RowKind::Fixed {
-                    frame: Frame::from_xyzabc(&[x.xyz_m[0], x.xyz_m[1], x.xyz_m[2], a[0], a[1], a[2]]),
+                    frame: Frame::from_xyzabc(&[
+                        x.xyz_m[0], x.xyz_m[1], x.xyz_m[2], a[0], a[1], a[2],
+                    ]),
                     errors: [0.0; 6],
                 }
             }
@@ -234,7 +246,11 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobE
         .map(|r| r.name.clone())
         .collect();
     let expand = |v: &[String]| -> Vec<String> {
-        if v.iter().any(|x| x == "*") { revolute.clone() } else { v.to_vec() }
+        if v.iter().any(|x| x == "*") {
+            revolute.clone()
+        } else {
+            v.to_vec()
+        }
     };
     let elastic = ElasticOptions {
         joint: expand(&s.options.elastic.joint),
@@ -247,9 +263,12 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobE
     let mut markers = Vec::new();
     for (i, m) in s.markers.iter().enumerate() {
         finite(&format!("markers[{i}].initial_m"), &m.initial_m)?;
-        let row = tree_rows.iter().position(|r| r.name == m.row).ok_or_else(|| {
-            JobError::invalid(format!("markers[{i}].row"), format!("no row `{}`", m.row))
-        })?;
+        let row = tree_rows
+            .iter()
+            .position(|r| r.name == m.row)
+            .ok_or_else(|| {
+                JobError::invalid(format!("markers[{i}].row"), format!("no row `{}`", m.row))
+            })?;
         markers.push(TreeMarker {
             name: m.name.clone(),
             row,
@@ -268,7 +287,10 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobE
     let mut used: BTreeSet<usize> = q_cols.iter().copied().collect();
     let mut m_cols = Vec::new();
     for m in &model.markers {
-        let names: Vec<String> = ["x", "y", "z"].iter().map(|a| format!("{}_{a}", m.name)).collect();
+        let names: Vec<String> = ["x", "y", "z"]
+            .iter()
+            .map(|a| format!("{}_{a}", m.name))
+            .collect();
         let c = table.cols("samples", &names)?;
         used.extend(c.iter().copied());
         m_cols.push(c);
@@ -292,12 +314,18 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobE
         })
         .collect();
     if obs.len() < 2 {
-        return Err(JobError::invalid("samples", "at least two samples are needed"));
+        return Err(JobError::invalid(
+            "samples",
+            "at least two samples are needed",
+        ));
     }
     if let Some(k) = s.options.folds
         && !(2..=obs.len()).contains(&k)
     {
-        return Err(JobError::invalid("options.folds", format!("{k}: between 2 and the number of samples")));
+        return Err(JobError::invalid(
+            "options.folds",
+            format!("{k}: between 2 and the number of samples"),
+        ));
     }
     let last = if !elastic.lateral.is_empty() {
         4
@@ -358,10 +386,26 @@ impl TreeIdentifyJob {
     /// Run the cumulative fits and the optional K-fold.
     pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<TreeCalibration>, JobError> {
         let fail = |e: crate::identify::IdentifyError| JobError::Failed(e.to_string());
-        let c = cumulative(&self.model, &self.obs, self.last, self.max_iterations, monitor).map_err(fail)?;
+        let c = cumulative(
+            &self.model,
+            &self.obs,
+            self.last,
+            self.max_iterations,
+            monitor,
+        )
+        .map_err(fail)?;
         let held_out = match self.folds {
             Some(k) => {
-                let e = k_fold(&self.model, &self.obs, self.last, k, self.seed, self.max_iterations, monitor).map_err(fail)?;
+                let e = k_fold(
+                    &self.model,
+                    &self.obs,
+                    self.last,
+                    k,
+                    self.seed,
+                    self.max_iterations,
+                    monitor,
+                )
+                .map_err(fail)?;
                 Some(HeldOut {
                     folds: k,
                     seed: self.seed,

@@ -29,7 +29,11 @@ fn twin_job(twin: &ElasticTwin, elastic: Value, folds: Option<usize>) -> Value {
                     match drive {
                         Drive::Variable(k) => o["variable"] = json!(vars[*k]),
                         Drive::Coupled(c) => {
-                            o["coupled"] = json!(c.iter().map(|(k, f)| json!([vars[*k], f])).collect::<Vec<_>>())
+                            o["coupled"] = json!(
+                                c.iter()
+                                    .map(|(k, f)| json!([vars[*k], f]))
+                                    .collect::<Vec<_>>()
+                            )
                         }
                     }
                     o
@@ -79,20 +83,47 @@ fn all() -> ElasticOptions {
 #[test]
 fn tree_identify_runs_the_cumulative_steps_with_lumped_and_lateral_elasticity() {
     let twin = ElasticTwin::new(&all(), 150, 1e-4, 5);
-    let doc = twin_job(&twin, json!({"joint": ["*"], "lateral": ["*"], "lumping": "subtree"}), Some(3));
+    let doc = twin_job(
+        &twin,
+        json!({"joint": ["*"], "lateral": ["*"], "lumping": "subtree"}),
+        Some(3),
+    );
     let job = prepare(&doc, &Inputs::new(&NoReferences)).expect("prepares");
     let r = job.calibrate(&NoMonitor).expect("runs").result;
     let means: Vec<f64> = r.steps.iter().map(|s| s.error_mm.mean).collect();
     assert_eq!(r.steps.len(), 5, "{means:?}");
     assert!(means[4] < 0.2 && means[2] > 1.0, "{means:?}");
     assert_eq!(r.status, "converged");
-    assert!(r.held_out.as_ref().is_some_and(|h| h.folds == 3 && h.error_mm.mean < 0.3));
-    assert!(r.warnings.iter().any(|w| w.contains("t_s")), "{:?}", r.warnings);
-    let p = r.parameters.iter().find(|p| p.name == "r1.kx_gz").expect("a lateral coefficient");
+    assert!(
+        r.held_out
+            .as_ref()
+            .is_some_and(|h| h.folds == 3 && h.error_mm.mean < 0.3)
+    );
+    assert!(
+        r.warnings.iter().any(|w| w.contains("t_s")),
+        "{:?}",
+        r.warnings
+    );
+    let p = r
+        .parameters
+        .iter()
+        .find(|p| p.name == "r1.kx_gz")
+        .expect("a lateral coefficient");
     assert_eq!(p.unit, "rad");
-    assert!(r.parameters.iter().any(|p| p.name == format!("r2.{}", GEOMETRY[4]) && p.unit == "m"));
+    assert!(
+        r.parameters
+            .iter()
+            .any(|p| p.name == format!("r2.{}", GEOMETRY[4]) && p.unit == "m")
+    );
     let fields = serde_json::to_value(&r).expect("serialises");
-    for f in ["steps", "parameters", "unidentifiable", "held_out", "error_after_mean_mm", "elasticity_note"] {
+    for f in [
+        "steps",
+        "parameters",
+        "unidentifiable",
+        "held_out",
+        "error_after_mean_mm",
+        "elasticity_note",
+    ] {
         assert!(fields.get(f).is_some(), "{f}");
     }
 }
@@ -103,13 +134,30 @@ fn bad_tree_documents_name_the_field() {
     let bad = |edit: &dyn Fn(&mut Value), want: &str| {
         let mut doc = twin_job(&twin, json!({}), None);
         edit(&mut doc);
-        let e = prepare(&doc, &Inputs::new(&NoReferences)).expect_err("refused").to_string();
+        let e = prepare(&doc, &Inputs::new(&NoReferences))
+            .expect_err("refused")
+            .to_string();
         assert!(e.contains(want), "{e} should name {want}");
     };
-    bad(&|d| d["tree"]["convention"] = json!("classic_dh"), "tree.convention");
-    bad(&|d| d["tree"]["rows"][2]["variable"] = json!("q99"), "tree.rows[2].variable");
-    bad(&|d| d["tree"]["rows"][2]["parent"] = json!("nowhere"), "tree.rows[2].parent");
-    bad(&|d| d["options"]["elastic"] = json!({"lateral": ["r_mount"]}), "elastic.lateral");
-    bad(&|d| d["markers"][0]["row"] = json!("elbow"), "markers[0].row");
+    bad(
+        &|d| d["tree"]["convention"] = json!("classic_dh"),
+        "tree.convention",
+    );
+    bad(
+        &|d| d["tree"]["rows"][2]["variable"] = json!("q99"),
+        "tree.rows[2].variable",
+    );
+    bad(
+        &|d| d["tree"]["rows"][2]["parent"] = json!("nowhere"),
+        "tree.rows[2].parent",
+    );
+    bad(
+        &|d| d["options"]["elastic"] = json!({"lateral": ["r_mount"]}),
+        "elastic.lateral",
+    );
+    bad(
+        &|d| d["markers"][0]["row"] = json!("elbow"),
+        "markers[0].row",
+    );
     bad(&|d| d["options"]["folds"] = json!(1), "options.folds");
 }

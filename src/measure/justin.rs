@@ -28,13 +28,21 @@ pub fn parse_measurements(text: &str) -> Result<Vec<(Vec<f64>, [Vector3<f64>; 2]
     let mut lines = text.lines().enumerate();
     let header: Vec<&str> = match lines.next() {
         Some((_, h)) => h.split(',').map(str::trim).collect(),
-        None => return Err(MeasureError::Row { row: 0, reason: "empty table".into() }),
+        None => {
+            return Err(MeasureError::Row {
+                row: 0,
+                reason: "empty table".into(),
+            });
+        }
     };
     let col = |name: &str| {
-        header.iter().position(|h| *h == name).ok_or_else(|| MeasureError::Row {
-            row: 0,
-            reason: format!("no column `{name}` in the header"),
-        })
+        header
+            .iter()
+            .position(|h| *h == name)
+            .ok_or_else(|| MeasureError::Row {
+                row: 0,
+                reason: format!("no column `{name}` in the header"),
+            })
     };
     let q_cols = (0..JOINT_COLUMNS)
         .map(|k| col(&format!("q{k:02}")))
@@ -59,9 +67,21 @@ pub fn parse_measurements(text: &str) -> Result<Vec<(Vec<f64>, [Vector3<f64>; 2]
                 }),
             }
         };
-        let q = q_cols.iter().map(|&c| num(c)).collect::<Result<Vec<_>, _>>()?;
-        let m = m_cols.iter().map(|&c| num(c)).collect::<Result<Vec<_>, _>>()?;
-        out.push((q, [Vector3::new(m[0], m[1], m[2]), Vector3::new(m[3], m[4], m[5])]));
+        let q = q_cols
+            .iter()
+            .map(|&c| num(c))
+            .collect::<Result<Vec<_>, _>>()?;
+        let m = m_cols
+            .iter()
+            .map(|&c| num(c))
+            .collect::<Result<Vec<_>, _>>()?;
+        out.push((
+            q,
+            [
+                Vector3::new(m[0], m[1], m[2]),
+                Vector3::new(m[3], m[4], m[5]),
+            ],
+        ));
     }
     Ok(out)
 }
@@ -143,7 +163,13 @@ pub fn run(
 pub fn table(r: &JustinReport) -> String {
     let mut s = format!(
         "Agile Justin, {} samples x 2 markers: marker position error (mm)\n{:<46} {:>20} {:>20} {:>6} {:>5}  {}\n",
-        r.samples, "model (cumulative)", "calibd mean/std/max", "published", "unkn.", "held", "status"
+        r.samples,
+        "model (cumulative)",
+        "calibd mean/std/max",
+        "published",
+        "unkn.",
+        "held",
+        "status"
     );
     for (k, st) in r.steps.iter().enumerate() {
         let p = PUBLISHED_MM[k.min(4)];

@@ -222,7 +222,10 @@ pub fn fit(
     so.lm.ftol = 1e-10;
     let unknowns = problem.unknowns();
     let elastic = |p: TParam| {
-        matches!(p, TParam::Weight(..) | TParam::Compliance(..) | TParam::Elastic(..))
+        matches!(
+            p,
+            TParam::Weight(..) | TParam::Compliance(..) | TParam::Elastic(..)
+        )
     };
     let solution = if problem.free.iter().any(|&g| elastic(model.params[g])) {
         // Elasticity is weakly determined along some directions (products of weights and
@@ -276,11 +279,51 @@ pub struct Step {
 /// The groups of the five cumulative steps: frames; + offsets; + geometry; + joint
 /// compliance; + lateral compliance.
 pub const STEPS: [(&str, Groups); 5] = [
-    ("frames only (root pose, markers)", Groups { offsets: false, geometry: false, joint: false, lateral: false }),
-    ("+ joint offsets", Groups { offsets: true, geometry: false, joint: false, lateral: false }),
-    ("+ full geometry (alpha, a, beta, d, mounts)", Groups { offsets: true, geometry: true, joint: false, lateral: false }),
-    ("+ joint compliance (lumped)", Groups { offsets: true, geometry: true, joint: true, lateral: false }),
-    ("+ lateral compliance (lumped)", Groups { offsets: true, geometry: true, joint: true, lateral: true }),
+    (
+        "frames only (root pose, markers)",
+        Groups {
+            offsets: false,
+            geometry: false,
+            joint: false,
+            lateral: false,
+        },
+    ),
+    (
+        "+ joint offsets",
+        Groups {
+            offsets: true,
+            geometry: false,
+            joint: false,
+            lateral: false,
+        },
+    ),
+    (
+        "+ full geometry (alpha, a, beta, d, mounts)",
+        Groups {
+            offsets: true,
+            geometry: true,
+            joint: false,
+            lateral: false,
+        },
+    ),
+    (
+        "+ joint compliance (lumped)",
+        Groups {
+            offsets: true,
+            geometry: true,
+            joint: true,
+            lateral: false,
+        },
+    ),
+    (
+        "+ lateral compliance (lumped)",
+        Groups {
+            offsets: true,
+            geometry: true,
+            joint: true,
+            lateral: true,
+        },
+    ),
 ];
 
 /// The outcome of [`cumulative`].
@@ -323,16 +366,15 @@ pub fn cumulative(
         let m = &steps[steps.len() - 1].error_mm;
         monitor.progress(
             steps.len() as f64 / (last.min(4) + 1) as f64,
-            &format!("{name}: {:.2} / {:.2} / {:.2} mm (mean / std / max)", m.mean, m.std, m.max),
+            &format!(
+                "{name}: {:.2} / {:.2} / {:.2} mm (mean / std / max)",
+                m.mean, m.std, m.max
+            ),
         );
         fitted = Some(f);
     }
     match fitted {
-        Some(last) => Ok(Cumulative {
-            steps,
-            last,
-            start,
-        }),
+        Some(last) => Ok(Cumulative { steps, last, start }),
         None => Err(IdentifyError::Model("no step to run".into())),
     }
 }

@@ -19,8 +19,8 @@ fn all_elastic() -> ElasticOptions {
 fn twin_with_lumped_and_lateral_elasticity_is_recovered_to_noise_level() {
     let noise = 1e-4;
     let twin = ElasticTwin::new(&all_elastic(), 300, noise, 7);
-    let c = cumulative(&twin.nominal, &twin.observations, 3, 400, &NoMonitor)
-        .expect("cumulative fit");
+    let c =
+        cumulative(&twin.nominal, &twin.observations, 3, 400, &NoMonitor).expect("cumulative fit");
     let (steps, geometric) = (c.steps, c.last.model);
     let f = fit(&geometric, &twin.observations, STEPS[4].1, 400, &NoMonitor).expect("full fit");
     let train = errors_mm(&f.model, &with_features(&geometric, &twin.observations));
@@ -45,9 +45,20 @@ fn twin_with_lumped_and_lateral_elasticity_is_recovered_to_noise_level() {
         f.solution.iterations
     );
     // Mean of a 3-D Gaussian error norm: 1.6 sigma.
-    assert!(train.mean < 1.8 * noise * 1e3, "training {:.4} mm", train.mean);
-    assert!(steps[2].error_mm.mean > 5.0 * train.mean, "elasticity must matter in this twin");
-    assert!(held.mean < 0.5 * noise * 1e3, "held-out vs truth {:.4} mm", held.mean);
+    assert!(
+        train.mean < 1.8 * noise * 1e3,
+        "training {:.4} mm",
+        train.mean
+    );
+    assert!(
+        steps[2].error_mm.mean > 5.0 * train.mean,
+        "elasticity must matter in this twin"
+    );
+    assert!(
+        held.mean < 0.5 * noise * 1e3,
+        "held-out vs truth {:.4} mm",
+        held.mean
+    );
     let mut compared = 0;
     let mut worst: f64 = 0.0;
     for (k, p) in f.solution.params.iter().enumerate() {
@@ -59,7 +70,14 @@ fn twin_with_lumped_and_lateral_elasticity_is_recovered_to_noise_level() {
         let std = p.std.unwrap_or(f64::INFINITY);
         let z = (p.value - truth).abs() / std;
         worst = worst.max(z);
-        assert!(z < 5.0, "{}: {:.3e} vs truth {:.3e} (std {:.1e})", p.name, p.value, truth, std);
+        assert!(
+            z < 5.0,
+            "{}: {:.3e} vs truth {:.3e} (std {:.1e})",
+            p.name,
+            p.value,
+            truth,
+            std
+        );
         compared += 1;
     }
     println!(
@@ -100,7 +118,10 @@ fn twin_with_link_weights_is_recovered_by_the_bodies_lumping() {
     let twin = ElasticTwin::new(&bodies, 300, noise, 11);
     let c = cumulative(&twin.nominal, &twin.observations, 4, 400, &NoMonitor).expect("fits");
     let val = twin.validation(200, 98);
-    let held = Summary::of(&errors_mm(&c.last.model, &with_features(&c.start, &val)), "mm");
+    let held = Summary::of(
+        &errors_mm(&c.last.model, &with_features(&c.start, &val)),
+        "mm",
+    );
     let means: Vec<f64> = c.steps.iter().map(|s| s.error_mm.mean).collect();
     // The same data through the subtree lumping (a model of the nominal tree without weights).
     let mut sub = crate::twin::elastic::nominal(&all_elastic());
@@ -108,13 +129,25 @@ fn twin_with_link_weights_is_recovered_by_the_bodies_lumping() {
     let s = cumulative(&sub, &twin.observations, 4, 400, &NoMonitor).expect("fits");
     println!(
         "bodies twin: steps {means:.3?} mm, held-out vs truth {:.3} mm mean; subtree lumping {:.3} mm; held {:?}",
-        held.mean,
-        s.steps[4].error_mm.mean,
-        c.last.solution.unidentifiable
+        held.mean, s.steps[4].error_mm.mean, c.last.solution.unidentifiable
     );
     let sol = &c.last.solution;
-    assert_eq!(sol.status(), "converged", "{:?} {:?} after {}", sol.degenerate, sol.stop, sol.iterations);
+    assert_eq!(
+        sol.status(),
+        "converged",
+        "{:?} {:?} after {}",
+        sol.degenerate,
+        sol.stop,
+        sol.iterations
+    );
     assert!(means[4] < 1.8 * noise * 1e3, "training {:.4} mm", means[4]);
-    assert!(held.mean < 0.8 * noise * 1e3, "held-out vs truth {:.4} mm", held.mean);
-    assert!(means[2] > 10.0 * means[4], "elasticity must matter in this twin");
+    assert!(
+        held.mean < 0.8 * noise * 1e3,
+        "held-out vs truth {:.4} mm",
+        held.mean
+    );
+    assert!(
+        means[2] > 10.0 * means[4],
+        "elasticity must matter in this twin"
+    );
 }

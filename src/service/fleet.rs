@@ -73,10 +73,28 @@ enum WireEvent {
 impl From<&Event> for WireEvent {
     fn from(e: &Event) -> Self {
         match e.clone() {
-            Event::State { id, kind, state, error } => WireEvent::State { id, kind, state, error },
-            Event::Progress { id, fraction, stage, message } => {
-                WireEvent::Progress { id, fraction, stage, message }
-            }
+            Event::State {
+                id,
+                kind,
+                state,
+                error,
+            } => WireEvent::State {
+                id,
+                kind,
+                state,
+                error,
+            },
+            Event::Progress {
+                id,
+                fraction,
+                stage,
+                message,
+            } => WireEvent::Progress {
+                id,
+                fraction,
+                stage,
+                message,
+            },
         }
     }
 }
@@ -84,10 +102,28 @@ impl From<&Event> for WireEvent {
 impl From<WireEvent> for Event {
     fn from(e: WireEvent) -> Self {
         match e {
-            WireEvent::State { id, kind, state, error } => Event::State { id, kind, state, error },
-            WireEvent::Progress { id, fraction, stage, message } => {
-                Event::Progress { id, fraction, stage, message }
-            }
+            WireEvent::State {
+                id,
+                kind,
+                state,
+                error,
+            } => Event::State {
+                id,
+                kind,
+                state,
+                error,
+            },
+            WireEvent::Progress {
+                id,
+                fraction,
+                stage,
+                message,
+            } => Event::Progress {
+                id,
+                fraction,
+                stage,
+                message,
+            },
         }
     }
 }
@@ -216,8 +252,7 @@ pub(super) async fn next(svc: &Service, fleet: &Fleet) -> Entry {
                 fleet.config.name.clone(),
                 fleet.config.lease,
             );
-            let claimed =
-                tokio::task::spawn_blocking(move || st.claim(&name, &free, lease)).await;
+            let claimed = tokio::task::spawn_blocking(move || st.claim(&name, &free, lease)).await;
             match claimed {
                 Ok(Ok(Some(c))) => {
                     let entry = Entry {

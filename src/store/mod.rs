@@ -33,8 +33,8 @@ pub use jobs::{
 pub use migrate::SCHEMA_VERSION;
 pub use pg::{Location, PgLocation};
 pub use results::ArtefactInfo;
-pub use shared::Claimed;
 pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};
+pub use shared::Claimed;
 
 /// Why a storage operation failed.
 #[derive(Debug, thiserror::Error)]
@@ -222,7 +222,9 @@ impl Store {
     fn sqlite(&self) -> Result<&Sqlite, StoreError> {
         match &*self.inner {
             Inner::Sqlite(s) => Ok(s),
-            Inner::Postgres(_) => Err(StoreError::Internal("SQLite call on a PostgreSQL store".into())),
+            Inner::Postgres(_) => Err(StoreError::Internal(
+                "SQLite call on a PostgreSQL store".into(),
+            )),
         }
     }
 

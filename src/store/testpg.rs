@@ -56,11 +56,7 @@ fn is_root() -> bool {
 fn command(bin: &Path, program: &str) -> Command {
     if is_root() {
         let mut c = Command::new("setpriv");
-        c.args([
-            "--reuid=65534",
-            "--regid=65534",
-            "--clear-groups",
-        ]);
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"]);
         c.arg(bin.join(program));
         c
     } else {
@@ -96,16 +92,15 @@ impl Cluster {
     pub fn start() -> Result<Option<Cluster>, String> {
         let Some(bin) = bin_dir() else {
             if std::env::var_os("CALIBD_REQUIRE_PG").is_some() {
-                return Err("CALIBD_REQUIRE_PG is set but no PostgreSQL binaries were found".into());
+                return Err(
+                    "CALIBD_REQUIRE_PG is set but no PostgreSQL binaries were found".into(),
+                );
             }
             return Ok(None);
         };
         sweep();
-        let root = std::env::temp_dir().join(format!(
-            "calibd-pg-{}-{}",
-            std::process::id(),
-            free_port()?
-        ));
+        let root =
+            std::env::temp_dir().join(format!("calibd-pg-{}-{}", std::process::id(), free_port()?));
         let data = root.join("data");
         std::fs::create_dir_all(&root).map_err(|e| e.to_string())?;
         if is_root() {
@@ -114,12 +109,23 @@ impl Cluster {
         let out = command(&bin, "initdb")
             .args(["-D"])
             .arg(&data)
-            .args(["-U", "calibd", "--auth=trust", "-E", "UTF8", "--no-sync", "--no-instructions"])
+            .args([
+                "-U",
+                "calibd",
+                "--auth=trust",
+                "-E",
+                "UTF8",
+                "--no-sync",
+                "--no-instructions",
+            ])
             .current_dir(&root)
             .output()
             .map_err(|e| format!("initdb: {e}"))?;
         if !out.status.success() {
-            return Err(format!("initdb failed: {}", String::from_utf8_lossy(&out.stderr)));
+            return Err(format!(
+                "initdb failed: {}",
+                String::from_utf8_lossy(&out.stderr)
+            ));
         }
         let port = free_port()?;
         let log = std::fs::File::create(root.join("server.log")).map_err(|e| e.to_string())?;
@@ -137,7 +143,14 @@ impl Cluster {
             .arg("-D")
             .arg(&data)
             .args(["-p", &port.to_string(), "-c", "listen_addresses=127.0.0.1"])
-            .args(["-c", "unix_socket_directories=", "-c", "fsync=off", "-c", "max_connections=300"])
+            .args([
+                "-c",
+                "unix_socket_directories=",
+                "-c",
+                "fsync=off",
+                "-c",
+                "max_connections=300",
+            ])
             .current_dir(&root)
             .stdin(Stdio::null())
             .stdout(Stdio::null())
@@ -155,7 +168,8 @@ impl Cluster {
             match postgres::Client::connect(&c.url("postgres"), postgres::NoTls) {
                 Ok(_) => break,
                 Err(e) if t0.elapsed() > Duration::from_secs(30) => {
-                    let log = std::fs::read_to_string(c.root.join("server.log")).unwrap_or_default();
+                    let log =
+                        std::fs::read_to_string(c.root.join("server.log")).unwrap_or_default();
                     return Err(format!("postgres did not start: {e}\n{log}"));
                 }
                 Err(_) => std::thread::sleep(Duration::from_millis(100)),
@@ -183,7 +197,9 @@ impl Cluster {
 
     /// Create a fresh, empty database; returns its URL.
     pub fn fresh_db(&self) -> Result<String, String> {
-        let n = self.next_db.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let n = self
+            .next_db
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let name = format!("t{}_{n}", std::process::id());
         let mut c = postgres::Client::connect(&self.url("postgres"), postgres::NoTls)
             .map_err(|e| e.to_string())?;
@@ -196,7 +212,9 @@ impl Cluster {
 impl Drop for Cluster {
     fn drop(&mut self) {
         if let Some(mut c) = self.child.lock().unwrap_or_else(|p| p.into_inner()).take() {
-            let _ = Command::new("kill").args(["-TERM", &c.id().to_string()]).status();
+            let _ = Command::new("kill")
+                .args(["-TERM", &c.id().to_string()])
+                .status();
             let _ = c.wait();
         }
         let _ = std::fs::remove_dir_all(&self.root);

@@ -246,7 +246,10 @@ fn idempotent_submission_and_campaign_state(f: &Fixture) {
         key: "k1".into(),
         request_sha256: "bb".into(),
     });
-    assert!(matches!(s.insert_job_once(&j), Err(StoreError::Conflict(_))));
+    assert!(matches!(
+        s.insert_job_once(&j),
+        Err(StoreError::Conflict(_))
+    ));
     assert_eq!(s.job_doc(id).unwrap().unwrap()["kind"], "serial.fk");
     // A campaign's journal, pause and resume.
     assert!(s.start_job(id).unwrap());
@@ -263,10 +266,16 @@ fn idempotent_submission_and_campaign_state(f: &Fixture) {
         status: EntryStatus::Measured,
         data: json!({}),
     };
-    assert!(s.append_measurement(id, &dup).is_err(), "an index is journalled once");
+    assert!(
+        s.append_measurement(id, &dup).is_err(),
+        "an index is journalled once"
+    );
     let journal = s.measurements(id).unwrap();
     assert_eq!(journal.len(), 2);
-    assert_eq!((journal[1].index, journal[1].status), (1, EntryStatus::Skipped));
+    assert_eq!(
+        (journal[1].index, journal[1].status),
+        (1, EntryStatus::Skipped)
+    );
     assert!(s.pause_job(id, "indicator lost").unwrap());
     assert_eq!(s.job(id).unwrap().unwrap().state, JobState::Paused);
     assert!(s.resume_job(id, "operator").unwrap());

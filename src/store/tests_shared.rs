@@ -35,7 +35,10 @@ fn concurrent_claims_take_each_job_exactly_once() {
                         break;
                     };
                     lat.lock().unwrap().push(t0.elapsed());
-                    assert!(s.finish_job(c.id, &serde_json::json!({}), None, &[], None).unwrap());
+                    assert!(
+                        s.finish_job(c.id, &serde_json::json!({}), None, &[], None)
+                            .unwrap()
+                    );
                     seen.lock().unwrap().push(c.id);
                 }
             })
@@ -46,7 +49,11 @@ fn concurrent_claims_take_each_job_exactly_once() {
     }
     let seen = seen.lock().unwrap();
     assert_eq!(seen.len(), n);
-    assert_eq!(seen.iter().collect::<HashSet<_>>().len(), n, "a job claimed twice");
+    assert_eq!(
+        seen.iter().collect::<HashSet<_>>().len(),
+        n,
+        "a job claimed twice"
+    );
     let mut lat = latencies.lock().unwrap().clone();
     lat.sort();
     eprintln!(
@@ -61,16 +68,25 @@ fn concurrent_claims_take_each_job_exactly_once() {
 fn an_expired_lease_is_requeued_and_finished_elsewhere() {
     let Some(s) = pg() else { return };
     let id = s.insert_job(&job("serial.identify")).unwrap();
-    let c = s.claim("a", &[], Duration::from_millis(200)).unwrap().unwrap();
+    let c = s
+        .claim("a", &[], Duration::from_millis(200))
+        .unwrap()
+        .unwrap();
     assert_eq!((c.id, s.job_owner(id).unwrap().as_deref()), (id, Some("a")));
-    assert!(s.requeue_expired().unwrap().is_empty(), "the lease still runs");
+    assert!(
+        s.requeue_expired().unwrap().is_empty(),
+        "the lease still runs"
+    );
     std::thread::sleep(Duration::from_millis(400));
     assert_eq!(s.requeue_expired().unwrap(), vec![id]);
     assert_eq!(s.job(id).unwrap().unwrap().state, JobState::Queued);
     let c = s.claim("b", &[], LEASE).unwrap().unwrap();
     assert_eq!(c.id, id);
     assert_eq!(s.heartbeat("b", LEASE).unwrap(), 1);
-    assert!(s.finish_job(id, &serde_json::json!({"ok": 1}), None, &[], None).unwrap());
+    assert!(
+        s.finish_job(id, &serde_json::json!({"ok": 1}), None, &[], None)
+            .unwrap()
+    );
     let logs: Vec<String> = s.logs(id).unwrap().into_iter().map(|l| l.message).collect();
     assert_eq!(
         logs,
@@ -105,7 +121,10 @@ fn device_jobs_go_to_the_daemon_holding_the_cell() {
     let b_devices = ["cell2.robot".to_string()];
     let a_devices = ["cell1.robot".to_string(), "cell1.indicators".to_string()];
     assert_eq!(s.claim("b", &b_devices, LEASE).unwrap().unwrap().id, num);
-    assert!(s.claim("b", &b_devices, LEASE).unwrap().is_none(), "not b's cell");
+    assert!(
+        s.claim("b", &b_devices, LEASE).unwrap().is_none(),
+        "not b's cell"
+    );
     assert_eq!(s.claim("a", &a_devices, LEASE).unwrap().unwrap().id, dev);
 }
 
@@ -114,12 +133,17 @@ fn sqlite_refuses_the_shared_queue() {
     let f = Fixture::sqlite();
     let s = f.open();
     assert!(!s.is_shared());
-    assert!(matches!(s.claim("a", &[], LEASE), Err(StoreError::Unsupported(_))));
+    assert!(matches!(
+        s.claim("a", &[], LEASE),
+        Err(StoreError::Unsupported(_))
+    ));
 }
 
 #[test]
 fn a_sqlite_history_copies_into_postgres() {
-    let Some(pgf) = Fixture::postgres() else { return };
+    let Some(pgf) = Fixture::postgres() else {
+        return;
+    };
     let sf = Fixture::sqlite();
     let s = sf.open();
     let a = s.insert_job(&job("serial.fk")).unwrap();
@@ -130,18 +154,30 @@ fn a_sqlite_history_copies_into_postgres() {
         media_type: "text/csv".into(),
         content: b"x\n1\n".to_vec(),
     };
-    s.finish_job(a, &serde_json::json!({"ok": 1}), Some("x\n"), std::slice::from_ref(&art), None)
-        .unwrap();
+    s.finish_job(
+        a,
+        &serde_json::json!({"ok": 1}),
+        Some("x\n"),
+        std::slice::from_ref(&art),
+        None,
+    )
+    .unwrap();
     let b = s.insert_job(&job("serial.identify")).unwrap();
     s.put_dataset("m.csv", "text/csv", b"q1\n1\n").unwrap();
     let p = pgf.open();
     let copied = s.copy_to(&p).unwrap();
-    assert!(copied.contains(&("jobs", 2)) && copied.contains(&("artefacts", 1)), "{copied:?}");
+    assert!(
+        copied.contains(&("jobs", 2)) && copied.contains(&("artefacts", 1)),
+        "{copied:?}"
+    );
     assert_eq!(p.job(a).unwrap(), s.job(a).unwrap());
     assert_eq!(p.job(b).unwrap(), s.job(b).unwrap());
     assert_eq!(p.result(a).unwrap(), s.result(a).unwrap());
     assert_eq!(p.artefact(a, "poses.csv").unwrap(), Some(art));
-    assert_eq!(p.progress_history(a).unwrap(), s.progress_history(a).unwrap());
+    assert_eq!(
+        p.progress_history(a).unwrap(),
+        s.progress_history(a).unwrap()
+    );
     assert_eq!(p.logs(a).unwrap(), s.logs(a).unwrap());
     assert_eq!(p.datasets().unwrap(), s.datasets().unwrap());
     // Ids go on after the copied ones; a second copy is refused.
@@ -160,9 +196,16 @@ fn store_locations_parse_and_never_show_the_password() {
     assert!(Location::parse("mysql://u@h/db", None).is_err());
     let e = Location::parse("postgres://u:hunter2@h/db", None).unwrap_err();
     assert!(!e.to_string().contains("hunter2"), "{e}");
-    let l = Location::parse("postgres://calibd@db.lab:5432/calibd", Some("s3cret".into())).unwrap();
+    let l = Location::parse(
+        "postgres://calibd@db.lab:5432/calibd",
+        Some("s3cret".into()),
+    )
+    .unwrap();
     let shown = format!("{l:?} {}", l.display());
-    assert!(!shown.contains("s3cret") && shown.contains("password set"), "{shown}");
+    assert!(
+        !shown.contains("s3cret") && shown.contains("password set"),
+        "{shown}"
+    );
     // The settings: a password file's first line; unset `store` is the SQLite default.
     let dir = tempfile::tempdir().unwrap();
     let pw = dir.path().join("pw");

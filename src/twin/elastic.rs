@@ -18,9 +18,11 @@ pub const VARIABLES: usize = 10;
 
 /// Names of the twin's revolute rows.
 pub fn revolute_rows() -> Vec<String> {
-    ["t0", "t1", "t2", "r0", "r1", "r2", "r3", "l0", "l1", "l2", "l3"]
-        .map(String::from)
-        .to_vec()
+    [
+        "t0", "t1", "t2", "r0", "r1", "r2", "r3", "l0", "l1", "l2", "l3",
+    ]
+    .map(String::from)
+    .to_vec()
 }
 
 /// The nominal twin tree (MDH rows in m and rad), elasticity on the rows `elastic` names.
@@ -29,10 +31,7 @@ pub fn nominal(elastic: &ElasticOptions) -> ElasticTree {
     let rev = |name: &str, parent: usize, g: [f64; 5], drive: Drive| TreeRow {
         name: name.into(),
         parent: Some(parent),
-        kind: RowKind::Revolute {
-            geometry: g,
-            drive,
-        },
+        kind: RowKind::Revolute { geometry: g, drive },
     };
     let fixed = |name: &str, parent: Option<usize>, frame: Frame| TreeRow {
         name: name.into(),
@@ -46,7 +45,12 @@ pub fn nominal(elastic: &ElasticOptions) -> ElasticTree {
         fixed("pedestal", None, Frame::trans(0.0, 0.0, 0.5)),
         rev("t0", 0, [0.0, 0.0, 0.0, 0.0, 0.1], Drive::Variable(0)),
         rev("t1", 1, [-h, 0.0, 0.0, -h, 0.0], Drive::Variable(1)),
-        rev("t2", 2, [0.0, 0.35, 0.0, 0.0, 0.0], Drive::Coupled(vec![(1, -1.0)])),
+        rev(
+            "t2",
+            2,
+            [0.0, 0.35, 0.0, 0.0, 0.0],
+            Drive::Coupled(vec![(1, -1.0)]),
+        ),
     ];
     let mut markers = Vec::new();
     for (side, sign, var) in [("r", -1.0, 2), ("l", 1.0, 6)] {
@@ -60,10 +64,19 @@ pub fn nominal(elastic: &ElasticOptions) -> ElasticTree {
         ];
         for (k, g) in geo.iter().enumerate() {
             let parent = rows.len() - 1;
-            rows.push(rev(&format!("{side}{k}"), parent, *g, Drive::Variable(var + k)));
+            rows.push(rev(
+                &format!("{side}{k}"),
+                parent,
+                *g,
+                Drive::Variable(var + k),
+            ));
         }
         let parent = rows.len() - 1;
-        rows.push(fixed(&format!("{side}_hand"), Some(parent), Frame::trans(0.0, -0.3, 0.0)));
+        rows.push(fixed(
+            &format!("{side}_hand"),
+            Some(parent),
+            Frame::trans(0.0, -0.3, 0.0),
+        ));
         markers.push(TreeMarker {
             name: side.into(),
             row: rows.len() - 1,
@@ -85,8 +98,16 @@ pub fn physical(rng: &mut Rng) -> Vec<(String, [f64; 3], Vector3<f64>)> {
     revolute_rows()
         .into_iter()
         .map(|n| {
-            let c = [rng.range(1e-4, 4e-4), rng.range(3e-5, 1.5e-4), rng.range(3e-5, 1.5e-4)];
-            let m = Vector3::new(rng.range(-2.0, 2.0), rng.range(-2.0, 2.0), rng.range(-2.0, 2.0));
+            let c = [
+                rng.range(1e-4, 4e-4),
+                rng.range(3e-5, 1.5e-4),
+                rng.range(3e-5, 1.5e-4),
+            ];
+            let m = Vector3::new(
+                rng.range(-2.0, 2.0),
+                rng.range(-2.0, 2.0),
+                rng.range(-2.0, 2.0),
+            );
             (n, c, m)
         })
         .collect()
@@ -130,9 +151,16 @@ impl ElasticTwin {
                 // A link of 1-4 kg with its centre within 0.15 m of its frame origin.
                 let kg = rng.range(1.0, 4.0);
                 let w = kg * STANDARD_GRAVITY_M_S2;
-                let com = Vector3::new(rng.range(-0.15, 0.15), rng.range(-0.15, 0.15), rng.range(-0.15, 0.15));
+                let com = Vector3::new(
+                    rng.range(-0.15, 0.15),
+                    rng.range(-0.15, 0.15),
+                    rng.range(-0.15, 0.15),
+                );
                 truth.weights[i] = [w * com.x, w * com.y, w * com.z, w];
-                let (j, l) = (truth.has_joint_elasticity(i), truth.has_lateral_elasticity(i));
+                let (j, l) = (
+                    truth.has_joint_elasticity(i),
+                    truth.has_lateral_elasticity(i),
+                );
                 truth.compliance[i] = [
                     if j { c[0] } else { 0.0 },
                     if l { c[1] } else { 0.0 },

@@ -25,7 +25,11 @@ impl ElasticTree {
                     return Vec::new();
                 }
                 let jf = &frames[j].joint;
-                let axes = [jf.r * Vector3::z(), jf.r * Vector3::x(), jf.r * Vector3::y()];
+                let axes = [
+                    jf.r * Vector3::z(),
+                    jf.r * Vector3::x(),
+                    jf.r * Vector3::y(),
+                ];
                 let ga = axes.map(|a| self.gravity_root.cross(&a));
                 self.subtree[j]
                     .iter()

@@ -104,10 +104,7 @@ impl ElasticTree {
 
     /// Output frame of every row in the root frame for a sample (elasticity on).
     pub fn row_frames(&self, s: &TreeSample) -> Vec<Frame> {
-        self.frames(&s.q, Some(s))
-            .iter()
-            .map(|f| f.out)
-            .collect()
+        self.frames(&s.q, Some(s)).iter().map(|f| f.out).collect()
     }
 
     /// Positions of every marker in the measurement frame.

@@ -50,7 +50,10 @@ pub struct JustinGuess {
 }
 
 fn parse_err(what: &str, line: usize, text: &str) -> ModelError {
-    ModelError::Parse(format!("{what}, line {line}: cannot read `{}`", text.trim()))
+    ModelError::Parse(format!(
+        "{what}, line {line}: cannot read `{}`",
+        text.trim()
+    ))
 }
 
 /// Numbers of a `[a, b, c]` list (after an optional `key:` or `-`), or `None`.
@@ -168,7 +171,13 @@ pub fn model(
         name,
         parent: Some(parent),
         kind: RowKind::Revolute {
-            geometry: [row[3].to_radians(), row[2], 0.0, row[1].to_radians(), row[0]],
+            geometry: [
+                row[3].to_radians(),
+                row[2],
+                0.0,
+                row[1].to_radians(),
+                row[0],
+            ],
             drive,
         },
     };
@@ -181,11 +190,7 @@ pub fn model(
         },
     };
     let (s, c) = (0.5, 3f64.sqrt() / 2.0);
-    let mut rows = vec![fixed(
-        "torso_base",
-        None,
-        Frame::trans(0.0, 0.0, 0.5884),
-    )];
+    let mut rows = vec![fixed("torso_base", None, Frame::trans(0.0, 0.0, 0.5884))];
     for (i, r) in dh.torso.iter().enumerate() {
         let drive = if i < 3 {
             Drive::Variable(i)
@@ -196,20 +201,29 @@ pub fn model(
     }
     let torso_top = rows.len() - 1;
     let mut markers = Vec::new();
-    let flange = frame([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]], [0.0, 0.118, 0.0]);
+    let flange = frame(
+        [[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]],
+        [0.0, 0.118, 0.0],
+    );
     for (side, arm, first_var, mount, local) in [
         (
             "right",
             &dh.right,
             3,
-            frame([[-c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, -c]], [0.190, 0.088, -0.256]),
+            frame(
+                [[-c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, -c]],
+                [0.190, 0.088, -0.256],
+            ),
             guess.marker_right,
         ),
         (
             "left",
             &dh.left,
             10,
-            frame([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], [0.190, 0.088, 0.256]),
+            frame(
+                [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]],
+                [0.190, 0.088, 0.256],
+            ),
             guess.marker_left,
         ),
     ] {
@@ -218,7 +232,11 @@ pub fn model(
             let drive = Drive::Variable(first_var + k);
             rows.push(rev(format!("{side}{k}"), rows.len() - 1, r, drive));
         }
-        rows.push(fixed(&format!("{side}_flange"), Some(rows.len() - 1), flange));
+        rows.push(fixed(
+            &format!("{side}_flange"),
+            Some(rows.len() - 1),
+            flange,
+        ));
         markers.push(TreeMarker {
             name: side.into(),
             row: rows.len() - 1,

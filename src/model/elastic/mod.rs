@@ -257,7 +257,13 @@ impl ElasticTree {
         // frees the compliances (see `seed_compliance`).
         let elastic_any = joint_elastic.iter().chain(&lateral_elastic).any(|&b| b);
         let weights = (0..rows.len())
-            .map(|i| if revolute(i) && elastic_any { [0.0, 0.0, 0.0, 20.0] } else { [0.0; 4] })
+            .map(|i| {
+                if revolute(i) && elastic_any {
+                    [0.0, 0.0, 0.0, 20.0]
+                } else {
+                    [0.0; 4]
+                }
+            })
             .collect();
         let compliance = vec![[0.0; 3]; rows.len()];
         let mut model = Self {

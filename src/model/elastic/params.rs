@@ -108,10 +108,16 @@ impl ElasticTree {
                 format!("{}.c_{}", self.rows[i].name, ["z", "x", "y"][a as usize])
             }
             TParam::Weight(i, k) => {
-                format!("{}.{}", self.rows[i].name, ["w_mx", "w_my", "w_mz", "w"][k as usize])
+                format!(
+                    "{}.{}",
+                    self.rows[i].name,
+                    ["w_mx", "w_my", "w_mz", "w"][k as usize]
+                )
             }
             TParam::Base(k) => format!("base.{}", XYZABC[k as usize]),
-            TParam::Marker(m, a) => format!("{}.{}", self.markers[m].name, ["x", "y", "z"][a as usize]),
+            TParam::Marker(m, a) => {
+                format!("{}.{}", self.markers[m].name, ["x", "y", "z"][a as usize])
+            }
         }
     }
 

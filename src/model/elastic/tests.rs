@@ -61,7 +61,10 @@ fn check_jacobian(opts: &ElasticOptions) -> usize {
                     numeric
                 );
             }
-            if matches!(p, TParam::Elastic(..) | TParam::Compliance(..) | TParam::Weight(..)) {
+            if matches!(
+                p,
+                TParam::Elastic(..) | TParam::Compliance(..) | TParam::Weight(..)
+            ) {
                 checked_elastic += 1;
             }
         }
@@ -78,7 +81,10 @@ fn lumped_joint_compliance_jacobian_matches_central_differences() {
 #[test]
 fn bodies_compliance_and_weight_jacobian_matches_central_differences() {
     // 11 rows x (3 compliances + 4 weights) x 4 seeds.
-    assert_eq!(check_jacobian(&with_lumping(true, true, Lumping::Bodies)), 308);
+    assert_eq!(
+        check_jacobian(&with_lumping(true, true, Lumping::Bodies)),
+        308
+    );
 }
 
 #[test]
@@ -114,7 +120,11 @@ fn a_lateral_coefficient_bends_about_the_joint_x_axis() {
     let axis = base.r * joint.r * Vector3::x();
     let origin = base.apply(&joint.p);
     let want = axis.cross(&(rigid - origin)) * (1e-6 * s.gravity[i].z);
-    assert!(((bent - rigid) - want).norm() < 1e-11, "{:?} vs {want:?}", bent - rigid);
+    assert!(
+        ((bent - rigid) - want).norm() < 1e-11,
+        "{:?} vs {want:?}",
+        bent - rigid
+    );
     assert!(want.norm() > 1e-8, "the check must move the point");
 }
 
@@ -123,7 +133,12 @@ fn bad_trees_are_refused_with_the_field_named() {
     let m = nominal(&ElasticOptions::default());
     let mut rows = m.rows.clone();
     rows[1].parent = Some(5);
-    let e = ElasticTree::new(rows, m.markers.clone(), m.variables, &ElasticOptions::default());
+    let e = ElasticTree::new(
+        rows,
+        m.markers.clone(),
+        m.variables,
+        &ElasticOptions::default(),
+    );
     assert!(e.is_err_and(|e| e.to_string().contains("rows.t0.parent")));
     let e = ElasticTree::new(
         m.rows.clone(),

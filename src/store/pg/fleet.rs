@@ -8,8 +8,8 @@ use std::time::Duration;
 
 use serde_json::Value;
 
-use super::jobs::log_tx;
 use super::Pg;
+use super::jobs::log_tx;
 use crate::store::StoreError;
 
 /// A job a daemon claimed: it is `running` and leased to that daemon.
@@ -114,7 +114,10 @@ impl Pg {
     pub(crate) fn heartbeat(&self, owner: &str, lease: Duration) -> Result<u64, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
-        tx.execute("UPDATE daemons SET heartbeat = now() WHERE name = $1", &[&owner])?;
+        tx.execute(
+            "UPDATE daemons SET heartbeat = now() WHERE name = $1",
+            &[&owner],
+        )?;
         let n = tx.execute(
             "UPDATE jobs SET lease_until = now() + make_interval(secs => $2) \
              WHERE owner = $1 AND state = 'running'",
@@ -136,9 +139,17 @@ impl Pg {
                           FOR UPDATE SKIP LOCKED) RETURNING id",
             &[],
         )?;
-        let ids: Vec<i64> = rows.iter().map(|r| r.try_get(0)).collect::<Result<_, _>>()?;
+        let ids: Vec<i64> = rows
+            .iter()
+            .map(|r| r.try_get(0))
+            .collect::<Result<_, _>>()?;
         for id in &ids {
-            log_tx(&mut tx, Some(*id), "warn", "re-queued: its daemon's lease expired")?;
+            log_tx(
+                &mut tx,
+                Some(*id),
+                "warn",
+                "re-queued: its daemon's lease expired",
+            )?;
         }
         if !ids.is_empty() {
             tx.execute("SELECT pg_notify('calibd_queue', 'requeued')", &[])?;
@@ -168,9 +179,17 @@ impl Pg {
              WHERE owner = $1 AND state = 'running' RETURNING id",
             &[&owner],
         )?;
-        let ids: Vec<i64> = rows.iter().map(|r| r.try_get(0)).collect::<Result<_, _>>()?;
+        let ids: Vec<i64> = rows
+            .iter()
+            .map(|r| r.try_get(0))
+            .collect::<Result<_, _>>()?;
         for id in &ids {
-            log_tx(&mut tx, Some(*id), "warn", &format!("re-queued: released by {owner}"))?;
+            log_tx(
+                &mut tx,
+                Some(*id),
+                "warn",
+                &format!("re-queued: released by {owner}"),
+            )?;
         }
         if !ids.is_empty() {
             tx.execute("SELECT pg_notify('calibd_queue', 'released')", &[])?;

@@ -213,14 +213,23 @@ impl Pg {
                 Some(e) => format!("{}: {e}", state.as_str()),
                 None => state.as_str().to_string(),
             };
-            let level = if state == JobState::Failed { "error" } else { "info" };
+            let level = if state == JobState::Failed {
+                "error"
+            } else {
+                "info"
+            };
             log_tx(&mut tx, Some(id), level, &msg)?;
         }
         tx.commit()?;
         Ok(n == 1)
     }
 
-    pub(crate) fn log(&self, job: Option<i64>, level: &str, message: &str) -> Result<(), StoreError> {
+    pub(crate) fn log(
+        &self,
+        job: Option<i64>,
+        level: &str,
+        message: &str,
+    ) -> Result<(), StoreError> {
         log_tx(&mut *self.conn()?, job, level, message)
     }
 

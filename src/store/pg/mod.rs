@@ -45,7 +45,11 @@ impl std::fmt::Debug for Location {
 
 impl std::fmt::Debug for PgLocation {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let pw = if self.password.is_some() { " (password set)" } else { "" };
+        let pw = if self.password.is_some() {
+            " (password set)"
+        } else {
+            ""
+        };
         write!(f, "{}{pw}", self.url)
     }
 }

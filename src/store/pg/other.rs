@@ -166,7 +166,14 @@ impl Pg {
         self.conn()?.execute(
             "INSERT INTO datasets (id, name, media_type, size, created_at, content) \
              VALUES ($1, $2, $3, $4, $5, $6) ON CONFLICT (id) DO NOTHING",
-            &[&id, &name, &media_type, &(content.len() as i64), &now(), &content],
+            &[
+                &id,
+                &name,
+                &media_type,
+                &(content.len() as i64),
+                &now(),
+                &content,
+            ],
         )?;
         self.dataset_info(&id)?
             .ok_or_else(|| StoreError::Conflict(format!("dataset {id} vanished")))
@@ -213,7 +220,13 @@ impl Pg {
         };
         self.conn()?.execute(
             "INSERT INTO measurements (job_id, idx, status, data, at) VALUES ($1, $2, $3, $4, $5)",
-            &[&job, &(e.index as i64), &status, &e.data.to_string(), &now()],
+            &[
+                &job,
+                &(e.index as i64),
+                &status,
+                &e.data.to_string(),
+                &now(),
+            ],
         )?;
         Ok(())
     }

@@ -90,9 +90,10 @@ impl Pg {
     }
 
     pub(crate) fn schedule(&self, id: i64) -> Result<Option<ScheduleRecord>, StoreError> {
-        let r = self
-            .conn()?
-            .query_opt(&format!("SELECT {COLUMNS} FROM schedules WHERE id = $1"), &[&id])?;
+        let r = self.conn()?.query_opt(
+            &format!("SELECT {COLUMNS} FROM schedules WHERE id = $1"),
+            &[&id],
+        )?;
         r.as_ref().map(row).transpose()
     }
 
@@ -117,7 +118,11 @@ impl Pg {
         Ok(())
     }
 
-    pub(crate) fn schedule_runs(&self, id: i64, limit: usize) -> Result<Vec<ScheduleRun>, StoreError> {
+    pub(crate) fn schedule_runs(
+        &self,
+        id: i64,
+        limit: usize,
+    ) -> Result<Vec<ScheduleRun>, StoreError> {
         let rows = self.conn()?.query(
             "SELECT due_at, at, outcome, job_id, message FROM schedule_runs WHERE schedule_id = $1 \
              ORDER BY id DESC LIMIT $2",
