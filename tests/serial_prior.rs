@@ -32,7 +32,7 @@ fn map_with_a_sensible_prior_is_no_worse_than_least_squares_on_few_measurements(
         "default_std": {"length_mm": 0.5, "angle_deg": 0.1, "compliance": 0.005}
     }))
     .unwrap();
-    let sigma = spec.sigmas(&unknowns, ids.len()).unwrap();
+    let sigma = spec.sigmas(&unknowns, |k| k < ids.len()).unwrap();
     assert!(sigma.iter().all(Option::is_some));
     let prior = Prior {
         sigma,

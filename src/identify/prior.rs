@@ -283,13 +283,14 @@ pub struct DefaultStd {
 
 impl PriorSpec {
     /// Prior std per unknown in internal units. Per-name entries apply to any unknown (an
-    /// unknown name is an error naming it); the defaults only to the first `model_params`
-    /// unknowns (the model's parameters, not nuisance points such as unknown ball centres),
-    /// chosen by unit: `mm`/`m`, `deg`/`rad`, `deg/(N*m)`/`rad/(N*m)`.
+    /// unknown name is an error naming it); the defaults only to the unknowns `k` with
+    /// `is_model(k)` (the model's parameters, not nuisance unknowns such as ball centres, a
+    /// base frame or marker positions), chosen by unit: `mm`/`m`, `deg`/`rad`,
+    /// `deg/(N*m)`/`rad/(N*m)`.
     pub fn sigmas(
         &self,
         unknowns: &[Unknown],
-        model_params: usize,
+        is_model: impl Fn(usize) -> bool,
     ) -> Result<Vec<Option<f64>>, String> {
         let positive = |what: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
@@ -323,7 +324,7 @@ impl PriorSpec {
                 if let Some(&v) = self.std.get(&u.name) {
                     return Ok(Some(positive(&format!("std.{}", u.name), v)? / u.to_report));
                 }
-                if k >= model_params {
+                if !is_model(k) {
                     return Ok(None);
                 }
                 Ok(match u.unit.as_str() {
@@ -337,6 +338,33 @@ impl PriorSpec {
             .collect()
     }
 }
+
+/// `options.prior_weight` of a job: a positive number, or `"cv"` (chosen by K-fold among
+/// [`CV_WEIGHTS`] on the training data).
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(untagged)]
+pub enum PriorWeight {
+    /// A fixed weight.
+    Fixed(f64),
+    /// `"cv"`: chosen by K-fold among [`CV_WEIGHTS`].
+    Named(String),
+}
+
+impl PriorWeight {
+    /// Check the value: `Ok(None)` for `"cv"`, `Ok(Some(w))` for a positive number, else
+    /// the message to report under `options.prior_weight`.
+    pub fn fixed(&self) -> Result<Option<f64>, String> {
+        match self {
+            PriorWeight::Fixed(w) if w.is_finite() && *w > 0.0 => Ok(Some(*w)),
+            PriorWeight::Fixed(w) => Err(format!("{w} must be positive")),
+            PriorWeight::Named(s) if s == "cv" => Ok(None),
+            PriorWeight::Named(s) => Err(format!("`{s}`: a positive number or \"cv\"")),
+        }
+    }
+}
+
+/// Folds of a cross-validated prior weight.
+pub const CV_FOLDS: usize = 5;
 
 /// Candidate weights of the K-fold choice.
 pub const CV_WEIGHTS: [f64; 5] = [0.01, 0.1, 1.0, 10.0, 100.0];
@@ -541,7 +569,7 @@ mod tests {
             "default_std": {"length_mm": 1.0, "angle_deg": 0.5}
         }))
         .unwrap();
-        let s = spec.sigmas(&u, 3).unwrap();
+        let s = spec.sigmas(&u, |k| k < 3).unwrap();
         assert_eq!(s[0], Some(0.5));
         assert!((s[1].unwrap() - 0.5f64.to_radians()).abs() < 1e-15);
         assert_eq!(s[2], None);
@@ -549,7 +577,7 @@ mod tests {
         assert_eq!(s[3], None);
         let bad: PriorSpec =
             serde_json::from_value(serde_json::json!({"std": {"nope": 1.0}})).unwrap();
-        assert!(bad.sigmas(&u, 3).unwrap_err().contains("nope"));
+        assert!(bad.sigmas(&u, |k| k < 3).unwrap_err().contains("nope"));
     }
 
     #[test]

@@ -6,6 +6,7 @@
 use nalgebra::DMatrix;
 
 use super::markers::{MarkerProblem, MarkerSample, initial_base, marker_rmse};
+use crate::identify::prior::{Prior, PriorReport, PriorSpec, solve_map};
 use crate::identify::{
     IdentifyError, Pivoting, RankReport, Robust, Solution, SolveOptions, rank_revealing, solve,
     solve_robust,
@@ -87,6 +88,22 @@ pub struct FitOptions {
     pub max_iterations: usize,
     /// Robust loss, if any.
     pub robust: Option<Robust>,
+    /// Gaussian prior on the joint parameters (MAP), if any.
+    pub prior: Option<MapOptions>,
+}
+
+/// A MAP fit's prior: per-parameter std (names or defaults by unit, applied to the joint
+/// and base-compliance parameters; the base frame and the markers are nuisance unknowns
+/// without a prior), its weight and the measurement noise.
+#[derive(Debug, Clone)]
+pub struct MapOptions {
+    /// Standard deviations as the job states them.
+    pub spec: PriorSpec,
+    /// Weight `lambda` of the prior term.
+    pub weight: f64,
+    /// Marker noise (m) dividing the data residuals; `None`: the residual sigma of the
+    /// least-squares fit of the same parameters.
+    pub noise_m: Option<f64>,
 }
 
 impl Default for FitOptions {
@@ -95,6 +112,7 @@ impl Default for FitOptions {
             rank_tolerance: 1e-2,
             max_iterations: 200,
             robust: None,
+            prior: None,
         }
     }
 }
@@ -112,10 +130,14 @@ pub struct MarkerFit {
     pub rmse: f64,
     /// Per-marker 3-D RMSE (m).
     pub per_marker: Vec<Option<f64>>,
+    /// Least squares or MAP, and the prior's weight and cost.
+    pub prior: PriorReport,
 }
 
 /// Fit the parameters `free` of `model` to `samples`: rank detection in priority order,
-/// LM (robust if asked), uncertainty. The model's current values are the start.
+/// LM (robust if asked), uncertainty. The model's current values are the start. With a
+/// prior on some of the free parameters, the MAP problem is solved instead (see
+/// [`crate::identify::prior`]); a robust loss and a prior do not combine.
 pub fn fit(
     model: &Humanoid,
     free: Vec<usize>,
@@ -134,9 +156,65 @@ pub fn fit(
     };
     so.lm.max_iterations = opts.max_iterations;
     let unknowns = problem.unknowns();
-    let solution = match &opts.robust {
-        Some(r) => solve_robust(&problem, &unknowns, &x0, &so, r, monitor)?,
-        None => solve(&problem, &unknowns, &x0, &so, monitor)?,
+    let sigma = match &opts.prior {
+        Some(map) => map
+            .spec
+            .sigmas(&unknowns, |k| {
+                matches!(
+                    model.params[problem.free()[k]],
+                    HParam::Joint(..) | HParam::BaseCompliance(_)
+                )
+            })
+            .map_err(IdentifyError::Model)?,
+        None => Vec::new(),
+    };
+    let map = opts
+        .prior
+        .as_ref()
+        .filter(|_| sigma.iter().any(Option::is_some));
+    let (solution, prior) = match (map, &opts.robust) {
+        (Some(map), None) => {
+            let noise = match map.noise_m {
+                Some(n) => n,
+                None => {
+                    solve(&problem, &unknowns, &x0, &so, monitor)?
+                        .uncertainty
+                        .sigma
+                }
+            };
+            if !(noise.is_finite() && noise > 0.0) {
+                return Err(IdentifyError::Model(format!(
+                    "the marker noise ({noise} m) is not known: give options.noise_m (the \
+                     least-squares fit has no residual degrees of freedom or fits exactly)"
+                )));
+            }
+            let prior = Prior {
+                sigma,
+                mean: x0.clone(),
+                noise,
+                weight: map.weight,
+            };
+            // The prior determines every parameter it covers: the rank decision is the
+            // stacked problem's, at a structural tolerance (columns in noise units).
+            let o = SolveOptions {
+                rank_tolerance: so.rank_tolerance.min(1e-8),
+                ..so.clone()
+            };
+            solve_map(&problem, &unknowns, &x0, &prior, &o, monitor)?
+        }
+        (Some(_), Some(_)) => {
+            return Err(IdentifyError::Model(
+                "a prior and a robust loss cannot be combined: choose one".into(),
+            ));
+        }
+        (_, Some(r)) => (
+            solve_robust(&problem, &unknowns, &x0, &so, r, monitor)?,
+            PriorReport::least_squares(),
+        ),
+        (_, None) => (
+            solve(&problem, &unknowns, &x0, &so, monitor)?,
+            PriorReport::least_squares(),
+        ),
     };
     let fitted = problem.model(&solution.x);
     let (rmse, per_marker) = marker_rmse(&fitted, samples);
@@ -146,6 +224,7 @@ pub fn fit(
         solution,
         rmse,
         per_marker,
+        prior,
     })
 }
 

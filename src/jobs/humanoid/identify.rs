@@ -13,13 +13,15 @@ use serde_json::Value;
 use super::plots::{Observation, humanoid_plots};
 use super::samples::{SampleSet, load_samples, samples_from_table};
 use super::{BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, load_model, load_model_text};
+use crate::identify::IdentifyError;
+use crate::identify::prior::{CV_FOLDS, CV_WEIGHTS, PriorReport, choose_weight};
 use crate::identify::solve::Dependency;
 use crate::identify::{Degeneracy, ParamReport, RobustKind, StopReason};
 use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::marker_fit::{
     FitOptions, Groups, MarkerFit, fit, fit_frames, structural_count,
 };
-use crate::measure::markers::{MarkerSample, marker_rmse};
+use crate::measure::markers::{MarkerProblem, MarkerSample, marker_rmse};
 use crate::model::JointField;
 use crate::model::humanoid::{HParam, Humanoid};
 use crate::report::Run;
@@ -121,9 +123,18 @@ impl IdentifyJob {
                 ));
             }
         }
+        let groups = options.groups()?;
+        let fit = options.fit_options()?;
+        if let Some(map) = &fit.prior {
+            let free = groups.select(&loaded.model);
+            let p = MarkerProblem::new(loaded.model.clone(), free, Vec::new());
+            map.spec
+                .sigmas(&p.unknowns(), |_| true)
+                .map_err(|m| JobError::invalid("options.prior", m))?;
+        }
         Ok(IdentifyJob {
-            groups: options.groups()?,
-            fit: options.fit_options()?,
+            groups,
+            fit,
             loaded,
             set,
             options,
@@ -367,6 +378,9 @@ pub struct HumanoidCalibration {
     pub convergence: HumanoidConvergence,
     /// Residual standard deviation (mm).
     pub residual_std_mm: f64,
+    /// Which mode ran: `least_squares`, `map` (fixed prior weight) or `map_cv` (weight by
+    /// K-fold on the training samples, with each candidate's held-out RMS in m).
+    pub prior: PriorReport,
     /// Robust loss report.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub robust: Option<RobustSummary>,
@@ -444,6 +458,63 @@ fn cross_validate(
 }
 
 impl IdentifyJob {
+    /// The fit options with the prior's weight: as given, or (`prior_weight: "cv"`) the
+    /// candidate of [`CV_WEIGHTS`] with the smallest held-out marker RMS over
+    /// [`CV_FOLDS`] seeded folds of the training samples (base frame and markers carry over
+    /// within the session). Also the candidates' errors when chosen.
+    fn prior_weight(
+        &self,
+        monitor: &dyn Monitor,
+    ) -> Result<(FitOptions, Option<Vec<crate::identify::prior::FoldError>>), JobError> {
+        let cv = matches!(
+            self.options.prior_weight.as_ref().map(|w| w.fixed()),
+            Some(Ok(None))
+        );
+        if !cv || self.fit.prior.is_none() {
+            return Ok((self.fit.clone(), None));
+        }
+        let samples = &self.set.samples;
+        let mut done = 0usize;
+        let total = CV_WEIGHTS.len() * CV_FOLDS;
+        let (w, errors) = choose_weight(
+            &CV_WEIGHTS,
+            samples.len(),
+            CV_FOLDS,
+            self.options.seed,
+            |w, train, test| {
+                if monitor.is_cancelled() {
+                    return Err(IdentifyError::Cancelled);
+                }
+                let sub = SubMonitor::new(
+                    monitor,
+                    done as f64 / total as f64,
+                    (done + 1) as f64 / total as f64,
+                );
+                done += 1;
+                let mut o = self.fit.clone();
+                if let Some(map) = &mut o.prior {
+                    map.weight = w;
+                }
+                let tr: Vec<MarkerSample> = train.iter().map(|&i| samples[i].clone()).collect();
+                let te: Vec<MarkerSample> = test.iter().map(|&i| samples[i].clone()).collect();
+                let cal = calibrate(&self.loaded.model, &tr, self.groups, &o, &sub)
+                    .map_err(|e| IdentifyError::Model(e.to_string()))?;
+                let (rmse, _) = marker_rmse(&cal.full.model, &te);
+                let m: usize = te.iter().map(|s| s.points.iter().flatten().count()).sum();
+                Ok((rmse * rmse * m as f64, m))
+            },
+        )
+        .map_err(|e| match e {
+            IdentifyError::Cancelled => JobError::Cancelled,
+            e => JobError::from(e),
+        })?;
+        let mut o = self.fit.clone();
+        if let Some(map) = &mut o.prior {
+            map.weight = w;
+        }
+        Ok((o, Some(errors)))
+    }
+
     /// Run the calibration: the typed result and its artefacts (calibrated URDF,
     /// `marker_residuals.csv`); no main table.
     pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<HumanoidCalibration>, JobError> {
@@ -453,13 +524,20 @@ impl IdentifyJob {
         } else {
             1.0
         };
+        let (fit_opts, weight_errors) =
+            self.prior_weight(&SubMonitor::new(monitor, 0.0, 0.5 * cv_share))?;
         let cal = calibrate(
             &self.loaded.model,
             samples,
             self.groups,
-            &self.fit,
-            &SubMonitor::new(monitor, 0.0, cv_share),
+            &fit_opts,
+            &SubMonitor::new(monitor, 0.5 * cv_share, cv_share),
         )?;
+        let mut prior = cal.full.prior.clone();
+        if weight_errors.is_some() {
+            prior.mode = "map_cv";
+            prior.k_fold_errors = weight_errors;
+        }
         let full = &cal.full;
         let sol = &full.solution;
         let markers = full
@@ -537,6 +615,7 @@ impl IdentifyJob {
                 rank_tolerance: self.fit.rank_tolerance,
             },
             residual_std_mm: sol.uncertainty.sigma * 1e3,
+            prior,
             robust: sol.robust.as_ref().map(|r| RobustSummary {
                 loss: r.kind,
                 scale_mm: r.scale * 1e3,
@@ -587,7 +666,8 @@ mod tests {
     use serde_json::json;
 
     /// The result fields of `examples/humanoid_identify_twin.json` (elastic, no robust
-    /// loss, no cross-validation) as the hand-built map of 7e62456 had them.
+    /// loss, no cross-validation) as the hand-built map of 7e62456 had them, plus `prior`
+    /// (issue 13: which mode ran).
     const FIELDS: &[&str] = &[
         "base_parameter_breakdown",
         "base_parameter_count",
@@ -602,6 +682,7 @@ mod tests {
         "identifiability",
         "markers",
         "parameters",
+        "prior",
         "residual_std_mm",
         "rmse_after_mm",
         "rmse_before_mm",

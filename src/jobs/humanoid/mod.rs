@@ -16,8 +16,9 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 use super::{Inputs, JobError};
+use crate::identify::prior::{PriorSpec, PriorWeight};
 use crate::identify::{ParamReport, Robust, RobustKind};
-use crate::measure::marker_fit::{FitOptions, Groups};
+use crate::measure::marker_fit::{FitOptions, Groups, MapOptions};
 use crate::measure::mocap::MocapOptions;
 use crate::model::humanoid::{BaseMode, Elasticity, HParam, Humanoid, MarkerDef};
 use crate::model::urdf::UrdfModel;
@@ -158,6 +159,17 @@ pub struct FitSpec {
     /// k-fold cross-validation of the calibration (identify only).
     #[serde(default)]
     pub cross_validation: Option<CrossValidationSpec>,
+    /// Gaussian prior on the joint parameters: MAP identification (identify only).
+    #[serde(default)]
+    pub prior: Option<PriorSpec>,
+    /// Weight of the prior: a positive number (default 1) or `"cv"` (K-fold on the
+    /// training samples).
+    #[serde(default)]
+    pub prior_weight: Option<PriorWeight>,
+    /// Marker noise (m) dividing the data in the MAP problem (default: the residual sigma
+    /// of the least-squares fit).
+    #[serde(default)]
+    pub noise_m: Option<f64>,
 }
 
 /// `options.cross_validation`.
@@ -218,6 +230,43 @@ impl FitSpec {
         if let Some(n) = self.max_iterations {
             o.max_iterations = n.max(1);
         }
+        if let Some(n) = self.noise_m {
+            if !(n > 0.0 && n.is_finite()) {
+                return Err(JobError::invalid(
+                    "options.noise_m",
+                    format!("{n} must be positive"),
+                ));
+            }
+        }
+        o.prior = match (&self.prior, &self.prior_weight) {
+            (None, Some(_)) => {
+                return Err(JobError::invalid(
+                    "options.prior_weight",
+                    "needs options.prior",
+                ));
+            }
+            (None, None) => None,
+            (Some(spec), w) => {
+                if self.robust.is_some() {
+                    return Err(JobError::invalid(
+                        "options.prior",
+                        "a prior and a robust loss cannot be combined: choose one",
+                    ));
+                }
+                let weight = match w {
+                    Some(w) => w
+                        .fixed()
+                        .map_err(|m| JobError::invalid("options.prior_weight", m))?,
+                    None => Some(1.0),
+                };
+                Some(MapOptions {
+                    spec: spec.clone(),
+                    // "cv": the job chooses the weight before the fit (1 until then).
+                    weight: weight.unwrap_or(1.0),
+                    noise_m: self.noise_m,
+                })
+            }
+        };
         if let Some(r) = &self.robust {
             if let Some(s) = r.scale_m {
                 if !(s > 0.0 && s.is_finite()) {

@@ -2,27 +2,13 @@
 //! Gaussian prior around the starting model, the weight fixed or chosen by K-fold
 //! cross-validation on the training measurements (see [`crate::identify::prior`]).
 
-use serde::Deserialize;
-
 use super::identify::IdentifyInputs;
+pub use crate::identify::prior::{CV_FOLDS, PriorWeight};
 use crate::identify::prior::{CV_WEIGHTS, Prior, PriorReport, choose_weight, solve_map};
 use crate::identify::{IdentifyError, Solution, solve};
 use crate::jobs::JobError;
 use crate::measure::{PointMeasurement, PointProblem, Target};
 use crate::util::{Monitor, NoMonitor, SubMonitor};
-
-/// Folds of the cross-validated weight.
-pub const CV_FOLDS: usize = 5;
-
-/// `options.prior_weight`: a positive number, or `"cv"`.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(untagged)]
-pub enum PriorWeight {
-    /// A fixed weight.
-    Fixed(f64),
-    /// `"cv"`: chosen by K-fold among [`CV_WEIGHTS`].
-    Named(String),
-}
 
 /// Check `options.prior` (names, positive values) and `options.prior_weight`.
 pub fn validate(inp: &IdentifyInputs) -> Result<(), JobError> {
@@ -31,19 +17,15 @@ pub fn validate(inp: &IdentifyInputs) -> Result<(), JobError> {
             "options.prior_weight",
             "needs options.prior",
         )),
-        (_, Some(PriorWeight::Fixed(w))) if !(w.is_finite() && *w > 0.0) => Err(JobError::invalid(
-            "options.prior_weight",
-            format!("{w} must be positive"),
-        )),
-        (_, Some(PriorWeight::Named(s))) if s != "cv" => Err(JobError::invalid(
-            "options.prior_weight",
-            format!("`{s}`: a positive number or \"cv\""),
-        )),
+        (_, Some(w)) => w
+            .fixed()
+            .map(|_| ())
+            .map_err(|m| JobError::invalid("options.prior_weight", m)),
         _ => Ok(()),
     }?;
     if let Some(spec) = &inp.options.prior {
         let all: Vec<usize> = (0..inp.meas.len()).collect();
-        spec.sigmas(&problem(inp, &all)?.unknowns(), inp.ids.len())
+        spec.sigmas(&problem(inp, &all)?.unknowns(), |k| k < inp.ids.len())
             .map_err(|m| JobError::invalid("options.prior", m))?;
     }
     Ok(())
@@ -68,7 +50,7 @@ fn map_fit(
     let spec = inp.options.prior.clone().unwrap_or_default();
     let unknowns = p.unknowns();
     let sigma = spec
-        .sigmas(&unknowns, inp.ids.len())
+        .sigmas(&unknowns, |k| k < inp.ids.len())
         .map_err(|m| JobError::invalid("options.prior", m))?;
     let x0 = p.initial();
     let prior = Prior {
