@@ -14,6 +14,7 @@ mod migrate;
 mod pg;
 mod records;
 mod results;
+mod runs;
 mod schedules;
 mod shared;
 pub mod testpg;
@@ -28,13 +29,13 @@ pub use campaigns::{CellModel, StoreJournal};
 pub use copy::Copied;
 pub use datasets::DatasetInfo;
 pub use jobs::{
-    IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered,
+    IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered, Run,
 };
 pub use migrate::SCHEMA_VERSION;
 pub use pg::{Location, PgLocation};
 pub use results::ArtefactInfo;
 pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};
-pub use shared::Claimed;
+pub use shared::{CancelRequest, Claimed};
 
 /// Why a storage operation failed.
 #[derive(Debug, thiserror::Error)]
@@ -79,6 +80,17 @@ pub enum StoreError {
     /// A record with this name or id already exists.
     #[error("store: {0} already exists")]
     Conflict(String),
+    /// A run wrote after its job was taken from it: its lease expired and the job was
+    /// queued again or started by a later run (on this daemon or another).
+    #[error(
+        "store: job {job} is no longer held by its run {attempt}: it was re-queued or claimed again"
+    )]
+    Stale {
+        /// The job.
+        job: i64,
+        /// The stale run's attempt.
+        attempt: i64,
+    },
     /// The operation needs another backend.
     #[error("store: {0}")]
     Unsupported(&'static str),

@@ -184,3 +184,15 @@ pub struct Recovered {
     /// Jobs still queued, oldest first: (id, priority, document).
     pub queued: Vec<(i64, i64, Value)>,
 }
+
+/// One run of a job: the token a worker got when it started (or claimed) the job. A run
+/// records progress, its result and its end only while the job is still this attempt, so
+/// a run whose job was taken from it (its lease expired and another daemon claimed the job)
+/// cannot write over the new run's work.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Run {
+    /// The job.
+    pub job: i64,
+    /// Which start of the job this run is (1 for the first).
+    pub attempt: i64,
+}
