@@ -178,20 +178,7 @@ async fn three_daemons_share_one_queue() {
     // SIGKILL mid-job: the job finishes on another daemon.
     let slow = calibd::jobs::examples::twin_dispersion(&[30, 60, 90], 300);
     let id = submit(&http, &c, &slow).await;
-    let owner_sql = format!("SELECT owner FROM jobs WHERE id = {id}");
-    let t0 = Instant::now();
-    let owner = loop {
-        let o: Option<String> =
-            tokio::task::block_in_place(|| db(&store).query_one(&owner_sql, &[]).unwrap().get(0));
-        if let Some(o) = o {
-            break o;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(30),
-            "nobody claimed the slow job"
-        );
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    };
+    let owner = until_owner(&store, id).await;
     let victim = match owner.as_str() {
         "a" => &a.child,
         "b" => &b.child,
@@ -206,34 +193,8 @@ async fn three_daemons_share_one_queue() {
             .success()
     );
     eprintln!("killed daemon {owner} (pid {pid}) while it ran job {id}");
-    let t0 = Instant::now();
-    loop {
-        let state: String = tokio::task::block_in_place(|| {
-            db(&store)
-                .query_one(&format!("SELECT state FROM jobs WHERE id = {id}"), &[])
-                .unwrap()
-                .get(0)
-        });
-        if state == "succeeded" {
-            break;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(120),
-            "job {id} is {state}"
-        );
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-    let logs: Vec<String> = tokio::task::block_in_place(|| {
-        db(&store)
-            .query(
-                &format!("SELECT message FROM logs WHERE job_id = {id} ORDER BY id"),
-                &[],
-            )
-            .unwrap()
-            .iter()
-            .map(|r| r.get(0))
-            .collect()
-    });
+    until_state(&store, id, "succeeded", Duration::from_secs(120)).await;
+    let logs = logs(&store, id);
     eprintln!("job {id}: {logs:?}");
     assert!(logs.contains(&"re-queued: its daemon's lease expired".to_string()));
     let starts: Vec<&String> = logs

@@ -185,6 +185,20 @@ pub struct Recovered {
     pub queued: Vec<(i64, i64, Value)>,
 }
 
+/// The log line of a job that ended in `state` without result: (level, message).
+pub(crate) fn end_log(state: JobState, error: Option<&str>) -> (&'static str, String) {
+    let message = match error {
+        Some(e) => format!("{}: {e}", state.as_str()),
+        None => state.as_str().to_string(),
+    };
+    let level = if state == JobState::Failed {
+        "error"
+    } else {
+        "info"
+    };
+    (level, message)
+}
+
 /// One run of a job: the token a worker got when it started (or claimed) the job. A run
 /// records progress, its result and its end only while the job is still this attempt, so
 /// a run whose job was taken from it (its lease expired and another daemon claimed the job)

@@ -131,15 +131,7 @@ impl Store {
                 params![id, state.as_str(), now(), error, attempt],
             )?;
             if n == 1 {
-                let msg = match error {
-                    Some(e) => format!("{}: {e}", state.as_str()),
-                    None => state.as_str().to_string(),
-                };
-                let level = if state == JobState::Failed {
-                    "error"
-                } else {
-                    "info"
-                };
+                let (level, msg) = super::records::end_log(state, error);
                 log_tx(&tx, Some(id), level, &msg)?;
             } else if let Some(attempt) = attempt {
                 check_run(&tx, Run { job: id, attempt })?;
