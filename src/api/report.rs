@@ -36,7 +36,8 @@ pub(super) async fn report(
     };
     let st = s.service.store().clone();
     let cell = cell_name(&job, &result);
-    let (artefacts, history) = blocking(move || {
+    let (artefacts, history, journal) = blocking(move || {
+        let journal = st.measurements(id)?;
         let mut arts = Vec::new();
         for a in st.artefacts(id)? {
             if a.media_type == "image/svg+xml" {
@@ -47,9 +48,13 @@ pub(super) async fn report(
             Some(c) => st.cell_models(&c)?,
             None => Vec::new(),
         };
-        Ok((arts, history))
+        Ok((arts, history, journal))
     })
     .await?;
+    let journal: Vec<Value> = journal
+        .iter()
+        .map(|e| serde_json::to_value(e).unwrap_or(Value::Null))
+        .collect();
     let history: Vec<Value> = history
         .iter()
         .map(|m| {
@@ -67,6 +72,7 @@ pub(super) async fn report(
         result: &result,
         artefacts: &artefacts,
         cell_history: &history,
+        journal: &journal,
         generator_version: VERSION,
         generated_at: &now,
     });
