@@ -9,23 +9,32 @@ use serde_json::Value;
 use super::{number, text};
 use crate::report::svg::escape;
 
+/// A journal number as the table shows it: an integer (a ball, a count) as written,
+/// anything else with [`number`]'s 4 significant digits.
+pub fn journal_number(n: &serde_json::Number) -> String {
+    if n.is_i64() || n.is_u64() {
+        return n.to_string();
+    }
+    n.as_f64().map_or_else(|| n.to_string(), number)
+}
+
 /// A journal value as a table cell: numbers formatted (with their pointer), arrays of
 /// numbers joined, anything else as compact JSON.
 fn cell(v: &Value, pointer: &str) -> String {
     match v {
         Value::Number(n) => match n.as_f64() {
-            Some(x) => format!(
+            Some(_) => format!(
                 r#"<td class="num" data-journal="{}">{}</td>"#,
                 escape(pointer),
-                number(x)
+                journal_number(n)
             ),
             None => format!("<td>{}</td>", escape(&n.to_string())),
         },
         Value::Array(a) if a.iter().all(Value::is_number) => format!(
             "<td>{}</td>",
             a.iter()
-                .filter_map(Value::as_f64)
-                .map(number)
+                .filter_map(Value::as_number)
+                .map(journal_number)
                 .collect::<Vec<_>>()
                 .join(", ")
         ),
@@ -55,7 +64,7 @@ pub(super) fn journal(entries: &[Value]) -> String {
         .filter(|e| e.get("status").and_then(Value::as_str) == Some("measured"))
         .count();
     let mut h = format!(
-        "<section><h2>Campaign measurement journal</h2><p class=\"meta\">{} entries as the campaign stored them, each before the next move: <span data-count=\"journal-measured\">{measured}</span> measured, {} skipped.</p><table class=\"journal\"><thead><tr><th>index</th><th>status</th>",
+        "<section><h2>Campaign measurement journal</h2><p class=\"meta\">{} entries as the campaign stored them, each before the next move: <span data-count=\"journal-measured\">{measured}</span> measured, {} skipped.</p><table class=\"journal\"><thead><tr><th>entry</th><th>status</th>",
         entries.len(),
         entries.len() - measured
     );
@@ -110,7 +119,7 @@ mod tests {
         let entries = [
             json!({"index": 0, "status": "measured", "data": {"q": [0.1, 0.2], "residual_mm": 0.0123}}),
             json!({"index": 1, "status": "skipped", "data": "ball <lost>"}),
-            json!({"index": 2, "status": "measured", "data": {"residual_mm": 2.5, "ball": "b3"}}),
+            json!({"index": 2, "status": "measured", "data": {"residual_mm": 2.5, "ball": 3}}),
         ];
         let h = journal(&entries);
         assert_eq!(h.matches("<tr data-index=").count(), 3);
@@ -119,6 +128,7 @@ mod tests {
             "{h}"
         );
         assert!(h.contains(r#"data-journal="/2/data/residual_mm">2.500<"#));
+        assert!(h.contains(r#"data-journal="/2/data/ball">3<"#));
         assert!(h.contains("ball &lt;lost&gt;") && h.contains("<td>0.1000, 0.2000</td>"));
         assert!(h.contains(r#"data-count="journal-measured">2<"#));
         assert!(journal(&[]).is_empty());

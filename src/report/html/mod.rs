@@ -14,6 +14,8 @@ mod assessment;
 mod journal;
 mod sections;
 
+pub use journal::journal_number;
+
 use std::fmt::Write;
 
 use serde_json::Value;
