@@ -54,7 +54,8 @@ enum Command {
         /// The job file (JSON); relative paths inside it are relative to its folder.
         job: PathBuf,
         /// Write the result here: `.csv` writes the job's main table, anything else the
-        /// whole result JSON.
+        /// whole result JSON. A `serial.fk` over a joints CSV file streams its poses to
+        /// `.csv` row by row (memory flat in the number of rows; no result JSON).
         #[arg(long)]
         out: Option<PathBuf>,
         /// Also write the job's artefacts (calibrated model, CSV tables) into this folder.
