@@ -34,11 +34,16 @@ pub(super) async fn report(
         )));
     };
     let cell = cell_name(&job, &result);
+    let journal = s.service.journal(id).await?;
     let artefacts = s.service.svg_artefacts(id).await?;
     let history = match cell {
         Some(c) => s.service.cell_models(c).await?,
         None => Vec::new(),
     };
+    let journal: Vec<Value> = journal
+        .iter()
+        .map(|e| serde_json::to_value(e).unwrap_or(Value::Null))
+        .collect();
     let history: Vec<Value> = history
         .iter()
         .map(|m| {
@@ -56,6 +61,7 @@ pub(super) async fn report(
         result: &result,
         artefacts: &artefacts,
         cell_history: &history,
+        journal: &journal,
         generator_version: VERSION,
         generated_at: &now,
     });

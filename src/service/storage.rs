@@ -123,6 +123,11 @@ impl Service {
             .await
     }
 
+    /// Job `id`'s measurement journal, in index order (empty for jobs that measure nothing).
+    pub async fn journal(&self, id: i64) -> Result<Vec<JournalEntry>, StoreError> {
+        self.on_store(move |s| s.measurements(id)).await
+    }
+
     /// The model history of cell `cell`, newest first.
     pub async fn cell_models(&self, cell: String) -> Result<Vec<CellModel>, StoreError> {
         self.on_store(move |s| s.cell_models(&cell)).await

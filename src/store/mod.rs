@@ -1,8 +1,9 @@
 //! Storage: one SQLite file (bundled SQLite, WAL mode, `synchronous = FULL`) holding jobs,
 //! their input datasets (content-hashed), progress history, results and artefacts, logs and
 //! schedules. Writes go through one connection; reads use a small pool of connections that
-//! WAL lets run beside the writer. Every call is blocking: async callers wrap it in
-//! `spawn_blocking`. A result is written in the same transaction that makes its job final,
+//! WAL lets run beside the writer. Every call is blocking: async code reaches the store
+//! through the service's storage module (`service::storage`), which runs calls on the
+//! blocking pool. A result is written in the same transaction that makes its job final,
 //! so a crash either keeps the whole result or leaves the job `running`, which
 //! [`Store::recover`] turns into `interrupted` on the next start.
 
@@ -203,8 +204,8 @@ impl Store {
     }
 
     /// Open the store at `location`: [`Location::Sqlite`] as [`Store::open`] does, or
-    /// connect to PostgreSQL and migrate it. Blocking: from async code, call it inside
-    /// `spawn_blocking`.
+    /// connect to PostgreSQL and migrate it. Blocking: from async code, use
+    /// `service::open_store`.
     pub fn open_location(location: &Location) -> Result<Store, StoreError> {
         match location {
             Location::Sqlite(dir) => Store::open(dir),

@@ -1,6 +1,8 @@
 //! The PostgreSQL backend: several daemons on one database. The synchronous `postgres`
 //! client (over tokio-postgres, with its own small runtime per connection) keeps the
-//! store's blocking shape, so callers use `spawn_blocking` for both backends alike. A
+//! store's blocking shape, so async code reaches both backends alike through the
+//! service's storage module (which runs calls on the blocking pool; never call this client
+//! on a runtime thread: it panics there). A
 //! small pool of connections; the schema is the SQLite schema translated by
 //! [`translate`], plus a PostgreSQL-only step for the shared queue (leases, cells).
 
