@@ -54,7 +54,8 @@ enum Command {
         /// The job file (JSON); relative paths inside it are relative to its folder.
         job: PathBuf,
         /// Write the result here: `.csv` writes the job's main table, anything else the
-        /// whole result JSON.
+        /// whole result JSON. A `serial.fk` over a joints CSV file streams its poses to
+        /// `.csv` row by row (memory flat in the number of rows; no result JSON).
         #[arg(long)]
         out: Option<PathBuf>,
         /// Also write the job's artefacts (calibrated model, CSV tables) into this folder.
@@ -63,8 +64,9 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial`, `pcr`, `humanoid`, `all` (those three), `drivers` or `api` (the
-        /// daemon under many concurrent clients).
+        /// Area: `serial`, `pcr`, `humanoid`, `all` (those three), `serial.fk` (only the
+        /// `serial.fk` table figures of `serial`), `drivers` or `api` (the daemon under many
+        /// concurrent clients).
         area: String,
         /// Also write every figure (median, min, max, peak memory) of `serial`, `pcr`,
         /// `humanoid` or `all` to this JSON file, to compare a run with an earlier one.
@@ -424,6 +426,15 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
     let monitor = StderrMonitor {
         last: std::sync::Mutex::new(String::new()),
     };
+    let csv_out = out.filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")));
+    if let Some(p) = csv_out
+        && artefacts.is_none()
+        && prepared.streams_main_csv()
+    {
+        // The main table row by row: no result JSON, no table in memory.
+        calibd::offline::write_main_csv(&prepared, p, &monitor)?;
+        return Ok(());
+    }
     let done = if prepared.devices().is_empty() {
         prepared.run(&monitor)?
     } else {
@@ -570,6 +581,7 @@ fn main() -> Result<()> {
         Command::Bench { area, json } => {
             let numerical = |a: &str| match a {
                 "serial" => Some(calibd::bench::serial::run()),
+                "serial.fk" => Some(calibd::bench::serial::fk_tables()),
                 "humanoid" => Some(calibd::bench::humanoid::run()),
                 "pcr" => Some(calibd::bench::pcr::run()),
                 _ => None,
@@ -588,7 +600,7 @@ fn main() -> Result<()> {
                 other if numerical_area(other) => vec![other],
                 other => {
                     bail!(
-                        "unknown benchmark area `{other}` (known: serial, pcr, humanoid, all, drivers, api)"
+                        "unknown benchmark area `{other}` (known: serial, serial.fk, pcr, humanoid, all, drivers, api)"
                     )
                 }
             };
@@ -722,5 +734,5 @@ fn main() -> Result<()> {
 
 /// The benchmark areas whose figures `--json` can write.
 fn numerical_area(a: &str) -> bool {
-    matches!(a, "serial" | "pcr" | "humanoid")
+    matches!(a, "serial" | "serial.fk" | "pcr" | "humanoid")
 }

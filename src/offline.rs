@@ -1,8 +1,10 @@
 //! Running a job from synchronous code (`calibd run`, tests, benches): the one place a job
 //! is driven by `block_on`, on a runtime of its own or the caller's. Progress and
 //! cancellation cross between the caller's borrowed [`Monitor`] and the job's context
-//! through a channel, exactly as the daemon's workers do.
+//! through a channel, exactly as the daemon's workers do. Kinds that stream their main
+//! table write it as CSV row by row instead ([`write_main_csv`]).
 
+use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -109,4 +111,27 @@ pub fn run_on(
             }
         }
     })
+}
+
+/// Write `job`'s main table as CSV to `path` row by row, without running the job into a
+/// result (for the kinds that stream: [`Job::streams_main_csv`]); the number of rows. The
+/// rows go to a `.partial` file beside `path` that replaces it only when every row is
+/// written, so a failed job leaves nothing half-written behind.
+pub fn write_main_csv(job: &Job, path: &Path, monitor: &dyn Monitor) -> Result<usize, JobError> {
+    let mut partial = path.as_os_str().to_owned();
+    partial.push(".partial");
+    let partial = std::path::PathBuf::from(partial);
+    let io = |e: std::io::Error| JobError::Failed(format!("writing {}: {e}", path.display()));
+    let written = (|| {
+        let file = std::fs::File::create(&partial).map_err(io)?;
+        let mut out = std::io::BufWriter::with_capacity(1 << 16, file);
+        let n = job.write_main_csv(&mut out, monitor)?;
+        out.into_inner().map_err(|e| io(e.into_error()))?;
+        std::fs::rename(&partial, path).map_err(io)?;
+        Ok(n)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&partial);
+    }
+    written
 }

@@ -74,9 +74,7 @@ pub async fn start(
                 .map_err(|e| ServeError::Config(e.to_string()))?;
             tracing::info!(store = %location.display(), "opening the store");
             // Connecting blocks (and PostgreSQL's client runs its own small runtime).
-            tokio::task::spawn_blocking(move || Store::open_location(&location))
-                .await
-                .map_err(|e| StoreError::Internal(e.to_string()))??
+            crate::service::open_store(location).await?
         }
     };
     let mut auth = Auth::new(&config.auth.tokens, config.auth.anonymous_read)?;

@@ -3,50 +3,19 @@
 //! that existed before the kill is intact, every job that was running is `interrupted`,
 //! and no job is `succeeded` without its result.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use calibd::util::Rng;
 use serde_json::Value;
 
-struct Daemon {
-    child: Child,
-    url: String,
-}
+#[path = "common/daemon.rs"]
+mod daemon;
+use daemon::{Daemon, get, journal};
 
 fn spawn(data: &std::path::Path) -> Daemon {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_calibd"))
-        .args(["serve", "--listen", "127.0.0.1:0", "--data"])
-        .arg(data)
-        .env("CALIBD_WORKERS", "2")
-        // The test reads jobs and results without a token; writes use the operator token.
-        .env("CALIBD_ANONYMOUS_READ", "true")
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("calibd starts");
-    let out = child.stdout.take().unwrap();
-    let mut line = String::new();
-    BufReader::new(out).read_line(&mut line).unwrap();
-    let url = line
-        .trim()
-        .strip_prefix("calibd listening on ")
-        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-        .to_string();
-    Daemon { child, url }
-}
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-async fn get(c: &reqwest::Client, url: &str) -> Value {
-    c.get(url).send().await.unwrap().json().await.unwrap()
+    // The test reads jobs and results without a token; writes use the operator token.
+    let env = [("CALIBD_WORKERS", "2"), ("CALIBD_ANONYMOUS_READ", "true")];
+    Daemon::start(data, &env, true)
 }
 
 async fn all_jobs(c: &reqwest::Client, d: &Daemon) -> Vec<Value> {
@@ -111,8 +80,7 @@ async fn sigkill_at_random_moments_loses_no_result() {
                 kept.push((id, r));
             }
         }
-        d.child.kill().unwrap(); // SIGKILL
-        d.child.wait().unwrap();
+        d.kill9();
         drop(d);
         d = spawn(data.path());
         // Every result seen before any kill is intact, byte for byte.
@@ -197,22 +165,7 @@ async fn sigkill_at_random_moments_loses_no_result() {
 /// Submit a document with the data folder's operator token; returns the job id.
 async fn submit(c: &reqwest::Client, d: &Daemon, data: &std::path::Path, doc: &Value) -> i64 {
     let token = std::fs::read_to_string(data.join("operator.token")).unwrap();
-    let r = c
-        .post(format!("{}/v1/jobs", d.url))
-        .bearer_auth(token.trim())
-        .json(doc)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    r.json::<Value>().await.unwrap()["id"].as_i64().unwrap()
-}
-
-async fn journal(c: &reqwest::Client, d: &Daemon, id: i64) -> Vec<Value> {
-    get(c, &format!("{}/v1/jobs/{id}/measurements", d.url)).await["entries"]
-        .as_array()
-        .unwrap()
-        .clone()
+    daemon::submit(c, d, token.trim(), doc).await
 }
 
 async fn until_done(c: &reqwest::Client, d: &Daemon, id: i64) -> Value {
@@ -267,8 +220,7 @@ async fn a_campaign_killed_mid_way_resumes_and_measures_what_an_uninterrupted_on
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         let held = journal(&http, &d, id).await;
-        d.child.kill().unwrap(); // SIGKILL, mid-campaign
-        d.child.wait().unwrap();
+        d.kill9(); // mid-campaign
         drop(d);
         d = spawn(data.path());
         // What was committed before the kill is all there.

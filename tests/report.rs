@@ -1,77 +1,25 @@
 //! The printable report of each calibration method (serial, PCR, humanoid), rendered from
 //! a job run on the examples' twin data: every number it shows is the result JSON's (read
 //! back through its `data-pointer`), the headline numbers are there, the plots are inline
-//! with the "after" series drawn at a visible size, and nothing is fetched.
+//! with the "after" series drawn at a visible size, and nothing is fetched; PCR's Table 2
+//! bars are the result's sensitivities. (Design, dispersion and campaign reports:
+//! `report_studies.rs`.)
 
 mod common;
 
 use calibd::jobs::Completed;
-use calibd::report::html::{ReportInput, number, render};
 use calibd::report::plots::AFTER;
 use calibd::report::svg::series_marks;
+use common::report::{assert_cells_are_the_result, figure, report_of};
 use common::{example, run_in_examples};
-use serde_json::{Value, json};
-
-/// (pointer, shown text) of every number cell of the report.
-fn pointed_cells(html: &str) -> Vec<(String, String)> {
-    let mut out = Vec::new();
-    for part in html.split("data-pointer=\"").skip(1) {
-        let Some((pointer, rest)) = part.split_once('"') else {
-            continue;
-        };
-        let Some(text) = rest
-            .split_once('>')
-            .and_then(|(_, r)| r.split_once('<'))
-            .map(|(t, _)| t)
-        else {
-            continue;
-        };
-        out.push((pointer.to_string(), text.to_string()));
-    }
-    out
-}
-
-/// The inline SVG of the figure holding artefact `name`.
-fn figure<'a>(html: &'a str, name: &str) -> &'a str {
-    let start = html
-        .find(&format!("<figure data-name=\"{name}\">"))
-        .unwrap_or_else(|| panic!("no figure {name}"));
-    let rest = &html[start..];
-    &rest[..rest.find("</figure>").unwrap_or(rest.len())]
-}
-
-fn report_of(done: &Completed) -> String {
-    let job = json!({"id": 42, "kind": done.result["kind"], "state": "succeeded",
-        "submitted_by": "tester <qa>", "devices": [], "inputs_sha256": done.result["inputs_sha256"]});
-    render(&ReportInput {
-        job: &job,
-        result: &done.result,
-        artefacts: &done.artefacts,
-        cell_history: &[],
-        generator_version: "test",
-        generated_at: "2026-11-25T18:00:00Z",
-    })
-}
+use serde_json::json;
 
 /// Checks common to every method; returns the report.
 fn check(done: &Completed, headline: &[&str], plots: &[&str]) -> String {
     let r = &done.result;
     let html = report_of(done);
-    let cells = pointed_cells(&html);
+    let cells = assert_cells_are_the_result(&html, r);
     assert!(cells.len() > 20, "only {} number cells", cells.len());
-    for (pointer, text) in &cells {
-        let v = r
-            .pointer(pointer)
-            .and_then(Value::as_f64)
-            .unwrap_or_else(|| panic!("{pointer} is not a number of the result"));
-        assert_eq!(text, &number(v), "{pointer}");
-        // Independently of the formatter: the text reads back as the value (4 digits).
-        let back: f64 = text.parse().unwrap_or_else(|_| panic!("{pointer}: {text}"));
-        assert!(
-            (back - v).abs() <= 6e-4 * v.abs() + 1e-300,
-            "{pointer}: shown {text}, result {v}"
-        );
-    }
     for p in headline {
         assert!(
             cells.iter().any(|(q, _)| q == p),
@@ -145,9 +93,9 @@ fn serial_report_shows_the_result_numbers_and_plots() {
 }
 
 #[test]
-fn pcr_report_shows_table_3_and_the_validation_errors() {
+fn pcr_report_shows_table_3_the_validation_errors_and_table_2_bars() {
     let done = run_in_examples(&example("pcr_identify.json")).unwrap();
-    check(
+    let html = check(
         &done,
         &[
             "/model_error/calibration/e_P/nominal/mean",
@@ -156,6 +104,47 @@ fn pcr_report_shows_table_3_and_the_validation_errors() {
         ],
         &["errors_per_configuration.svg", "validation_errors.svg"],
     );
+    // Table 2 of the nominal model: every non-zero sensitivity is a bar with its value, in
+    // the order of the result's rows; the zero ones (E without load, all d together) are
+    // said to be zero; the units are on the labels.
+    let t = &done.result["sensitivity"];
+    assert_eq!(t["configurations"]["count"], 26);
+    let rows = t["sensitivity"].as_array().expect("Table 2 rows");
+    assert_eq!(rows.len(), 11);
+    for (plot, series) in [
+        ("sensitivity_position.svg", "dx"),
+        ("sensitivity_position.svg", "dy"),
+        ("sensitivity_orientation.svg", "dtheta"),
+    ] {
+        let svg = figure(&html, plot);
+        let want: Vec<f64> = rows
+            .iter()
+            .map(|r| r[series].as_f64().expect("a number"))
+            .filter(|v| *v > 0.0)
+            .collect();
+        let marks = series_marks(svg, series);
+        assert_eq!(
+            marks.iter().map(|m| m.value).collect::<Vec<_>>(),
+            want,
+            "{plot} {series}"
+        );
+        assert!(want.len() >= 8, "{plot} {series}: {want:?}");
+        assert!(marks.iter().all(|m| m.extent >= 2.0), "{plot}: {marks:?}");
+    }
+    let row = |name: &str| {
+        rows.iter()
+            .find(|r| r["parameter"] == name)
+            .unwrap_or_else(|| panic!("no row {name}"))
+    };
+    let e = row("E");
+    assert_eq!(
+        (e["dx"].as_f64(), e["unit"].as_str()),
+        (Some(0.0), Some("Pa"))
+    );
+    let pos = figure(&html, "sensitivity_position.svg");
+    assert!(pos.contains(">E (m/Pa) = 0<"), "E is not said to be zero");
+    assert!(pos.contains(">Ax (m/m)<") && pos.contains("(m/rad)"));
+    assert!(row("Ax")["dx"].as_f64().unwrap_or(0.0) > 0.1);
 }
 
 #[test]

@@ -3,8 +3,9 @@
 // check the result tables and plots, download the calibrated model, check that an uploaded
 // HTML dataset opens as an inert download (no script runs), save a screenshot. Then open a
 // finished PCR and humanoid job (JOBS env), check their headline numbers and that each
-// plot's "after" series is drawn at a visible size, and follow a running TriCal campaign's
-// live journal. Screenshots go next to SCREENSHOT.png.
+// plot's "after" series is drawn at a visible size (and the PCR Table 2 bars), open a
+// finished serial.design (its DETMAX O1 history) and serial.dispersion (its box plots on a
+// log axis), and follow a running TriCal campaign's live journal. Screenshots go next to SCREENSHOT.png.
 // Usage: node browser.mjs URL TOKEN SCREENSHOT.png
 import { chromium } from "playwright-core";
 import { readFileSync } from "node:fs";
@@ -37,6 +38,31 @@ async function checkPlots(page, method, names) {
     console.log(`${method} ${name}: ${m.visible}/${m.n} after marks visible (${m.min.toFixed(1)}-${m.max.toFixed(1)} px; before up to ${m.beforeMax.toFixed(1)} px); data set: ${m.dataset}`);
   }
 }
+/** One plot of the shown job: its marks of `series` (bars, points or boxes read from the SVG
+ *  in the DOM) are all there and at least `share` of them have a visible extent (points:
+ *  their height above the plot's bottom edge). Returns the marks' data values. */
+async function checkSeries(page, method, name, series, share = 1) {
+  const sel = `#detail figure[data-name="${name}"] svg`;
+  await page.waitForSelector(sel, { timeout: 20000 }).catch(() => fail(`${method}: no plot ${name}`));
+  const m = await page.$eval(sel, (svg, series) => {
+    const bottom = [...svg.querySelectorAll("path")].map((p) => p.getBoundingClientRect()).reduce((a, b) => Math.max(a, b.bottom), 0);
+    const marks = [...svg.querySelectorAll(`[data-series="${series}"]`)].filter((n) => n.hasAttribute("data-value"));
+    const ext = marks.map((n) => { const b = n.getBoundingClientRect(); return n.tagName === "circle" ? bottom - (b.top + b.bottom) / 2 : b.height; });
+    return { n: marks.length, values: marks.map((n) => Number(n.getAttribute("data-value"))), visible: ext.filter((h) => h >= 2).length, min: Math.min(...ext), max: Math.max(...ext), log: svg.getAttribute("data-y-scale") === "log", dataset: (svg.querySelector(".dataset") || {}).textContent };
+  }, series);
+  if (m.n === 0 || m.visible < share * m.n) fail(`${method} ${name}: ${series} marks not visible: ${JSON.stringify(m)}`);
+  console.log(`${method} ${name}: ${m.visible}/${m.n} ${series} marks visible (${m.min.toFixed(1)}-${m.max.toFixed(1)} px${m.log ? ", log axis" : ""}); data set: ${m.dataset}`);
+  return m;
+}
+
+/** Open a finished job of the list in the detail view. */
+async function openJob(page, id) {
+  await page.goto(url, { waitUntil: "load" });
+  await page.waitForSelector(`#jobs tr[data-id="${id}"] td.state-succeeded`, { timeout: 600000 });
+  await page.click(`#jobs tr[data-id="${id}"]`);
+  await page.waitForSelector("#detail-state.state-succeeded", { timeout: 20000 });
+}
+
 try {
   const page = await browser.newPage({ viewport: { width: 1400, height: 1100 }, acceptDownloads: true });
   page.on("pageerror", (e) => errors.push(e.message));
@@ -110,12 +136,16 @@ try {
   for (const [method, id, plots] of [["pcr", jobIds.pcr, ["errors_per_configuration.svg", "validation_errors.svg"]],
     ["humanoid", jobIds.humanoid, ["marker_rmse.svg", "validation_errors.svg"]]]) {
     if (!id) fail(`no ${method} job id given (JOBS=${process.env.JOBS})`);
-    await page.goto(url, { waitUntil: "load" });
-    await page.waitForSelector(`#jobs tr[data-id="${id}"] td.state-succeeded`, { timeout: 600000 });
-    await page.click(`#jobs tr[data-id="${id}"]`);
-    await page.waitForSelector("#detail-state.state-succeeded", { timeout: 20000 });
+    await openJob(page, id);
     await page.waitForSelector("#headline", { timeout: 20000 });
     await checkPlots(page, method, plots);
+    if (method === "pcr") {
+      // Table 2 of the nominal model: one bar per non-zero sensitivity (E without load is 0).
+      for (const [name, series] of [["sensitivity_position.svg", "dx"], ["sensitivity_position.svg", "dy"], ["sensitivity_orientation.svg", "dtheta"]]) {
+        const m = await checkSeries(page, method, name, series);
+        if (m.n < 8) fail(`pcr ${name}: only ${m.n} ${series} bars`);
+      }
+    }
     if (method === "humanoid") {
       const rmse = await page.$eval("#headline", (h) => {
         const r = h.querySelector('tr[data-key="/rmse_after_mm"]');
@@ -127,6 +157,23 @@ try {
     await page.screenshot({ path: `${dir}/${method}-identify.png`, fullPage: true });
     console.log(`screenshot: ${dir}/${method}-identify.png`);
   }
+
+  // A design: the DETMAX O1 history, ending at the O1 the result reports.
+  if (!jobIds.design || !jobIds.dispersion) fail(`no design/dispersion job id given (JOBS=${process.env.JOBS})`);
+  await openJob(page, jobIds.design);
+  const hist = await checkSeries(page, "design", "design_history.svg", "history");
+  const design = await page.evaluate(async ([t, id]) => (await fetch(`/v1/jobs/${id}/result`, { headers: { Authorization: "Bearer " + t } })).json(), [token, jobIds.design]);
+  if (hist.n !== design.history.steps.length || hist.values[hist.n - 1] !== design.observability.selection.o1) fail(`design history ${JSON.stringify(hist.values)} does not end at O1 ${design.observability.selection.o1}`);
+  await page.screenshot({ path: `${dir}/serial-design.png`, fullPage: true });
+  console.log(`design: ${hist.n} DETMAX steps, O1 ${hist.values[0].toPrecision(4)} -> ${hist.values[hist.n - 1].toPrecision(4)}; screenshot: ${dir}/serial-design.png`);
+  // A dispersion study: a box per set size on a log error axis.
+  await openJob(page, jobIds.dispersion);
+  for (const name of ["dispersion_mean_error.svg", "dispersion_std_error.svg"]) {
+    const m = await checkSeries(page, "dispersion", name, name.replace("dispersion_", "").replace(".svg", ""), 0.5);
+    if (!m.log || m.n !== 2) fail(`dispersion ${name}: ${m.n} boxes, log axis ${m.log}`);
+  }
+  await page.screenshot({ path: `${dir}/serial-dispersion.png`, fullPage: true });
+  console.log(`screenshot: ${dir}/serial-dispersion.png`);
 
   // A running campaign from the example list: its journal fills and its plot grows.
   await page.goto(url, { waitUntil: "load" });

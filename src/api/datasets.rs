@@ -14,7 +14,7 @@ use axum::{Json, Router};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
-use super::{ApiError, ApiPath, AppState, Caller, Role, attachment, blocking, body, check_name};
+use super::{ApiError, ApiPath, AppState, Caller, Role, attachment, body, check_name};
 
 pub(super) fn router() -> Router<AppState> {
     Router::new()
@@ -44,15 +44,13 @@ async fn upload(
     let media_type = media_type(headers.get(header::CONTENT_TYPE))?;
     let name = q.name.unwrap_or_else(|| "dataset".into());
     check_name("name", &name)?;
-    let st = s.service.store().clone();
-    let info = blocking(move || st.put_dataset(&name, &media_type, &b)).await?;
+    let info = s.service.put_dataset(name, media_type, b.to_vec()).await?;
     Ok((StatusCode::CREATED, Json(info)).into_response())
 }
 
 async fn list(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
-    let st = s.service.store().clone();
-    let all = blocking(move || st.datasets()).await?;
+    let all = s.service.datasets().await?;
     Ok(Json(json!({"datasets": all})))
 }
 
@@ -62,11 +60,8 @@ async fn one(
     ApiPath(id): ApiPath<String>,
 ) -> Result<Response, ApiError> {
     caller.require_read()?;
-    let st = s.service.store().clone();
-    let i = id.clone();
-    let (info, content) = blocking(move || Ok((st.dataset_info(&i)?, st.dataset(&i)?))).await?;
-    match (info, content) {
-        (Some(info), Some(c)) => Ok((
+    match s.service.dataset(id.clone()).await? {
+        Some((info, c)) => Ok((
             [
                 (header::CONTENT_TYPE, "application/octet-stream".to_string()),
                 (header::CONTENT_DISPOSITION, attachment(&info.name)),
@@ -74,7 +69,7 @@ async fn one(
             c,
         )
             .into_response()),
-        _ => Err(ApiError::NotFound(format!("no dataset with id {id}"))),
+        None => Err(ApiError::NotFound(format!("no dataset with id {id}"))),
     }
 }
 

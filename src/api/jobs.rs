@@ -11,7 +11,7 @@ use axum::{Json, Router};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
-use super::{ApiError, ApiPath, AppState, Caller, Role, attachment, blocking, json_body};
+use super::{ApiError, ApiPath, AppState, Caller, Role, attachment, json_body};
 use crate::service::{Origin, Submitter};
 use crate::store::{JobFilter, JobState};
 
@@ -226,8 +226,7 @@ async fn result(
     ApiPath(id): ApiPath<i64>,
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
-    let st = s.service.store().clone();
-    match blocking(move || st.result(id)).await? {
+    match s.service.result(id).await? {
         Some(r) => Ok(Json(r)),
         None => Err(no_result(&s, id).await),
     }
@@ -239,8 +238,7 @@ async fn table(
     ApiPath(id): ApiPath<i64>,
 ) -> Result<Response, ApiError> {
     caller.require_read()?;
-    let st = s.service.store().clone();
-    match blocking(move || st.main_table_csv(id)).await? {
+    match s.service.main_table_csv(id).await? {
         Some(csv) => Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], csv).into_response()),
         None => Err(match s.service.job(id).await {
             Ok(j) if j.state == JobState::Succeeded => {
@@ -258,8 +256,7 @@ async fn artefacts(
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     s.service.job(id).await?;
-    let st = s.service.store().clone();
-    let list = blocking(move || st.artefacts(id)).await?;
+    let list = s.service.artefacts(id).await?;
     Ok(Json(json!({"artefacts": list})))
 }
 
@@ -269,9 +266,9 @@ async fn artefact(
     ApiPath((id, name)): ApiPath<(i64, String)>,
 ) -> Result<Response, ApiError> {
     caller.require_read()?;
-    let st = s.service.store().clone();
-    let n = name.clone();
-    let a = blocking(move || st.artefact(id, &n))
+    let a = s
+        .service
+        .artefact(id, name.clone())
         .await?
         .ok_or_else(|| ApiError::NotFound(format!("job {id} has no artefact `{name}`")))?;
     let disposition = attachment(&a.name);
@@ -292,7 +289,6 @@ async fn logs(
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     s.service.job(id).await?;
-    let st = s.service.store().clone();
-    let (logs, progress) = blocking(move || Ok((st.logs(id)?, st.progress_history(id)?))).await?;
+    let (logs, progress) = s.service.logs(id).await?;
     Ok(Json(json!({"logs": logs, "progress": progress})))
 }

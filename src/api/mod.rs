@@ -290,13 +290,3 @@ pub(crate) fn check_name(field: &str, name: &str) -> Result<(), ApiError> {
     }
     Ok(())
 }
-
-/// Run blocking store work off the runtime.
-pub(crate) async fn blocking<T: Send + 'static>(
-    f: impl FnOnce() -> Result<T, crate::store::StoreError> + Send + 'static,
-) -> Result<T, ApiError> {
-    tokio::task::spawn_blocking(f)
-        .await
-        .map_err(|e| ApiError::Internal(e.to_string()))?
-        .map_err(ApiError::from)
-}

@@ -8,7 +8,7 @@ use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use serde_json::Value;
 
-use super::{ApiError, ApiPath, AppState, Caller, blocking};
+use super::{ApiError, ApiPath, AppState, Caller};
 use crate::jobs::envelope::VERSION;
 use crate::report::html::{ReportInput, cell_name, render};
 
@@ -25,8 +25,7 @@ pub(super) async fn report(
     caller.require_read()?;
     let job = s.service.job(id).await?;
     let job = serde_json::to_value(&job).map_err(|e| ApiError::Internal(e.to_string()))?;
-    let st = s.service.store().clone();
-    let Some(result) = blocking(move || st.result(id)).await? else {
+    let Some(result) = s.service.result(id).await? else {
         return Err(ApiError::Conflict(format!(
             "job {id} is {} and has no result to report",
             job.get("state")
@@ -34,22 +33,17 @@ pub(super) async fn report(
                 .unwrap_or("unfinished")
         )));
     };
-    let st = s.service.store().clone();
     let cell = cell_name(&job, &result);
-    let (artefacts, history) = blocking(move || {
-        let mut arts = Vec::new();
-        for a in st.artefacts(id)? {
-            if a.media_type == "image/svg+xml" {
-                arts.extend(st.artefact(id, &a.name)?);
-            }
-        }
-        let history = match cell {
-            Some(c) => st.cell_models(&c)?,
-            None => Vec::new(),
-        };
-        Ok((arts, history))
-    })
-    .await?;
+    let journal = s.service.journal(id).await?;
+    let artefacts = s.service.svg_artefacts(id).await?;
+    let history = match cell {
+        Some(c) => s.service.cell_models(c).await?,
+        None => Vec::new(),
+    };
+    let journal: Vec<Value> = journal
+        .iter()
+        .map(|e| serde_json::to_value(e).unwrap_or(Value::Null))
+        .collect();
     let history: Vec<Value> = history
         .iter()
         .map(|m| {
@@ -67,6 +61,7 @@ pub(super) async fn report(
         result: &result,
         artefacts: &artefacts,
         cell_history: &history,
+        journal: &journal,
         generator_version: VERSION,
         generated_at: &now,
     });

@@ -10,7 +10,7 @@ use axum::routing::get;
 use axum::{Json, Router};
 use serde_json::{Value, json};
 
-use super::{ApiError, ApiPath, AppState, Caller, Role, blocking, check_name, json_body};
+use super::{ApiError, ApiPath, AppState, Caller, Role, check_name, json_body};
 use crate::schedule::Rule;
 use crate::store::{NewSchedule, ScheduleRecord, format_time};
 
@@ -67,28 +67,27 @@ async fn create(
 ) -> Result<Response, ApiError> {
     caller.require(Role::Operator)?;
     let spec = parse(&s, b).await?;
-    let st = s.service.store().clone();
     let now = format_time(s.scheduler.now());
-    let by = caller.name.clone();
-    let id = blocking(move || st.insert_schedule(&spec, by.as_deref(), &now)).await?;
+    let id = s
+        .service
+        .insert_schedule(spec, caller.name.clone(), now)
+        .await?;
     s.scheduler.reload();
-    let st = s.service.store().clone();
-    let rec = blocking(move || st.schedule(id)).await?;
+    let rec = s.service.schedule(id).await?;
     let rec = rec.ok_or_else(|| ApiError::Internal("schedule vanished".into()))?;
     Ok((StatusCode::CREATED, Json(view(&s, rec))).into_response())
 }
 
 async fn list(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
-    let st = s.service.store().clone();
-    let all = blocking(move || st.schedules()).await?;
+    let all = s.service.schedules().await?;
     let v: Vec<Value> = all.into_iter().map(|r| view(&s, r)).collect();
     Ok(Json(json!({"schedules": v})))
 }
 
 async fn get_one(s: &AppState, id: i64) -> Result<ScheduleRecord, ApiError> {
-    let st = s.service.store().clone();
-    blocking(move || st.schedule(id))
+    s.service
+        .schedule(id)
         .await?
         .ok_or_else(|| ApiError::NotFound(format!("no schedule with id {id}")))
 }
@@ -111,9 +110,8 @@ async fn replace(
 ) -> Result<Json<Value>, ApiError> {
     caller.require(Role::Operator)?;
     let spec = parse(&s, b).await?;
-    let st = s.service.store().clone();
     let now = format_time(s.scheduler.now());
-    if !blocking(move || st.update_schedule(id, &spec, &now)).await? {
+    if !s.service.update_schedule(id, spec, now).await? {
         return Err(ApiError::NotFound(format!("no schedule with id {id}")));
     }
     s.scheduler.reload();
@@ -127,8 +125,7 @@ async fn remove(
     ApiPath(id): ApiPath<i64>,
 ) -> Result<StatusCode, ApiError> {
     caller.require(Role::Operator)?;
-    let st = s.service.store().clone();
-    if !blocking(move || st.delete_schedule(id)).await? {
+    if !s.service.delete_schedule(id).await? {
         return Err(ApiError::NotFound(format!("no schedule with id {id}")));
     }
     s.scheduler.reload();
@@ -142,7 +139,6 @@ async fn runs(
 ) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     get_one(&s, id).await?;
-    let st = s.service.store().clone();
-    let r = blocking(move || st.schedule_runs(id, 100)).await?;
+    let r = s.service.schedule_runs(id, 100).await?;
     Ok(Json(json!({"runs": r})))
 }

@@ -1,13 +1,17 @@
-//! `calibd bench serial`: FK + gravity torques, one 31-parameter identification from 360
-//! measurements, DETMAX 75 of 360, and a 2,000-identification dispersion study, all on the
-//! IRB 120 twin.
+//! `calibd bench serial`: `serial.fk` jobs from a CSV file to a CSV file (streamed at 50,000
+//! and 1,000,000 rows, and at 50,000 through the whole result as before streaming), FK +
+//! gravity torques, one 31-parameter identification from 360 measurements, DETMAX 75 of 360,
+//! and a 2,000-identification dispersion study, all on the IRB 120 twin.
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use super::{Figure, time};
 use crate::design::{DetmaxOptions, detmax};
 use crate::identify::{SolveOptions, solve};
+use crate::jobs::rows::CsvSink;
 use crate::jobs::serial::design::DesignPool;
+use crate::jobs::{DirResolver, JobError, Resolver};
 use crate::jobs::{NoReferences, prepare};
 use crate::measure::PointProblem;
 use crate::twin::SerialTwin;
@@ -18,12 +22,129 @@ pub fn dispersion_job(sizes: &[usize], repetitions: usize) -> serde_json::Value 
     crate::jobs::examples::twin_dispersion(sizes, repetitions)
 }
 
+/// Write a `serial.fk` job over the IRB 120 twin into `dir`: the model file, a joints CSV
+/// of `rows` random configurations (degrees) and `fk.json` naming both; the job file's path.
+pub fn write_fk_job(dir: &Path, rows: usize) -> std::io::Result<PathBuf> {
+    let twin = SerialTwin::irb120(1);
+    std::fs::write(
+        dir.join("irb120.json"),
+        serde_json::to_string_pretty(&twin.file)?,
+    )?;
+    let file = std::fs::File::create(dir.join("joints.csv"))?;
+    let mut sink = CsvSink::new(
+        std::io::BufWriter::new(file),
+        &["q1", "q2", "q3", "q4", "q5", "q6"],
+    )?;
+    let mut rng = Rng::new(5);
+    for _ in 0..rows {
+        let q: Vec<f64> = twin
+            .random_q(&mut rng)
+            .iter()
+            .map(|v| v.to_degrees())
+            .collect();
+        sink.row(&q)?;
+    }
+    sink.finish()?;
+    let job =
+        serde_json::json!({"kind": "serial.fk", "model": "irb120.json", "joints": "joints.csv"});
+    let path = dir.join("fk.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&job)?)?;
+    Ok(path)
+}
+
+/// Reads references whole, as every job read its tables before streaming: the `serial.fk`
+/// job then parses the table, computes the poses table and its JSON rows.
+#[derive(Debug)]
+pub struct WholeFiles(pub DirResolver);
+
+impl Resolver for WholeFiles {
+    fn read(&self, field: &str, reference: &str) -> Result<Vec<u8>, JobError> {
+        self.0.read(field, reference)
+    }
+}
+
+/// `calibd run fk.json --out poses.csv` in process: validate the job from its file, then
+/// write the poses CSV, streamed (`whole` false) or from the job's result (`whole` true,
+/// the path before streaming: tables and result held in memory).
+pub fn run_fk_job(job: &Path, out: &Path, whole: bool) -> Result<usize, JobError> {
+    let text = std::fs::read_to_string(job).map_err(|e| JobError::Failed(e.to_string()))?;
+    let doc: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| JobError::Failed(e.to_string()))?;
+    let dir = DirResolver {
+        dir: job.parent().map(Path::to_path_buf).unwrap_or_default(),
+    };
+    if !whole {
+        let prepared = prepare(&doc, &dir)?;
+        return crate::offline::write_main_csv(&prepared, out, &NoMonitor);
+    }
+    let done = prepare(&doc, &WholeFiles(dir))?.run(&NoMonitor)?;
+    let t = done
+        .main_table
+        .ok_or_else(|| JobError::Failed("serial.fk has no main table".into()))?;
+    std::fs::write(out, t.to_csv()).map_err(|e| JobError::Failed(e.to_string()))?;
+    Ok(t.rows.len())
+}
+
+/// `serial.fk` from a joints CSV file to a poses CSV file: streamed at 50,000 and 1,000,000
+/// rows, and at 50,000 through the whole result (the path before streaming). The streamed
+/// figures come first, while the process's memory is still low.
+pub fn fk_tables() -> Vec<Figure> {
+    let Ok(dir) = tempfile_dir() else {
+        eprintln!("serial.fk benchmarks skipped: no temporary folder");
+        return Vec::new();
+    };
+    let mut figs = Vec::new();
+    let cases = [
+        (
+            50_000,
+            false,
+            5,
+            "serial.fk 50,000 rows, CSV file -> CSV file, streamed",
+        ),
+        (
+            1_000_000,
+            false,
+            3,
+            "serial.fk 1,000,000 rows, CSV file -> CSV file, streamed",
+        ),
+        (
+            50_000,
+            true,
+            5,
+            "serial.fk 50,000 rows, whole table + result JSON (before)",
+        ),
+    ];
+    for (rows, whole, runs, name) in cases {
+        let job = match write_fk_job(&dir, rows) {
+            Ok(j) => j,
+            Err(e) => {
+                eprintln!("serial.fk benchmark skipped: {e}");
+                continue;
+            }
+        };
+        let out = dir.join("poses.csv");
+        figs.push(time(name, runs, 1, None, || {
+            let n = run_fk_job(&job, &out, whole).expect("the twin job runs");
+            assert_eq!(n, rows);
+        }));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    figs
+}
+
+/// A fresh folder under the system's temporary folder.
+fn tempfile_dir() -> std::io::Result<PathBuf> {
+    let dir = std::env::temp_dir().join(format!("calibd-bench-fk-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}
+
 /// Run the serial benchmarks.
 pub fn run() -> Vec<Figure> {
+    let mut figs = fk_tables();
     let twin = SerialTwin::irb120(1);
     let mut rng = Rng::new(9);
     let qs: Vec<Vec<f64>> = (0..10_000).map(|_| twin.random_q(&mut rng)).collect();
-    let mut figs = Vec::new();
     let c = twin.nominal.clone();
     let mut sink = 0.0;
     figs.push(time(

@@ -29,7 +29,6 @@ pub async fn submit(
 pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
     let mut err = std::io::stderr();
     let tty = std::io::IsTerminal::is_terminal(&err);
-    let width = terminal_width();
     let mut last_stage = String::new();
     let job = c
         .watch(id, |m| {
@@ -45,9 +44,10 @@ pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
                         None => progress_line(f, stage),
                     };
                     if tty {
-                        // One line, redrawn: cut to the terminal's width (a wrapped line
-                        // cannot be returned to with `\r`) and clear what was there.
-                        let _ = write!(err, "\r\x1b[2K{}", fit(&line, width));
+                        // One line, redrawn: cut to the terminal's width, asked at each
+                        // redraw (a wrapped line cannot be returned to with `\r`), and
+                        // clear what was there.
+                        let _ = write!(err, "\r\x1b[2K{}", fit(&line, terminal_width()));
                         let _ = err.flush();
                     } else if stage != last_stage || v["message"].is_string() {
                         let _ = writeln!(err, "{line}");
@@ -74,11 +74,11 @@ pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
     Ok(job)
 }
 
-/// The terminal's width in columns: `COLUMNS` when set, else 80.
+/// The width in columns of the terminal stderr writes to, asked of the terminal itself
+/// (at each redraw, so a resized window is followed); 80 when it does not say.
 fn terminal_width() -> usize {
-    std::env::var("COLUMNS")
-        .ok()
-        .and_then(|c| c.trim().parse::<usize>().ok())
+    terminal_size::terminal_size_of(std::io::stderr())
+        .map(|(terminal_size::Width(w), _)| usize::from(w))
         .filter(|w| *w >= 20)
         .unwrap_or(80)
 }

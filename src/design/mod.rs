@@ -14,7 +14,7 @@ pub mod poisson;
 pub mod postures;
 pub mod trajectory;
 
-pub use detmax::{DetmaxOptions, Pool, Selection, detmax};
+pub use detmax::{DetmaxOptions, DetmaxStep, Pool, Selection, detmax};
 pub use feasibility::{Constraints, PointBox, Sphere, Violation};
 pub use observability::{Indices, indices};
 pub use ocp::{NocpOptions, OptimOptions, cocp, nocp, partial_optim, random_feasible};

@@ -141,6 +141,8 @@ pub struct CocpReport {
     pub o1_start: f64,
     /// O1 at the end.
     pub o1: f64,
+    /// O1 at the start and after each re-optimised posture (the last is `o1`).
+    pub history: Vec<f64>,
 }
 
 /// COCP (Algorithm 1): re-optimise the weakest posture until the same index comes back
@@ -153,6 +155,7 @@ pub fn cocp(
     monitor: &dyn Monitor,
 ) -> Result<CocpReport, IdentifyError> {
     let o1_start = set.o1();
+    let mut history = vec![o1_start];
     let mut last = None;
     let mut iterations = 0;
     while iterations < max_iter {
@@ -164,6 +167,7 @@ pub fn cocp(
             break;
         }
         partial_optim(model, set, &[w], opts);
+        history.push(set.o1());
         last = Some(w);
         iterations += 1;
     }
@@ -171,6 +175,7 @@ pub fn cocp(
         iterations,
         o1_start,
         o1: set.o1(),
+        history,
     })
 }
 

@@ -122,6 +122,16 @@ fn partial_optim_and_cocp_raise_o1_and_stay_feasible() {
     let before = set.o1();
     let rep = cocp(&Planar, &mut set, &OptimOptions::default(), 50, &NoMonitor).unwrap();
     assert!(rep.o1 >= before && rep.iterations >= 1, "{rep:?}");
+    // The history: the start, one O1 per re-optimised posture, never falling, ending at o1.
+    assert_eq!(rep.history.len(), rep.iterations + 1);
+    assert_eq!(
+        (rep.history[0], rep.history[rep.iterations]),
+        (before, rep.o1)
+    );
+    assert!(
+        rep.history.windows(2).all(|w| w[1] >= w[0] * (1.0 - 1e-12)),
+        "{rep:?}"
+    );
     assert!(set.postures.iter().all(|q| Planar.feasible(q)));
     // The information matrix kept by updates equals a fresh one.
     let fresh = PostureSet::from_postures(&Planar, set.postures.clone());

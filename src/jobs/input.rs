@@ -15,6 +15,13 @@ use super::{JobError, Table};
 pub trait Resolver: Sync {
     /// The bytes `reference` names, for input `field`.
     fn read(&self, field: &str, reference: &str) -> Result<Vec<u8>, JobError>;
+
+    /// The file `reference` names, when references are files that a job may read again,
+    /// row by row, while it runs (a table too large to hold); `None` (the default) when
+    /// references are read whole only.
+    fn file(&self, _reference: &str) -> Option<PathBuf> {
+        None
+    }
 }
 
 /// References are paths relative to a folder (the job file's).
@@ -32,6 +39,10 @@ impl Resolver for DirResolver {
             reference: p.display().to_string(),
             message: e.to_string(),
         })
+    }
+
+    fn file(&self, reference: &str) -> Option<PathBuf> {
+        Some(self.dir.join(reference))
     }
 }
 
@@ -84,9 +95,19 @@ impl<'a> Inputs<'a> {
     }
 
     fn record(&self, field: &str, bytes: &[u8]) {
-        self.hashes
-            .borrow_mut()
-            .insert(field.to_string(), sha256_hex(bytes));
+        self.record_sha256(field, sha256_hex(bytes));
+    }
+
+    /// Record the hex SHA-256 of input `field` when it was read other than through these
+    /// methods (a table streamed from its file).
+    pub fn record_sha256(&self, field: &str, hex: String) {
+        self.hashes.borrow_mut().insert(field.to_string(), hex);
+    }
+
+    /// The file a table input names, when it is a reference the resolver maps to a file
+    /// (see [`Resolver::file`]); `None` for inline rows and for other references.
+    pub fn table_file(&self, v: &Value) -> Option<PathBuf> {
+        v.as_str().and_then(|s| self.resolver.file(s))
     }
 
     /// Text of an input given as a reference, or inline text (URDF) as is.

@@ -12,6 +12,7 @@ pub mod examples;
 pub mod humanoid;
 pub mod input;
 pub mod pcr;
+pub mod rows;
 pub mod serial;
 pub mod table;
 pub mod tree;
@@ -121,6 +122,24 @@ pub trait Kind: Send + Sync + std::fmt::Debug + 'static {
 
     /// Run the job in `cx`.
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture;
+
+    /// Whether [`Kind::write_main_csv`] can write the main table without running the job
+    /// through [`Kind::run`] (no result JSON, no table held in memory).
+    fn streams_main_csv(&self) -> bool {
+        false
+    }
+
+    /// Write the main table as CSV to `out` row by row, the same bytes as the main table of
+    /// a run; the number of rows. Only kinds whose [`Kind::streams_main_csv`] is true.
+    fn write_main_csv(
+        &self,
+        _out: &mut dyn std::io::Write,
+        _monitor: &dyn Monitor,
+    ) -> Result<usize, JobError> {
+        Err(JobError::Failed(
+            "internal error: this kind does not stream its main table".into(),
+        ))
+    }
 }
 
 /// Run a numerical kind: `f` on the blocking pool with the context's monitor; its typed
@@ -326,6 +345,22 @@ impl Job {
     /// Whether an interrupted or paused run can continue from its journal.
     pub fn resumable(&self) -> bool {
         self.prepared.resumable()
+    }
+
+    /// Whether the job can write its main table as CSV row by row
+    /// ([`crate::offline::write_main_csv`]), without building the table or the result.
+    pub fn streams_main_csv(&self) -> bool {
+        self.prepared.streams_main_csv()
+    }
+
+    /// Write the main table as CSV to `out` row by row (see [`Kind::write_main_csv`]); the
+    /// number of rows.
+    pub fn write_main_csv(
+        &self,
+        out: &mut dyn std::io::Write,
+        monitor: &dyn Monitor,
+    ) -> Result<usize, JobError> {
+        self.prepared.write_main_csv(out, monitor)
     }
 
     /// Run the job from synchronous code (`calibd run`, tests, benches) on a private

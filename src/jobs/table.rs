@@ -5,6 +5,7 @@
 use serde_json::{Map, Value};
 
 use super::JobError;
+use super::rows::{CsvRows, CsvSink};
 
 /// A numeric table: column names and rows of finite numbers.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -36,57 +37,12 @@ impl Table {
         text: &str,
         gaps: &dyn Fn(&str) -> bool,
     ) -> Result<Self, JobError> {
-        let mut rdr = csv::ReaderBuilder::new()
-            .has_headers(true)
-            .trim(csv::Trim::All)
-            .flexible(true)
-            .from_reader(text.as_bytes());
-        let columns: Vec<String> = rdr
-            .headers()
-            .map_err(|e| JobError::invalid(field, format!("CSV header: {e}")))?
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
-        if columns.iter().any(|c| c.is_empty()) {
-            return Err(JobError::invalid(
-                field,
-                "CSV header has an empty column name",
-            ));
-        }
+        let mut reader = CsvRows::new(field, text.as_bytes(), gaps)?;
+        let columns = reader.columns().to_vec();
         let mut rows = Vec::new();
-        for (i, rec) in rdr.records().enumerate() {
-            let row = i + 1;
-            let rec = rec.map_err(|e| JobError::row(field, row, format!("CSV: {e}")))?;
-            if rec.len() != columns.len() {
-                return Err(JobError::row(
-                    field,
-                    row,
-                    format!("{} values for {} columns", rec.len(), columns.len()),
-                ));
-            }
-            let mut vals = Vec::with_capacity(rec.len());
-            for (c, cell) in rec.iter().enumerate() {
-                if gaps(&columns[c]) && (cell.is_empty() || cell.eq_ignore_ascii_case("nan")) {
-                    vals.push(f64::NAN);
-                    continue;
-                }
-                let v: f64 = cell.parse().map_err(|_| {
-                    JobError::row(
-                        field,
-                        row,
-                        format!("column `{}`: `{cell}` is not a number", columns[c]),
-                    )
-                })?;
-                if !v.is_finite() {
-                    return Err(JobError::row(
-                        field,
-                        row,
-                        format!("column `{}`: {cell} is not a finite number", columns[c]),
-                    ));
-                }
-                vals.push(v);
-            }
-            rows.push(vals);
+        let mut values = Vec::with_capacity(columns.len());
+        while reader.next_into(&mut values)?.is_some() {
+            rows.push(values.clone());
         }
         Ok(Self { columns, rows })
     }
@@ -217,16 +173,22 @@ impl Table {
         })
     }
 
-    /// The table as CSV text with a header row.
+    /// The table as CSV text with a header row (written as [`CsvSink`] streams it).
     pub fn to_csv(&self) -> String {
-        let mut s = self.columns.join(",");
-        s.push('\n');
+        let mut bytes = Vec::new();
+        self.write_csv(&mut bytes)
+            .expect("writing to a Vec<u8> cannot fail");
+        // CsvSink writes column names (UTF-8 strings) and formatted numbers only.
+        String::from_utf8(bytes).unwrap_or_default()
+    }
+
+    /// Write the table as CSV to `out`, row by row.
+    pub fn write_csv<W: std::io::Write>(&self, out: W) -> std::io::Result<()> {
+        let mut sink = CsvSink::new(out, &self.columns)?;
         for r in &self.rows {
-            let cells: Vec<String> = r.iter().map(|v| format!("{v}")).collect();
-            s.push_str(&cells.join(","));
-            s.push('\n');
+            sink.row(r)?;
         }
-        s
+        sink.finish().map(drop)
     }
 }
 

@@ -1,10 +1,12 @@
 //! Reports: SVG plots drawn from a finished job's result JSON and artefacts, in the style
 //! of the papers' figures: position error per configuration before and after calibration,
-//! histograms of those errors, and box plots of a dispersion study. Reports read results,
+//! histograms of those errors, box plots of a dispersion study, the history of a design's
+//! observability criterion. Reports read results,
 //! never models; a result without the data a plot needs simply gets no plot.
 
 pub mod html;
 pub mod plots;
+pub mod studies;
 pub mod svg;
 
 use serde::Serialize;
@@ -91,23 +93,43 @@ pub struct DispersionBox {
     pub std_error: [f64; 5],
 }
 
-/// Box plots of a dispersion study (mean and std of the validation error per set size),
-/// as SVG artefacts; none when there is no size.
-pub fn dispersion_plots(sizes: &[DispersionBox], unit: &str) -> Vec<Artefact> {
+/// Series names of the dispersion box plots (`data-series`).
+pub const DISPERSION_MEAN: &str = "mean_error";
+/// Series name of the box plots of the std of the validation error.
+pub const DISPERSION_STD: &str = "std_error";
+
+/// Box plots of a dispersion study (mean and std of the validation error per set size, on
+/// a log error axis: the TriCal Table 7 view), as SVG artefacts; none when there is no size.
+/// `runs` is the number of identifications the boxes summarise.
+pub fn dispersion_plots(sizes: &[DispersionBox], unit: &str, runs: usize) -> Vec<Artefact> {
     if sizes.is_empty() {
         return Vec::new();
     }
     let mean: Vec<(f64, [f64; 5])> = sizes.iter().map(|s| (s.n, s.mean_error)).collect();
     let std: Vec<(f64, [f64; 5])> = sizes.iter().map(|s| (s.n, s.std_error)).collect();
-    let dataset = "validation set, over the repetitions of each calibration set size";
+    let dataset = format!(
+        "validation set errors of {runs} identifications (DETMAX selections from random starts), one box per set size"
+    );
     vec![
         svg_artefact(
             "dispersion_mean_error.svg",
-            plots::boxplots(&mean, "Mean validation error", dataset, unit),
+            studies::boxplots_log(
+                &mean,
+                "Mean validation error",
+                DISPERSION_MEAN,
+                &dataset,
+                unit,
+            ),
         ),
         svg_artefact(
             "dispersion_std_error.svg",
-            plots::boxplots(&std, "Std of validation error", dataset, unit),
+            studies::boxplots_log(
+                &std,
+                "Std of validation error",
+                DISPERSION_STD,
+                &dataset,
+                unit,
+            ),
         ),
     ]
 }
@@ -157,13 +179,13 @@ mod tests {
             mean_error: q,
             std_error: q,
         }];
-        let p = dispersion_plots(&boxes, "mm");
+        let p = dispersion_plots(&boxes, "mm", 5);
         assert_eq!(p.len(), 2);
         assert!(
             String::from_utf8(p[0].content.clone())
                 .unwrap_or_default()
                 .contains(">20</text>")
         );
-        assert!(dispersion_plots(&[], "mm").is_empty());
+        assert!(dispersion_plots(&[], "mm", 0).is_empty());
     }
 }

@@ -1,8 +1,9 @@
 //! The calibration plots, drawn with [`super::svg`]: errors before and after calibration
 //! on logarithmic axes (an "after" of micrometres stays visible beside a "before" of
 //! millimetres), per configuration, as a histogram and as a cumulative distribution; the
-//! held-out validation errors; grouped bars per category (axis, marker, model); the box
-//! plots of a dispersion study. Every plot names its unit and the data set it shows.
+//! held-out validation errors; grouped bars per category (axis, marker, model, parameter).
+//! Every plot names its unit and the data set it shows. The plots of design and study
+//! results (criterion history, dispersion box plots) are in [`super::studies`].
 
 use super::svg::{COLOURS, Frame, Scale, log_range};
 
@@ -280,28 +281,6 @@ pub fn trajectory(
         },
         COLOURS[1],
     );
-    c.finish()
-}
-
-/// Box plots (min, q1, median, q3, max) per set size.
-pub fn boxplots(boxes: &[(f64, [f64; 5])], title: &str, dataset: &str, unit: &str) -> String {
-    let top = boxes.iter().map(|b| b.1[4]).fold(0.0, f64::max) * 1.05;
-    let k = boxes.len() as f64;
-    let mut c = Frame::new(
-        &format!("{title} per number of configurations"),
-        dataset,
-        "configurations in the calibration set",
-        &format!("{title} ({unit})"),
-    )
-    .x((0.5, k + 0.5), Scale::Linear)
-    .y((0.0, top), Scale::Linear)
-    .chart();
-    for (i, (n, q)) in boxes.iter().enumerate() {
-        let x = i as f64 + 1.0;
-        c.boxplot(x, 0.5, *q, COLOURS[2]);
-        let p = c.px(x);
-        c.x_label_at(p, &format!("{n}"));
-    }
     c.finish()
 }
 

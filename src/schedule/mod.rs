@@ -186,13 +186,12 @@ impl Scheduler {
     /// Run until `shutdown`: submit due jobs, apply the missed-run policy.
     pub async fn run(self, service: Service, shutdown: CancellationToken) {
         loop {
-            let store = service.store().clone();
             let now = self.clock.now();
             let mut wake: Option<DateTime<Utc>> = None;
-            let schedules = match tokio::task::spawn_blocking(move || store.schedules()).await {
-                Ok(Ok(s)) => s,
-                other => {
-                    tracing::error!(?other, "reading schedules failed; retrying in 60 s");
+            let schedules = match service.schedules().await {
+                Ok(s) => s,
+                Err(e) => {
+                    tracing::error!(error = %e, "reading schedules failed; retrying in 60 s");
                     wake = Some(now + chrono::TimeDelta::seconds(60));
                     Vec::new()
                 }
@@ -250,12 +249,12 @@ async fn handle(service: &Service, s: &ScheduleRecord, due: &[DateTime<Utc>], no
     let due_s = format_time(last);
     if outcome == "missed_skipped" {
         tracing::warn!(schedule = %s.spec.name, message = message.as_deref().unwrap_or(""), "missed runs skipped");
-        let store = service.store().clone();
-        let (id, m) = (s.id, message.clone());
-        let _ = tokio::task::spawn_blocking(move || {
-            store.record_schedule_run(id, &due_s, "missed_skipped", m.as_deref())
-        })
-        .await;
+        let recorded = service
+            .record_schedule_run(s.id, due_s, "missed_skipped", message.clone())
+            .await;
+        if let Err(e) = recorded {
+            tracing::error!(schedule = %s.spec.name, error = %e, "recording a skipped run failed");
+        }
         return;
     }
     let origin = Origin {
@@ -281,13 +280,12 @@ async fn handle(service: &Service, s: &ScheduleRecord, due: &[DateTime<Utc>], no
         }
         Err(e) => {
             tracing::error!(schedule = %s.spec.name, error = %e, "schedule's job was refused");
-            let store = service.store().clone();
-            let id = s.id;
-            let m = e.to_string();
-            let _ = tokio::task::spawn_blocking(move || {
-                store.record_schedule_run(id, &due_s, "refused", Some(&m))
-            })
-            .await;
+            let recorded = service
+                .record_schedule_run(s.id, due_s, "refused", Some(e.to_string()))
+                .await;
+            if let Err(e) = recorded {
+                tracing::error!(schedule = %s.spec.name, error = %e, "recording a refused run failed");
+            }
         }
     }
 }

@@ -12,13 +12,13 @@ use crate::store::{CellModel, JobState, Store};
 
 /// Whether stored job `id` is a campaign that can continue from its journal.
 pub(super) async fn resumable(store: &Store, id: i64) -> bool {
-    let st = store.clone();
-    tokio::task::spawn_blocking(move || {
-        st.job_doc(id)
+    super::storage::call(store, move |st| {
+        Ok(st
+            .job_doc(id)
             .ok()
             .flatten()
             .and_then(|d| crate::jobs::prepare(&d, &StoreResolver(st.clone())).ok())
-            .is_some_and(|j| j.resumable())
+            .is_some_and(|j| j.resumable()))
     })
     .await
     .unwrap_or(false)
@@ -27,10 +27,10 @@ pub(super) async fn resumable(store: &Store, id: i64) -> bool {
 /// Give each cell of the lab its current model from the store.
 pub(super) async fn load_current_models(svc: &Service) {
     for cell in svc.shared.lab.cells() {
-        let st = svc.shared.store.clone();
         let name = cell.name().to_string();
-        let current = tokio::task::spawn_blocking(move || st.current_cell_model(&name)).await;
-        let Ok(Ok(Some(m))) = current else {
+        let current =
+            super::storage::call(&svc.shared.store, move |st| st.current_cell_model(&name)).await;
+        let Ok(Some(m)) = current else {
             continue;
         };
         match cell.parse_model(&m.model).and_then(|f| cell.set_model(f)) {

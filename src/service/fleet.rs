@@ -2,8 +2,10 @@
 //! database (`FOR UPDATE SKIP LOCKED`) instead of the in-memory queue; a heartbeat renews
 //! this daemon's leases and re-queues jobs whose daemon died; state and progress events
 //! go out with `NOTIFY calibd_events` and come in from the other daemons by `LISTEN`, so
-//! an SSE client on any daemon sees every job. Blocking store calls stay on the blocking
-//! pool or on the listener's own thread.
+//! an SSE client on any daemon sees every job; an operator's cancel of a job that runs on
+//! another daemon reaches it by `NOTIFY calibd_cancel` (and its heartbeat reads the flag).
+//! Blocking store calls go through the service's storage module, or run on the listener's
+//! and notifier's own threads.
 
 use std::time::Duration;
 
@@ -156,28 +158,35 @@ pub(super) async fn join(svc: &Service, config: FleetConfig) -> Result<Fleet, su
         Ok(())
     })
     .await?;
-    // Heartbeat: renew leases, re-queue the jobs of dead daemons.
+    // Heartbeat: renew leases, re-queue the jobs of dead daemons, stop cancelled jobs.
     let (st, c, stop) = (svc_store.clone(), config.clone(), shutdown.clone());
+    let hb_svc = svc.clone();
     tokio::spawn(async move {
+        let svc = hb_svc;
         let every = c.lease / 3;
         loop {
             tokio::select! {
                 _ = stop.cancelled() => break,
                 _ = tokio::time::sleep(every) => {}
             }
-            let (st, c) = (st.clone(), c.clone());
-            let r = tokio::task::spawn_blocking(move || {
+            let c = c.clone();
+            let r = super::storage::call(&st, move |st| {
                 st.heartbeat(&c.name, c.lease)?;
                 st.register_daemon(&c.name, &[], c.lease * 2)?;
-                st.requeue_expired()
+                Ok((st.requeue_expired()?, st.cancel_requests(&c.name)?))
             })
             .await;
             match r {
-                Ok(Ok(ids)) if !ids.is_empty() => {
-                    tracing::warn!(jobs = ?ids, "re-queued jobs whose daemon's lease expired");
+                Ok((requeued, cancels)) => {
+                    if !requeued.is_empty() {
+                        tracing::warn!(jobs = ?requeued, "re-queued jobs whose daemon's lease expired");
+                    }
+                    // Cancels whose notification this daemon missed.
+                    for id in cancels {
+                        svc.cancel_running(id);
+                    }
                 }
-                Ok(Err(e)) => tracing::warn!(error = %e, "fleet heartbeat failed"),
-                _ => {}
+                Err(e) => tracing::warn!(error = %e, "fleet heartbeat failed"),
             }
         }
     });
@@ -201,13 +210,17 @@ pub(super) async fn join(svc: &Service, config: FleetConfig) -> Result<Fleet, su
         .spawn(move || {
             while !stop.is_cancelled() {
                 let r = st.listen(
-                    &["calibd_events", "calibd_queue"],
+                    &["calibd_events", "calibd_queue", "calibd_cancel"],
                     Duration::from_millis(500),
                     &|| stop.is_cancelled(),
                     &mut |channel, payload| {
                         if channel == "calibd_queue" {
                             svc.shared.wake.notify_waiters();
                             svc.shared.wake.notify_one();
+                        } else if channel == "calibd_cancel" {
+                            if let Ok(id) = payload.parse::<i64>() {
+                                svc.cancel_running(id);
+                            }
                         } else if let Ok(w) = serde_json::from_str::<Wire>(payload)
                             && w.from != me
                         {
@@ -230,7 +243,7 @@ pub(super) async fn join(svc: &Service, config: FleetConfig) -> Result<Fleet, su
 }
 
 /// Wait for the next job this daemon can run, claimed from the database.
-pub(super) async fn next(svc: &Service, fleet: &Fleet) -> Entry {
+pub(super) async fn next(svc: &Service, fleet: &Fleet) -> (Entry, crate::store::Run) {
     loop {
         let notified = svc.shared.wake.notified();
         tokio::pin!(notified);
@@ -247,14 +260,12 @@ pub(super) async fn next(svc: &Service, fleet: &Fleet) -> Entry {
                     .cloned()
                     .collect()
             };
-            let (st, name, lease) = (
-                svc.shared.store.clone(),
-                fleet.config.name.clone(),
-                fleet.config.lease,
-            );
-            let claimed = tokio::task::spawn_blocking(move || st.claim(&name, &free, lease)).await;
+            let (name, lease) = (fleet.config.name.clone(), fleet.config.lease);
+            let claimed =
+                super::storage::call(&svc.shared.store, move |st| st.claim(&name, &free, lease))
+                    .await;
             match claimed {
-                Ok(Ok(Some(c))) => {
+                Ok(Some(c)) => {
                     let entry = Entry {
                         id: c.id,
                         priority: c.priority,
@@ -264,10 +275,9 @@ pub(super) async fn next(svc: &Service, fleet: &Fleet) -> Entry {
                     lock(&svc.shared.queue).hold(&entry.devices);
                     // Another worker may find the next one.
                     svc.shared.wake.notify_one();
-                    return entry;
+                    return (entry, c.run);
                 }
-                Ok(Ok(None)) => {}
-                Ok(Err(e)) => tracing::warn!(error = %e, "claiming a job failed"),
+                Ok(None) => {}
                 Err(e) => tracing::warn!(error = %e, "claiming a job failed"),
             }
         }

@@ -7,6 +7,7 @@ mod cells;
 mod events;
 mod fleet;
 mod queue;
+mod storage;
 mod types;
 mod worker;
 
@@ -21,6 +22,7 @@ use tokio_util::sync::CancellationToken;
 pub use events::Event;
 pub use fleet::FleetConfig;
 pub use queue::{Entry, Queue};
+pub use storage::open as open_store;
 pub use types::{
     DeviceStatus, Origin, ScheduleOrigin, ServiceConfig, ServiceError, StoreResolver, Submitter,
 };
@@ -37,6 +39,10 @@ struct Running {
     user_cancelled: bool,
     devices: Vec<String>,
     progress: Option<(f64, String)>,
+    /// The run's token once the job started (claimed, in a fleet).
+    run: Option<crate::store::Run>,
+    /// Set when a write found the job taken from this run: it stops and stores nothing.
+    stale: Option<crate::store::StoreError>,
 }
 
 #[derive(Debug)]
@@ -64,13 +70,7 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-async fn blocking<T: Send + 'static>(
-    f: impl FnOnce() -> Result<T, ServiceError> + Send + 'static,
-) -> Result<T, ServiceError> {
-    tokio::task::spawn_blocking(f)
-        .await
-        .map_err(|e| ServiceError::Internal(e.to_string()))?
-}
+use storage::blocking;
 
 impl Service {
     /// Start the service over `store`: recover from the last run (running jobs become
@@ -150,38 +150,41 @@ impl Service {
             let workers = worker::start(svc.clone(), progress_rx, config.workers.max(1));
             return Ok((svc, workers));
         }
-        let st = store.clone();
-        let recovered = blocking(move || Ok(st.recover()?)).await?;
+        let recovered = storage::call(&store, |st| st.recover()).await?;
         for id in &recovered.interrupted {
             tracing::warn!(
                 job = id,
                 "job was running when the daemon stopped: marked interrupted"
             );
         }
-        let mut queued = recovered.queued;
+        let mut queued: Vec<i64> = recovered.queued.iter().map(|q| q.0).collect();
         for id in recovered.interrupted {
             if cells::resumable(&store, id).await {
-                let st = store.clone();
-                let ok = blocking(move || {
-                    Ok(st.resume_job(
+                let ok = storage::call(&store, move |st| {
+                    st.resume_job(
                         id,
                         "the daemon restarted: the campaign continues from its journal",
-                    )?)
+                    )
                 })
                 .await?;
                 if ok {
                     tracing::info!(job = id, "resuming campaign after restart");
-                    let prio = store.job(id).ok().flatten().map_or(0, |r| r.priority);
-                    queued.push((id, prio, Value::Null));
+                    queued.push(id);
                 }
             }
         }
-        for (id, priority, _doc) in queued {
-            let devices = doc_devices(&store, id);
+        let records = storage::call(&store, move |st| {
+            queued
+                .into_iter()
+                .map(|id| st.job(id))
+                .collect::<Result<Vec<_>, _>>()
+        })
+        .await?;
+        for rec in records.into_iter().flatten() {
             lock(&svc.shared.queue).push(Entry {
-                id,
-                priority,
-                devices,
+                id: rec.id,
+                priority: rec.priority,
+                devices: rec.devices,
                 job: None,
             });
         }
@@ -190,7 +193,8 @@ impl Service {
         Ok((svc, workers))
     }
 
-    /// The store.
+    /// The store, for tests and tools that call it directly (blocking). The API and the
+    /// scheduler never do: they use the service's async storage methods.
     pub fn store(&self) -> &Store {
         &self.shared.store
     }
@@ -374,10 +378,11 @@ impl Service {
     /// winds down). A final job is a conflict.
     pub async fn cancel(&self, id: i64, who: &Submitter) -> Result<JobState, ServiceError> {
         self.may_stop(id, who).await?;
-        if let Some(r) = lock(&self.shared.running).get_mut(&id) {
-            r.user_cancelled = true;
-            r.cancel.store(true, Ordering::Relaxed);
+        if self.cancel_running(id) {
             return Ok(JobState::Running);
+        }
+        if self.is_fleet() {
+            return self.cancel_in_fleet(id).await;
         }
         let was_queued = lock(&self.shared.queue).remove(id);
         let store = self.shared.store.clone();
@@ -403,15 +408,50 @@ impl Service {
             return Ok(rec.state);
         }
         // It may have just started: try the running map once more.
-        if let Some(r) = lock(&self.shared.running).get_mut(&id) {
-            r.user_cancelled = true;
-            r.cancel.store(true, Ordering::Relaxed);
+        if self.cancel_running(id) {
             return Ok(JobState::Running);
         }
         Err(ServiceError::Conflict(format!(
             "job {id} is already {}",
             rec.state.as_str()
         )))
+    }
+
+    /// Ask job `id` to stop if it runs here (an operator's cancel); false if it does not.
+    fn cancel_running(&self, id: i64) -> bool {
+        match lock(&self.shared.running).get_mut(&id) {
+            Some(r) => {
+                r.user_cancelled = true;
+                r.cancel.store(true, Ordering::Relaxed);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Cancel in a fleet a job that does not run here: the store ends it if it waits, or
+    /// flags it for the daemon that runs it.
+    async fn cancel_in_fleet(&self, id: i64) -> Result<JobState, ServiceError> {
+        use crate::store::CancelRequest;
+        match storage::call(&self.shared.store, move |st| st.request_cancel(id)).await? {
+            CancelRequest::Ended => {
+                let kind = self.job(id).await.map(|r| r.kind).unwrap_or_default();
+                self.update_gauges();
+                self.publish(Event::State {
+                    id,
+                    kind,
+                    state: JobState::Cancelled,
+                    error: None,
+                });
+                Ok(JobState::Cancelled)
+            }
+            CancelRequest::Requested => Ok(JobState::Running),
+            CancelRequest::Final(state) => Err(ServiceError::Conflict(format!(
+                "job {id} is already {}",
+                state.as_str()
+            ))),
+            CancelRequest::Missing => Err(ServiceError::NotFound(id)),
+        }
     }
 
     /// One job, with the live progress of a running job.
@@ -496,16 +536,6 @@ impl Service {
         metrics::gauge!("calibd_queue_depth").set(self.queue_depth() as f64);
         metrics::gauge!("calibd_jobs_running").set(self.running_count() as f64);
     }
-}
-
-/// Devices of a stored job (for jobs queued before a restart).
-fn doc_devices(store: &Store, id: i64) -> Vec<String> {
-    store
-        .job(id)
-        .ok()
-        .flatten()
-        .map(|r| r.devices)
-        .unwrap_or_default()
 }
 
 #[cfg(test)]

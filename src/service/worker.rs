@@ -13,9 +13,10 @@ use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
 use super::events::JobMonitor;
+use super::storage::call;
 use super::{Entry, Event, Running, Service, StoreResolver, lock};
 use crate::jobs::{self, JobError};
-use crate::store::JobState;
+use crate::store::{JobState, Run, StoreError};
 use tracing::Instrument;
 
 /// The running worker tasks; [`Workers::join`] waits for them after shutdown.
@@ -41,7 +42,7 @@ pub(super) fn start(svc: Service, progress: mpsc::UnboundedReceiver<Event>, n: u
         tasks.push(tokio::spawn(async move {
             let stop = svc.shared.shutdown.clone();
             loop {
-                let entry = tokio::select! {
+                let (entry, claimed) = tokio::select! {
                     biased;
                     _ = stop.cancelled() => break,
                     e = next_any(&svc) => e,
@@ -49,8 +50,8 @@ pub(super) fn start(svc: Service, progress: mpsc::UnboundedReceiver<Event>, n: u
                 if stop.is_cancelled() {
                     if let Some(f) = svc.shared.fleet.get() {
                         // Claimed just as the daemon stops: back to the shared queue.
-                        let (st, name) = (svc.shared.store.clone(), f.config.name.clone());
-                        let _ = tokio::task::spawn_blocking(move || st.release_owned(&name)).await;
+                        let name = f.config.name.clone();
+                        let _ = call(&svc.shared.store, move |st| st.release_owned(&name)).await;
                         lock(&svc.shared.queue).release(&entry.devices);
                         break;
                     }
@@ -60,18 +61,22 @@ pub(super) fn start(svc: Service, progress: mpsc::UnboundedReceiver<Event>, n: u
                     q.push(entry);
                     break;
                 }
-                run_one(&svc, entry).await;
+                run_one(&svc, entry, claimed).await;
             }
         }));
     }
     Workers { tasks }
 }
 
-/// The next job: claimed from the shared store in a fleet, else from the local queue.
-async fn next_any(svc: &Service) -> Entry {
+/// The next job: claimed from the shared store in a fleet (with the claim's run token),
+/// else from the local queue.
+async fn next_any(svc: &Service) -> (Entry, Option<Run>) {
     match svc.shared.fleet.get() {
-        Some(f) => super::fleet::next(svc, f).await,
-        None => next(svc).await,
+        Some(f) => {
+            let (e, run) = super::fleet::next(svc, f).await;
+            (e, Some(run))
+        }
+        None => (next(svc).await, None),
     }
 }
 
@@ -101,36 +106,40 @@ async fn next(svc: &Service) -> Entry {
 enum Outcome {
     Succeeded(Option<crate::lab::Decision>),
     Ended(JobState, Option<String>),
+    /// The job was taken from this run (its lease expired and it was queued or claimed
+    /// again): nothing of this run is stored, and its end is not announced.
+    Stale(StoreError),
 }
 
-async fn run_one(svc: &Service, entry: Entry) {
+async fn run_one(svc: &Service, entry: Entry, claimed: Option<Run>) {
     let id = entry.id;
     let store = svc.shared.store.clone();
     let cancel = Arc::new(AtomicBool::new(false));
     let job = match entry.job.clone() {
         Some(j) => Ok(j),
-        None => {
-            let st = store.clone();
-            tokio::task::spawn_blocking(move || -> Result<jobs::Job, String> {
-                let doc = st
-                    .job_doc(id)
-                    .map_err(|e| e.to_string())?
-                    .ok_or_else(|| "the job's document is missing".to_string())?;
-                jobs::prepare(&doc, &StoreResolver(st)).map_err(|e| e.to_string())
-            })
-            .await
-            .unwrap_or_else(|e| Err(e.to_string()))
-            .map(Arc::new)
-        }
+        None => call(&store, move |st| {
+            let doc = st
+                .job_doc(id)?
+                .ok_or_else(|| StoreError::Internal("the job's document is missing".into()))?;
+            Ok(jobs::prepare(&doc, &StoreResolver(st.clone())).map_err(|e| e.to_string()))
+        })
+        .await
+        .unwrap_or_else(|e| Err(e.to_string()))
+        .map(Arc::new),
     };
     let job = match job {
         Ok(j) => j,
         Err(e) => {
             let msg = format!("the job is no longer valid: {e}");
-            let st = store.clone();
             let m = msg.clone();
-            let _ = tokio::task::spawn_blocking(move || st.end_job(id, JobState::Failed, Some(&m)))
-                .await;
+            let ended = call(&store, move |st| match claimed {
+                Some(run) => st.end_run(run, JobState::Failed, Some(&m)),
+                None => st.end_job(id, JobState::Failed, Some(&m)),
+            })
+            .await;
+            if let Err(e) = ended {
+                tracing::warn!(job = id, error = %e, "could not record the job as failed");
+            }
             finish(
                 svc,
                 id,
@@ -151,23 +160,29 @@ async fn run_one(svc: &Service, entry: Entry) {
             user_cancelled: false,
             devices: entry.devices.clone(),
             progress: None,
+            run: claimed,
+            stale: None,
         },
     );
-    let st = store.clone();
-    let started = if svc.is_fleet() {
+    let run = match claimed {
         // Claimed: already `running`, leased to this daemon.
-        Ok(Ok(true))
-    } else {
-        tokio::task::spawn_blocking(move || st.start_job(id)).await
+        Some(run) => Some(run),
+        None => call(&store, move |st| st.start_job(id))
+            .await
+            .ok()
+            .flatten(),
     };
-    if !matches!(started, Ok(Ok(true))) {
+    if let Some(r) = lock(&svc.shared.running).get_mut(&id) {
+        r.run = run;
+    }
+    let Some(run) = run else {
         // Cancelled (or failed to record) between queue and start.
         lock(&svc.shared.running).remove(&id);
         lock(&svc.shared.queue).release(&entry.devices);
         svc.shared.wake.notify_one();
         svc.update_gauges();
         return;
-    }
+    };
     svc.update_gauges();
     svc.publish(Event::State {
         id,
@@ -183,10 +198,10 @@ async fn run_one(svc: &Service, entry: Entry) {
         cancel.clone(),
     ));
     let journal: Arc<dyn crate::procedures::Journal> = if job.resumable() {
-        Arc::new(crate::store::StoreJournal {
+        Arc::new(super::storage::RunJournal(crate::store::StoreJournal {
             store: store.clone(),
             job: id,
-        })
+        }))
     } else {
         Arc::new(crate::procedures::MemoryJournal::default())
     };
@@ -197,7 +212,7 @@ async fn run_one(svc: &Service, entry: Entry) {
         async move {
             tracing::info!("started");
             let r = job2.run_in(cx).await;
-            conclude(&svc2, id, r).await
+            conclude(&svc2, run, r).await
         }
         .instrument(span),
     );
@@ -223,19 +238,34 @@ async fn run_one(svc: &Service, entry: Entry) {
             (JobState::Succeeded, None)
         }
         Outcome::Ended(s, e) => (s, e),
+        Outcome::Stale(e) => return drop_stale(svc, run, &entry.devices, &e),
     };
-    if state == JobState::Paused {
-        let st = store.clone();
-        let e2 = error.clone().unwrap_or_default();
-        let _ = tokio::task::spawn_blocking(move || st.pause_job(id, &e2)).await;
-    } else if let (JobState::Interrupted, Some(f)) = (state, svc.shared.fleet.get()) {
-        // The daemon stops: the job goes back to the shared queue for another daemon.
-        let (st, name) = (store.clone(), f.config.name.clone());
-        let _ = tokio::task::spawn_blocking(move || st.release_owned(&name)).await;
-    } else if state != JobState::Succeeded {
-        let st = store.clone();
-        let e2 = error.clone();
-        let _ = tokio::task::spawn_blocking(move || st.end_job(id, state, e2.as_deref())).await;
+    let e2 = error.clone();
+    let stored = match (state, svc.shared.fleet.get()) {
+        (JobState::Succeeded, _) => Ok(()),
+        (JobState::Paused, _) => {
+            call(&store, move |st| {
+                st.pause_job(run, e2.as_deref().unwrap_or_default())
+                    .map(drop)
+            })
+            .await
+        }
+        (JobState::Interrupted, Some(f)) => {
+            // The daemon stops: the job goes back to the shared queue for another daemon.
+            let name = f.config.name.clone();
+            call(&store, move |st| st.release_owned(&name).map(drop)).await
+        }
+        _ => {
+            call(&store, move |st| {
+                st.end_run(run, state, e2.as_deref()).map(drop)
+            })
+            .await
+        }
+    };
+    match stored {
+        Err(e @ StoreError::Stale { .. }) => return drop_stale(svc, run, &entry.devices, &e),
+        Err(e) => tracing::error!(job = id, error = %e, "recording the job's end failed"),
+        Ok(()) => {}
     }
     tracing::info!(parent: None, job = id, kind = %job.kind, state = state.as_str(), seconds = t0.elapsed().as_secs_f64(), "job finished");
     finish(
@@ -251,25 +281,32 @@ async fn run_one(svc: &Service, entry: Entry) {
 
 /// Store a run's outcome: a result with its artefacts, and the cell's model decision, all in
 /// the transaction that marks the job succeeded.
-async fn conclude(svc: &Service, id: i64, run: Result<jobs::Completed, JobError>) -> Outcome {
-    match run {
+async fn conclude(svc: &Service, run: Run, ran: Result<jobs::Completed, JobError>) -> Outcome {
+    let id = run.job;
+    let stale = lock(&svc.shared.running)
+        .get_mut(&id)
+        .filter(|r| r.run == Some(run))
+        .and_then(|r| r.stale.take());
+    if let Some(e) = stale {
+        return Outcome::Stale(e);
+    }
+    match ran {
         Ok(done) => {
             let artefacts = done.artefacts;
             let decision = done.candidate.as_ref().map(|c| svc.shared.lab.decide(c));
             let csv = done.main_table.as_ref().map(|t| t.to_csv());
-            let st = svc.shared.store.clone();
             let d = decision.clone();
-            let stored = tokio::task::spawn_blocking(move || {
-                st.finish_job(id, &done.result, csv.as_deref(), &artefacts, d.as_ref())
+            let stored = call(&svc.shared.store, move |st| {
+                st.finish_job(run, &done.result, csv.as_deref(), &artefacts, d.as_ref())
             })
-            .await
-            .unwrap_or_else(|e| Err(crate::store::StoreError::Internal(e.to_string())));
+            .await;
             match stored {
                 Ok(true) => Outcome::Succeeded(decision),
                 Ok(false) => Outcome::Ended(
                     JobState::Failed,
                     Some("the job was no longer running".into()),
                 ),
+                Err(e @ StoreError::Stale { .. }) => Outcome::Stale(e),
                 Err(e) => {
                     tracing::error!(error = %e, "storing the result failed");
                     Outcome::Ended(
@@ -297,6 +334,21 @@ async fn conclude(svc: &Service, id: i64, run: Result<jobs::Completed, JobError>
         }
         Err(e) => Outcome::Ended(JobState::Failed, Some(e.to_string())),
     }
+}
+
+/// A run whose job was taken from it: log it, free its devices and forget it, without
+/// announcing an end (the run that took the job announces its own).
+fn drop_stale(svc: &Service, run: Run, devices: &[String], e: &StoreError) {
+    tracing::warn!(job = run.job, attempt = run.attempt, error = %e, "this run's result and end were not stored: its job was taken over");
+    metrics::counter!("calibd_stale_runs_total").increment(1);
+    let mut running = lock(&svc.shared.running);
+    if running.get(&run.job).is_some_and(|r| r.run == Some(run)) {
+        running.remove(&run.job);
+    }
+    drop(running);
+    lock(&svc.shared.queue).release(devices);
+    svc.shared.wake.notify_one();
+    svc.update_gauges();
 }
 
 fn finish(
@@ -346,17 +398,17 @@ async fn sink(svc: Service, mut rx: mpsc::UnboundedReceiver<Event>) {
         else {
             continue;
         };
-        let alive = match lock(&svc.shared.running).get_mut(&id) {
+        let run = match lock(&svc.shared.running).get_mut(&id) {
             Some(r) => {
                 r.progress = Some((fraction, stage.clone()));
-                true
+                r.run
             }
-            None => false,
+            None => None,
         };
-        if !alive {
+        let Some(run) = run else {
             last_history.remove(&id);
             continue;
-        }
+        };
         let history = match last_history.get(&id) {
             Some((s, t)) => s != stage || t.elapsed() >= Duration::from_secs(1),
             None => true,
@@ -365,11 +417,20 @@ async fn sink(svc: Service, mut rx: mpsc::UnboundedReceiver<Event>) {
             last_history.insert(id, (stage.clone(), Instant::now()));
         }
         svc.publish(ev.clone());
-        let st = svc.shared.store.clone();
         let (stage, message) = (stage.clone(), message.clone());
-        let _ = tokio::task::spawn_blocking(move || {
-            st.record_progress(id, fraction, &stage, message.as_deref(), history)
+        let stored = call(&svc.shared.store, move |st| {
+            st.record_progress(run, fraction, &stage, message.as_deref(), history)
         })
         .await;
+        if let Err(e @ StoreError::Stale { .. }) = stored {
+            // Taken over: stop computing for nothing; the run ends without writing.
+            if let Some(r) = lock(&svc.shared.running)
+                .get_mut(&id)
+                .filter(|r| r.run == Some(run))
+            {
+                r.cancel.store(true, Ordering::Relaxed);
+                r.stale = Some(e);
+            }
+        }
     }
 }

@@ -7,7 +7,7 @@ use serde::Serialize;
 use serde_json::Value;
 
 use super::jobs::log_tx;
-use super::{Store, StoreError, now};
+use super::{Run, Store, StoreError, now};
 use crate::lab::Decision;
 use crate::procedures::{EntryStatus, Journal, JournalEntry};
 
@@ -84,19 +84,24 @@ impl Store {
         })
     }
 
-    /// A running job paused on device faults; false if it was not running.
-    pub fn pause_job(&self, id: i64, reason: &str) -> Result<bool, StoreError> {
+    /// Run `run`'s job paused on device faults; false if it was not running,
+    /// [`StoreError::Stale`] if it was taken from the run.
+    pub fn pause_job(&self, run: Run, reason: &str) -> Result<bool, StoreError> {
         if let Some(pg) = self.pg() {
-            return pg.pause_job(id, reason);
+            return pg.pause_job(run, reason);
         }
+        let id = run.job;
         self.write(|c| {
             let tx = c.transaction()?;
             let n = tx.execute(
-                "UPDATE jobs SET state = 'paused', error = ?2 WHERE id = ?1 AND state = 'running'",
-                params![id, reason],
+                "UPDATE jobs SET state = 'paused', error = ?2 \
+                 WHERE id = ?1 AND state = 'running' AND attempt = ?3",
+                params![id, reason, run.attempt],
             )?;
             if n == 1 {
                 log_tx(&tx, Some(id), "warn", &format!("paused: {reason}"))?;
+            } else {
+                super::runs::check_run(&tx, run)?;
             }
             tx.commit()?;
             Ok(n == 1)

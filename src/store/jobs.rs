@@ -4,7 +4,7 @@ use rusqlite::{OptionalExtension, Row, params};
 use serde_json::Value;
 
 pub use super::records::{
-    IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered,
+    IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered, Run,
 };
 use super::{Store, StoreError, now};
 
@@ -193,89 +193,6 @@ impl Store {
                 }
             }
             Ok(out)
-        })
-    }
-
-    /// Mark a queued job running; false if it was no longer queued.
-    pub fn start_job(&self, id: i64) -> Result<bool, StoreError> {
-        if let Some(pg) = self.pg() {
-            return pg.start_job(id);
-        }
-        self.write(|c| {
-            let tx = c.transaction()?;
-            let n = tx.execute(
-                "UPDATE jobs SET state = 'running', started_at = ?2, progress = 0 WHERE id = ?1 AND state = 'queued'",
-                params![id, now()],
-            )?;
-            if n == 1 {
-                log_tx(&tx, Some(id), "info", "started")?;
-            }
-            tx.commit()?;
-            Ok(n == 1)
-        })
-    }
-
-    /// Record progress of a running job; `history` also appends it to the job's history.
-    pub fn record_progress(
-        &self,
-        id: i64,
-        fraction: f64,
-        stage: &str,
-        message: Option<&str>,
-        history: bool,
-    ) -> Result<(), StoreError> {
-        if let Some(pg) = self.pg() {
-            return pg.record_progress(id, fraction, stage, message, history);
-        }
-        self.write(|c| {
-            let tx = c.transaction()?;
-            tx.execute(
-                "UPDATE jobs SET progress = ?2, stage = ?3, message = ?4 WHERE id = ?1 AND state = 'running'",
-                params![id, fraction, stage, message],
-            )?;
-            if history {
-                tx.execute(
-                    "INSERT INTO progress (job_id, at, fraction, stage, message) VALUES (?1, ?2, ?3, ?4, ?5)",
-                    params![id, now(), fraction, stage, message],
-                )?;
-            }
-            tx.commit()?;
-            Ok(())
-        })
-    }
-
-    /// End a job without result (`failed`, `cancelled`); false if it was already final.
-    pub fn end_job(
-        &self,
-        id: i64,
-        state: JobState,
-        error: Option<&str>,
-    ) -> Result<bool, StoreError> {
-        if let Some(pg) = self.pg() {
-            return pg.end_job(id, state, error);
-        }
-        debug_assert!(state.is_final());
-        self.write(|c| {
-            let tx = c.transaction()?;
-            let n = tx.execute(
-                "UPDATE jobs SET state = ?2, finished_at = ?3, error = ?4 \
-                 WHERE id = ?1 AND state IN ('queued', 'running', 'paused')",
-                params![id, state.as_str(), now(), error],
-            )?;
-            if n == 1 {
-                let msg = match error {
-                    Some(e) => format!("{}: {e}", state.as_str()),
-                    None => state.as_str().to_string(),
-                };
-                let level = if state == JobState::Failed {
-                    "error"
-                } else {
-                    "info"
-                };
-                log_tx(&tx, Some(id), level, &msg)?;
-            }
-            tx.commit()?;
-            Ok(n == 1)
         })
     }
 

@@ -118,6 +118,11 @@ const STEPS: &[&str] = &[
         at TEXT NOT NULL,
         PRIMARY KEY (submitted_by, key)
     );",
+    // 4: a job's run token: `attempt` counts its starts (claims), and a run writes its result,
+    // progress and end state only while the job is still its attempt; an operator's cancel
+    // of a job that runs on another daemon of a fleet is a flag that daemon reads.
+    "ALTER TABLE jobs ADD COLUMN attempt INTEGER NOT NULL DEFAULT 0;
+    ALTER TABLE jobs ADD COLUMN cancel_requested INTEGER NOT NULL DEFAULT 0;",
 ];
 
 /// The schema steps (shared with the PostgreSQL backend, which translates them).

@@ -1,8 +1,9 @@
 //! Storage: one SQLite file (bundled SQLite, WAL mode, `synchronous = FULL`) holding jobs,
 //! their input datasets (content-hashed), progress history, results and artefacts, logs and
 //! schedules. Writes go through one connection; reads use a small pool of connections that
-//! WAL lets run beside the writer. Every call is blocking: async callers wrap it in
-//! `spawn_blocking`. A result is written in the same transaction that makes its job final,
+//! WAL lets run beside the writer. Every call is blocking: async code reaches the store
+//! through the service's storage module (`service::storage`), which runs calls on the
+//! blocking pool. A result is written in the same transaction that makes its job final,
 //! so a crash either keeps the whole result or leaves the job `running`, which
 //! [`Store::recover`] turns into `interrupted` on the next start.
 
@@ -14,6 +15,7 @@ mod migrate;
 mod pg;
 mod records;
 mod results;
+mod runs;
 mod schedules;
 mod shared;
 pub mod testpg;
@@ -28,13 +30,13 @@ pub use campaigns::{CellModel, StoreJournal};
 pub use copy::Copied;
 pub use datasets::DatasetInfo;
 pub use jobs::{
-    IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered,
+    IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered, Run,
 };
 pub use migrate::SCHEMA_VERSION;
 pub use pg::{Location, PgLocation};
 pub use results::ArtefactInfo;
 pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};
-pub use shared::Claimed;
+pub use shared::{CancelRequest, Claimed};
 
 /// Why a storage operation failed.
 #[derive(Debug, thiserror::Error)]
@@ -79,6 +81,17 @@ pub enum StoreError {
     /// A record with this name or id already exists.
     #[error("store: {0} already exists")]
     Conflict(String),
+    /// A run wrote after its job was taken from it: its lease expired and the job was
+    /// queued again or started by a later run (on this daemon or another).
+    #[error(
+        "store: job {job} is no longer held by its run {attempt}: it was re-queued or claimed again"
+    )]
+    Stale {
+        /// The job.
+        job: i64,
+        /// The stale run's attempt.
+        attempt: i64,
+    },
     /// The operation needs another backend.
     #[error("store: {0}")]
     Unsupported(&'static str),
@@ -191,8 +204,8 @@ impl Store {
     }
 
     /// Open the store at `location`: [`Location::Sqlite`] as [`Store::open`] does, or
-    /// connect to PostgreSQL and migrate it. Blocking: from async code, call it inside
-    /// `spawn_blocking`.
+    /// connect to PostgreSQL and migrate it. Blocking: from async code, use
+    /// `service::open_store`.
     pub fn open_location(location: &Location) -> Result<Store, StoreError> {
         match location {
             Location::Sqlite(dir) => Store::open(dir),

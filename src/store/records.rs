@@ -184,3 +184,29 @@ pub struct Recovered {
     /// Jobs still queued, oldest first: (id, priority, document).
     pub queued: Vec<(i64, i64, Value)>,
 }
+
+/// The log line of a job that ended in `state` without result: (level, message).
+pub(crate) fn end_log(state: JobState, error: Option<&str>) -> (&'static str, String) {
+    let message = match error {
+        Some(e) => format!("{}: {e}", state.as_str()),
+        None => state.as_str().to_string(),
+    };
+    let level = if state == JobState::Failed {
+        "error"
+    } else {
+        "info"
+    };
+    (level, message)
+}
+
+/// One run of a job: the token a worker got when it started (or claimed) the job. A run
+/// records progress, its result and its end only while the job is still this attempt, so
+/// a run whose job was taken from it (its lease expired and another daemon claimed the job)
+/// cannot write over the new run's work.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Run {
+    /// The job.
+    pub job: i64,
+    /// Which start of the job this run is (1 for the first).
+    pub attempt: i64,
+}

@@ -4,7 +4,7 @@ use rusqlite::{OptionalExtension, params};
 use serde::Serialize;
 use serde_json::Value;
 
-use super::{Store, StoreError, jobs::JobState, now};
+use super::{Run, Store, StoreError, jobs::JobState, now};
 use crate::jobs::Artefact;
 use crate::lab::Decision;
 
@@ -20,29 +20,31 @@ pub struct ArtefactInfo {
 }
 
 impl Store {
-    /// Store a running job's result, artefacts and its cell's model decision and mark it
-    /// `succeeded`, all in one transaction. False (and nothing written) if the job was not
-    /// running.
+    /// Store run `run`'s result, artefacts and its cell's model decision and mark the job
+    /// `succeeded`, all in one transaction. False (and nothing written) if the job was no
+    /// longer running (cancelled); [`StoreError::Stale`] if it was taken from the run.
     pub fn finish_job(
         &self,
-        id: i64,
+        run: Run,
         result: &Value,
         main_table_csv: Option<&str>,
         artefacts: &[Artefact],
         decision: Option<&Decision>,
     ) -> Result<bool, StoreError> {
         if let Some(pg) = self.pg() {
-            return pg.finish_job(id, result, main_table_csv, artefacts, decision);
+            return pg.finish_job(run, result, main_table_csv, artefacts, decision);
         }
+        let id = run.job;
         let text = serde_json::to_string(result)?;
         self.write(|c| {
             let tx = c.transaction()?;
             let n = tx.execute(
                 "UPDATE jobs SET state = ?2, finished_at = ?3, progress = 1, error = NULL \
-                 WHERE id = ?1 AND state = 'running'",
-                params![id, JobState::Succeeded.as_str(), now()],
+                 WHERE id = ?1 AND state = 'running' AND attempt = ?4",
+                params![id, JobState::Succeeded.as_str(), now(), run.attempt],
             )?;
             if n != 1 {
+                super::runs::check_run(&tx, run)?;
                 return Ok(false);
             }
             tx.execute(

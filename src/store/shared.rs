@@ -5,7 +5,7 @@
 
 use std::time::Duration;
 
-pub use super::pg::Claimed;
+pub use super::pg::{CancelRequest, Claimed};
 use super::{Store, StoreError};
 
 impl Store {
@@ -66,6 +66,18 @@ impl Store {
     /// Put `owner`'s running jobs back in the queue; returns their ids.
     pub fn release_owned(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
         self.shared()?.release_owned(owner)
+    }
+
+    /// An operator's cancel in a fleet: a queued or paused job ends at once; a running one
+    /// is flagged for the daemon that runs it (told by `NOTIFY calibd_cancel`; its
+    /// heartbeat also reads the flag).
+    pub fn request_cancel(&self, id: i64) -> Result<CancelRequest, StoreError> {
+        self.shared()?.request_cancel(id)
+    }
+
+    /// The running jobs of daemon `owner` whose cancel an operator requested.
+    pub fn cancel_requests(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
+        self.shared()?.cancel_requests(owner)
     }
 
     /// Send a notification to every daemon listening on `channel`.

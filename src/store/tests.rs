@@ -77,18 +77,19 @@ on_both!(
     datasets_are_content_addressed,
     schedules_are_unique_by_name_and_record_runs,
     idempotent_submission_and_campaign_state,
+    a_run_whose_job_was_taken_writes_nothing,
 );
 
 fn job_life_and_result_in_one_piece(f: &Fixture) {
     let s = f.open();
     let id = s.insert_job(&job("serial.fk")).unwrap();
     assert_eq!(s.job(id).unwrap().unwrap().state, JobState::Queued);
-    assert!(s.start_job(id).unwrap());
+    let run = s.start_job(id).unwrap().unwrap();
     assert!(
-        !s.start_job(id).unwrap(),
+        s.start_job(id).unwrap().is_none(),
         "a running job cannot start twice"
     );
-    s.record_progress(id, 0.5, "fk", None, true).unwrap();
+    s.record_progress(run, 0.5, "fk", None, true).unwrap();
     let r = s.job(id).unwrap().unwrap();
     assert_eq!(
         (r.state, r.progress, r.stage.as_deref()),
@@ -101,7 +102,7 @@ fn job_life_and_result_in_one_piece(f: &Fixture) {
     };
     assert!(
         s.finish_job(
-            id,
+            run,
             &json!({"kind": "serial.fk", "poses": []}),
             Some("x\n"),
             &[art.clone()],
@@ -117,7 +118,7 @@ fn job_life_and_result_in_one_piece(f: &Fixture) {
     assert_eq!(s.main_table_csv(id).unwrap().as_deref(), Some("x\n"));
     // A final job does not change state again, and a second result is refused.
     assert!(!s.end_job(id, JobState::Failed, Some("late")).unwrap());
-    assert!(!s.finish_job(id, &json!({}), None, &[], None).unwrap());
+    assert!(!s.finish_job(run, &json!({}), None, &[], None).unwrap());
     let logs: Vec<String> = s.logs(id).unwrap().into_iter().map(|l| l.message).collect();
     assert_eq!(logs, ["submitted by test", "started", "succeeded"]);
     assert_eq!(s.progress_history(id).unwrap().len(), 1);
@@ -130,8 +131,8 @@ fn recovery_marks_running_jobs_interrupted_and_returns_queued_ones(f: &Fixture) 
         let b = s.insert_job(&job("serial.identify")).unwrap();
         let c = s.insert_job(&job("serial.fk")).unwrap();
         s.start_job(a).unwrap();
-        s.start_job(c).unwrap();
-        s.finish_job(c, &json!({"ok": true}), None, &[], None)
+        let run = s.start_job(c).unwrap().unwrap();
+        s.finish_job(run, &json!({"ok": true}), None, &[], None)
             .unwrap();
         (a, b, c)
     };
@@ -252,7 +253,7 @@ fn idempotent_submission_and_campaign_state(f: &Fixture) {
     ));
     assert_eq!(s.job_doc(id).unwrap().unwrap()["kind"], "serial.fk");
     // A campaign's journal, pause and resume.
-    assert!(s.start_job(id).unwrap());
+    let run = s.start_job(id).unwrap().unwrap();
     for (index, status) in [(0, EntryStatus::Measured), (1, EntryStatus::Skipped)] {
         let e = JournalEntry {
             index,
@@ -276,11 +277,11 @@ fn idempotent_submission_and_campaign_state(f: &Fixture) {
         (journal[1].index, journal[1].status),
         (1, EntryStatus::Skipped)
     );
-    assert!(s.pause_job(id, "indicator lost").unwrap());
+    assert!(s.pause_job(run, "indicator lost").unwrap());
     assert_eq!(s.job(id).unwrap().unwrap().state, JobState::Paused);
     assert!(s.resume_job(id, "operator").unwrap());
     assert!(!s.resume_job(id, "twice").unwrap());
-    assert!(s.start_job(id).unwrap());
+    let run = s.start_job(id).unwrap().unwrap();
     let d = crate::lab::Decision {
         cell: "c1".into(),
         accepted: true,
@@ -288,13 +289,63 @@ fn idempotent_submission_and_campaign_state(f: &Fixture) {
         validation: json!({"rms": 0.01}),
         model: json!({"dh": []}),
     };
-    assert!(s.finish_job(id, &json!({}), None, &[], Some(&d)).unwrap());
+    assert!(s.finish_job(run, &json!({}), None, &[], Some(&d)).unwrap());
     let m = s.current_cell_model("c1").unwrap().unwrap();
     assert_eq!((m.job_id, m.reason.as_str()), (Some(id), "ok"));
     assert_eq!(s.cell_models("c1").unwrap().len(), 1);
     let counts = s.count_by_state().unwrap();
     assert_eq!(counts, vec![(JobState::Succeeded, 1)]);
     s.log(None, "info", "daemon-wide").unwrap();
+}
+
+/// A run whose job was taken from it (here: the daemon restarted, the job was resumed and
+/// started again) stores neither progress nor result nor end; the run that took it does.
+fn a_run_whose_job_was_taken_writes_nothing(f: &Fixture) {
+    let s = f.open();
+    let id = s.insert_job(&job("serial.fk")).unwrap();
+    let old = s.start_job(id).unwrap().unwrap();
+    assert_eq!(old.attempt, 1);
+    assert_eq!(s.recover().unwrap().interrupted, vec![id]);
+    assert!(s.resume_job(id, "restart").unwrap());
+    // Queued again: the old run no longer holds it.
+    let stale = |r: Result<bool, StoreError>| matches!(r, Err(StoreError::Stale { job, attempt: 1 }) if job == id);
+    assert!(stale(
+        s.record_progress(old, 0.9, "late", None, true)
+            .map(|()| true)
+    ));
+    let new = s.start_job(id).unwrap().unwrap();
+    assert_eq!(new.attempt, 2);
+    assert!(stale(
+        s.record_progress(old, 0.9, "late", None, true)
+            .map(|()| true)
+    ));
+    assert!(stale(s.finish_job(
+        old,
+        &json!({"by": "old"}),
+        None,
+        &[],
+        None
+    )));
+    assert!(stale(s.end_run(old, JobState::Failed, Some("late"))));
+    assert!(stale(s.pause_job(old, "late")));
+    let r = s.job(id).unwrap().unwrap();
+    assert_eq!((r.state, r.progress), (JobState::Running, 0.0));
+    s.record_progress(new, 0.5, "fk", None, true).unwrap();
+    assert!(
+        s.finish_job(new, &json!({"by": "new"}), None, &[], None)
+            .unwrap()
+    );
+    assert_eq!(s.result(id).unwrap().unwrap()["by"], "new");
+    assert_eq!(s.progress_history(id).unwrap().len(), 1);
+    // Once final, the old run is still refused as stale; the new one just finds it ended.
+    assert!(stale(s.finish_job(old, &json!({}), None, &[], None)));
+    assert!(!s.end_run(new, JobState::Failed, None).unwrap());
+    // An operator's cancel is not a take-over: the run finds its job ended, no error.
+    let id2 = s.insert_job(&job("serial.fk")).unwrap();
+    let run = s.start_job(id2).unwrap().unwrap();
+    assert!(s.end_job(id2, JobState::Cancelled, None).unwrap());
+    assert!(!s.finish_job(run, &json!({}), None, &[], None).unwrap());
+    s.record_progress(run, 0.5, "fk", None, false).unwrap();
 }
 
 #[cfg(unix)]

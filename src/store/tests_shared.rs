@@ -7,7 +7,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use super::{Fixture, job};
-use crate::store::{JobState, Store, StoreError};
+use crate::store::{CancelRequest, JobState, Store, StoreError};
 
 fn pg() -> Option<Store> {
     Fixture::postgres().map(|f| f.open())
@@ -36,7 +36,7 @@ fn concurrent_claims_take_each_job_exactly_once() {
                     };
                     lat.lock().unwrap().push(t0.elapsed());
                     assert!(
-                        s.finish_job(c.id, &serde_json::json!({}), None, &[], None)
+                        s.finish_job(c.run, &serde_json::json!({}), None, &[], None)
                             .unwrap()
                     );
                     seen.lock().unwrap().push(c.id);
@@ -80,13 +80,25 @@ fn an_expired_lease_is_requeued_and_finished_elsewhere() {
     std::thread::sleep(Duration::from_millis(400));
     assert_eq!(s.requeue_expired().unwrap(), vec![id]);
     assert_eq!(s.job(id).unwrap().unwrap().state, JobState::Queued);
+    let on_a = c.run;
     let c = s.claim("b", &[], LEASE).unwrap().unwrap();
-    assert_eq!(c.id, id);
+    assert_eq!((c.id, c.run.attempt), (id, 2));
     assert_eq!(s.heartbeat("b", LEASE).unwrap(), 1);
+    // a comes back and tries to store its result: refused, b's run is untouched.
+    assert!(matches!(
+        s.finish_job(on_a, &serde_json::json!({"by": "a"}), None, &[], None),
+        Err(StoreError::Stale { attempt: 1, .. })
+    ));
+    assert!(matches!(
+        s.record_progress(on_a, 0.9, "late", None, true),
+        Err(StoreError::Stale { .. })
+    ));
+    assert_eq!(s.job_owner(id).unwrap().as_deref(), Some("b"));
     assert!(
-        s.finish_job(id, &serde_json::json!({"ok": 1}), None, &[], None)
+        s.finish_job(c.run, &serde_json::json!({"by": "b"}), None, &[], None)
             .unwrap()
     );
+    assert_eq!(s.result(id).unwrap().unwrap()["by"], "b");
     let logs: Vec<String> = s.logs(id).unwrap().into_iter().map(|l| l.message).collect();
     assert_eq!(
         logs,
@@ -129,6 +141,46 @@ fn device_jobs_go_to_the_daemon_holding_the_cell() {
 }
 
 #[test]
+fn a_cancel_reaches_the_daemon_running_the_job() {
+    let Some(s) = pg() else { return };
+    let queued = s.insert_job(&job("serial.fk")).unwrap();
+    let running = s.insert_job(&job("serial.identify")).unwrap();
+    assert_eq!(s.request_cancel(queued).unwrap(), CancelRequest::Ended);
+    assert_eq!(s.job(queued).unwrap().unwrap().state, JobState::Cancelled);
+    let c = s.claim("b", &[], LEASE).unwrap().unwrap();
+    assert_eq!(c.id, running);
+    assert!(s.cancel_requests("b").unwrap().is_empty());
+    assert_eq!(s.request_cancel(running).unwrap(), CancelRequest::Requested);
+    assert_eq!(s.cancel_requests("b").unwrap(), vec![running]);
+    assert!(s.cancel_requests("a").unwrap().is_empty());
+    // b stops it; a second cancel finds it final.
+    assert!(s.end_run(c.run, JobState::Cancelled, None).unwrap());
+    assert!(s.cancel_requests("b").unwrap().is_empty());
+    assert_eq!(
+        s.request_cancel(running).unwrap(),
+        CancelRequest::Final(JobState::Cancelled)
+    );
+    assert_eq!(s.request_cancel(999_999).unwrap(), CancelRequest::Missing);
+    // A flagged job whose daemon dies ends cancelled instead of going back to the queue.
+    let third = s.insert_job(&job("serial.fk")).unwrap();
+    let c = s
+        .claim("c", &[], Duration::from_millis(100))
+        .unwrap()
+        .unwrap();
+    assert_eq!(c.id, third);
+    assert_eq!(s.request_cancel(third).unwrap(), CancelRequest::Requested);
+    let t0 = Instant::now();
+    while s.job(third).unwrap().unwrap().state == JobState::Running {
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "the lease never expired"
+        );
+        s.requeue_expired().unwrap();
+    }
+    assert_eq!(s.job(third).unwrap().unwrap().state, JobState::Cancelled);
+}
+
+#[test]
 fn sqlite_refuses_the_shared_queue() {
     let f = Fixture::sqlite();
     let s = f.open();
@@ -147,15 +199,16 @@ fn a_sqlite_history_copies_into_postgres() {
     let sf = Fixture::sqlite();
     let s = sf.open();
     let a = s.insert_job(&job("serial.fk")).unwrap();
-    s.start_job(a).unwrap();
-    s.record_progress(a, 0.5, "fk", Some("half"), true).unwrap();
+    let run = s.start_job(a).unwrap().unwrap();
+    s.record_progress(run, 0.5, "fk", Some("half"), true)
+        .unwrap();
     let art = crate::jobs::Artefact {
         name: "poses.csv".into(),
         media_type: "text/csv".into(),
         content: b"x\n1\n".to_vec(),
     };
     s.finish_job(
-        a,
+        run,
         &serde_json::json!({"ok": 1}),
         Some("x\n"),
         std::slice::from_ref(&art),

@@ -1,6 +1,8 @@
 //! Helpers shared by integration tests.
 #![allow(dead_code, unreachable_pub)]
 
+pub mod report;
+
 use std::path::PathBuf;
 
 use calibd::jobs::{Completed, DirResolver, Job, JobError, prepare};

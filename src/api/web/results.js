@@ -62,7 +62,7 @@ function paramTable(r) {
   return [el("details", {}, el("summary", {}, `Parameters: ${ident} of ${ps.length} identified (show the table)`), note, t)];
 }
 
-const PLOT_ORDER = ["errors_per_configuration.svg", "validation_errors.svg", "marker_rmse.svg", "rmse_by_model.svg", "posture_rmse.svg", "errors_per_axis.svg", "error_cdf.svg", "validation_cdf.svg", "error_histogram.svg"];
+const PLOT_ORDER = ["errors_per_configuration.svg", "validation_errors.svg", "marker_rmse.svg", "rmse_by_model.svg", "posture_rmse.svg", "design_history.svg", "dispersion_mean_error.svg", "dispersion_std_error.svg", "errors_per_axis.svg", "sensitivity_position.svg", "sensitivity_orientation.svg", "error_cdf.svg", "validation_cdf.svg", "error_histogram.svg"];
 
 /** The SVG plots of a job, parsed and shown inline (without scripts or handlers). */
 function inlinePlots(id, artefacts, box) {

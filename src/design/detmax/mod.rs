@@ -38,6 +38,30 @@ pub struct Selection {
     pub log_det_start: f64,
     /// Improving excursions made.
     pub exchanges: usize,
+    /// The search's path: the random start, then the design after each improving
+    /// excursion (the last step is the selection).
+    pub history: Vec<DetmaxStep>,
+}
+
+/// One design on DETMAX's path.
+#[derive(Debug, Clone, Serialize)]
+pub struct DetmaxStep {
+    /// Improving excursions made before it (0: the random start).
+    pub exchanges: usize,
+    /// log det(J^T J) of the design (as [`Selection::log_det`]).
+    pub log_det: f64,
+    /// Its configuration indices (sorted).
+    pub selected: Vec<usize>,
+}
+
+/// The step of `design` after `exchanges` improving excursions.
+fn step(pool: &Pool, design: &Design<'_>, exchanges: usize) -> DetmaxStep {
+    let selected = design.selected();
+    DetmaxStep {
+        exchanges,
+        log_det: pool.log_det(&selected),
+        selected,
+    }
 }
 
 /// Select `opts.n` configurations of `pool` maximising det(J^T J).
@@ -60,6 +84,7 @@ pub fn detmax(
     let mut current = design.log_det;
     let min_rows = pool.rows.iter().copied().min().unwrap_or(1);
     let mut exchanges = 0;
+    let mut history = vec![step(pool, &design, 0)];
     let mut k = 1;
     let kmax = opts.max_excursion.max(1);
     while k <= kmax {
@@ -103,6 +128,7 @@ pub fn detmax(
         }
         if improved {
             exchanges += 1;
+            history.push(step(pool, &design, exchanges));
             k = 1;
         } else {
             k += 1;
@@ -114,6 +140,7 @@ pub fn detmax(
         log_det_start,
         selected,
         exchanges,
+        history,
     })
 }
 
@@ -181,6 +208,10 @@ mod tests {
         assert!((s.log_det - best).abs() < 1e-9, "{} vs {}", s.log_det, best);
     }
 
+    fn last_gain(s: &Selection) -> f64 {
+        s.history.last().map_or(0.0, |l| l.log_det) - s.history[0].log_det
+    }
+
     /// Marker-cluster-like blocks (36 rows of rank 12, mixed with full-rank 5-row blocks):
     /// the rank-reduced pool picks exactly the set the unreduced pool picks, with the same
     /// determinant to rounding.
@@ -210,5 +241,16 @@ mod tests {
         assert_eq!(a.selected, b.selected);
         assert!((a.log_det - b.log_det).abs() < 1e-9 * b.log_det.abs().max(1.0));
         assert!(a.exchanges > 0, "the search moved from its random start");
+        // The path: one step per improving excursion after the start, each better than the
+        // one before, the last one the selection.
+        assert_eq!(a.history.len(), a.exchanges + 1);
+        assert!(
+            a.history
+                .windows(2)
+                .all(|w| w[1].log_det > w[0].log_det - 1e-6 * w[0].log_det.abs())
+        );
+        assert!(last_gain(&a) > 0.0);
+        let last = a.history.last().unwrap();
+        assert_eq!((last.log_det, &last.selected), (a.log_det, &a.selected));
     }
 }

@@ -334,8 +334,12 @@ pub struct HumanoidDesign {
     pub posture_count: usize,
     /// O1 of the set.
     pub o1: f64,
-    /// O1 per step.
+    /// O1 per step: per NOCP block of postures, or (COCP) one step for the whole set.
     pub o1_history: Vec<O1Step>,
+    /// COCP only: O1 at the random start and after each re-optimised posture (the last
+    /// is `o1`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cocp_o1_history: Option<Vec<f64>>,
     /// Whether NOCP stopped on the plateau rule.
     pub plateau: bool,
     /// `nocp plateau` or `cocp with n postures`.
@@ -396,6 +400,7 @@ impl DesignJob {
             0.1,
             if self.compare.is_some() { 0.6 } else { 0.95 },
         );
+        let mut cocp_history = None;
         let (set, history, plateau) = match self.n {
             Some(n) => {
                 let start = pm
@@ -403,6 +408,7 @@ impl DesignJob {
                     .ok_or_else(|| no_room("the start"))?;
                 let mut set = PostureSet::from_postures(&pm, start);
                 let rep = cocp(&pm, &mut set, &self.nocp.optim, 4 * n, &main)?;
+                cocp_history = Some(rep.history.clone());
                 (
                     set,
                     vec![O1Step {
@@ -470,6 +476,7 @@ impl DesignJob {
             posture_count: count,
             o1: set.o1(),
             o1_history: history,
+            cocp_o1_history: cocp_history,
             plateau,
             rule: match self.n {
                 Some(_) => "cocp with n postures",
@@ -489,14 +496,18 @@ impl DesignJob {
             collision_sphere_pairs: pm.constraints.pairs.len(),
             comparison,
         };
+        let plot = super::plots::design_history(&result);
         Ok(Run {
             result,
             main_table: Some(table),
-            artefacts: vec![Artefact {
-                name: "trajectory.csv".into(),
-                media_type: "text/csv".into(),
-                content: traj.to_csv().into_bytes(),
-            }],
+            artefacts: vec![
+                Artefact {
+                    name: "trajectory.csv".into(),
+                    media_type: "text/csv".into(),
+                    content: traj.to_csv().into_bytes(),
+                },
+                plot,
+            ],
         })
     }
 }

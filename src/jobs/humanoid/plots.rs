@@ -1,11 +1,13 @@
 //! The plots of a humanoid calibration, drawn with [`crate::report`]: marker RMSE per
 //! marker and per posture before and after, the share of the geometric and the elastic
 //! model (RMSE of each fit), the distribution of the marker errors and the held-out
-//! cross-validation RMSE per fold.
+//! cross-validation RMSE per fold; for a design, the O1 history of NOCP or COCP.
 
+use super::design::HumanoidDesign;
 use super::identify::HumanoidCalibration;
 use crate::jobs::Artefact;
 use crate::report::plots::{self, Series};
+use crate::report::studies::{self, History};
 use crate::report::{ErrorSet, svg_artefact};
 
 /// One marker observation's error before and after (mm), with its sample row.
@@ -138,4 +140,45 @@ pub(crate) fn humanoid_plots(r: &HumanoidCalibration, obs: &[Observation]) -> Ve
         ));
     }
     out
+}
+
+/// `design_history.svg` of `humanoid.design`: O1 against the number of postures after each
+/// NOCP block (the set kept marked, when the plateau rule dropped the last block), or O1
+/// after each posture COCP re-optimised.
+pub(crate) fn design_history(d: &HumanoidDesign) -> Artefact {
+    let dataset = format!(
+        "{} base parameters, {} postures kept, nominal model",
+        d.base_parameter_count, d.posture_count
+    );
+    let svg = match &d.cocp_o1_history {
+        Some(h) => {
+            let pts: Vec<(f64, f64)> = h.iter().enumerate().map(|(k, v)| (k as f64, *v)).collect();
+            studies::history(&History {
+                title: "Observability index O1 during COCP",
+                dataset: &dataset,
+                x_label: "postures re-optimised (0: random start)",
+                y_label: "O1 of the posture set (dimensionless)",
+                points: &pts,
+                chosen: None,
+            })
+        }
+        None => {
+            let pts: Vec<(f64, f64)> = d
+                .o1_history
+                .iter()
+                .map(|s| (s.postures as f64, s.o1))
+                .collect();
+            let chosen = (pts.last().map(|p| p.0) != Some(d.posture_count as f64))
+                .then_some((d.posture_count as f64, d.o1));
+            studies::history(&History {
+                title: "Observability index O1 during NOCP",
+                dataset: &dataset,
+                x_label: "postures in the set",
+                y_label: "O1 of the posture set (dimensionless)",
+                points: &pts,
+                chosen,
+            })
+        }
+    };
+    svg_artefact("design_history.svg", svg)
 }

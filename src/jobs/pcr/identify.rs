@@ -7,6 +7,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
+use super::sensitivity::{PcrSensitivity, central_table2, table2_plots};
 use super::{PcrModel, load_model};
 use crate::identify::ParamReport;
 use crate::identify::solve::Dependency;
@@ -15,7 +16,7 @@ use crate::measure::pcr::steps::{CalibrationOptions, Step, calibrated_file, defa
 use crate::measure::pcr::{PcrMeasurement, StepReport, Table3, identify_steps};
 use crate::model::pcr::PcrFile;
 use crate::report::{ErrorSet, Run};
-use crate::util::{Monitor, Summary};
+use crate::util::{Monitor, SubMonitor, Summary};
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -252,6 +253,9 @@ pub struct PcrCalibration {
     pub validation: Option<PcrValidation>,
     /// The calibrated model file.
     pub calibrated_model: PcrFile,
+    /// The paper's Table 2 of the model the identification started from (as
+    /// `pcr.sensitivity` reports it): which parameters the poses can see, with units.
+    pub sensitivity: PcrSensitivity,
 }
 
 impl IdentifyJob {
@@ -299,8 +303,9 @@ impl IdentifyJob {
             &self.measurements,
             self.validation.as_deref(),
             &self.options,
-            monitor,
+            &SubMonitor::new(monitor, 0.0, 0.9),
         )?;
+        let sensitivity = central_table2(&self.model, &SubMonitor::new(monitor, 0.9, 1.0))?;
         let u: Vec<f64> = self
             .model
             .file
@@ -391,6 +396,10 @@ impl IdentifyJob {
             },
         ];
         artefacts.extend(plots);
+        artefacts.extend(table2_plots(
+            &sensitivity,
+            &format!("nominal model {}", self.model.file.name),
+        ));
         let result = PcrCalibration {
             parameters,
             unidentifiable: cal.unidentifiable.clone(),
@@ -419,6 +428,7 @@ impl IdentifyJob {
                     after: Summary::of(after, "m"),
                 }),
             calibrated_model: file,
+            sensitivity,
         };
         Ok(Run {
             result,
@@ -451,6 +461,7 @@ mod tests {
         "model_error",
         "parameters",
         "residual_std",
+        "sensitivity",
         "steps",
         "unidentifiable",
         "validation",

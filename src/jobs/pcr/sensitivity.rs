@@ -1,6 +1,6 @@
 //! `pcr.sensitivity`: the paper's Table 2, the largest finite-difference partial derivative
 //! of x, y and theta with respect to each parameter type over a set of configurations
-//! (default: the 26 central configurations).
+//! (default: the 26 central configurations), and its bars.
 
 use std::sync::Arc;
 
@@ -8,11 +8,12 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::{PcrModel, load_model};
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
+use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::model::pcr::sensitivity::{
     SensitivityRow, central_configurations, default_steps, sensitivity,
 };
-use crate::report::Run;
+use crate::report::plots::{self, Series};
+use crate::report::{Run, svg_artefact};
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -92,26 +93,108 @@ pub struct PcrSensitivity {
     pub method: &'static str,
 }
 
-impl SensitivityJob {
-    /// Compute the sensitivities: the typed result; no table or artefact.
-    pub fn sensitivities(&self, monitor: &dyn Monitor) -> Result<Run<PcrSensitivity>, JobError> {
-        let steps = default_steps(&self.model.file.uncertainty);
-        let rows = sensitivity(&self.model.robot, &self.configs, &steps, monitor)
-            .map_err(|e| JobError::Failed(e.to_string()))?;
-        if monitor.is_cancelled() {
-            return Err(JobError::Cancelled);
+/// Table 2 of `model` over `configs` (`default_set`: they are the default central set).
+pub fn table2(
+    model: &PcrModel,
+    configs: &[[f64; 3]],
+    default_set: bool,
+    monitor: &dyn Monitor,
+) -> Result<PcrSensitivity, JobError> {
+    let steps = default_steps(&model.file.uncertainty);
+    let rows = sensitivity(&model.robot, configs, &steps, monitor)
+        .map_err(|e| JobError::Failed(e.to_string()))?;
+    if monitor.is_cancelled() {
+        return Err(JobError::Cancelled);
+    }
+    Ok(PcrSensitivity {
+        configurations: SensitivityConfigurations {
+            count: configs.len(),
+            default_central_set: default_set,
+        },
+        sensitivity: rows,
+        method: "central finite differences of the forward kinematics, step 1 % of the model's standard uncertainty; per parameter type the largest magnitude over configurations and limbs",
+    })
+}
+
+/// Table 2 of `model` over its default 26 central configurations (what `pcr.identify`
+/// reports for the model it starts from).
+pub fn central_table2(model: &PcrModel, monitor: &dyn Monitor) -> Result<PcrSensitivity, JobError> {
+    let configs = central_configurations(model.robot.limits(), 0.4);
+    table2(model, &configs, true, monitor)
+}
+
+/// The Table 2 bars: `sensitivity_position.svg` (largest |dx/dp| and |dy/dp|) and
+/// `sensitivity_orientation.svg` (largest |dtheta/dp|), one group per parameter type on a
+/// log axis; a zero sensitivity (E without load) draws no bar and its label says `= 0`.
+pub fn table2_plots(t: &PcrSensitivity, model_name: &str) -> Vec<Artefact> {
+    let rows = &t.sensitivity;
+    let cat = |f: fn(&SensitivityRow) -> f64, r: &SensitivityRow, unit: &str| {
+        let zero = if f(r) == 0.0 { " = 0" } else { "" };
+        format!("{} ({unit}){zero}", r.parameter)
+    };
+    let some = |v: f64| (v > 0.0 && v.is_finite()).then_some(v);
+    let dataset = format!(
+        "{model_name}: {} {}configurations",
+        t.configurations.count,
+        if t.configurations.default_central_set {
+            "central "
+        } else {
+            ""
         }
-        Ok(Run {
-            result: PcrSensitivity {
-                configurations: SensitivityConfigurations {
-                    count: self.configs.len(),
-                    default_central_set: self.default_set,
-                },
-                sensitivity: rows,
-                method: "central finite differences of the forward kinematics, step 1 % of the model's standard uncertainty; per parameter type the largest magnitude over configurations and limbs",
+    );
+    let dx: Vec<Option<f64>> = rows.iter().map(|r| some(r.dx)).collect();
+    let dy: Vec<Option<f64>> = rows.iter().map(|r| some(r.dy)).collect();
+    let dt: Vec<Option<f64>> = rows.iter().map(|r| some(r.dtheta)).collect();
+    let position = plots::category_bars(
+        "Table 2: position sensitivity per parameter type (log scale)",
+        &dataset,
+        "largest |dx/dp|, |dy/dp| (m per parameter unit)",
+        &rows
+            .iter()
+            .map(|r| cat(|r| r.dx.max(r.dy), r, &r.position_unit))
+            .collect::<Vec<_>>(),
+        &[
+            Series {
+                name: "dx",
+                legend: "|dx/dp|",
+                values: &dx,
             },
+            Series {
+                name: "dy",
+                legend: "|dy/dp|",
+                values: &dy,
+            },
+        ],
+    );
+    let orientation = plots::category_bars(
+        "Table 2: orientation sensitivity per parameter type (log scale)",
+        &dataset,
+        "largest |dθ/dp| (rad per parameter unit)",
+        &rows
+            .iter()
+            .map(|r| cat(|r| r.dtheta, r, &r.angle_unit))
+            .collect::<Vec<_>>(),
+        &[Series {
+            name: "dtheta",
+            legend: "|dθ/dp|",
+            values: &dt,
+        }],
+    );
+    vec![
+        svg_artefact("sensitivity_position.svg", position),
+        svg_artefact("sensitivity_orientation.svg", orientation),
+    ]
+}
+
+impl SensitivityJob {
+    /// Compute the sensitivities: the typed result and its bars; no table.
+    pub fn sensitivities(&self, monitor: &dyn Monitor) -> Result<Run<PcrSensitivity>, JobError> {
+        let result = table2(&self.model, &self.configs, self.default_set, monitor)?;
+        let artefacts = table2_plots(&result, &format!("model {}", self.model.file.name));
+        Ok(Run {
+            result,
             main_table: None,
-            artefacts: vec![],
+            artefacts,
         })
     }
 }

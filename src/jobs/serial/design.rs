@@ -10,9 +10,10 @@ use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, point_input
 use super::{ChainSpec, PlateSpec, SerialModel};
 use crate::design::{DetmaxOptions, Indices, Pool, detmax, indices};
 use crate::identify::{Problem, rank_revealing};
+use crate::jobs::Artefact;
 use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::{BallPlate, PointMeasurement, PointProblem};
-use crate::report::Run;
+use crate::report::{Run, studies, svg_artefact};
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize)]
@@ -165,6 +166,31 @@ pub struct LogDet {
     pub selection: f64,
 }
 
+/// One design on DETMAX's path, as the result reports it.
+#[derive(Debug, Clone, Serialize)]
+pub struct DesignStep {
+    /// Improving excursions made before it (0: the random start).
+    pub exchanges: usize,
+    /// O1 of the design (dimensionless; see [`DesignHistory::index`]).
+    pub o1: f64,
+    /// log det(J^T J) of the design, the criterion DETMAX maximises (dimensionless).
+    pub log_det: f64,
+}
+
+/// `history` of `serial.design`: the observability of the design after each improving
+/// DETMAX excursion; the last step is the selection.
+#[derive(Debug, Clone, Serialize)]
+pub struct DesignHistory {
+    /// The search.
+    pub method: &'static str,
+    /// What `o1` is.
+    pub index: &'static str,
+    /// What `log_det` is.
+    pub criterion: &'static str,
+    /// From the random start to the selection.
+    pub steps: Vec<DesignStep>,
+}
+
 /// The result of `serial.design`: serialises to the job's result fields.
 #[derive(Debug, Clone, Serialize)]
 pub struct SerialDesign {
@@ -182,6 +208,8 @@ pub struct SerialDesign {
     pub log_det: LogDet,
     /// DETMAX exchanges.
     pub exchanges: usize,
+    /// O1 and log det after each exchange (the plot `design_history.svg`).
+    pub history: DesignHistory,
     /// Identifiable parameters the design optimises for.
     pub parameters: Vec<String>,
     /// Parameters the whole pool cannot identify.
@@ -273,7 +301,23 @@ impl DesignJob {
         for &i in &sel.selected {
             rows.push(self.pool_table.rows[i].clone());
         }
+        let history = DesignHistory {
+            method: "DETMAX (exchanges with excursions from a seeded random start)",
+            index: "O1 = (s1 ... sm)^(1/m) / sqrt(n) of the design's Jacobian, columns scaled to unit norm (dimensionless), as observability.selection.o1",
+            criterion: "log det(J^T J), J the pool's identification Jacobian with columns scaled to unit norm over the pool (dimensionless), as log_det.selection",
+            steps: sel
+                .history
+                .iter()
+                .map(|h| DesignStep {
+                    exchanges: h.exchanges,
+                    o1: dp.indices(&h.selected).o1,
+                    log_det: h.log_det,
+                })
+                .collect(),
+        };
+        let artefacts = vec![history_plot(&history, self.n, dp.pool.len(), dp.kept.len())];
         let result = SerialDesign {
+            history,
             observability: DesignObservability {
                 selection: dp.indices(&sel.selected),
                 pool: dp.indices(&all),
@@ -294,9 +338,27 @@ impl DesignJob {
         Ok(Run {
             result,
             main_table: Some(rows),
-            artefacts: vec![],
+            artefacts,
         })
     }
+}
+
+/// `design_history.svg`: O1 of the design after each improving DETMAX excursion.
+fn history_plot(h: &DesignHistory, n: usize, pool: usize, params: usize) -> Artefact {
+    let pts: Vec<(f64, f64)> = h.steps.iter().map(|s| (s.exchanges as f64, s.o1)).collect();
+    svg_artefact(
+        "design_history.svg",
+        studies::history(&studies::History {
+            title: "Observability index O1 during DETMAX",
+            dataset: &format!(
+                "{n} of {pool} pool configurations, {params} identifiable parameters (nominal model)"
+            ),
+            x_label: "improving DETMAX excursions (0: random start)",
+            y_label: "O1 of the selection (dimensionless)",
+            points: &pts,
+            chosen: None,
+        }),
+    )
 }
 
 /// DETMAX selection of `n` configurations of `pool` (typed `serial.design`): the selected

@@ -89,6 +89,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<DispersionJob, JobErr
 /// One identification of the study.
 struct Run {
     size: usize,
+    repetition: usize,
     mean_error: f64,
     std_error: f64,
     values: Vec<f64>,
@@ -150,6 +151,7 @@ fn study(
                         let s = Summary::of(&e, "");
                         Run {
                             size: n,
+                            repetition: r,
                             mean_error: s.mean,
                             std_error: s.std,
                             values: sol.params.iter().map(|p| p.value).collect(),
@@ -213,6 +215,21 @@ pub struct ParameterDispersion {
     pub max: f64,
 }
 
+/// One converged identification of the study: its validation errors.
+#[derive(Debug, Clone, Serialize)]
+pub struct DispersionRun {
+    /// Configurations in its calibration set.
+    pub n: usize,
+    /// Repetition (0-based) at that size.
+    pub repetition: usize,
+    /// Mean validation error (`unit`).
+    pub mean_error: f64,
+    /// Standard deviation of the validation error (`unit`).
+    pub std_error: f64,
+    /// Length unit.
+    pub unit: String,
+}
+
 /// `parameters_at_largest_size` of `serial.dispersion`.
 #[derive(Debug, Clone, Serialize)]
 pub struct LargestSize {
@@ -227,6 +244,9 @@ pub struct LargestSize {
 pub struct DispersionResult {
     /// Per set size with converged identifications.
     pub sizes: Vec<DispersionSize>,
+    /// Every converged identification, by size then repetition: the values the quartiles
+    /// of `sizes` (and the box plots) summarise.
+    pub runs: Vec<DispersionRun>,
     /// Repetitions per size.
     pub repetitions: usize,
     /// Converged identifications.
@@ -323,8 +343,19 @@ impl DispersionJob {
                 }
             })
             .collect();
+        let unit_s = unit.to_string();
         let result = DispersionResult {
             sizes: per_size,
+            runs: runs
+                .iter()
+                .map(|r| DispersionRun {
+                    n: r.size,
+                    repetition: r.repetition,
+                    mean_error: r.mean_error,
+                    std_error: r.std_error,
+                    unit: unit_s.clone(),
+                })
+                .collect(),
             repetitions: self.repetitions,
             identifications: runs.len(),
             failures,
@@ -334,7 +365,7 @@ impl DispersionJob {
             },
             seed: self.seed,
         };
-        let artefacts = dispersion_plots(&result.boxes(), unit);
+        let artefacts = dispersion_plots(&result.boxes(), unit, result.runs.len());
         Ok(crate::report::Run {
             result,
             main_table: Some(table),

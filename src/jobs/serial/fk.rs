@@ -1,14 +1,23 @@
 //! `serial.fk`: TCP poses (x, y, z, a, b, c in {W}) of a serial model over a joints table,
 //! with the static deflection of the model's compliances.
-
-use std::sync::Arc;
+//!
+//! A joints table given as a CSV file is streamed: validated row by row when the job is
+//! prepared (only its hash and row count are kept), then read again row by row when it runs,
+//! so that `calibd run --out poses.csv` holds one row at a time whatever the table's length
+//! ([`FkJob::write_csv`]). A file that changed between the two readings fails the job.
 
 use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
+use super::joints::JointColumns;
 use super::{ChainSpec, SerialModel, load_model};
+use crate::jobs::rows::{CsvRows, CsvSink, HashingReader};
 use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::model::Quantity;
 use crate::report::Run;
@@ -30,19 +39,51 @@ struct Spec {
     options: Option<serde_json::Map<String, Value>>,
 }
 
+/// Columns of the poses table.
+const POSE_COLUMNS: [&str; 6] = ["x", "y", "z", "a", "b", "c"];
+
+/// Where the joint rows come from.
+#[derive(Debug)]
+enum Joints {
+    /// Parsed whole (inline rows, an uploaded dataset): internal units, limits checked.
+    Rows(Vec<Vec<f64>>),
+    /// A CSV file, already validated by one streamed reading.
+    File {
+        /// The file.
+        path: PathBuf,
+        /// Hex SHA-256 of its bytes at validation.
+        sha256: String,
+    },
+}
+
 /// A validated `serial.fk` job.
 #[derive(Debug)]
 pub struct FkJob {
     model: SerialModel,
-    q: Vec<Vec<f64>>,
+    joints: Joints,
 }
 
 /// Validate a `serial.fk` job.
 pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<FkJob, JobError> {
     let spec: Spec = parse_spec(doc)?;
     let mut model = load_model(inputs, &spec.model, spec.chain.as_ref())?;
-    let table = inputs.table("joints", &spec.joints)?;
-    let q = model.joints("joints", &table)?;
+    let (joints, first) = match inputs.table_file(&spec.joints) {
+        Some(path) => {
+            let mut first = None;
+            let sha256 = each_file_row(&model, &path, None, &mut |_, q| {
+                first.get_or_insert_with(|| q.to_vec());
+                Ok(())
+            })?;
+            inputs.record_sha256("joints", sha256.clone());
+            (Joints::File { path, sha256 }, first)
+        }
+        None => {
+            let table = inputs.table("joints", &spec.joints)?;
+            let q = model.joints("joints", &table)?;
+            let first = q.first().cloned();
+            (Joints::Rows(q), first)
+        }
+    };
     for (name, v) in &spec.parameters {
         let id = model.chain.param_by_name(name).map_err(|_| {
             JobError::invalid(format!("parameters.{name}"), "unknown parameter name")
@@ -57,7 +98,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<FkJob, JobError> {
         model.chain.set_param(id, v / to_file);
         // A value far outside the model's range overflows the kinematics: name it here
         // rather than compute a table of NaN.
-        if let Some(q0) = q.first()
+        if let Some(q0) = &first
             && !pose(&model.chain, q0).iter().all(|x| x.is_finite())
         {
             return Err(JobError::invalid(
@@ -66,7 +107,38 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<FkJob, JobError> {
             ));
         }
     }
-    Ok(FkJob { model, q })
+    Ok(FkJob { model, joints })
+}
+
+/// Read the joints CSV file `path` row by row, calling `f` with each row's number (from 1)
+/// and joint values (internal units, limits checked); the file's hex SHA-256. With
+/// `expected`, a file whose hash differs fails (it changed since it was validated).
+fn each_file_row(
+    model: &SerialModel,
+    path: &Path,
+    expected: Option<&str>,
+    f: &mut dyn FnMut(usize, &[f64]) -> Result<(), JobError>,
+) -> Result<String, JobError> {
+    let input_err = |message: String| JobError::Input {
+        field: "joints".into(),
+        reference: path.display().to_string(),
+        message,
+    };
+    let file = File::open(path).map_err(|e| input_err(e.to_string()))?;
+    let mut rows = CsvRows::new("joints", HashingReader::new(file), &|_: &str| false)?;
+    let cols = JointColumns::new(model, "joints", rows.columns())?;
+    let (mut values, mut q) = (Vec::new(), Vec::new());
+    while let Some(row) = rows.next_into(&mut values)? {
+        cols.read(model, row, &values, &mut q)?;
+        f(row, &q)?;
+    }
+    let sha256 = rows.into_inner().hex();
+    match expected {
+        Some(h) if h != sha256 => Err(input_err(
+            "the file changed after the job was validated".into(),
+        )),
+        _ => Ok(sha256),
+    }
 }
 
 /// The elasto-geometric TCP pose (x, y, z, a, b, c in the chain's internal units).
@@ -95,18 +167,44 @@ pub struct SerialPoses {
 }
 
 impl FkJob {
-    /// Compute the TCP poses: the typed result, the poses also as the main table.
-    pub fn poses(&self, monitor: &dyn Monitor) -> Result<Run<SerialPoses>, JobError> {
+    /// Call `f` with each joints row's number (from 1) and pose (x, y, z in the model's
+    /// length unit, a, b, c in its angle unit), in order; the number of rows.
+    fn each_pose(
+        &self,
+        monitor: &dyn Monitor,
+        f: &mut dyn FnMut(usize, [f64; 6]) -> Result<(), JobError>,
+    ) -> Result<usize, JobError> {
         let c = &self.model.chain;
         let k = c.units.to_file(Quantity::Angle);
-        let mut poses = Table::new(&["x", "y", "z", "a", "b", "c"]);
-        for (i, q) in self.q.iter().enumerate() {
-            if i % 1024 == 0 && monitor.is_cancelled() {
+        let mut n = 0;
+        let mut one = |row: usize, q: &[f64]| {
+            if row % 1024 == 0 && monitor.is_cancelled() {
                 return Err(JobError::Cancelled);
             }
             let v = pose(c, q);
-            poses.push(vec![v[0], v[1], v[2], v[3] * k, v[4] * k, v[5] * k]);
+            n = row;
+            f(row, [v[0], v[1], v[2], v[3] * k, v[4] * k, v[5] * k])
+        };
+        match &self.joints {
+            Joints::Rows(q) => {
+                for (i, q) in q.iter().enumerate() {
+                    one(i + 1, q)?;
+                }
+            }
+            Joints::File { path, sha256 } => {
+                each_file_row(&self.model, path, Some(sha256), &mut one)?;
+            }
         }
+        Ok(n)
+    }
+
+    /// Compute the TCP poses: the typed result, the poses also as the main table.
+    pub fn poses(&self, monitor: &dyn Monitor) -> Result<Run<SerialPoses>, JobError> {
+        let mut poses = Table::new(&POSE_COLUMNS);
+        self.each_pose(monitor, &mut |_, p| {
+            poses.push(p.to_vec());
+            Ok(())
+        })?;
         Ok(Run {
             result: SerialPoses {
                 units: PoseUnits {
@@ -119,10 +217,44 @@ impl FkJob {
             artefacts: vec![],
         })
     }
+
+    /// Write the poses table as CSV to `out` row by row, each pose formatted as soon as it
+    /// is computed (the same bytes as the main table's CSV); the number of rows. Memory is
+    /// flat in the number of rows when the joints come from a file. A pose that is not
+    /// finite fails, naming its row and column.
+    pub fn write_csv(&self, out: &mut dyn Write, monitor: &dyn Monitor) -> Result<usize, JobError> {
+        let io = |e: std::io::Error| JobError::Failed(format!("writing the poses CSV: {e}"));
+        let mut sink = CsvSink::new(out, &POSE_COLUMNS).map_err(io)?;
+        let n = self.each_pose(monitor, &mut |row, p| {
+            if let Some(j) = p.iter().position(|v| !v.is_finite()) {
+                return Err(JobError::NonFinite {
+                    table: "main table".into(),
+                    row,
+                    column: POSE_COLUMNS[j].into(),
+                    value: p[j],
+                });
+            }
+            sink.row(&p).map_err(io)
+        })?;
+        sink.finish().map_err(io)?;
+        Ok(n)
+    }
 }
 
 impl Kind for FkJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
         computed(self, cx, Self::poses)
+    }
+
+    fn streams_main_csv(&self) -> bool {
+        true
+    }
+
+    fn write_main_csv(
+        &self,
+        out: &mut dyn Write,
+        monitor: &dyn Monitor,
+    ) -> Result<usize, JobError> {
+        self.write_csv(out, monitor)
     }
 }

@@ -7,6 +7,7 @@ pub mod design;
 pub mod dispersion;
 pub mod fk;
 pub mod identify;
+pub mod joints;
 mod plots;
 pub mod prior;
 
@@ -199,28 +200,11 @@ impl SerialModel {
     /// Joint values of every row of `t` (radians, or the length unit of prismatic joints),
     /// checked against the limits.
     pub fn joints(&self, field: &str, t: &Table) -> Result<Vec<Vec<f64>>, JobError> {
-        let cols = t.cols(field, &self.joint_columns())?;
-        let ks: Vec<f64> = (0..cols.len())
-            .map(|k| 1.0 / self.chain.units.to_file(self.chain.variable_quantity(k)))
-            .collect();
+        let cols = joints::JointColumns::new(self, field, &t.columns)?;
         let mut out = Vec::with_capacity(t.rows.len());
         for (i, row) in t.rows.iter().enumerate() {
-            let q: Vec<f64> = cols.iter().zip(&ks).map(|(&c, k)| row[c] * k).collect();
-            if let Some((j, v, l)) = self.chain.limit_violation(&q) {
-                let u = 1.0 / ks[j];
-                return Err(JobError::row(
-                    field,
-                    i + 1,
-                    format!(
-                        "q{} = {} {} is outside the joint limits [{}, {}]",
-                        j + 1,
-                        v * u,
-                        self.joint_unit(j),
-                        l[0] * u,
-                        l[1] * u
-                    ),
-                ));
-            }
+            let mut q = Vec::new();
+            cols.read(self, i + 1, row, &mut q)?;
             out.push(q);
         }
         Ok(out)

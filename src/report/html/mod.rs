@@ -1,5 +1,6 @@
 //! The printable report of a job: one self-contained HTML document (inline CSS and SVG,
-//! no script, nothing fetched) with the job, its data sets and their hashes, the model,
+//! no script, nothing fetched) with the job, its data sets and their hashes, a campaign's
+//! measurement journal, the model,
 //! the headline numbers, the parameter table with each parameter's observability, the
 //! plots, validation, warnings, the software version and a section a quality engineer
 //! signs off.
@@ -10,7 +11,10 @@
 //! report against the result JSON.
 
 mod assessment;
+mod journal;
 mod sections;
+
+pub use journal::journal_number;
 
 use std::fmt::Write;
 
@@ -32,6 +36,9 @@ pub struct ReportInput<'a> {
     pub artefacts: &'a [Artefact],
     /// The model history of the job's cell, newest first (`[]` when none).
     pub cell_history: &'a [Value],
+    /// A campaign's measurement journal: its entries (`index`, `status`, `data`) in index
+    /// order (`GET /v1/jobs/{id}/measurements`; `[]` for a job that measured nothing).
+    pub journal: &'a [Value],
     /// Version of the calibd that writes the report.
     pub generator_version: &'a str,
     /// When the report is written (RFC 3339).
@@ -134,6 +141,7 @@ pub fn render(input: &ReportInput<'_>) -> String {
     h.push_str(&sections::headline(result));
     h.push_str(&job_section(input));
     h.push_str(&sections::datasets(job, result));
+    h.push_str(&journal::journal(input.journal));
     h.push_str(&model_section(result));
     h.push_str(&sections::parameters(input));
     h.push_str(&assessment::validation(result));

@@ -8,6 +8,7 @@ fn input<'a>(job: &'a Value, result: &'a Value, history: &'a [Value]) -> ReportI
         result,
         artefacts: &[],
         cell_history: history,
+        journal: &[],
         generator_version: "0.1.0",
         generated_at: "2026-11-25T18:00:00Z",
     }

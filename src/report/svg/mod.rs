@@ -13,7 +13,7 @@ mod axis;
 mod read;
 
 pub use axis::{Scale, label, log_range, log_ticks, ticks};
-pub use read::{Mark, series_marks};
+pub use read::{Mark, series_boxes, series_marks};
 
 /// Series colours (colour-blind safe: Okabe-Ito).
 pub const COLOURS: [&str; 4] = ["#E69F00", "#0072B2", "#009E73", "#CC79A7"];
@@ -313,8 +313,10 @@ impl Chart {
         }
     }
 
-    /// A box plot at data x `x` (width in data units): whiskers min/max, box q1..q3, median.
-    pub fn boxplot(&mut self, x: f64, width: f64, q: [f64; 5], colour: &str) {
+    /// A box plot of `series` at data x `x` (width in data units): whiskers min/max, box
+    /// q1..q3, median. The box carries `data-value` (the median) and `data-quartiles`
+    /// (min q1 median q3 max), so a reader can check what was drawn.
+    pub fn boxplot(&mut self, series: &str, x: f64, width: f64, q: [f64; 5], colour: &str) {
         let (a, b, m) = (
             self.px(x - width / 2.0),
             self.px(x + width / 2.0),
@@ -323,9 +325,16 @@ impl Chart {
         let [mn, q1, med, q3, mx] = q.map(|v| self.py(v));
         let _ = write!(
             self.out,
-            r##"<line x1="{m:.1}" y1="{mn:.1}" x2="{m:.1}" y2="{mx:.1}" stroke="#333"/><rect x="{a:.1}" y="{q3:.1}" width="{:.1}" height="{:.1}" fill="{colour}" stroke="#333"/><line x1="{a:.1}" y1="{med:.1}" x2="{b:.1}" y2="{med:.1}" stroke="#000" stroke-width="2"/>"##,
+            r##"<line x1="{m:.1}" y1="{mn:.1}" x2="{m:.1}" y2="{mx:.1}" stroke="#333"/><rect x="{a:.1}" y="{q3:.1}" width="{:.1}" height="{:.1}" fill="{colour}" stroke="#333" data-series="{}" data-value="{}" data-quartiles="{} {} {} {} {}"/><line x1="{a:.1}" y1="{med:.1}" x2="{b:.1}" y2="{med:.1}" stroke="#000" stroke-width="2"/>"##,
             b - a,
-            (q1 - q3).max(0.5)
+            (q1 - q3).max(0.5),
+            escape(series),
+            q[2],
+            q[0],
+            q[1],
+            q[2],
+            q[3],
+            q[4]
         );
     }
 

@@ -46,3 +46,19 @@ pub fn series_marks(svg: &str, series: &str) -> Vec<Mark> {
     }
     out
 }
+
+/// The box plots of `series` in an SVG this module wrote: the five numbers (min, q1,
+/// median, q3, max) each box was drawn from, in drawing order.
+pub fn series_boxes(svg: &str, series: &str) -> Vec<[f64; 5]> {
+    let want = format!("data-series=\"{}\"", escape(series));
+    svg.split('<')
+        .filter(|t| t.starts_with("rect") && t.contains(&want))
+        .filter_map(|t| {
+            let q: Vec<f64> = attr(t, "data-quartiles")?
+                .split(' ')
+                .filter_map(|v| v.parse().ok())
+                .collect();
+            <[f64; 5]>::try_from(q).ok()
+        })
+        .collect()
+}

@@ -10,7 +10,7 @@ use serde_json::Value;
 
 use super::Pg;
 use super::jobs::log_tx;
-use crate::store::StoreError;
+use crate::store::{JobState, Run, StoreError};
 
 /// A job a daemon claimed: it is `running` and leased to that daemon.
 #[derive(Debug, Clone, PartialEq)]
@@ -23,6 +23,21 @@ pub struct Claimed {
     pub doc: Value,
     /// Devices it holds while it runs.
     pub devices: Vec<String>,
+    /// The run's token: its writes count only while the job is still this attempt.
+    pub run: Run,
+}
+
+/// What an operator's cancel did to a job in the shared store.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CancelRequest {
+    /// It was queued or paused: it is `cancelled` now.
+    Ended,
+    /// It runs on a daemon (named in the store): that daemon is asked to stop it.
+    Requested,
+    /// It had already ended in this state.
+    Final(crate::store::JobState),
+    /// There is no such job.
+    Missing,
 }
 
 fn secs(d: Duration) -> f64 {
@@ -88,10 +103,10 @@ impl Pg {
         let mut tx = c.transaction()?;
         let row = tx.query_opt(
             "UPDATE jobs SET state = 'running', started_at = $4, progress = 0, owner = $1, \
-             lease_until = now() + make_interval(secs => $3) \
+             lease_until = now() + make_interval(secs => $3), attempt = attempt + 1 \
              WHERE id = (SELECT id FROM jobs WHERE state = 'queued' AND devices::jsonb <@ $2::TEXT::jsonb \
                          ORDER BY priority DESC, id FOR UPDATE SKIP LOCKED LIMIT 1) \
-             RETURNING id, priority, doc, devices",
+             RETURNING id, priority, doc, devices, attempt",
             &[&owner, &held, &secs(lease), &super::now()],
         )?;
         let Some(r) = row else {
@@ -103,6 +118,10 @@ impl Pg {
             priority: r.try_get(1)?,
             doc: serde_json::from_str(r.try_get(2)?)?,
             devices: serde_json::from_str(r.try_get(3)?)?,
+            run: Run {
+                job: id,
+                attempt: r.try_get(4)?,
+            },
         };
         log_tx(&mut tx, Some(id), "info", &format!("started on {owner}"))?;
         tx.commit()?;
@@ -133,6 +152,7 @@ impl Pg {
     pub(crate) fn requeue_expired(&self) -> Result<Vec<i64>, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
+        cancel_requested_tx(&mut tx, None)?;
         let rows = tx.query(
             "UPDATE jobs SET state = 'queued', started_at = NULL, owner = NULL, lease_until = NULL \
              WHERE id IN (SELECT id FROM jobs WHERE state = 'running' AND lease_until < now() \
@@ -174,6 +194,7 @@ impl Pg {
     pub(crate) fn release_owned(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
+        cancel_requested_tx(&mut tx, Some(owner))?;
         let rows = tx.query(
             "UPDATE jobs SET state = 'queued', started_at = NULL, owner = NULL, lease_until = NULL \
              WHERE owner = $1 AND state = 'running' RETURNING id",
@@ -196,6 +217,51 @@ impl Pg {
         }
         tx.commit()?;
         Ok(ids)
+    }
+
+    /// An operator's cancel: a queued or paused job ends now; a running one is flagged and
+    /// its daemon told (`NOTIFY calibd_cancel`, and its heartbeat reads the flag).
+    pub(crate) fn request_cancel(&self, id: i64) -> Result<CancelRequest, StoreError> {
+        let mut c = self.conn()?;
+        let mut tx = c.transaction()?;
+        let Some(r) = tx.query_opt("SELECT state FROM jobs WHERE id = $1 FOR UPDATE", &[&id])?
+        else {
+            return Ok(CancelRequest::Missing);
+        };
+        let state: String = r.try_get(0)?;
+        let state = JobState::parse(&state).ok_or(StoreError::Corrupt {
+            column: "jobs.state",
+            value: state,
+        })?;
+        let out = match state {
+            JobState::Queued | JobState::Paused => {
+                tx.execute(
+                    "UPDATE jobs SET state = 'cancelled', finished_at = $2, error = NULL, owner = NULL, \
+                     lease_until = NULL WHERE id = $1",
+                    &[&id, &super::now()],
+                )?;
+                log_tx(&mut tx, Some(id), "info", "cancelled")?;
+                CancelRequest::Ended
+            }
+            JobState::Running => {
+                tx.execute("UPDATE jobs SET cancel_requested = 1 WHERE id = $1", &[&id])?;
+                log_tx(&mut tx, Some(id), "info", "cancel requested")?;
+                tx.execute("SELECT pg_notify('calibd_cancel', $1)", &[&id.to_string()])?;
+                CancelRequest::Requested
+            }
+            other => CancelRequest::Final(other),
+        };
+        tx.commit()?;
+        Ok(out)
+    }
+
+    /// The running jobs of `owner` an operator asked to cancel.
+    pub(crate) fn cancel_requests(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
+        let rows = self.conn()?.query(
+            "SELECT id FROM jobs WHERE owner = $1 AND state = 'running' AND cancel_requested = 1",
+            &[&owner],
+        )?;
+        rows.iter().map(|r| Ok(r.try_get(0)?)).collect()
     }
 
     /// Send `payload` on notification channel `channel`.
@@ -232,6 +298,24 @@ impl Pg {
         c.batch_execute("UNLISTEN *")?;
         Ok(())
     }
+}
+
+/// Running jobs whose cancel was requested end `cancelled` instead of going back to the
+/// queue: those of `owner` (it lets go), or with none those whose lease expired.
+fn cancel_requested_tx(
+    tx: &mut postgres::Transaction<'_>,
+    owner: Option<&str>,
+) -> Result<(), StoreError> {
+    let rows = tx.query(
+        "UPDATE jobs SET state = 'cancelled', finished_at = $1, owner = NULL, lease_until = NULL \
+         WHERE state = 'running' AND cancel_requested = 1 \
+         AND (($2::TEXT IS NULL AND lease_until < now()) OR owner = $2) RETURNING id",
+        &[&super::now(), &owner],
+    )?;
+    for r in rows {
+        log_tx(tx, Some(r.try_get(0)?), "info", "cancelled")?;
+    }
+    Ok(())
 }
 
 fn fallible_next(

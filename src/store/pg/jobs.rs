@@ -5,7 +5,7 @@ use serde_json::Value;
 
 use super::{Pg, now};
 use crate::store::{
-    JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered, StoreError,
+    JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered, Run, StoreError,
 };
 
 pub(super) const COLUMNS: &str = "id, kind, state, priority, devices, inputs_sha256, submitted_at, started_at, \
@@ -49,6 +49,22 @@ pub(super) fn log_tx(
         "INSERT INTO logs (job_id, at, level, message) VALUES ($1, $2, $3, $4)",
         &[&job, &now(), &level, &message],
     )?;
+    Ok(())
+}
+
+/// After a write conditioned on `run` changed nothing: [`StoreError::Stale`] if the job was
+/// taken from the run (queued again, or claimed by a later attempt), else `Ok` (it ended).
+pub(super) fn check_run(c: &mut impl GenericClient, run: Run) -> Result<(), StoreError> {
+    let row = c.query_opt("SELECT state, attempt FROM jobs WHERE id = $1", &[&run.job])?;
+    if let Some(r) = row {
+        let (state, attempt): (String, i64) = (r.try_get(0)?, r.try_get(1)?);
+        if attempt != run.attempt || state == "queued" || state == "running" {
+            return Err(StoreError::Stale {
+                job: run.job,
+                attempt: run.attempt,
+            });
+        }
+    }
     Ok(())
 }
 
@@ -157,23 +173,31 @@ impl Pg {
         Ok(out)
     }
 
-    pub(crate) fn start_job(&self, id: i64) -> Result<bool, StoreError> {
+    pub(crate) fn start_job(&self, id: i64) -> Result<Option<Run>, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
-        let n = tx.execute(
-            "UPDATE jobs SET state = 'running', started_at = $2, progress = 0 WHERE id = $1 AND state = 'queued'",
+        let row = tx.query_opt(
+            "UPDATE jobs SET state = 'running', started_at = $2, progress = 0, attempt = attempt + 1 \
+             WHERE id = $1 AND state = 'queued' RETURNING attempt",
             &[&id, &now()],
         )?;
-        if n == 1 {
+        let run = match row {
+            Some(r) => Some(Run {
+                job: id,
+                attempt: r.try_get(0)?,
+            }),
+            None => None,
+        };
+        if run.is_some() {
             log_tx(&mut tx, Some(id), "info", "started")?;
         }
         tx.commit()?;
-        Ok(n == 1)
+        Ok(run)
     }
 
     pub(crate) fn record_progress(
         &self,
-        id: i64,
+        run: Run,
         fraction: f64,
         stage: &str,
         message: Option<&str>,
@@ -181,23 +205,29 @@ impl Pg {
     ) -> Result<(), StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
-        tx.execute(
-            "UPDATE jobs SET progress = $2, stage = $3, message = $4 WHERE id = $1 AND state = 'running'",
-            &[&id, &fraction, &stage, &message],
+        let n = tx.execute(
+            "UPDATE jobs SET progress = $2, stage = $3, message = $4 \
+             WHERE id = $1 AND state = 'running' AND attempt = $5",
+            &[&run.job, &fraction, &stage, &message, &run.attempt],
         )?;
+        if n == 0 {
+            return check_run(&mut tx, run);
+        }
         if history {
             tx.execute(
                 "INSERT INTO progress (job_id, at, fraction, stage, message) VALUES ($1, $2, $3, $4, $5)",
-                &[&id, &now(), &fraction, &stage, &message],
+                &[&run.job, &now(), &fraction, &stage, &message],
             )?;
         }
         tx.commit()?;
         Ok(())
     }
 
+    /// End job `id` (any run of it when `attempt` is none, else only that run).
     pub(crate) fn end_job(
         &self,
         id: i64,
+        attempt: Option<i64>,
         state: JobState,
         error: Option<&str>,
     ) -> Result<bool, StoreError> {
@@ -205,20 +235,15 @@ impl Pg {
         let mut tx = c.transaction()?;
         let n = tx.execute(
             "UPDATE jobs SET state = $2, finished_at = $3, error = $4, owner = NULL, lease_until = NULL \
-             WHERE id = $1 AND state IN ('queued', 'running', 'paused')",
-            &[&id, &state.as_str(), &now(), &error],
+             WHERE id = $1 AND (($5::BIGINT IS NULL AND state IN ('queued', 'running', 'paused')) \
+                                OR (state = 'running' AND attempt = $5))",
+            &[&id, &state.as_str(), &now(), &error, &attempt],
         )?;
         if n == 1 {
-            let msg = match error {
-                Some(e) => format!("{}: {e}", state.as_str()),
-                None => state.as_str().to_string(),
-            };
-            let level = if state == JobState::Failed {
-                "error"
-            } else {
-                "info"
-            };
+            let (level, msg) = crate::store::records::end_log(state, error);
             log_tx(&mut tx, Some(id), level, &msg)?;
+        } else if let Some(attempt) = attempt {
+            check_run(&mut tx, Run { job: id, attempt })?;
         }
         tx.commit()?;
         Ok(n == 1)

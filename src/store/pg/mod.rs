@@ -1,6 +1,8 @@
 //! The PostgreSQL backend: several daemons on one database. The synchronous `postgres`
 //! client (over tokio-postgres, with its own small runtime per connection) keeps the
-//! store's blocking shape, so callers use `spawn_blocking` for both backends alike. A
+//! store's blocking shape, so async code reaches both backends alike through the
+//! service's storage module (which runs calls on the blocking pool; never call this client
+//! on a runtime thread: it panics there). A
 //! small pool of connections; the schema is the SQLite schema translated by
 //! [`translate`], plus a PostgreSQL-only step for the shared queue (leases, cells).
 
@@ -9,7 +11,7 @@ mod jobs;
 mod other;
 mod schedules;
 
-pub use fleet::Claimed;
+pub use fleet::{CancelRequest, Claimed};
 
 use std::sync::Mutex;
 
@@ -186,6 +188,10 @@ pub(crate) fn translate(sql: &str) -> String {
         .replace("BLOB", "BYTEA")
 }
 
+/// How many SQLite schema steps existed when the PostgreSQL backend came; later SQLite
+/// steps follow [`PG_STEPS`] in a PostgreSQL database.
+const SQLITE_STEPS_BEFORE_PG: usize = 3;
+
 /// PostgreSQL-only steps after the translated SQLite ones: what several daemons need.
 const PG_STEPS: &[&str] = &[
     // Progress history in insertion order (SQLite uses its rowid); the shared queue's claims:
@@ -210,10 +216,15 @@ const PG_STEPS: &[&str] = &[
 
 /// Bring the schema up to date; returns the version found before.
 fn migrate(c: &mut Client) -> Result<i64, StoreError> {
-    let steps: Vec<String> = super::migrate::steps()
+    // SQLite's steps up to the first PostgreSQL store, then PostgreSQL's own, then SQLite's
+    // later steps: a database keeps its version numbers as both lists grow.
+    let sqlite = super::migrate::steps();
+    let (before, after) = sqlite.split_at(SQLITE_STEPS_BEFORE_PG.min(sqlite.len()));
+    let steps: Vec<String> = before
         .iter()
         .map(|s| translate(s))
         .chain(PG_STEPS.iter().map(|s| s.to_string()))
+        .chain(after.iter().map(|s| translate(s)))
         .collect();
     let known = steps.len() as i64;
     let mut tx = c.transaction()?;

@@ -9,7 +9,7 @@ use super::{Pg, now};
 use crate::jobs::Artefact;
 use crate::lab::Decision;
 use crate::procedures::{EntryStatus, JournalEntry};
-use crate::store::{ArtefactInfo, CellModel, DatasetInfo, StoreError};
+use crate::store::{ArtefactInfo, CellModel, DatasetInfo, Run, StoreError};
 
 /// Record a schedule occurrence within `c` and move the schedule's `checked_until`.
 pub(super) fn record_run_tx(
@@ -62,21 +62,23 @@ fn insert_cell_model(
 impl Pg {
     pub(crate) fn finish_job(
         &self,
-        id: i64,
+        run: Run,
         result: &Value,
         main_table_csv: Option<&str>,
         artefacts: &[Artefact],
         decision: Option<&Decision>,
     ) -> Result<bool, StoreError> {
         let text = serde_json::to_string(result)?;
+        let id = run.job;
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
         let n = tx.execute(
             "UPDATE jobs SET state = 'succeeded', finished_at = $2, progress = 1, error = NULL, \
-             owner = NULL, lease_until = NULL WHERE id = $1 AND state = 'running'",
-            &[&id, &now()],
+             owner = NULL, lease_until = NULL WHERE id = $1 AND state = 'running' AND attempt = $3",
+            &[&id, &now(), &run.attempt],
         )?;
         if n != 1 {
+            super::jobs::check_run(&mut tx, run)?;
             return Ok(false);
         }
         tx.execute(
@@ -256,16 +258,19 @@ impl Pg {
             .collect()
     }
 
-    pub(crate) fn pause_job(&self, id: i64, reason: &str) -> Result<bool, StoreError> {
+    pub(crate) fn pause_job(&self, run: Run, reason: &str) -> Result<bool, StoreError> {
+        let id = run.job;
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
         let n = tx.execute(
             "UPDATE jobs SET state = 'paused', error = $2, owner = NULL, lease_until = NULL \
-             WHERE id = $1 AND state = 'running'",
-            &[&id, &reason],
+             WHERE id = $1 AND state = 'running' AND attempt = $3",
+            &[&id, &reason, &run.attempt],
         )?;
         if n == 1 {
             log_tx(&mut tx, Some(id), "warn", &format!("paused: {reason}"))?;
+        } else {
+            super::jobs::check_run(&mut tx, run)?;
         }
         tx.commit()?;
         Ok(n == 1)
