@@ -159,23 +159,12 @@ impl Pg {
                           FOR UPDATE SKIP LOCKED) RETURNING id",
             &[],
         )?;
-        let ids: Vec<i64> = rows
-            .iter()
-            .map(|r| r.try_get(0))
-            .collect::<Result<_, _>>()?;
-        for id in &ids {
-            log_tx(
-                &mut tx,
-                Some(*id),
-                "warn",
-                "re-queued: its daemon's lease expired",
-            )?;
-        }
-        if !ids.is_empty() {
-            tx.execute("SELECT pg_notify('calibd_queue', 'requeued')", &[])?;
-        }
-        tx.commit()?;
-        Ok(ids)
+        requeued(
+            tx,
+            &rows,
+            "re-queued: its daemon's lease expired",
+            "requeued",
+        )
     }
 
     /// The daemon holding a running job.
@@ -200,23 +189,12 @@ impl Pg {
              WHERE owner = $1 AND state = 'running' RETURNING id",
             &[&owner],
         )?;
-        let ids: Vec<i64> = rows
-            .iter()
-            .map(|r| r.try_get(0))
-            .collect::<Result<_, _>>()?;
-        for id in &ids {
-            log_tx(
-                &mut tx,
-                Some(*id),
-                "warn",
-                &format!("re-queued: released by {owner}"),
-            )?;
-        }
-        if !ids.is_empty() {
-            tx.execute("SELECT pg_notify('calibd_queue', 'released')", &[])?;
-        }
-        tx.commit()?;
-        Ok(ids)
+        requeued(
+            tx,
+            &rows,
+            &format!("re-queued: released by {owner}"),
+            "released",
+        )
     }
 
     /// An operator's cancel: a queued or paused job ends now; a running one is flagged and
@@ -325,4 +303,27 @@ fn fallible_next(
     >,
 ) -> Result<Option<postgres::Notification>, StoreError> {
     Ok(it.next()?)
+}
+
+/// The jobs an `UPDATE ... RETURNING id` put back in the queue: log `why` on each, wake the
+/// daemons' queue listeners with `NOTIFY calibd_queue, payload` when there is any, commit,
+/// and return their ids.
+fn requeued(
+    mut tx: postgres::Transaction<'_>,
+    rows: &[postgres::Row],
+    why: &str,
+    payload: &str,
+) -> Result<Vec<i64>, StoreError> {
+    let ids: Vec<i64> = rows
+        .iter()
+        .map(|r| r.try_get(0))
+        .collect::<Result<_, _>>()?;
+    for id in &ids {
+        log_tx(&mut tx, Some(*id), "warn", why)?;
+    }
+    if !ids.is_empty() {
+        tx.execute("SELECT pg_notify('calibd_queue', $1)", &[&payload])?;
+    }
+    tx.commit()?;
+    Ok(ids)
 }
