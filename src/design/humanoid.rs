@@ -331,13 +331,15 @@ pub fn compare_baselines(
     let Some(pool) = pm.random_postures(pool_n, &mut rng, 20_000) else {
         return Ok(None);
     };
-    let blocks: Vec<DMatrix<f64>> = pool.iter().map(|q| pm.block(q)).collect();
     let opts = DetmaxOptions {
         n,
         seed,
         max_excursion: 6,
     };
-    let sel = detmax(&Pool::from_blocks(&blocks), &opts, monitor)?;
+    // The blocks go into the pool one at a time (a 1000-posture pool of 54-row blocks
+    // would hold 35 MB of them).
+    let blocks = Pool::from_blocks(pool.iter().map(|q| pm.block(q)));
+    let sel = detmax(&blocks, &opts, monitor)?;
     let chosen: Vec<Vec<f64>> = sel.selected.iter().map(|&i| pool[i].clone()).collect();
     let mut runs = Vec::new();
     for k in 0..starts {

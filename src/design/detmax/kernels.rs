@@ -170,6 +170,12 @@ pub(super) fn gemm(
     }
 }
 
+/// a * b + c, fused when the calling kernel is compiled for FMA.
+#[inline(always)]
+pub(super) fn madd<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
+    if FMA { a.mul_add(b, c) } else { a * b + c }
+}
+
 /// Dot product with four independent accumulators, so the compiler can vectorise it.
 #[inline]
 pub(super) fn dot(a: &[f64], b: &[f64]) -> f64 {

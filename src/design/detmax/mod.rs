@@ -3,18 +3,23 @@
 //!
 //! Each configuration contributes a block B_i (rows x m) to the information matrix
 //! M = sum B_i^T B_i. Adding i changes log det M by log det(I + B_i M^-1 B_i^T), removing it
-//! by log det(I - B_i M^-1 B_i^T); both come from one Cholesky factor of M per sweep.
+//! by log det(I - B_i M^-1 B_i^T); both come from one Cholesky factor of M per sweep. Pools
+//! of large blocks (see [`Pool`]) evaluate log det(M ± B_i^T B_i) afresh per candidate
+//! instead, and reuse the scans of designs an excursion has visited before.
 
 mod exchange;
+mod gram;
 mod kernels;
+mod lanes;
 mod pool;
+#[cfg(test)]
+mod tests;
 
 use serde::Serialize;
 
 pub use pool::Pool;
 
 use crate::util::{Monitor, Rng};
-use exchange::Design;
 
 /// Settings of [`detmax`].
 #[derive(Debug, Clone)]
@@ -54,6 +59,52 @@ pub struct DetmaxStep {
     pub selected: Vec<usize>,
 }
 
+/// The exchange state of either kind of pool.
+#[derive(Clone)]
+enum Design<'a> {
+    Thin(exchange::Design<'a>),
+    Gram(gram::Design<'a>),
+}
+
+impl<'a> Design<'a> {
+    fn new(pool: &'a Pool, start: &[usize], ridge: f64) -> Option<Self> {
+        match &pool.gram {
+            Some(g) => gram::Design::new(g, start, ridge).map(Self::Gram),
+            None => exchange::Design::new(pool, start, ridge).map(Self::Thin),
+        }
+    }
+
+    fn log_det(&self) -> f64 {
+        match self {
+            Self::Thin(d) => d.log_det,
+            Self::Gram(d) => d.log_det,
+        }
+    }
+
+    fn selected(&self) -> Vec<usize> {
+        match self {
+            Self::Thin(d) => d.selected(),
+            Self::Gram(d) => d.selected(),
+        }
+    }
+
+    fn greedy(&mut self, add: bool, memo: &mut gram::Memo) -> Option<usize> {
+        match self {
+            Self::Thin(d) => d.greedy(add),
+            Self::Gram(d) => d.greedy(add, memo),
+        }
+    }
+
+    /// Recompute the tracked state from the member set (the thin state drifts; the Gram
+    /// state is recomputed at every step and never does).
+    fn rebuild(&mut self, ridge: f64, every: usize) -> Option<()> {
+        match self {
+            Self::Thin(d) if d.updates > every => d.rebuild(ridge),
+            _ => Some(()),
+        }
+    }
+}
+
 /// The step of `design` after `exchanges` improving excursions.
 fn step(pool: &Pool, design: &Design<'_>, exchanges: usize) -> DetmaxStep {
     let selected = design.selected();
@@ -81,7 +132,8 @@ pub fn detmax(
     };
     let mut design = Design::new(pool, &start, ridge).ok_or_else(singular)?;
     let log_det_start = pool.log_det(&start);
-    let mut current = design.log_det;
+    let mut current = design.log_det();
+    let mut memo = gram::Memo::new();
     let min_rows = pool.rows.iter().copied().min().unwrap_or(1);
     let mut exchanges = 0;
     let mut history = vec![step(pool, &design, 0)];
@@ -92,9 +144,7 @@ pub fn detmax(
             return Err(crate::identify::IdentifyError::Cancelled);
         }
         monitor.progress(k as f64 / (kmax + 1) as f64, "detmax");
-        if design.updates > 64 {
-            design.rebuild(ridge).ok_or_else(singular)?;
-        }
+        design.rebuild(ridge, 64).ok_or_else(singular)?;
         // Excursion up (add k, then remove k); if it does not improve, down (remove k, then
         // add k) unless removing k would leave fewer equations than parameters. A move is
         // accepted on the exact determinant, and the tracked state is rebuilt if it drifted.
@@ -104,21 +154,21 @@ pub fn detmax(
                 continue;
             }
             let mut d = design.clone();
-            let ok =
-                (0..k).all(|_| d.greedy(up).is_some()) && (0..k).all(|_| d.greedy(!up).is_some());
-            if !ok || d.log_det <= current + 1e-9 * current.abs().max(1.0) {
+            let ok = (0..k).all(|_| d.greedy(up, &mut memo).is_some())
+                && (0..k).all(|_| d.greedy(!up, &mut memo).is_some());
+            if !ok || d.log_det() <= current + 1e-9 * current.abs().max(1.0) {
                 continue;
             }
             // Up excursions never pass through a design with fewer rows than now; down ones
             // can come close to singular, so their gain is checked on the exact determinant.
             let exact = if up {
-                d.log_det
+                d.log_det()
             } else {
                 pool.log_det(&d.selected())
             };
             if exact > current + 1e-9 * current.abs().max(1.0) {
-                if (exact - d.log_det).abs() > 1e-6 * exact.abs().max(1.0) {
-                    d.rebuild(ridge).ok_or_else(singular)?;
+                if (exact - d.log_det()).abs() > 1e-6 * exact.abs().max(1.0) {
+                    d.rebuild(ridge, 0).ok_or_else(singular)?;
                 }
                 design = d;
                 current = exact;
@@ -142,115 +192,4 @@ pub fn detmax(
         exchanges,
         history,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::util::NoMonitor;
-    use nalgebra::DMatrix;
-
-    /// On a small pool the exhaustive optimum is known: DETMAX must find it, and it must be
-    /// reproducible from the seed.
-    #[test]
-    fn finds_the_exhaustive_optimum_on_a_small_pool() {
-        let mut rng = Rng::new(5);
-        let blocks: Vec<DMatrix<f64>> = (0..12)
-            .map(|_| DMatrix::from_fn(2, 3, |_, _| rng.normal()))
-            .collect();
-        let pool = Pool::from_blocks(&blocks);
-        let n = 3;
-        let mut best = f64::NEG_INFINITY;
-        for a in 0..12 {
-            for b in a + 1..12 {
-                for c in b + 1..12 {
-                    best = best.max(pool.log_det(&[a, b, c]));
-                }
-            }
-        }
-        let opts = DetmaxOptions {
-            n,
-            seed: 1,
-            max_excursion: 3,
-        };
-        let s = detmax(&pool, &opts, &NoMonitor).unwrap();
-        assert!((s.log_det - best).abs() < 1e-9, "{} vs {}", s.log_det, best);
-        let again = detmax(&pool, &opts, &NoMonitor).unwrap();
-        assert_eq!(s.selected, again.selected);
-        // The incremental determinant update agrees with a direct computation.
-        let direct = pool.stacked(&s.selected);
-        let ld = (direct.transpose() * &direct).determinant().ln();
-        assert!((ld - s.log_det).abs() < 1e-9);
-    }
-
-    /// Blocks of more than 8 rows (marker clusters) take the matrix-product path.
-    #[test]
-    fn large_blocks_reach_the_exhaustive_optimum() {
-        let mut rng = Rng::new(8);
-        let blocks: Vec<DMatrix<f64>> = (0..10)
-            .map(|_| DMatrix::from_fn(9, 20, |_, _| rng.normal()))
-            .collect();
-        let pool = Pool::from_blocks(&blocks);
-        let mut best = f64::NEG_INFINITY;
-        for a in 0..10 {
-            for b in a + 1..10 {
-                for c in b + 1..10 {
-                    best = best.max(pool.log_det(&[a, b, c]));
-                }
-            }
-        }
-        let opts = DetmaxOptions {
-            n: 3,
-            seed: 2,
-            max_excursion: 3,
-        };
-        let s = detmax(&pool, &opts, &NoMonitor).unwrap();
-        assert!((s.log_det - best).abs() < 1e-9, "{} vs {}", s.log_det, best);
-    }
-
-    fn last_gain(s: &Selection) -> f64 {
-        s.history.last().map_or(0.0, |l| l.log_det) - s.history[0].log_det
-    }
-
-    /// Marker-cluster-like blocks (36 rows of rank 12, mixed with full-rank 5-row blocks):
-    /// the rank-reduced pool picks exactly the set the unreduced pool picks, with the same
-    /// determinant to rounding.
-    #[test]
-    fn reduced_blocks_pick_the_same_set_as_the_full_blocks() {
-        let mut rng = Rng::new(11);
-        let blocks: Vec<DMatrix<f64>> = (0..60)
-            .map(|i| {
-                if i % 4 == 3 {
-                    DMatrix::from_fn(5, 24, |_, _| rng.normal())
-                } else {
-                    let base = DMatrix::from_fn(12, 24, |_, _| rng.normal());
-                    DMatrix::from_fn(36, 12, |_, _| rng.normal()) * base
-                }
-            })
-            .collect();
-        let reduced = Pool::from_blocks(&blocks);
-        let exact = Pool::exact(&blocks);
-        assert!((0..60).all(|i| reduced.block_rows(i) == if i % 4 == 3 { 5 } else { 12 }));
-        let opts = DetmaxOptions {
-            n: 5,
-            seed: 7,
-            max_excursion: 4,
-        };
-        let a = detmax(&reduced, &opts, &NoMonitor).unwrap();
-        let b = detmax(&exact, &opts, &NoMonitor).unwrap();
-        assert_eq!(a.selected, b.selected);
-        assert!((a.log_det - b.log_det).abs() < 1e-9 * b.log_det.abs().max(1.0));
-        assert!(a.exchanges > 0, "the search moved from its random start");
-        // The path: one step per improving excursion after the start, each better than the
-        // one before, the last one the selection.
-        assert_eq!(a.history.len(), a.exchanges + 1);
-        assert!(
-            a.history
-                .windows(2)
-                .all(|w| w[1].log_det > w[0].log_det - 1e-6 * w[0].log_det.abs())
-        );
-        assert!(last_gain(&a) > 0.0);
-        let last = a.history.last().unwrap();
-        assert_eq!((last.log_det, &last.selected), (a.log_det, &a.selected));
-    }
 }

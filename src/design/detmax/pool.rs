@@ -5,9 +5,17 @@
 //! has 3 rows per marker but at most 6 independent rows per rigid cluster (54 rows, rank 18
 //! for three clusters of six markers): replacing B_i by C_i = R_k Π^T from a column-pivoted
 //! QR (B_i Π = Q R, k the numerical rank) keeps C_i^T C_i = B_i^T B_i and every determinant,
-//! while the rank-k updates cost (k/r)^2 to (k/r)^3 of the full ones.
+//! while the rank-k updates cost (k/r)^2 to (k/r)^3 of the full ones. Blocks whose rank is
+//! close to the parameter count (marker clusters with their marker parameters) are kept as
+//! information matrices instead (`gram`): evaluating each candidate afresh is then cheaper
+//! than updating every candidate's D_i.
+
+use std::borrow::Borrow;
 
 use nalgebra::DMatrix;
+
+use super::gram::GramPool;
+use super::kernels::{Strided, gemm};
 
 /// Blocks with at most this many rows are kept as they are (serial designs: 3 rows per
 /// configuration, already full rank); larger ones are reduced to their rank.
@@ -16,12 +24,24 @@ const KEEP_ROWS: usize = 6;
 /// Relative size of R's diagonal below which a direction carries no information.
 const RANK_TOL: f64 = 1e-12;
 
+/// True when blocks of `rows` rows against `m` parameters are better kept as information
+/// matrices: a fresh Cholesky per candidate (m^3 / 6) against the update of every candidate's
+/// D_i per toggle (rows^2 (m + rows)).
+fn prefers_gram(rows: usize, m: usize) -> bool {
+    rows > KEEP_ROWS && 6 * rows * rows * (m + rows) > m * m * m
+}
+
 /// The candidate configurations: one (reduced) Jacobian block per configuration.
 #[derive(Debug, Clone)]
 pub struct Pool {
     pub(super) m: usize,
-    /// Rows of each (reduced) block.
+    /// Rows of each (reduced) block; for pools kept as information matrices, each block's
+    /// row count capped at the parameter count.
     pub(super) rows: Vec<usize>,
+    /// The information matrices, for pools of large blocks (then `stacked` is empty).
+    pub(super) gram: Option<GramPool>,
+    /// Sum of squares of every block entry.
+    frobenius2: f64,
     /// All blocks stacked, column-major (rows x m), for the matrix products of the updates.
     pub(super) stacked: DMatrix<f64>,
     /// First row of each block in `stacked`.
@@ -31,12 +51,27 @@ pub struct Pool {
 }
 
 impl Pool {
-    /// A pool from per-configuration blocks (all with the same column count); blocks of more
-    /// than six rows are reduced to their rank (same information matrix, fewer rows).
-    pub fn from_blocks(blocks: &[DMatrix<f64>]) -> Self {
+    /// A pool from per-configuration blocks (all with the same column count, taken one at a
+    /// time so a caller need not hold them all); blocks of more than six rows are reduced to
+    /// their rank (same information matrix, fewer rows), or, when their rank would stay close
+    /// to the parameter count, kept as information matrices.
+    pub fn from_blocks<B: Borrow<DMatrix<f64>>>(blocks: impl IntoIterator<Item = B>) -> Self {
+        let mut it = blocks.into_iter().peekable();
+        let (rows, m) = it
+            .peek()
+            .map_or((0, 0), |b| (b.borrow().nrows(), b.borrow().ncols()));
+        if prefers_gram(rows, m) {
+            return Self::gram(m, it);
+        }
+        Self::thin(it)
+    }
+
+    /// A pool of (rank-reduced) blocks whatever their size.
+    pub(super) fn thin<B: Borrow<DMatrix<f64>>>(blocks: impl IntoIterator<Item = B>) -> Self {
         let reduced: Vec<DMatrix<f64>> = blocks
-            .iter()
+            .into_iter()
             .map(|b| {
+                let b = b.borrow();
                 if b.nrows() > KEEP_ROWS {
                     reduce(b)
                 } else {
@@ -45,6 +80,23 @@ impl Pool {
             })
             .collect();
         Self::exact(&reduced)
+    }
+
+    /// A pool kept as information matrices (blocks with `m` columns).
+    pub(super) fn gram<B: Borrow<DMatrix<f64>>>(
+        m: usize,
+        blocks: impl IntoIterator<Item = B>,
+    ) -> Self {
+        let (gram, rows, frobenius2) = GramPool::build(m, blocks);
+        Self {
+            m,
+            rows: rows.into_iter().map(|r| r.min(m)).collect(),
+            gram: Some(gram),
+            frobenius2,
+            stacked: DMatrix::zeros(0, m),
+            row0: Vec::new(),
+            uniform: None,
+        }
     }
 
     /// A pool holding the blocks exactly as given (the reference the reduced pool is tested
@@ -69,6 +121,8 @@ impl Pool {
         Self {
             m,
             rows,
+            gram: None,
+            frobenius2: stacked.iter().map(|v| v * v).sum(),
             stacked,
             row0,
             uniform,
@@ -110,15 +164,41 @@ impl Pool {
 
     /// log det of the information matrix of a subset (or -inf if singular).
     pub fn log_det(&self, subset: &[usize]) -> f64 {
-        let j = self.stacked(subset);
-        match j.tr_mul(&j).cholesky() {
+        if let Some(g) = &self.gram {
+            let mk = g.information(subset, 0.0);
+            return g.log_det_of(&mk, &mut super::lanes::Work::new(&g.env));
+        }
+        let j = self.stacked_rows(subset);
+        let (r, m) = j.shape();
+        let mut a = DMatrix::zeros(m, m);
+        let op = |rs, cs| Strided {
+            data: j.as_slice(),
+            rs,
+            cs,
+        };
+        gemm(
+            (m, r, m),
+            1.0,
+            op(r, 1),
+            op(1, r),
+            0.0,
+            a.as_mut_slice(),
+            1,
+            m,
+        );
+        match a.cholesky() {
             Some(c) => 2.0 * c.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>(),
             None => f64::NEG_INFINITY,
         }
     }
 
-    /// The stacked Jacobian of a subset.
-    pub fn stacked(&self, subset: &[usize]) -> DMatrix<f64> {
+    /// The stacked (reduced) blocks of a subset; None for a pool kept as information
+    /// matrices.
+    pub fn stacked(&self, subset: &[usize]) -> Option<DMatrix<f64>> {
+        self.gram.is_none().then(|| self.stacked_rows(subset))
+    }
+
+    fn stacked_rows(&self, subset: &[usize]) -> DMatrix<f64> {
         let rows: usize = subset.iter().map(|&i| self.rows[i]).sum();
         let mut out = DMatrix::zeros(rows, self.m);
         let mut r0 = 0;
@@ -132,7 +212,7 @@ impl Pool {
 
     /// Sum of squares of every entry (the scale of the start's ridge).
     pub(super) fn frobenius2(&self) -> f64 {
-        self.stacked.iter().map(|v| v * v).sum()
+        self.frobenius2
     }
 }
 

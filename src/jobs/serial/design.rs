@@ -59,6 +59,8 @@ pub struct DesignPool {
     pub kept: Vec<String>,
     /// Names of the parameters the whole pool cannot identify.
     pub unidentifiable: Vec<String>,
+    /// The scaled Jacobian (3 rows per configuration), for the indices of a subset.
+    jacobian: nalgebra::DMatrix<f64>,
 }
 
 impl DesignPool {
@@ -90,6 +92,7 @@ impl DesignPool {
         }
         Ok(Self {
             pool: Pool::from_stacked(&js, 3),
+            jacobian: js,
             kept: kept.iter().map(|&k| names[k].clone()).collect(),
             unidentifiable: rank.dropped.iter().map(|&k| names[k].clone()).collect(),
         })
@@ -97,7 +100,12 @@ impl DesignPool {
 
     /// O1..O5 of a subset.
     pub fn indices(&self, subset: &[usize]) -> Indices {
-        indices(&self.pool.stacked(subset), subset.len())
+        let mut rows = nalgebra::DMatrix::zeros(3 * subset.len(), self.jacobian.ncols());
+        for (k, &i) in subset.iter().enumerate() {
+            rows.rows_mut(3 * k, 3)
+                .copy_from(&self.jacobian.rows(3 * i, 3));
+        }
+        indices(&rows, subset.len())
     }
 }
 

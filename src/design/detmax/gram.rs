@@ -1,0 +1,243 @@
+//! Pools of large blocks (marker clusters: 54 rows of rank 54 against 82 parameters) kept as
+//! information matrices A_i = B_i^T B_i, and their exchange state.
+//!
+//! When a block's rank is close to the parameter count, keeping D_i = B_i M^-1 B_i^T up to
+//! date for every candidate costs more per toggle than evaluating log det(M + A_i) afresh for
+//! every candidate, which the lane kernel does eight candidates at a time over the envelope
+//! of the A_i. A design is its member set: M is summed from the members in index order, so
+//! every value is a function of the set and a scan done once (on an excursion's way) is reused
+//! from the memo when DETMAX comes back to the same design.
+
+use std::collections::HashMap;
+
+use nalgebra::DMatrix;
+
+use super::lanes::{Envelope, LANES, Work, log_dets};
+
+/// Information matrices of the candidates, lane-interleaved in groups of [`LANES`] (entry k
+/// of candidate g * LANES + l at `data[(g * len + k) * LANES + l]`), in envelope storage.
+#[derive(Debug, Clone)]
+pub(super) struct GramPool {
+    pub(super) env: Envelope,
+    pub(super) n: usize,
+    data: Vec<f64>,
+}
+
+impl GramPool {
+    /// Accumulate B_i^T B_i of each block (m columns), then lay the pool out over the envelope
+    /// of their common nonzero pattern. Returns the pool, each block's row count and the sum
+    /// of squares of every block entry.
+    pub(super) fn build<B: std::borrow::Borrow<DMatrix<f64>>>(
+        m: usize,
+        blocks: impl IntoIterator<Item = B>,
+    ) -> (Self, Vec<usize>, f64) {
+        let pk = m * (m + 1) / 2;
+        let mut data: Vec<f64> = Vec::new();
+        let mut rows = Vec::new();
+        let mut nz = vec![false; m * m];
+        let mut frobenius2 = 0.0;
+        for (i, b) in blocks.into_iter().enumerate() {
+            let b = b.borrow();
+            let a = b.tr_mul(b);
+            frobenius2 += a.trace();
+            rows.push(b.nrows());
+            if i % LANES == 0 {
+                data.resize(data.len() + pk * LANES, 0.0);
+            }
+            let base = (i / LANES) * pk * LANES + i % LANES;
+            for r in 0..m {
+                for c in 0..=r {
+                    let v = a[(r, c)];
+                    if v != 0.0 {
+                        nz[r * m + c] = true;
+                        nz[c * m + r] = true;
+                    }
+                    data[base + (r * (r + 1) / 2 + c) * LANES] = v;
+                }
+            }
+        }
+        let env = Envelope::from_pattern(&nz, m);
+        // Re-lay each group from packed lower storage (pk entries) to the envelope (len <= pk)
+        // in place: group g's new range ends before its old one does.
+        let mut old = vec![0.0; pk * LANES];
+        let groups = rows.len().div_ceil(LANES);
+        for g in 0..groups {
+            old.copy_from_slice(&data[g * pk * LANES..(g + 1) * pk * LANES]);
+            let new = &mut data[g * env.len * LANES..(g + 1) * env.len * LANES];
+            for i in 0..m {
+                for j in env.first[i]..=i {
+                    let (r, c) = (
+                        env.order[i].max(env.order[j]),
+                        env.order[i].min(env.order[j]),
+                    );
+                    let (to, from) = (env.off[i] + j - env.first[i], r * (r + 1) / 2 + c);
+                    new[to * LANES..(to + 1) * LANES]
+                        .copy_from_slice(&old[from * LANES..(from + 1) * LANES]);
+                }
+            }
+        }
+        data.truncate(groups * env.len * LANES);
+        data.shrink_to_fit();
+        let n = rows.len();
+        (Self { env, n, data }, rows, frobenius2)
+    }
+
+    /// The lanes of group g.
+    fn group(&self, g: usize) -> &[f64] {
+        let len = self.env.len * LANES;
+        &self.data[g * len..(g + 1) * len]
+    }
+
+    /// M += sign A_i (envelope storage).
+    fn add_to(&self, i: usize, sign: f64, mk: &mut [f64]) {
+        let (g, l) = (i / LANES, i % LANES);
+        for (v, a) in mk.iter_mut().zip(self.group(g).chunks_exact(LANES)) {
+            *v += sign * a[l];
+        }
+    }
+
+    /// The information matrix of a subset (members in index order) plus `ridge` on the
+    /// diagonal, in envelope storage.
+    pub(super) fn information(&self, subset: &[usize], ridge: f64) -> Vec<f64> {
+        let mut mk = vec![0.0; self.env.len];
+        let mut sorted = subset.to_vec();
+        sorted.sort_unstable();
+        for &i in &sorted {
+            self.add_to(i, 1.0, &mut mk);
+        }
+        for i in 0..self.env.m {
+            mk[self.env.off[i] + i - self.env.first[i]] += ridge;
+        }
+        mk
+    }
+
+    /// log det of an information matrix in envelope storage (-inf if not positive definite).
+    pub(super) fn log_det_of(&self, mk: &[f64], work: &mut Work) -> f64 {
+        let zero = vec![0.0; self.env.len * LANES];
+        let mut out = [0.0; LANES];
+        log_dets(&self.env, mk, &zero, 0.0, work, &mut out);
+        out[0]
+    }
+}
+
+/// Greedy steps already taken: (design, adding) -> (candidate, log det after the step).
+pub(super) type Memo = HashMap<(Vec<usize>, bool), (usize, f64)>;
+
+/// Exchange state of a design over a [`GramPool`].
+#[derive(Clone)]
+pub(super) struct Design<'a> {
+    pool: &'a GramPool,
+    pub(super) member: Vec<bool>,
+    pub(super) log_det: f64,
+    ridge: f64,
+    mk: Vec<f64>,
+    work: Work,
+    lanes: Vec<f64>,
+}
+
+impl<'a> Design<'a> {
+    pub(super) fn new(pool: &'a GramPool, start: &[usize], ridge: f64) -> Option<Self> {
+        let mut member = vec![false; pool.n];
+        for &i in start {
+            member[i] = true;
+        }
+        let mut d = Self {
+            pool,
+            member,
+            log_det: 0.0,
+            ridge,
+            mk: Vec::new(),
+            work: Work::new(&pool.env),
+            lanes: vec![0.0; pool.env.len * LANES],
+        };
+        d.mk = pool.information(&d.selected(), ridge);
+        d.log_det = pool.log_det_of(&d.mk, &mut d.work);
+        d.log_det.is_finite().then_some(d)
+    }
+
+    pub(super) fn selected(&self) -> Vec<usize> {
+        (0..self.member.len()).filter(|&i| self.member[i]).collect()
+    }
+
+    /// Greedy step: add the outside candidate giving the largest log det, or remove the
+    /// inside one leaving the largest (the first in index order on ties); None if the
+    /// step would leave the information matrix singular.
+    pub(super) fn greedy(&mut self, add: bool, memo: &mut Memo) -> Option<usize> {
+        let key = (self.selected(), add);
+        let (best, value) = match memo.get(&key) {
+            Some(&hit) => hit,
+            None => {
+                let found = if add {
+                    self.best_add()
+                } else {
+                    self.best_remove()
+                }?;
+                memo.insert(key, found);
+                found
+            }
+        };
+        if value == f64::NEG_INFINITY {
+            return None;
+        }
+        self.member[best] = add;
+        self.mk = self.pool.information(&self.selected(), self.ridge);
+        self.log_det = value;
+        Some(best)
+    }
+
+    fn best_add(&mut self) -> Option<(usize, f64)> {
+        let pool = self.pool;
+        let mut best: Option<(usize, f64)> = None;
+        let mut out = [0.0; LANES];
+        for g in 0..pool.n.div_ceil(LANES) {
+            log_dets(
+                &pool.env,
+                &self.mk,
+                pool.group(g),
+                1.0,
+                &mut self.work,
+                &mut out,
+            );
+            for (l, &v) in out.iter().enumerate() {
+                let i = g * LANES + l;
+                if i < pool.n && !self.member[i] && best.is_none_or(|b| v > b.1) {
+                    best = Some((i, v));
+                }
+            }
+        }
+        best
+    }
+
+    fn best_remove(&mut self) -> Option<(usize, f64)> {
+        let pool = self.pool;
+        let inside = self.selected();
+        let mut best: Option<(usize, f64)> = None;
+        let mut out = [0.0; LANES];
+        for chunk in inside.chunks(LANES) {
+            for (l, &i) in chunk.iter().enumerate() {
+                let (g, li) = (i / LANES, i % LANES);
+                for (d, s) in self
+                    .lanes
+                    .chunks_exact_mut(LANES)
+                    .zip(pool.group(g).chunks_exact(LANES))
+                {
+                    d[l] = s[li];
+                }
+            }
+            log_dets(
+                &pool.env,
+                &self.mk,
+                &self.lanes,
+                -1.0,
+                &mut self.work,
+                &mut out,
+            );
+            for (&i, &v) in chunk.iter().zip(&out) {
+                if best.is_none_or(|b| v > b.1) {
+                    best = Some((i, v));
+                }
+            }
+        }
+        best
+    }
+}
