@@ -34,6 +34,10 @@ pub struct Figure {
     /// Peak resident memory of the process during the runs (bytes; Linux only: the
     /// high-water mark is reset before the first run).
     pub peak_rss_bytes: Option<u64>,
+    /// CPU time (user + system, every thread of the process) of the median run, per
+    /// operation: beside the wall time it shows what a figure costs on a shared machine.
+    #[serde(rename = "cpu_per_op_s", serialize_with = "opt_secs")]
+    pub cpu: Option<Duration>,
 }
 
 fn secs<S: serde::Serializer>(d: &Duration, s: S) -> Result<S::Ok, S::Error> {
@@ -61,8 +65,32 @@ pub fn peak_rss_bytes() -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// CPU time (user + system) the process has used so far, from getrusage; None where it is
+/// not available.
+pub fn cpu_time() -> Option<Duration> {
+    #[cfg(unix)]
+    {
+        let mut usage = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+        // SAFETY: getrusage fills the rusage it is given a pointer to; it was zeroed, and is
+        // read only if the call succeeded.
+        let usage = unsafe {
+            if libc::getrusage(libc::RUSAGE_SELF, usage.as_mut_ptr()) != 0 {
+                return None;
+            }
+            usage.assume_init()
+        };
+        let tv = |t: libc::timeval| {
+            Duration::from_secs(t.tv_sec.max(0) as u64)
+                + Duration::from_micros(t.tv_usec.max(0) as u64)
+        };
+        Some(tv(usage.ru_utime) + tv(usage.ru_stime))
+    }
+    #[cfg(not(unix))]
+    None
+}
+
 /// Median, min and max over `runs` of the time of `f`, divided by `ops` operations per
-/// call, with the peak resident memory of the runs.
+/// call, with the peak resident memory of the runs and the CPU time of the median run.
 pub fn time<F: FnMut()>(
     name: &str,
     runs: usize,
@@ -71,14 +99,17 @@ pub fn time<F: FnMut()>(
     mut f: F,
 ) -> Figure {
     let reset = reset_peak_rss();
-    let mut times: Vec<Duration> = (0..runs.max(1))
+    let mut times: Vec<(Duration, Option<Duration>)> = (0..runs.max(1))
         .map(|_| {
-            let t = Instant::now();
+            let (t, c) = (Instant::now(), cpu_time());
             f();
-            t.elapsed()
+            let cpu = c.zip(cpu_time()).map(|(a, b)| b.saturating_sub(a));
+            (t.elapsed(), cpu)
         })
         .collect();
     times.sort();
+    let cpu = times[times.len() / 2].1;
+    let times: Vec<Duration> = times.into_iter().map(|t| t.0).collect();
     let per = |d: Duration| d / ops.max(1) as u32;
     Figure {
         name: name.into(),
@@ -89,6 +120,7 @@ pub fn time<F: FnMut()>(
         ops,
         target,
         peak_rss_bytes: if reset { peak_rss_bytes() } else { None },
+        cpu: cpu.map(per),
     }
 }
 
@@ -157,11 +189,13 @@ pub fn print(out: &mut dyn std::io::Write, figures: &[Figure]) -> std::io::Resul
             .peak_rss_bytes
             .map(|b| format!("{:.0} MB", b as f64 / 1e6))
             .unwrap_or_default();
+        let cpu = f.cpu.map(|c| format!("cpu {}", fmt(c))).unwrap_or_default();
         writeln!(
             out,
-            "{:<58} {:>12} {:>8} {:<22} {}",
+            "{:<58} {:>12} {:>14} {:>8} {:<22} {}",
             f.name,
             fmt(f.per_op),
+            cpu,
             mem,
             target,
             verdict
