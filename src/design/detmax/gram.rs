@@ -12,6 +12,7 @@ use std::collections::HashMap;
 
 use nalgebra::DMatrix;
 
+use super::kernels::{Strided, gemm};
 use super::lanes::{Envelope, LANES, Work, log_dets};
 
 /// Information matrices of the candidates, lane-interleaved in groups of [`LANES`] (entry k
@@ -36,23 +37,27 @@ impl GramPool {
         let mut rows = Vec::new();
         let mut nz = vec![false; m * m];
         let mut frobenius2 = 0.0;
+        let mut a = vec![0.0; m * m];
         for (i, b) in blocks.into_iter().enumerate() {
             let b = b.borrow();
-            let a = b.tr_mul(b);
-            frobenius2 += a.trace();
-            rows.push(b.nrows());
+            // A = B^T B (row-major) through matrixmultiply; B is column-major.
+            let (r, bs) = (b.nrows(), b.as_slice());
+            let op = |rs, cs| Strided { data: bs, rs, cs };
+            gemm((m, r, m), 1.0, op(r, 1), op(1, r), 0.0, &mut a, m, 1);
+            frobenius2 += (0..m).map(|k| a[k * m + k]).sum::<f64>();
+            rows.push(r);
             if i % LANES == 0 {
                 data.resize(data.len() + pk * LANES, 0.0);
             }
             let base = (i / LANES) * pk * LANES + i % LANES;
-            for r in 0..m {
-                for c in 0..=r {
-                    let v = a[(r, c)];
+            for x in 0..m {
+                for y in 0..=x {
+                    let v = a[x * m + y];
                     if v != 0.0 {
-                        nz[r * m + c] = true;
-                        nz[c * m + r] = true;
+                        nz[x * m + y] = true;
+                        nz[y * m + x] = true;
                     }
-                    data[base + (r * (r + 1) / 2 + c) * LANES] = v;
+                    data[base + (x * (x + 1) / 2 + y) * LANES] = v;
                 }
             }
         }
