@@ -270,10 +270,14 @@ fn narrow_body<const R: usize, const FMA: bool>(
     while r0 + C <= rows {
         let mut acc = [[0.0f64; C]; R];
         for (c, uc) in u.chunks_exact(R).enumerate() {
-            let b = &all[c * rows + r0..c * rows + r0 + C];
-            for (a, &w) in acc.iter_mut().zip(uc) {
+            // Copied into fixed-size arrays so the lanes become vector registers.
+            let mut b = [0.0f64; C];
+            b.copy_from_slice(&all[c * rows + r0..c * rows + r0 + C]);
+            let mut w = [0.0f64; R];
+            w.copy_from_slice(uc);
+            for x in 0..R {
                 for l in 0..C {
-                    a[l] = madd::<FMA>(b[l], w, a[l]);
+                    acc[x][l] = madd::<FMA>(b[l], w[x], acc[x][l]);
                 }
             }
         }
