@@ -109,6 +109,9 @@ pub struct CalibrationOptions {
     /// single parameters makes the others absorb their errors: with the file's 3-sigma bounds
     /// a lever (the 54 mm between clamps times an angle error) can push them onto a bound.
     pub hold_unidentifiable: bool,
+    /// Worker threads for the forward kinematics and Jacobians of the measurements; `None`
+    /// uses every available core.
+    pub threads: Option<usize>,
 }
 
 impl Default for CalibrationOptions {
@@ -120,6 +123,7 @@ impl Default for CalibrationOptions {
             max_iterations: 100,
             refine_damping: 1e-9,
             hold_unidentifiable: false,
+            threads: None,
         }
     }
 }
@@ -320,7 +324,10 @@ pub fn identify_steps(
     let base = base
         .with_params(file.params())
         .map_err(|e| IdentifyError::Model(e.to_string()))?;
-    let problem = PcrProblem::new(base.clone(), calibration.to_vec(), weight);
+    let mut problem = PcrProblem::new(base.clone(), calibration.to_vec(), weight);
+    if let Some(threads) = opts.threads {
+        problem = problem.with_threads(threads);
+    }
     let ctx = Context {
         problem: &problem,
         x_nom: &x_nom,
