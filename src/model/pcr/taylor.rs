@@ -94,14 +94,20 @@ fn products<const T: usize>(
     ]
 }
 
+impl<const T: usize> Series<T> {
+    fn zero() -> Self {
+        Self {
+            c: [[0.0; L]; T],
+            s: [[0.0; L]; T],
+            m: [[0.0; L]; T],
+            k: [[0.0; L]; T],
+        }
+    }
+}
+
+/// Fills `t` (every entry is written) with the coefficients of a step from `(c0, s0, m0)`.
 #[inline(always)]
-fn series<const T: usize>(c0: Lanes, s0: Lanes, m0: Lanes, co: &Coeffs) -> Series<T> {
-    let mut t = Series {
-        c: [[0.0; L]; T],
-        s: [[0.0; L]; T],
-        m: [[0.0; L]; T],
-        k: [[0.0; L]; T],
-    };
+fn series<const T: usize>(t: &mut Series<T>, c0: Lanes, s0: Lanes, m0: Lanes, co: &Coeffs) {
     t.c[0] = c0;
     t.s[0] = s0;
     t.m[0] = m0;
@@ -116,7 +122,6 @@ fn series<const T: usize>(c0: Lanes, s0: Lanes, m0: Lanes, co: &Coeffs) -> Serie
             t.k[j + 1][l] = co.flex[l] * t.m[j + 1][l];
         }
     }
-    t
 }
 
 /// Lane states: x, y, c, s, phi, m.
@@ -176,8 +181,9 @@ fn integrate_terms<const R: usize, const T: usize>(rods: &[Rod; R], y0: &[State;
     let mut out = *y0;
     for first in (0..R).step_by(L) {
         let (steps, co, mut y) = pack(rods, y0, first);
+        let mut t = Series::<T>::zero();
         for _ in 0..steps {
-            let t = series::<T>(y[C], y[S], y[M], &co);
+            series(&mut t, y[C], y[S], y[M], &co);
             advance(&mut y, &co.h, &t);
         }
         for (l, o) in out.iter_mut().skip(first).take(L).enumerate() {
@@ -187,22 +193,18 @@ fn integrate_terms<const R: usize, const T: usize>(rods: &[Rod; R], y0: &[State;
     out
 }
 
-/// Coefficients of one variational column (every lane) over a step, given the state's
-/// coefficients `t` and the seed's forcing `fc` = (d nx, d ny, d flex).
+/// Fills `d` (every entry is written) with the coefficients of one variational column
+/// (every lane) over a step, given the state's coefficients `t` and the seed's forcing `fc`
+/// = (d nx, d ny, d flex).
 #[inline(always)]
 fn series_var<const T: usize>(
+    d: &mut Series<T>,
     v: &LaneState,
     t: &Series<T>,
     fc: &[f64; 3],
     co: &Coeffs,
-) -> Series<T> {
+) {
     let (dnx, dny, dflex) = (fc[0], fc[1], fc[2]);
-    let mut d = Series {
-        c: [[0.0; L]; T],
-        s: [[0.0; L]; T],
-        m: [[0.0; L]; T],
-        k: [[0.0; L]; T],
-    };
     d.c[0] = v[C];
     d.s[0] = v[S];
     d.m[0] = v[M];
@@ -220,7 +222,6 @@ fn series_var<const T: usize>(
             d.k[j + 1][l] = co.flex[l] * d.m[j + 1][l] + dflex * t.m[j + 1][l];
         }
     }
-    d
 }
 
 /// Integrates `R` rods in lockstep together with the variational equations of the `K`
@@ -241,10 +242,11 @@ pub(crate) fn integrate_var<const R: usize, const K: usize>(
             let cols: [State; L] = std::array::from_fn(|l| seed_start(seeds[j], &y0[idx(l)]));
             std::array::from_fn(|i| std::array::from_fn(|l| cols[l][i]))
         });
+        let (mut t, mut d) = (Series::<TERMS>::zero(), Series::<TERMS>::zero());
         for _ in 0..steps {
-            let t = series::<TERMS>(y[C], y[S], y[M], &co);
+            series(&mut t, y[C], y[S], y[M], &co);
             for (vj, fcj) in v.iter_mut().zip(&fc) {
-                let d = series_var(vj, &t, fcj, &co);
+                series_var(&mut d, vj, &t, fcj, &co);
                 advance(vj, &co.h, &d);
             }
             advance(&mut y, &co.h, &t);
