@@ -13,6 +13,7 @@ use serde_json::Value;
 use crate::geometry::Frame;
 use crate::identify::ParamReport;
 use crate::identify::prior::{PriorReport, PriorSpec, PriorWeight};
+use crate::jobs::map_options::{MapWeight, check_map_options};
 use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::measure::tree_markers::{STEPS, Step, TreeObservation, TreeProblem, cumulative, k_fold};
 use crate::measure::tree_prior::{TreePrior, check_names, choose_tree_weight};
@@ -371,15 +372,8 @@ fn tree_prior(
     model: &ElasticTree,
     last: usize,
 ) -> Result<(TreePrior, bool), JobError> {
+    let weight = check_map_options(o.prior.is_some(), o.prior_weight.as_ref(), o.noise_m)?;
     let Some(spec) = &o.prior else {
-        for (name, given) in [
-            ("options.prior_weight", o.prior_weight.is_some()),
-            ("options.noise_m", o.noise_m.is_some()),
-        ] {
-            if given {
-                return Err(JobError::invalid(name, "needs options.prior"));
-            }
-        }
         return Ok((TreePrior::default(), false));
     };
     let groups = STEPS[last.min(STEPS.len() - 1)].1;
@@ -389,27 +383,16 @@ fn tree_prior(
     // The std values themselves (and the defaults) are checked by the same code that uses them.
     spec.sigmas(&unknowns, |_| true)
         .map_err(|m| JobError::invalid("options.prior", m))?;
-    let weight = match &o.prior_weight {
-        Some(w) => w
-            .fixed()
-            .map_err(|m| JobError::invalid("options.prior_weight", m))?,
-        None => Some(1.0),
-    };
-    if let Some(n) = o.noise_m
-        && !(n.is_finite() && n > 0.0)
-    {
-        return Err(JobError::invalid(
-            "options.noise_m",
-            format!("{n} must be a positive number of metres"),
-        ));
-    }
     Ok((
         TreePrior {
             spec: Some(spec.clone()),
-            weight: weight.unwrap_or(1.0),
+            weight: match weight {
+                MapWeight::Fixed(w) => w,
+                _ => 1.0,
+            },
             noise_m: o.noise_m,
         },
-        weight.is_none(),
+        weight == MapWeight::CrossValidated,
     ))
 }
 

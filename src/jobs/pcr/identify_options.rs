@@ -8,6 +8,7 @@ use serde_json::Value;
 
 use crate::identify::prior::PriorWeight;
 use crate::jobs::JobError;
+use crate::jobs::map_options::{MapWeight, check_map_options};
 use crate::measure::pcr::prior::PcrPrior;
 use crate::measure::pcr::steps::{CalibrationOptions, Step, default_steps};
 use crate::measure::pcr::{UNKNOWNS, unknown_name};
@@ -131,19 +132,9 @@ pub fn calibration_options(o: &IdentifyOptions) -> Result<CalibrationOptions, Jo
 
 /// Check the prior options without a model file: names, values, weight, noise, and that
 /// `prior_weight`/`noise_m` come with a `prior`.
-fn check_prior(o: &IdentifyOptions) -> Result<(), JobError> {
-    let Some(spec) = &o.prior else {
-        for (name, given) in [
-            ("options.prior_weight", o.prior_weight.is_some()),
-            ("options.noise_m", o.noise_m.is_some()),
-        ] {
-            if given {
-                return Err(JobError::invalid(name, "needs options.prior"));
-            }
-        }
-        return Ok(());
-    };
-    for (name, &v) in &spec.std {
+fn check_prior(o: &IdentifyOptions) -> Result<MapWeight, JobError> {
+    let weight = check_map_options(o.prior.is_some(), o.prior_weight.as_ref(), o.noise_m)?;
+    for (name, &v) in o.prior.iter().flat_map(|s| &s.std) {
         if !(0..UNKNOWNS).any(|k| unknown_name(k) == *name) {
             return Err(JobError::invalid(
                 format!("options.prior.std.{name}"),
@@ -157,29 +148,17 @@ fn check_prior(o: &IdentifyOptions) -> Result<(), JobError> {
             ));
         }
     }
-    if let Some(w) = &o.prior_weight {
-        w.fixed()
-            .map_err(|m| JobError::invalid("options.prior_weight", m))?;
-    }
-    if let Some(n) = o.noise_m {
-        if !(n.is_finite() && n > 0.0) {
-            return Err(JobError::invalid(
-                "options.noise_m",
-                format!("{n} must be a positive number of metres"),
-            ));
-        }
-    }
-    Ok(())
+    Ok(weight)
 }
 
 /// The prior of checked options on `file`: `None` without `options.prior`, else the prior
 /// (weight 1 while it is to be chosen by K-fold) and whether it is.
 pub(super) fn prior_of(o: &IdentifyOptions, file: &PcrFile) -> Option<(PcrPrior, bool)> {
     let spec = o.prior.as_ref()?;
-    let (weight, cv) = match o.prior_weight.as_ref().map(PriorWeight::fixed) {
-        Some(Ok(Some(w))) => (w, false),
-        Some(_) => (1.0, true),
-        None => (1.0, false),
+    let (weight, cv) = match check_prior(o) {
+        Ok(MapWeight::Fixed(w)) => (w, false),
+        Ok(MapWeight::CrossValidated) => (1.0, true),
+        Ok(MapWeight::None) | Err(_) => return None,
     };
     let robot = file.uncertainty.robot();
     let sigma = (0..UNKNOWNS)
