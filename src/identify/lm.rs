@@ -178,12 +178,13 @@ pub fn levenberg_marquardt(
             break;
         }
         let mf = free.len();
-        let mut js = DMatrix::zeros(n, mf);
-        for (c, &k) in free.iter().enumerate() {
-            js.set_column(c, &(j.column(k) / d[k]));
-        }
-        let a = js.tr_mul(&js);
-        let gs = js.tr_mul(&r);
+        // Scaled normal matrix and gradient of the free columns, D^-1 J^T J D^-1 and
+        // D^-1 J^T r, from J^T J (no scaled copy of the tall Jacobian).
+        let jtj = super::dense::gram(&j);
+        let a = DMatrix::from_fn(mf, mf, |p, q| {
+            jtj[(free[p], free[q])] / (d[free[p]] * d[free[q]])
+        });
+        let gs = DVector::from_fn(mf, |p, _| g[free[p]] / d[free[p]]);
         if mu == 0.0 {
             mu = opts.initial_damping * (0..mf).map(|k| a[(k, k)]).fold(0.0, f64::max);
         }
