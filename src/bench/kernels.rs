@@ -9,8 +9,9 @@ use std::time::{Duration, Instant};
 use nalgebra::DMatrix;
 
 use super::Figure;
+use crate::identify::Pivoting;
 use crate::identify::dense::{self, Backend};
-use crate::identify::{Pivoting, rank_revealing};
+use crate::identify::rank::rank_revealing_loop;
 use crate::util::Rng;
 
 /// A random `rows` x `cols` matrix with column scales spread over six decades (as a
@@ -88,7 +89,7 @@ fn pivoted(a: &DMatrix<f64>, b: Backend) {
     if b == Backend::Faer {
         std::hint::black_box(dense::pivoted_qr_faer(a));
     } else {
-        std::hint::black_box(rank_revealing(a, &Pivoting::Norm, 0.0));
+        std::hint::black_box(rank_revealing_loop(a, &Pivoting::Norm, 0.0));
     }
 }
 
@@ -121,8 +122,8 @@ pub fn run() -> Vec<Figure> {
             &mut figs,
         );
         lines.push(format!(
-            "J^T J ({cols} columns): faer from {c:?} rows (constant: {})",
-            dense::QR_FAER_MIN_ROWS
+            "J^T J ({cols} columns): faer from {c:?} rows (constant: {}, see its note)",
+            dense::GRAM_FAER_MIN_ROWS
         ));
     }
     let square = [8, 16, 31, 63, 127, 255];

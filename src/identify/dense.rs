@@ -20,13 +20,23 @@ pub enum Backend {
 }
 
 /// Rows from which the R factor of a tall matrix is computed by faer (blocked Householder
-/// on row blocks that stay in cache, both cores from [`PARALLEL_MIN_ELEMENTS`]).
+/// on row blocks that stay in cache, both cores from [`PARALLEL_MIN_ELEMENTS`]). Measured:
+/// faer 0.94x nalgebra's time at 270 x 31, 0.21x at 540 x 31, 0.16x at 300,000 x 31.
 pub const QR_FAER_MIN_ROWS: usize = 512;
-/// Columns from which the SVD of a square factor is computed by faer.
-pub const SVD_FAER_MIN_COLS: usize = 64;
+/// Rows from which Levenberg-Marquardt forms `J^T J` with faer. faer is faster at every
+/// measured size (0.07x at 90 x 31), but its summation order moves the iterates of an
+/// ill-conditioned fit by rounding, and a fit stops within its tolerances, not at a
+/// bit-identical point: below this size (above every shipped example and every dispersion
+/// study) the solver keeps nalgebra's arithmetic and its results bit for bit.
+pub const GRAM_FAER_MIN_ROWS: usize = 4096;
+/// Columns from which the SVD of a square factor is computed by faer. Measured: faer 1.23x
+/// nalgebra's time at 63 x 63, 0.22x at 127 x 127.
+pub const SVD_FAER_MIN_COLS: usize = 127;
 /// Columns from which QR with column pivoting (largest remaining norm first) is computed
-/// by faer.
-pub const PIVOTED_QR_FAER_MIN_COLS: usize = 128;
+/// by faer. Measured against our loop: 0.75x at 31 x 31, 0.47x at 63 x 63; from 64 on,
+/// so that DH models (whose Norm pivoting keeps base over link-1 parameters among exact
+/// duplicates by the loop's tie rule) keep the loop.
+pub const PIVOTED_QR_FAER_MIN_COLS: usize = 64;
 /// Elements (rows x columns) from which the tall kernels split the rows over the cores.
 pub const PARALLEL_MIN_ELEMENTS: usize = 1 << 20;
 /// Rows of a block in the blocked reduction: a block and the running R factor stay in
@@ -158,12 +168,12 @@ pub fn gram(j: &DMatrix<f64>) -> DMatrix<f64> {
     gram_with(j, Backend::Auto)
 }
 
-/// [`gram`] with a chosen implementation (faer from [`QR_FAER_MIN_ROWS`] rows).
+/// [`gram`] with a chosen implementation (faer from [`GRAM_FAER_MIN_ROWS`] rows).
 pub fn gram_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
     let faer = match backend {
         Backend::Nalgebra => false,
         Backend::Faer => true,
-        Backend::Auto => j.nrows() >= QR_FAER_MIN_ROWS,
+        Backend::Auto => j.nrows() >= GRAM_FAER_MIN_ROWS,
     };
     if !faer {
         return j.tr_mul(j);

@@ -63,6 +63,12 @@ fn pivoted_qr(
     pivoted_qr_with(j, scale, pivoting, tol, true)
 }
 
+/// [`rank_revealing`] by our own loop at every size (no faer above the crossover), for the
+/// kernel benchmark.
+pub fn rank_revealing_loop(j: &DMatrix<f64>, pivoting: &Pivoting, tol: f64) -> RankReport {
+    pivoted_qr_with(j, None, pivoting, tol, false)
+}
+
 /// [`pivoted_qr`]; `allow_faer` false keeps our own loop at every size (for tests).
 fn pivoted_qr_with(
     j: &DMatrix<f64>,

@@ -4,10 +4,12 @@
 
 use nalgebra::DMatrix;
 
-/// The R factor of a tall matrix (the matrix itself otherwise): the same column norms,
-/// singular values and right singular vectors.
+/// The R factor of a tall matrix from [`super::dense::QR_FAER_MIN_ROWS`] rows on (the
+/// matrix itself otherwise): the same column norms, singular values and right singular
+/// vectors. Below the crossover every consumer factors the matrix it is given itself, as
+/// before the faer kernels, so that small identifications keep their arithmetic exactly.
 pub(crate) fn tall_r(j: &DMatrix<f64>) -> DMatrix<f64> {
-    if j.nrows() > j.ncols() {
+    if j.nrows() > j.ncols() && j.nrows() >= super::dense::QR_FAER_MIN_ROWS {
         super::dense::r_factor(j)
     } else {
         j.clone()

@@ -370,7 +370,7 @@ pub fn solve(
                 .copy_from(&r_fit);
             let both = Rows {
                 blocks: vec![(&j0, all.clone()), (&fit.rep.jacobian, pl.free.clone())],
-                r: tall_r(&stacked),
+                r: stacked,
             };
             let again = plan(
                 &structural,

@@ -71,14 +71,11 @@ pub struct Spectrum {
 
 /// The spectrum of the physically scaled Jacobian of the columns `free` of `j`.
 pub fn spectrum(j: &DMatrix<f64>, free: &[usize], scale: &[f64]) -> Spectrum {
-    if j.nrows() > j.ncols() {
-        spectrum_of_r(&super::dense::r_factor(j), free, scale)
-    } else {
-        spectrum_of_r(j, free, scale)
-    }
+    spectrum_of_r(&super::reduced::tall_r(j), free, scale)
 }
 
-/// [`spectrum`] from the R factor of the Jacobian (or any matrix with the same `R^T R`):
+/// [`spectrum`] from the R factor of the Jacobian (or any matrix with the same `R^T R`,
+/// the Jacobian itself included):
 /// `J = Q R`, so `J[:, free] diag(scale)` and `R[:, free] diag(scale)` have the same
 /// singular values and right vectors, and the tall Jacobian is reduced only once.
 pub fn spectrum_of_r(r: &DMatrix<f64>, free: &[usize], scale: &[f64]) -> Spectrum {
@@ -95,8 +92,9 @@ pub fn spectrum_of_r(r: &DMatrix<f64>, free: &[usize], scale: &[f64]) -> Spectru
         js.set_column(p, &(r.column(k) * scale.get(k).copied().unwrap_or(1.0)));
     }
     // Same singular values and right vectors from R of a QR of a taller matrix.
+    // nalgebra here: a tall input is below the crossover (its arithmetic as before).
     let r = if js.nrows() > m {
-        super::dense::r_factor(&js)
+        super::dense::r_factor_with(&js, super::dense::Backend::Nalgebra)
     } else {
         js
     };

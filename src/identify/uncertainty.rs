@@ -21,15 +21,11 @@ pub struct Uncertainty {
 
 /// Uncertainty at a solution with Jacobian `j` and residuals `r`.
 pub fn uncertainty(j: &DMatrix<f64>, r: &DVector<f64>) -> Uncertainty {
-    if j.nrows() > j.ncols() {
-        uncertainty_of_r(&super::dense::r_factor(j), j.nrows(), r)
-    } else {
-        uncertainty_of_r(j, j.nrows(), r)
-    }
+    uncertainty_of_r(&super::reduced::tall_r(j), j.nrows(), r)
 }
 
 /// [`uncertainty`] from the R factor of the Jacobian (`J = Q R`: the same column norms,
-/// singular values and right vectors) and its row count `n`.
+/// singular values and right vectors) or the Jacobian itself, and its row count `n`.
 pub fn uncertainty_of_r(rf: &DMatrix<f64>, n: usize, r: &DVector<f64>) -> Uncertainty {
     let m = rf.ncols();
     let dof = n.saturating_sub(m);
@@ -55,6 +51,10 @@ pub fn uncertainty_of_r(rf: &DMatrix<f64>, n: usize, r: &DVector<f64>) -> Uncert
     let mut rmat = rf.clone();
     for k in 0..m {
         rmat.column_mut(k).unscale_mut(d[k]);
+    }
+    // nalgebra here: a tall input is below the crossover (its arithmetic as before).
+    if rmat.nrows() > m {
+        rmat = super::dense::r_factor_with(&rmat, super::dense::Backend::Nalgebra);
     }
     let Some((s, vt)) = super::dense::svd_right(&rmat) else {
         return Uncertainty {

@@ -124,7 +124,21 @@ impl PointProblem {
             .iter()
             .map(|id| chain.param_index(*id).unwrap_or(usize::MAX))
             .collect();
-        let tau = meas.iter().map(|m| chain.static_torques(&m.q)).collect();
+        // Static torques of every configuration, on every core for large sets.
+        let ranges = measurement_ranges(meas.len());
+        let mut tau: Vec<Vec<f64>> = vec![Vec::new(); meas.len()];
+        let mut rest = &mut tau[..];
+        let mut parts = Vec::with_capacity(ranges.len());
+        for range in &ranges {
+            let (head, tail) = rest.split_at_mut(range.len());
+            parts.push((range.start, head));
+            rest = tail;
+        }
+        on_threads(parts, &|(start, out): (usize, &mut [Vec<f64>])| {
+            for (k, t) in out.iter_mut().enumerate() {
+                *t = chain.static_torques(&meas[start + k].q);
+            }
+        });
         Ok(Self {
             chain,
             ids,
