@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use calibd::measure::justin::{PUBLISHED_MM, setup, table};
 use calibd::measure::tree_markers::cumulative;
+use calibd::measure::tree_prior::TreePrior;
 use calibd::util::NoMonitor;
 
 fn data() -> Option<(String, String, String)> {
@@ -33,7 +34,7 @@ fn justin_cumulative_table_reaches_the_published_full_model() {
     let lumping = calibd::model::elastic::Lumping::Bodies;
     let (model, obs) = setup(&dh, &guess, &csv, lumping).expect("the data set loads");
     assert_eq!(obs.len(), 500);
-    let steps = cumulative(&model, &obs, 4, 200, &NoMonitor)
+    let steps = cumulative(&model, &obs, 4, 200, &TreePrior::default(), &NoMonitor)
         .expect("fits")
         .steps;
     let report = calibd::measure::justin::JustinReport {

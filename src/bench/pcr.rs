@@ -32,7 +32,7 @@ pub fn run() -> Vec<Figure> {
         "FK per configuration, warm along a path (steps of 3 um)",
         9,
         n,
-        Some(Duration::from_micros(20)),
+        Some(Duration::from_micros(2)),
         || {
             let mut e = start.clone();
             for q in &path {
@@ -77,7 +77,7 @@ pub fn run() -> Vec<Figure> {
         "IK per pose, warm along a 3 mm circle (400 poses)",
         9,
         poses.len(),
-        Some(Duration::from_micros(20)),
+        Some(Duration::from_micros(3)),
         || {
             let mut e = ik0.clone();
             for p in &poses {
@@ -111,24 +111,28 @@ pub fn run() -> Vec<Figure> {
         },
     ));
     let cal = twin.measure(&scattered, 10).expect("twin readings");
-    figs.push(time(
-        "3-step identification, 34 unknowns, 99 poses (all cores)",
-        5,
-        1,
-        Some(Duration::from_secs(1)),
-        || {
-            let c = identify_steps(
-                &robot,
-                &twin.file,
-                &cal,
-                None,
-                &CalibrationOptions::default(),
-                &NoMonitor,
-            )
-            .expect("twin identification converges");
+    for (name, threads, target) in [
+        (
+            "3-step identification, 34 unknowns, 99 poses (all cores)",
+            None,
+            Some(Duration::from_millis(100)),
+        ),
+        (
+            "3-step identification, 34 unknowns, 99 poses (one thread)",
+            Some(1),
+            None,
+        ),
+    ] {
+        let opts = CalibrationOptions {
+            threads,
+            ..Default::default()
+        };
+        figs.push(time(name, 5, 1, target, || {
+            let c = identify_steps(&robot, &twin.file, &cal, None, &opts, &NoMonitor)
+                .expect("twin identification converges");
             sink += c.x[0];
-        },
-    ));
+        }));
+    }
     std::hint::black_box(sink);
     figs
 }

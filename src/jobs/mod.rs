@@ -11,6 +11,7 @@ pub mod error;
 pub mod examples;
 pub mod humanoid;
 pub mod input;
+pub mod map_options;
 pub mod pcr;
 pub mod rows;
 pub mod serial;

@@ -12,8 +12,11 @@ use serde_json::Value;
 
 use crate::geometry::Frame;
 use crate::identify::ParamReport;
+use crate::identify::prior::{PriorReport, PriorSpec, PriorWeight};
+use crate::jobs::map_options::{MapWeight, check_map_options};
 use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
-use crate::measure::tree_markers::{Step, TreeObservation, cumulative, k_fold};
+use crate::measure::tree_markers::{STEPS, Step, TreeObservation, TreeProblem, cumulative, k_fold};
+use crate::measure::tree_prior::{TreePrior, check_names, choose_tree_weight};
 use crate::model::elastic::{
     Drive, ElasticOptions, ElasticTree, Lumping, RowKind, TreeMarker, TreeRow,
 };
@@ -113,6 +116,17 @@ struct Options {
     seed: u64,
     #[serde(default)]
     max_iterations: Option<usize>,
+    /// A Gaussian prior (MAP): std per parameter name (SI units: m, rad, rad/(N*m), N,
+    /// N*m) and/or defaults by unit (`length_mm`, `angle_deg`, `compliance` in deg/(N*m)).
+    #[serde(default)]
+    prior: Option<PriorSpec>,
+    /// Its weight: a positive number (default 1) or `"cv"` (5-fold on the samples).
+    #[serde(default)]
+    prior_weight: Option<PriorWeight>,
+    /// Measurement noise of the MAP objective (m per coordinate); default the residual RMS
+    /// of the fit without the prior.
+    #[serde(default)]
+    noise_m: Option<f64>,
 }
 
 /// Rows with lumped elasticity; `"*"` means every revolute row.
@@ -146,6 +160,9 @@ pub struct TreeIdentifyJob {
     folds: Option<usize>,
     seed: u64,
     max_iterations: usize,
+    prior: TreePrior,
+    /// Choose the prior's weight by K-fold before the fits.
+    cv_weight: bool,
     warnings: Vec<String>,
 }
 
@@ -334,6 +351,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobE
     } else {
         2
     };
+    let (prior, cv_weight) = tree_prior(&s.options, &model, last)?;
     Ok(TreeIdentifyJob {
         model,
         obs,
@@ -341,8 +359,41 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobE
         folds: s.options.folds,
         seed: s.options.seed,
         max_iterations: s.options.max_iterations.unwrap_or(200),
+        prior,
+        cv_weight,
         warnings,
     })
+}
+
+/// The user's prior from `options`, checked against the last step's unknowns; and whether
+/// its weight is to be chosen by K-fold.
+fn tree_prior(
+    o: &Options,
+    model: &ElasticTree,
+    last: usize,
+) -> Result<(TreePrior, bool), JobError> {
+    let weight = check_map_options(o.prior.is_some(), o.prior_weight.as_ref(), o.noise_m)?;
+    let Some(spec) = &o.prior else {
+        return Ok((TreePrior::default(), false));
+    };
+    let groups = STEPS[last.min(STEPS.len() - 1)].1;
+    let unknowns =
+        TreeProblem::new(model.clone(), model.free_params(groups), Vec::new()).unknowns();
+    check_names(spec, &unknowns).map_err(|m| JobError::invalid("options.prior", m))?;
+    // The std values themselves (and the defaults) are checked by the same code that uses them.
+    spec.sigmas(&unknowns, |_| true)
+        .map_err(|m| JobError::invalid("options.prior", m))?;
+    Ok((
+        TreePrior {
+            spec: Some(spec.clone()),
+            weight: match weight {
+                MapWeight::Fixed(w) => w,
+                _ => 1.0,
+            },
+            noise_m: o.noise_m,
+        },
+        weight == MapWeight::CrossValidated,
+    ))
 }
 
 /// Held-out figure of the last model.
@@ -378,6 +429,9 @@ pub struct TreeCalibration {
     pub elasticity_note: &'static str,
     /// Unused table columns.
     pub warnings: Vec<String>,
+    /// Which mode ran for the user's prior (`least_squares`: none; `map`; `map_cv`), its
+    /// weight and noise (m), and the last fit's objective terms (noise units).
+    pub prior: PriorReport,
 }
 
 const NOTE: &str = "gravity along -z of the tree root; lumping `subtree`: coefficients kz_g*, kx_g*, ky_g* (rad at full gravity load) multiply the unit gravity direction in the joint frame (joint deflection about z, lateral about x and y); lumping `bodies`: compliances c_z, c_x, c_y (rad/(N*m)) times the gravity torque of link weights w (N) and weight moments w_m* (N*m), only their products determined";
@@ -385,12 +439,32 @@ const NOTE: &str = "gravity along -z of the tree root; lumping `subtree`: coeffi
 impl TreeIdentifyJob {
     /// Run the cumulative fits and the optional K-fold.
     pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<TreeCalibration>, JobError> {
-        let fail = |e: crate::identify::IdentifyError| JobError::Failed(e.to_string());
+        let fail = |e: crate::identify::IdentifyError| match e {
+            crate::identify::IdentifyError::Cancelled => JobError::Cancelled,
+            e => JobError::Failed(e.to_string()),
+        };
+        let mut prior = self.prior.clone();
+        let mut k_fold_errors = None;
+        if self.cv_weight {
+            let (w, errors) = choose_tree_weight(
+                &self.model,
+                &self.obs,
+                self.last,
+                self.max_iterations,
+                &prior,
+                self.seed,
+                monitor,
+            )
+            .map_err(fail)?;
+            prior.weight = w;
+            k_fold_errors = Some(errors);
+        }
         let c = cumulative(
             &self.model,
             &self.obs,
             self.last,
             self.max_iterations,
+            &prior,
             monitor,
         )
         .map_err(fail)?;
@@ -403,6 +477,7 @@ impl TreeIdentifyJob {
                     k,
                     self.seed,
                     self.max_iterations,
+                    &prior,
                     monitor,
                 )
                 .map_err(fail)?;
@@ -426,6 +501,17 @@ impl TreeIdentifyJob {
                 held_out,
                 elasticity_note: NOTE,
                 warnings: self.warnings.clone(),
+                prior: match c.last.prior.clone() {
+                    Some(mut r) => {
+                        r.weight = Some(prior.weight);
+                        if let Some(e) = k_fold_errors {
+                            r.mode = "map_cv";
+                            r.k_fold_errors = Some(e);
+                        }
+                        r
+                    }
+                    None => PriorReport::least_squares(),
+                },
             },
             main_table: None,
             artefacts: Vec::new(),

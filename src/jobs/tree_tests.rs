@@ -161,3 +161,82 @@ fn bad_tree_documents_name_the_field() {
     );
     bad(&|d| d["options"]["folds"] = json!(1), "options.folds");
 }
+
+/// The user's prior: a 1 nm prior holds a geometry parameter at nominal (least squares
+/// moves it), a 1 km prior changes nothing, K-fold reports its candidates and picks the
+/// best, and bad prior options name the field.
+#[test]
+fn tree_identify_takes_a_user_prior() {
+    let twin = ElasticTwin::new(&all(), 60, 1e-4, 5);
+    let run = |options: Value| {
+        let mut doc = twin_job(&twin, json!({}), None);
+        for (k, v) in options.as_object().into_iter().flatten() {
+            doc["options"][k] = v.clone();
+        }
+        prepare(&doc, &Inputs::new(&NoReferences))
+            .expect("prepares")
+            .calibrate(&NoMonitor)
+            .expect("runs")
+            .result
+    };
+    let name = format!("r2.{}", GEOMETRY[1]);
+    let moved = |r: &TreeCalibration| {
+        let p = r
+            .parameters
+            .iter()
+            .find(|p| p.name == name)
+            .expect("r2.a is identified");
+        p.value - p.nominal
+    };
+    let ls = run(json!({}));
+    assert_eq!(ls.prior.mode, "least_squares");
+    assert!(
+        moved(&ls).abs() > 1e-5,
+        "least squares moved {name} by {}",
+        moved(&ls)
+    );
+    let pinned = run(json!({"prior": {"std": {name.clone(): 1e-9}}, "noise_m": 1e-4}));
+    assert_eq!(pinned.prior.mode, "map");
+    assert_eq!(pinned.prior.noise, Some(1e-4));
+    assert!(moved(&pinned).abs() < 1e-8, "{}", moved(&pinned));
+    assert_eq!(pinned.status, "converged");
+    // A prior far wider than anything the data leave open: the least-squares fit.
+    let wide = run(json!({"prior": {"default_std": {"length_mm": 1e6, "angle_deg": 1e4}}}));
+    assert!(wide.prior.count > 0);
+    let (a, b) = (ls.error_after_mean_mm, wide.error_after_mean_mm);
+    assert!((a - b).abs() < 1e-3 * a, "{a} vs {b} mm");
+    let cv = run(
+        json!({"prior": {"default_std": {"length_mm": 1.0, "angle_deg": 0.5}},
+        "prior_weight": "cv"}),
+    );
+    assert_eq!(cv.prior.mode, "map_cv");
+    let folds = cv.prior.k_fold_errors.as_ref().expect("candidates");
+    assert_eq!(folds.len(), 5);
+    let best = folds
+        .iter()
+        .min_by(|x, y| x.rms.total_cmp(&y.rms))
+        .expect("five");
+    assert_eq!(cv.prior.weight, Some(best.weight));
+    println!(
+        "{name}: least squares moved {:.3e} m, pinned {:.3e} m; errors LS {a:.4} / wide {b:.4} / cv {:.4} mm; K-fold {:?}",
+        moved(&ls),
+        moved(&pinned),
+        cv.error_after_mean_mm,
+        folds.iter().map(|f| (f.weight, f.rms)).collect::<Vec<_>>()
+    );
+    let refused = |options: Value, want: &str| {
+        let mut doc = twin_job(&twin, json!({}), None);
+        for (k, v) in options.as_object().into_iter().flatten() {
+            doc["options"][k] = v.clone();
+        }
+        let e = prepare(&doc, &Inputs::new(&NoReferences))
+            .expect_err("refused")
+            .to_string();
+        assert!(e.contains(want), "{e} should name {want}");
+    };
+    refused(json!({"prior": {"std": {"nope": 1.0}}}), "std.nope");
+    refused(json!({"prior": {"std": {name.clone(): -1.0}}}), "-1");
+    refused(json!({"prior_weight": 3.0}), "options.prior_weight");
+    refused(json!({"prior": {}, "prior_weight": "auto"}), "auto");
+    refused(json!({"prior": {}, "noise_m": -2.0}), "options.noise_m");
+}

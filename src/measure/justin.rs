@@ -8,6 +8,7 @@ use serde::Serialize;
 
 use super::MeasureError;
 use super::tree_markers::{Step, TreeObservation, cumulative, k_fold};
+use super::tree_prior::TreePrior;
 use crate::model::elastic::justin::{self, JOINT_COLUMNS};
 use crate::model::elastic::{ElasticOptions, ElasticTree, Lumping};
 use crate::util::{Monitor, Summary};
@@ -149,8 +150,17 @@ pub fn run(
     seed: u64,
     monitor: &dyn Monitor,
 ) -> Result<JustinReport, JustinError> {
-    let steps = cumulative(model, obs, 4, 200, monitor)?.steps;
-    let held = k_fold(model, obs, 4, folds, seed, 200, monitor)?;
+    let steps = cumulative(model, obs, 4, 200, &TreePrior::default(), monitor)?.steps;
+    let held = k_fold(
+        model,
+        obs,
+        4,
+        folds,
+        seed,
+        200,
+        &TreePrior::default(),
+        monitor,
+    )?;
     Ok(JustinReport {
         steps,
         held_out_mm: Summary::of(&held, "mm"),

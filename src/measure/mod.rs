@@ -11,6 +11,7 @@ pub mod mocap;
 pub mod pcr;
 pub mod point;
 pub mod tree_markers;
+pub mod tree_prior;
 
 pub use ballplate::BallPlate;
 pub use distance::{DistanceMeasurement, DistanceProblem};

@@ -6,6 +6,8 @@
 use nalgebra::{DMatrix, Vector3};
 use serde::Serialize;
 
+use super::tree_prior::TreePrior;
+use crate::identify::prior::PriorReport;
 use crate::identify::{
     IdentifyError, Pivoting, Prior, Problem, Solution, SolveOptions, Unknown, solve, solve_map,
 };
@@ -186,6 +188,9 @@ pub struct TreeFit {
     pub solution: Solution,
     /// Unknown names in solution order.
     pub names: Vec<String>,
+    /// The MAP report when the user's prior took part (its weight and noise, the objective
+    /// with the internal elastic rows included).
+    pub prior: Option<PriorReport>,
 }
 
 /// Starting compliance of the bodies lumping (rad/(N*m)): a stiff arm joint.
@@ -197,18 +202,20 @@ pub const ELASTIC_PRIOR_SCALES: f64 = 10.0;
 
 /// Fit the groups `groups` (plus root pose and markers) starting from `model` (bodies
 /// lumping: compliances still at zero start from [`SEED_COMPLIANCE`]), with gravity
-/// features from `model`.
+/// features from `model`, under the user's `prior` (none: least squares with the internal
+/// elastic regulariser).
 pub fn fit(
     model: &ElasticTree,
     obs: &[TreeObservation],
     groups: Groups,
     max_iterations: usize,
+    prior: &TreePrior,
     monitor: &dyn Monitor,
 ) -> Result<TreeFit, IdentifyError> {
     let obs = with_features(model, obs);
     let mut start = model.clone();
     start.seed_compliance(groups, SEED_COMPLIANCE);
-    let problem = TreeProblem::new(start, model.free_params(groups), obs);
+    let problem = TreeProblem::new(start, model.free_params(groups), obs.clone());
     let x0 = problem.initial();
     let mut so = SolveOptions {
         pivoting: Pivoting::Priority(problem.priority_order()),
@@ -227,35 +234,59 @@ pub fn fit(
             TParam::Weight(..) | TParam::Compliance(..) | TParam::Elastic(..)
         )
     };
-    let solution = if problem.free.iter().any(|&g| elastic(model.params[g])) {
+    let user = prior.sigmas(model, &problem.free, &unknowns)?;
+    let has_user = user.iter().any(Option::is_some);
+    let has_elastic = problem.free.iter().any(|&g| elastic(model.params[g]));
+    let rms = |x: &[f64]| -> Result<f64, IdentifyError> {
+        let mut r = vec![0.0; problem.residual_count()];
+        problem.residuals(x, &mut r)?;
+        Ok((r.iter().map(|v| v * v).sum::<f64>() / r.len().max(1) as f64).sqrt())
+    };
+    // The data's noise: the user's, else the residual RMS of the fit without their prior
+    // (run first), else (internal regulariser only) the start's residual RMS.
+    let noise = match (prior.noise_m, has_user) {
+        (Some(s), true) => s,
+        (None, true) => {
+            let ls = fit(
+                model,
+                &obs,
+                groups,
+                max_iterations,
+                &TreePrior::default(),
+                monitor,
+            )?;
+            rms(&ls.solution.x)?
+        }
+        _ => rms(&x0)?,
+    };
+    let (solution, report) = if has_elastic || has_user {
         // Elasticity is weakly determined along some directions (products of weights and
         // compliances; coefficients close to geometry): a weak Gaussian prior, 10 physical
-        // scales around the start, keeps LM from crawling along them. The data weigh in with
-        // the start's residual RMS as their noise.
-        let mut r0 = vec![0.0; problem.residual_count()];
-        problem.residuals(&x0, &mut r0)?;
-        let rms = (r0.iter().map(|v| v * v).sum::<f64>() / r0.len().max(1) as f64).sqrt();
-        let prior = Prior {
+        // scales around the start, keeps LM from crawling along them.
+        let map = Prior {
             sigma: problem
                 .free
                 .iter()
-                .map(|&g| {
+                .zip(&user)
+                .map(|(&g, u)| {
                     let p = model.params[g];
-                    elastic(p).then(|| ELASTIC_PRIOR_SCALES * p.plausible_range())
+                    u.or_else(|| elastic(p).then(|| ELASTIC_PRIOR_SCALES * p.plausible_range()))
                 })
                 .collect(),
             mean: x0.clone(),
-            noise: rms.max(1e-9),
+            noise: noise.max(1e-9),
             weight: 1.0,
         };
-        solve_map(&problem, &unknowns, &x0, &prior, &so, monitor)?.0
+        let (sol, rep) = solve_map(&problem, &unknowns, &x0, &map, &so, monitor)?;
+        (sol, has_user.then_some(rep))
     } else {
-        solve(&problem, &unknowns, &x0, &so, monitor)?
+        (solve(&problem, &unknowns, &x0, &so, monitor)?, None)
     };
     Ok(TreeFit {
         model: problem.model(&solution.x),
         names: unknowns.into_iter().map(|u| u.name).collect(),
         solution,
+        prior: report,
     })
 }
 
@@ -344,6 +375,7 @@ pub fn cumulative(
     obs: &[TreeObservation],
     last: usize,
     max_iterations: usize,
+    prior: &TreePrior,
     monitor: &dyn Monitor,
 ) -> Result<Cumulative, IdentifyError> {
     let mut start = model.clone();
@@ -353,7 +385,7 @@ pub fn cumulative(
         if let Some(f) = fitted.take() {
             start = f.model;
         }
-        let f = fit(&start, obs, *groups, max_iterations, monitor)?;
+        let f = fit(&start, obs, *groups, max_iterations, prior, monitor)?;
         let e = errors_mm(&f.model, &with_features(&start, obs));
         steps.push(Step {
             name: (*name).into(),
@@ -389,6 +421,7 @@ pub fn k_fold(
     k: usize,
     seed: u64,
     max_iterations: usize,
+    prior: &TreePrior,
     monitor: &dyn Monitor,
 ) -> Result<Vec<f64>, IdentifyError> {
     let mut idx: Vec<usize> = (0..obs.len()).collect();
@@ -403,7 +436,7 @@ pub fn k_fold(
                 train.push(obs[i].clone());
             }
         }
-        let c = cumulative(model, &train, last, max_iterations, monitor)?;
+        let c = cumulative(model, &train, last, max_iterations, prior, monitor)?;
         held_out.extend(errors_mm(&c.last.model, &with_features(&c.start, &test)));
     }
     Ok(held_out)

@@ -19,10 +19,25 @@ fn all_elastic() -> ElasticOptions {
 fn twin_with_lumped_and_lateral_elasticity_is_recovered_to_noise_level() {
     let noise = 1e-4;
     let twin = ElasticTwin::new(&all_elastic(), 300, noise, 7);
-    let c =
-        cumulative(&twin.nominal, &twin.observations, 3, 400, &NoMonitor).expect("cumulative fit");
+    let c = cumulative(
+        &twin.nominal,
+        &twin.observations,
+        3,
+        400,
+        &TreePrior::default(),
+        &NoMonitor,
+    )
+    .expect("cumulative fit");
     let (steps, geometric) = (c.steps, c.last.model);
-    let f = fit(&geometric, &twin.observations, STEPS[4].1, 400, &NoMonitor).expect("full fit");
+    let f = fit(
+        &geometric,
+        &twin.observations,
+        STEPS[4].1,
+        400,
+        &TreePrior::default(),
+        &NoMonitor,
+    )
+    .expect("full fit");
     let train = errors_mm(&f.model, &with_features(&geometric, &twin.observations));
     let train = Summary::of(&train, "mm");
     let val = twin.validation(200, 99);
@@ -116,7 +131,15 @@ fn twin_with_link_weights_is_recovered_by_the_bodies_lumping() {
         ..all_elastic()
     };
     let twin = ElasticTwin::new(&bodies, 300, noise, 11);
-    let c = cumulative(&twin.nominal, &twin.observations, 4, 400, &NoMonitor).expect("fits");
+    let c = cumulative(
+        &twin.nominal,
+        &twin.observations,
+        4,
+        400,
+        &TreePrior::default(),
+        &NoMonitor,
+    )
+    .expect("fits");
     let val = twin.validation(200, 98);
     let held = Summary::of(
         &errors_mm(&c.last.model, &with_features(&c.start, &val)),
@@ -126,7 +149,15 @@ fn twin_with_link_weights_is_recovered_by_the_bodies_lumping() {
     // The same data through the subtree lumping (a model of the nominal tree without weights).
     let mut sub = crate::twin::elastic::nominal(&all_elastic());
     sub.base = twin.nominal.base;
-    let s = cumulative(&sub, &twin.observations, 4, 400, &NoMonitor).expect("fits");
+    let s = cumulative(
+        &sub,
+        &twin.observations,
+        4,
+        400,
+        &TreePrior::default(),
+        &NoMonitor,
+    )
+    .expect("fits");
     println!(
         "bodies twin: steps {means:.3?} mm, held-out vs truth {:.3} mm mean; subtree lumping {:.3} mm; held {:?}",
         held.mean, s.steps[4].error_mm.mean, c.last.solution.unidentifiable

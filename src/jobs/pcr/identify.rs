@@ -7,12 +7,16 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
+use super::identify_options::prior_of;
+pub use super::identify_options::{IdentifyOptions, PcrPriorSpec, calibration_options};
 use super::sensitivity::{PcrSensitivity, central_table2, table2_plots};
 use super::{PcrModel, load_model};
 use crate::identify::ParamReport;
+use crate::identify::prior::PriorReport;
 use crate::identify::solve::Dependency;
 use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
-use crate::measure::pcr::steps::{CalibrationOptions, Step, calibrated_file, default_steps};
+use crate::measure::pcr::prior::choose_pcr_weight;
+use crate::measure::pcr::steps::{CalibrationOptions, calibrated_file};
 use crate::measure::pcr::{PcrMeasurement, StepReport, Table3, identify_steps};
 use crate::model::pcr::PcrFile;
 use crate::report::{ErrorSet, Run};
@@ -31,28 +35,8 @@ struct Spec {
     options: IdentifyOptions,
 }
 
-/// `options` of `pcr.identify`.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct IdentifyOptions {
-    /// The steps: each a list of unknown names (`Ax_1`, `sx`), parameter types (`l`,
-    /// `gamma`, ...), `extrinsics` or `all`. Default: the paper's three steps.
-    #[serde(default)]
-    pub steps: Option<Vec<Vec<String>>>,
-    /// Relative tolerance of the rank detection (default 1e-8).
-    #[serde(default)]
-    pub rank_tolerance: Option<f64>,
-    /// Levenberg-Marquardt iteration limit per step (default 100).
-    #[serde(default)]
-    pub max_iterations: Option<usize>,
-    /// Bounds are nominal +/- this many standard uncertainties (default 3).
-    #[serde(default)]
-    pub bound_sigmas: Option<f64>,
-    /// `min_norm` (default): each unidentifiable combination is held at nominal; `hold`: the
-    /// unknowns rank detection drops are held at nominal themselves.
-    #[serde(default)]
-    pub gauge: Option<String>,
-}
+/// Seed of the K-fold split of a cross-validated prior weight.
+const CV_SEED: u64 = 0x5043_5250;
 
 /// A validated `pcr.identify` job.
 #[derive(Debug)]
@@ -61,77 +45,8 @@ pub struct IdentifyJob {
     measurements: Vec<PcrMeasurement>,
     validation: Option<Vec<PcrMeasurement>>,
     options: CalibrationOptions,
-}
-
-impl IdentifyOptions {
-    /// Parse `options` given as JSON (a campaign's `options.identify`), naming the field.
-    pub fn from_value(v: &Value) -> Result<IdentifyOptions, JobError> {
-        serde_path_to_error::deserialize(v).map_err(|e| {
-            JobError::invalid(format!("options.{}", e.path()), e.into_inner().to_string())
-        })
-    }
-}
-
-/// Turn job options into calibration options (errors name the option).
-pub fn calibration_options(o: &IdentifyOptions) -> Result<CalibrationOptions, JobError> {
-    let mut c = CalibrationOptions::default();
-    if let Some(steps) = &o.steps {
-        if steps.is_empty() {
-            return Err(JobError::invalid(
-                "options.steps",
-                "needs at least one step",
-            ));
-        }
-        c.steps = steps
-            .iter()
-            .enumerate()
-            .map(|(i, names)| {
-                Step::from_names(&format!("step {}", i + 1), names)
-                    .map_err(|e| JobError::invalid(format!("options.steps[{i}]"), e))
-            })
-            .collect::<Result<_, _>>()?;
-    } else {
-        c.steps = default_steps();
-    }
-    for (name, v) in [
-        ("options.rank_tolerance", o.rank_tolerance),
-        ("options.bound_sigmas", o.bound_sigmas),
-    ] {
-        if let Some(v) = v {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(JobError::invalid(
-                    name,
-                    format!("{v} must be a positive number"),
-                ));
-            }
-        }
-    }
-    if let Some(t) = o.rank_tolerance {
-        c.rank_tolerance = t;
-    }
-    if let Some(b) = o.bound_sigmas {
-        c.bound_sigmas = b;
-    }
-    match o.gauge.as_deref() {
-        None | Some("min_norm") => {}
-        Some("hold") => c.hold_unidentifiable = true,
-        Some(other) => {
-            return Err(JobError::invalid(
-                "options.gauge",
-                format!("`{other}`: expected \"min_norm\" or \"hold\""),
-            ));
-        }
-    }
-    if let Some(n) = o.max_iterations {
-        if n == 0 {
-            return Err(JobError::invalid(
-                "options.max_iterations",
-                "must be at least 1",
-            ));
-        }
-        c.max_iterations = n;
-    }
-    Ok(c)
+    /// Choose the prior's weight by K-fold before identifying.
+    cv_weight: bool,
 }
 
 /// Validate a `pcr.identify` job.
@@ -256,6 +171,9 @@ pub struct PcrCalibration {
     /// The paper's Table 2 of the model the identification started from (as
     /// `pcr.sensitivity` reports it): which parameters the poses can see, with units.
     pub sensitivity: PcrSensitivity,
+    /// Which mode ran (`least_squares`, `map`, `map_cv`), the weight, the noise (m) and the
+    /// MAP objective's terms (noise units).
+    pub prior: PriorReport,
 }
 
 impl IdentifyJob {
@@ -272,12 +190,18 @@ impl IdentifyJob {
         if let Some(v) = &validation {
             check_joints("validation", &model, v)?;
         }
-        let options = calibration_options(options)?;
+        let mut calibration = calibration_options(options)?;
+        let mut cv_weight = false;
+        if let Some((prior, cv)) = prior_of(options, &model.file) {
+            calibration.prior = Some(prior);
+            cv_weight = cv;
+        }
         Ok(IdentifyJob {
             model,
             measurements,
             validation,
-            options,
+            options: calibration,
+            cv_weight,
         })
     }
 
@@ -297,14 +221,33 @@ impl IdentifyJob {
     /// Run the three-step identification: the typed result and its artefacts (calibrated
     /// model, `model_errors.csv`); no main table.
     pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<PcrCalibration>, JobError> {
-        let cal = identify_steps(
+        let mut options = self.options.clone();
+        let mut k_fold = None;
+        let fit_from = if self.cv_weight { 0.5 } else { 0.0 };
+        if let (true, Some(prior)) = (self.cv_weight, options.prior.as_mut()) {
+            let (w, errors) = choose_pcr_weight(
+                &self.model.robot,
+                &self.model.file,
+                &self.measurements,
+                &self.options,
+                CV_SEED,
+                &SubMonitor::new(monitor, 0.0, fit_from),
+            )?;
+            prior.weight = w;
+            k_fold = Some(errors);
+        }
+        let mut cal = identify_steps(
             &self.model.robot,
             &self.model.file,
             &self.measurements,
             self.validation.as_deref(),
-            &self.options,
-            &SubMonitor::new(monitor, 0.0, 0.9),
+            &options,
+            &SubMonitor::new(monitor, fit_from, 0.9),
         )?;
+        if let Some(errors) = k_fold {
+            cal.prior.mode = "map_cv";
+            cal.prior.k_fold_errors = Some(errors);
+        }
         let sensitivity = central_table2(&self.model, &SubMonitor::new(monitor, 0.9, 1.0))?;
         let u: Vec<f64> = self
             .model
@@ -429,6 +372,7 @@ impl IdentifyJob {
                 }),
             calibrated_model: file,
             sensitivity,
+            prior: cal.prior,
         };
         Ok(Run {
             result,
@@ -460,6 +404,7 @@ mod tests {
         "gauge",
         "model_error",
         "parameters",
+        "prior",
         "residual_std",
         "sensitivity",
         "steps",

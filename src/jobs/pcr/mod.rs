@@ -5,6 +5,7 @@
 pub mod accuracy;
 pub mod fk;
 pub mod identify;
+pub mod identify_options;
 pub mod ik;
 pub mod sensitivity;
 

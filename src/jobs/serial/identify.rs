@@ -20,7 +20,7 @@ use super::{ChainSpec, PlateSpec, SerialModel, load_model};
 use crate::identify::solve::Dependency;
 use crate::identify::{
     Degeneracy, NearDependent, ParamReport, Pivoting, PriorReport, Solution, SolveOptions,
-    StopReason, Unobservable, solve,
+    StopReason, Unobservable,
 };
 use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::distance::distance_errors;
@@ -155,13 +155,7 @@ pub fn parse_inputs(
             None => None,
         };
         check_options(&options)?;
-        if options.prior.is_some() || options.prior_weight.is_some() {
-            return Err(JobError::invalid(
-                "options.prior",
-                "a prior is not yet supported with distance (L_mm) measurements",
-            ));
-        }
-        return Ok(IdentifyInputs {
+        let inputs = IdentifyInputs {
             model,
             ids,
             plate: BallPlate {
@@ -175,7 +169,9 @@ pub fn parse_inputs(
             validation_distances,
             warnings,
             options,
-        });
+        };
+        super::prior::validate(&inputs)?;
+        return Ok(inputs);
     }
     warnings.extend(unused_columns(
         "measurements",
@@ -457,21 +453,8 @@ impl IdentifyInputs {
     pub fn identify_distance(
         &self,
         monitor: &dyn Monitor,
-    ) -> Result<(DistanceProblem, Solution), JobError> {
-        let problem = DistanceProblem::new(
-            self.model.chain.clone(),
-            self.ids.clone(),
-            self.distances.clone(),
-        )?;
-        let x0 = problem.initial();
-        let sol = solve(
-            &problem,
-            &problem.unknowns(),
-            &x0,
-            &self.distance_solve_options(&problem),
-            monitor,
-        )?;
-        Ok((problem, sol))
+    ) -> Result<(DistanceProblem, Solution, PriorReport), JobError> {
+        super::prior::identify(self, None, monitor)
     }
 
     /// Identify from the measurements `subset` (all when `None`).
@@ -480,7 +463,7 @@ impl IdentifyInputs {
         subset: Option<&[usize]>,
         monitor: &dyn Monitor,
     ) -> Result<(PointProblem, Solution), JobError> {
-        let (problem, sol, _) = super::prior::identify(self, subset, monitor)?;
+        let (problem, sol, _) = super::prior::identify::<PointProblem>(self, subset, monitor)?;
         Ok((problem, sol))
     }
 }
@@ -958,7 +941,7 @@ impl IdentifyJob {
             return self.calibrate_distance(monitor);
         }
         let inp = &self.inputs;
-        let (problem, sol, prior) = super::prior::identify(inp, None, monitor)?;
+        let (problem, sol, prior) = super::prior::identify::<PointProblem>(inp, None, monitor)?;
         let calibrated = problem.model(&sol.x);
         let unit = inp.model.length_unit();
         let norms = |r: &nalgebra::DVector<f64>| -> Vec<f64> {
@@ -1054,7 +1037,7 @@ impl IdentifyJob {
         monitor: &dyn Monitor,
     ) -> Result<Run<SerialCalibration>, JobError> {
         let inp = &self.inputs;
-        let (problem, sol) = inp.identify_distance(monitor)?;
+        let (problem, sol, prior) = inp.identify_distance(monitor)?;
         let calibrated = problem.model(&sol.x);
         let unit = inp.model.length_unit();
         let (anchor, offset) = problem.anchor(&sol.x);
@@ -1077,6 +1060,7 @@ impl IdentifyJob {
             model_file,
         );
         r.measurement_type = Some("distance");
+        r.prior = Some(prior);
         r.anchor = Some(Anchor {
             x: anchor.x,
             y: anchor.y,

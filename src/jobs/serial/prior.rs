@@ -1,14 +1,103 @@
 //! `options.prior` / `options.prior_weight` of `serial.identify`: MAP identification with a
 //! Gaussian prior around the starting model, the weight fixed or chosen by K-fold
-//! cross-validation on the training measurements (see [`crate::identify::prior`]).
+//! cross-validation on the training measurements (see [`crate::identify::prior`]), for point and distance measurements alike.
 
 use super::identify::IdentifyInputs;
 pub use crate::identify::prior::{CV_FOLDS, PriorWeight};
 use crate::identify::prior::{CV_WEIGHTS, Prior, PriorReport, choose_weight, solve_map};
-use crate::identify::{IdentifyError, Solution, solve};
+use crate::identify::{IdentifyError, Problem, Solution, SolveOptions, Unknown, solve};
 use crate::jobs::JobError;
-use crate::measure::{PointMeasurement, PointProblem, Target};
+use crate::measure::distance::distance_errors;
+use crate::measure::{DistanceProblem, PointProblem, Target};
 use crate::util::{Monitor, NoMonitor, SubMonitor};
+
+/// What the MAP path needs of a serial identification problem: points / ball centres
+/// ([`PointProblem`]) or distances to an unknown anchor ([`DistanceProblem`]).
+pub trait SerialFit: Problem + Sized {
+    /// Number of measurements of the job.
+    fn count(inp: &IdentifyInputs) -> usize;
+    /// The problem over the measurements `idx`.
+    fn build(inp: &IdentifyInputs, idx: &[usize]) -> Result<Self, JobError>;
+    /// Starting unknowns.
+    fn start(&self) -> Vec<f64>;
+    /// Names, units and scales of the unknowns (the model's first: `ids`).
+    fn names(&self) -> Vec<Unknown>;
+    /// Solver settings of the job for this problem.
+    fn options(&self, inp: &IdentifyInputs) -> SolveOptions;
+    /// Sum of squared held-out residuals of the model fitted on `self` at `x`, and their
+    /// count, over the job's measurements `test`.
+    fn held_out(&self, inp: &IdentifyInputs, x: &[f64], test: &[usize]) -> (f64, usize);
+}
+
+impl SerialFit for PointProblem {
+    fn count(inp: &IdentifyInputs) -> usize {
+        inp.meas.len()
+    }
+    fn build(inp: &IdentifyInputs, idx: &[usize]) -> Result<Self, JobError> {
+        Ok(PointProblem::new(
+            inp.model.chain.clone(),
+            inp.ids.clone(),
+            inp.plate.clone(),
+            idx.iter().map(|&i| inp.meas[i].clone()).collect(),
+        )?)
+    }
+    fn start(&self) -> Vec<f64> {
+        self.initial()
+    }
+    fn names(&self) -> Vec<Unknown> {
+        self.unknowns()
+    }
+    fn options(&self, inp: &IdentifyInputs) -> SolveOptions {
+        inp.solve_options(self)
+    }
+    /// Three residuals per measurement; torques from the starting model.
+    fn held_out(&self, inp: &IdentifyInputs, x: &[f64], test: &[usize]) -> (f64, usize) {
+        let chain = self.model(x);
+        let centres = self.centres(x);
+        let sum = test
+            .iter()
+            .map(|&i| {
+                let m = &inp.meas[i];
+                let target = match m.target {
+                    Target::Point(q) => q,
+                    Target::Ball(b) => centres[b],
+                };
+                let tau = inp.model.chain.static_torques(&m.q);
+                (chain.tcp(&m.q, Some(&tau)).p - target).norm_squared()
+            })
+            .sum();
+        (sum, 3 * test.len())
+    }
+}
+
+impl SerialFit for DistanceProblem {
+    fn count(inp: &IdentifyInputs) -> usize {
+        inp.distances.len()
+    }
+    fn build(inp: &IdentifyInputs, idx: &[usize]) -> Result<Self, JobError> {
+        Ok(DistanceProblem::new(
+            inp.model.chain.clone(),
+            inp.ids.clone(),
+            idx.iter().map(|&i| inp.distances[i].clone()).collect(),
+        )?)
+    }
+    fn start(&self) -> Vec<f64> {
+        self.initial()
+    }
+    fn names(&self) -> Vec<Unknown> {
+        self.unknowns()
+    }
+    fn options(&self, inp: &IdentifyInputs) -> SolveOptions {
+        inp.distance_solve_options(self)
+    }
+    /// One residual per measurement: the fitted model, anchor and offset.
+    fn held_out(&self, inp: &IdentifyInputs, x: &[f64], test: &[usize]) -> (f64, usize) {
+        let (anchor, offset) = self.anchor(x);
+        let test: Vec<_> = test.iter().map(|&i| inp.distances[i].clone()).collect();
+        let e = distance_errors(&self.model(x), &anchor, offset, &test);
+        (e.iter().map(|v| v * v).sum(), e.len())
+    }
+}
 
 /// Check `options.prior` (names, positive values) and `options.prior_weight`.
 pub fn validate(inp: &IdentifyInputs) -> Result<(), JobError> {
@@ -24,35 +113,32 @@ pub fn validate(inp: &IdentifyInputs) -> Result<(), JobError> {
         _ => Ok(()),
     }?;
     if let Some(spec) = &inp.options.prior {
-        let all: Vec<usize> = (0..inp.meas.len()).collect();
-        spec.sigmas(&problem(inp, &all)?.unknowns(), |k| k < inp.ids.len())
+        let unknowns = if inp.distances.is_empty() {
+            let all: Vec<usize> = (0..inp.meas.len()).collect();
+            PointProblem::build(inp, &all)?.names()
+        } else {
+            let all: Vec<usize> = (0..inp.distances.len()).collect();
+            DistanceProblem::build(inp, &all)?.names()
+        };
+        spec.sigmas(&unknowns, |k| k < inp.ids.len())
             .map_err(|m| JobError::invalid("options.prior", m))?;
     }
     Ok(())
 }
 
-fn problem(inp: &IdentifyInputs, idx: &[usize]) -> Result<PointProblem, JobError> {
-    Ok(PointProblem::new(
-        inp.model.chain.clone(),
-        inp.ids.clone(),
-        inp.plate.clone(),
-        idx.iter().map(|&i| inp.meas[i].clone()).collect(),
-    )?)
-}
-
-fn map_fit(
+fn map_fit<P: SerialFit>(
     inp: &IdentifyInputs,
-    p: &PointProblem,
+    p: &P,
     noise: f64,
     weight: f64,
     monitor: &dyn Monitor,
 ) -> Result<(Solution, PriorReport), JobError> {
     let spec = inp.options.prior.clone().unwrap_or_default();
-    let unknowns = p.unknowns();
+    let unknowns = p.names();
     let sigma = spec
         .sigmas(&unknowns, |k| k < inp.ids.len())
         .map_err(|m| JobError::invalid("options.prior", m))?;
-    let x0 = p.initial();
+    let x0 = p.start();
     let prior = Prior {
         sigma,
         mean: x0.clone(),
@@ -64,54 +150,34 @@ fn map_fit(
         &unknowns,
         &x0,
         &prior,
-        &inp.solve_options(p),
+        &p.options(inp),
         monitor,
     )?)
-}
-
-/// Sum of squared held-out residuals of the model fitted on `p` at `x`, and their count
-/// (three per measurement; torques from the starting model).
-fn held_out(inp: &IdentifyInputs, p: &PointProblem, x: &[f64], test: &[usize]) -> (f64, usize) {
-    let chain = p.model(x);
-    let centres = p.centres(x);
-    let test: Vec<&PointMeasurement> = test.iter().map(|&i| &inp.meas[i]).collect();
-    let sum = test
-        .iter()
-        .map(|m| {
-            let target = match m.target {
-                Target::Point(q) => q,
-                Target::Ball(b) => centres[b],
-            };
-            let tau = inp.model.chain.static_torques(&m.q);
-            (chain.tcp(&m.q, Some(&tau)).p - target).norm_squared()
-        })
-        .sum();
-    (sum, 3 * test.len())
 }
 
 /// Identify from the measurements `subset` (all when `None`): least squares without
 /// `options.prior`, MAP with it. The noise dividing the data is `options.noise`, else the
 /// residual sigma of the least-squares fit.
-pub fn identify(
+pub fn identify<P: SerialFit>(
     inp: &IdentifyInputs,
     subset: Option<&[usize]>,
     monitor: &dyn Monitor,
-) -> Result<(PointProblem, Solution, PriorReport), JobError> {
+) -> Result<(P, Solution, PriorReport), JobError> {
     let all: Vec<usize> = match subset {
         Some(s) => s.to_vec(),
-        None => (0..inp.meas.len()).collect(),
+        None => (0..P::count(inp)).collect(),
     };
-    let p = problem(inp, &all)?;
-    let x0 = p.initial();
+    let p = P::build(inp, &all)?;
+    let x0 = p.start();
     if inp.options.prior.is_none() {
-        let sol = solve(&p, &p.unknowns(), &x0, &inp.solve_options(&p), monitor)?;
+        let sol = solve(&p, &p.names(), &x0, &p.options(inp), monitor)?;
         return Ok((p, sol, PriorReport::least_squares()));
     }
     let noise = match inp.options.noise {
         Some(n) => n,
         None => {
             let sub = SubMonitor::new(monitor, 0.0, 0.2);
-            let ls = solve(&p, &p.unknowns(), &x0, &inp.solve_options(&p), &sub)?;
+            let ls = solve(&p, &p.names(), &x0, &p.options(inp), &sub)?;
             ls.uncertainty.sigma
         }
     };
@@ -133,10 +199,10 @@ pub fn identify(
                 }
                 let tr: Vec<usize> = tr.iter().map(|&i| all[i]).collect();
                 let te: Vec<usize> = te.iter().map(|&i| all[i]).collect();
-                let fit = problem(inp, &tr)
+                let fit = P::build(inp, &tr)
                     .and_then(|q| map_fit(inp, &q, noise, w, &NoMonitor).map(|f| (q, f)));
                 match fit {
-                    Ok((q, (sol, _))) => Ok(held_out(inp, &q, &sol.x, &te)),
+                    Ok((q, (sol, _))) => Ok(q.held_out(inp, &sol.x, &te)),
                     Err(e) => Err(IdentifyError::Model(e.to_string())),
                 }
             })?;

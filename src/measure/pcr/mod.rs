@@ -7,10 +7,12 @@
 //! - [`problem`]: the least-squares [`crate::identify::Problem`] over robot parameters and
 //!   extrinsics, with warm-started forward kinematics.
 //! - [`steps`]: the bounded three-step identification and its gauge handling.
+//! - [`prior`]: the Gaussian prior of a MAP identification and its weight by K-fold.
 //! - [`report`]: model errors, the paper's Table 3, step reports.
 //! - [`accuracy`]: ISO 9283 pose accuracy and repeatability (the paper's Table 4).
 
 pub mod accuracy;
+pub mod prior;
 pub mod problem;
 pub mod report;
 pub mod steps;

@@ -79,7 +79,8 @@ pub struct StepReport {
     pub stop_reason: StopReason,
     /// Its iterations.
     pub iterations: usize,
-    /// Weighted sum of squares before and after (m^2).
+    /// Objective before and after (m^2): the weighted sum of squares of the pose residuals,
+    /// plus in MAP the prior term times the squared position repeatability.
     pub cost_before: f64,
     /// After.
     pub cost_after: f64,

@@ -12,9 +12,11 @@
 
 use nalgebra::DMatrix;
 
+use super::prior::{PcrPrior, map_gauges};
 use super::problem::{PcrProblem, extrinsics, robot_params, unknowns};
 use super::report::{ErrorStats, StepReport, Table3, Table3Row, Table3Set};
 use super::{PcrMeasurement, UNKNOWNS, measured_pose, pose_error, unknown_name, unknown_unit};
+use crate::identify::prior::{MapProblem, PriorReport};
 use crate::identify::solve::Dependency;
 use crate::identify::{
     Gauged, IdentifyError, LmOptions, ParamReport, Pivoting, Problem, Restricted, Uncertainty,
@@ -109,6 +111,11 @@ pub struct CalibrationOptions {
     /// single parameters makes the others absorb their errors: with the file's 3-sigma bounds
     /// a lever (the 54 mm between clamps times an angle error) can push them onto a bound.
     pub hold_unidentifiable: bool,
+    /// Worker threads for the forward kinematics and Jacobians of the measurements; `None`
+    /// uses every available core.
+    pub threads: Option<usize>,
+    /// A Gaussian prior: MAP identification (see [`super::prior`]); `None` for least squares.
+    pub prior: Option<PcrPrior>,
 }
 
 impl Default for CalibrationOptions {
@@ -120,6 +127,8 @@ impl Default for CalibrationOptions {
             max_iterations: 100,
             refine_damping: 1e-9,
             hold_unidentifiable: false,
+            threads: None,
+            prior: None,
         }
     }
 }
@@ -147,6 +156,8 @@ pub struct Calibration {
     pub validation_errors: Option<[Vec<f64>; 2]>,
     /// Uncertainty of the last step's unknowns.
     pub uncertainty: Uncertainty,
+    /// Which mode ran (least squares or MAP) and the MAP objective's terms.
+    pub prior: PriorReport,
 }
 
 /// Priority of unknowns for rank detection: the extrinsics first (they absorb the gauges),
@@ -241,12 +252,26 @@ fn run_step(
         }
         (keep, Vec::new(), start)
     } else {
-        let g = null_directions(&jf, &scale, rank.dropped.len())?;
+        let mut g = null_directions(&jf, &scale, rank.dropped.len())?;
+        if let Some(p) = &ctx.opts.prior {
+            let sigma: Vec<Option<f64>> = free.iter().map(|&k| p.sigma[k]).collect();
+            g = map_gauges(g, &scale, &sigma);
+        }
         (free.clone(), g, x.to_vec())
     };
     let restricted = Restricted::new(problem, start.clone(), solved.clone());
     let x_ref: Vec<f64> = solved.iter().map(|&k| ctx.x_nom[k]).collect();
-    let gauged = Gauged::new(&restricted, gauges, x_ref, weight.max(f64::MIN_POSITIVE));
+    let prior = ctx
+        .opts
+        .prior
+        .as_ref()
+        .map(|p| p.restricted(&solved, ctx.x_nom));
+    let map = prior.as_ref().map(|p| MapProblem::new(&restricted, p));
+    let data: &dyn Problem = match &map {
+        Some(m) => m,
+        None => &restricted,
+    };
+    let gauged = Gauged::new(data, gauges, x_ref, weight.max(f64::MIN_POSITIVE));
     let lm = LmOptions {
         max_iterations: ctx.opts.max_iterations,
         initial_damping: if first { 1e-3 } else { ctx.opts.refine_damping },
@@ -320,7 +345,10 @@ pub fn identify_steps(
     let base = base
         .with_params(file.params())
         .map_err(|e| IdentifyError::Model(e.to_string()))?;
-    let problem = PcrProblem::new(base.clone(), calibration.to_vec(), weight);
+    let mut problem = PcrProblem::new(base.clone(), calibration.to_vec(), weight);
+    if let Some(threads) = opts.threads {
+        problem = problem.with_threads(threads);
+    }
     let ctx = Context {
         problem: &problem,
         x_nom: &x_nom,
@@ -417,6 +445,24 @@ pub fn identify_steps(
         val_set = Some(set(&vp0, &vt0, &vp1, &vt1));
         validation_errors = Some([vp0, vp1]);
     }
+    let prior = match &opts.prior {
+        None => PriorReport::least_squares(),
+        Some(p) => {
+            let mut r = vec![0.0; problem.residual_count()];
+            problem.residuals(&x, &mut r)?;
+            let data = r.iter().map(|v| v * v).sum::<f64>() / (p.noise * p.noise);
+            let prior_cost = p.cost(&x, &x_nom);
+            PriorReport {
+                mode: "map",
+                weight: Some(p.weight),
+                noise: Some(p.noise),
+                count: p.count(),
+                objective: Some(data + prior_cost),
+                prior_cost: Some(prior_cost),
+                k_fold_errors: None,
+            }
+        }
+    };
     monitor.progress(1.0, "identification done");
     Ok(Calibration {
         params,
@@ -430,6 +476,7 @@ pub fn identify_steps(
         calibration_errors: [cal_nom, cal_id],
         validation_errors,
         uncertainty: last.uncertainty,
+        prior,
         nominal_fit,
         x,
     })

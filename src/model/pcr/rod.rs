@@ -16,6 +16,12 @@
 //! ```
 //!
 //! `n = (nx, ny)` is constant along the rod (no distributed load).
+//!
+//! Two methods integrate these equations: classical RK4 here (the straightforward reference)
+//! and the Taylor-series method of `taylor` (the fast default, [`Integrator`]).
+
+pub(crate) use super::Integrator;
+use super::taylor;
 
 /// Number of state components: x, y, c = cos(phi), s = sin(phi), phi, m.
 pub(crate) const DIM: usize = 6;
@@ -60,8 +66,10 @@ pub(crate) struct Rod {
     pub(crate) flex: f64,
     /// Scaled rod length l_i / L.
     pub(crate) length: f64,
-    /// Number of RK4 steps.
+    /// Number of integration steps.
     pub(crate) steps: usize,
+    /// The integration method.
+    pub(crate) integrator: Integrator,
 }
 
 /// Proximal state: position `(x, y)`, angle `phi`, moment `m` (scaled).
@@ -82,7 +90,7 @@ pub(crate) fn derivative(rod: &Rod, y: &State) -> State {
 }
 
 /// Forcing coefficients of a seed's variational equation: (d nx, d ny, d flex).
-fn forcing(seed: Seed) -> [f64; 3] {
+pub(crate) fn forcing(seed: Seed) -> [f64; 3] {
     match seed {
         Seed::Nx => [1.0, 0.0, 0.0],
         Seed::Ny => [0.0, 1.0, 0.0],
@@ -118,7 +126,7 @@ fn axpy(y: &State, h: f64, k: &State) -> State {
 }
 
 /// Initial value of the variational column for `seed` at the proximal state `y0`.
-fn seed_start(seed: Seed, y0: &State) -> State {
+pub(crate) fn seed_start(seed: Seed, y0: &State) -> State {
     let mut v = [0.0; DIM];
     match seed {
         Seed::M0 => v[M] = 1.0,
@@ -132,10 +140,33 @@ fn seed_start(seed: Seed, y0: &State) -> State {
     v
 }
 
-/// Integrates `R` rods (same step count) in lockstep from `y0`; returns the distal states.
+/// Integrates `R` rods (same step count and method) in lockstep from `y0`; returns the
+/// distal states.
+pub(crate) fn integrate<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [State; R] {
+    match rods.first().map(|r| r.integrator) {
+        Some(Integrator::Taylor) => taylor::integrate(rods, y0),
+        _ => rk4(rods, y0),
+    }
+}
+
+/// Integrates `R` rods in lockstep together with the variational equations of the `K`
+/// seeds; returns the distal states and, per rod, the derivative of its distal state with
+/// respect to each seed (exact derivatives of the discrete map of either method).
+pub(crate) fn integrate_var<const R: usize, const K: usize>(
+    rods: &[Rod; R],
+    y0: &[State; R],
+    seeds: [Seed; K],
+) -> ([State; R], [[State; K]; R]) {
+    match rods.first().map(|r| r.integrator) {
+        Some(Integrator::Taylor) => taylor::integrate_var(rods, y0, seeds),
+        _ => rk4_var(rods, y0, seeds),
+    }
+}
+
+/// RK4 integration of `R` rods in lockstep from `y0`; returns the distal states.
 /// Lockstep integration of independent rods keeps the processor's pipelines full: a single
 /// RK4 chain is bound by the latency of its dependent operations.
-pub(crate) fn integrate<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [State; R] {
+fn rk4<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [State; R] {
     let steps = rods.iter().map(|r| r.steps).max().unwrap_or(0);
     let h: [f64; R] = std::array::from_fn(|r| rods[r].length / steps as f64);
     let mut y = *y0;
@@ -156,14 +187,13 @@ pub(crate) fn integrate<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [St
     y
 }
 
-/// Integrates `R` rods in lockstep together with the variational equations of the `K`
-/// seeds; returns the distal states and, per rod, the derivative of its distal state with
-/// respect to each seed.
+/// RK4 integration of `R` rods in lockstep together with the variational equations of the
+/// `K` seeds.
 ///
 /// The variational equations are integrated with the same RK4 stages as the state, so the
 /// derivatives are exact derivatives of the discrete map (not an approximation of it): Newton
 /// then converges quadratically to the discrete solution.
-pub(crate) fn integrate_var<const R: usize, const K: usize>(
+fn rk4_var<const R: usize, const K: usize>(
     rods: &[Rod; R],
     y0: &[State; R],
     seeds: [Seed; K],
@@ -215,6 +245,7 @@ mod tests {
             flex: 1.1,
             length: 1.0,
             steps,
+            integrator: Integrator::Rk4,
         }
     }
 
@@ -226,6 +257,7 @@ mod tests {
             flex: 2.0,
             length: 1.0,
             steps: 400,
+            integrator: Integrator::Rk4,
         };
         let m = 0.8;
         let [y] = integrate(&[r], &[start_state(0.1, 0.2, 0.3, m)]);

@@ -3,8 +3,8 @@
 //! kinematics. Lengths are in the reference length `L`, forces in `E I_1 / L^2`, moments in
 //! `E I_1 / L`.
 
-use super::Load;
 use super::params::PcrParams;
+use super::{Integrator, Load};
 use crate::geometry::wrap_angle;
 
 /// Scaled, solver-ready geometry of one limb.
@@ -37,8 +37,10 @@ pub(crate) struct Setup {
     pub(crate) l_ref: f64,
     /// Bending stiffness E I_1 of limb 1 (N*m^2): the wrench scale.
     pub(crate) ei: f64,
-    /// RK4 steps per rod.
+    /// Integration steps per rod.
     pub(crate) steps: usize,
+    /// The integration method.
+    pub(crate) integrator: Integrator,
     /// Sign of the determinant of the shooting Jacobian (forward, inverse) on the stable
     /// branch connected to the unloaded home configuration; 0 while unknown.
     pub(crate) stable_sign: [f64; 2],
@@ -46,7 +48,13 @@ pub(crate) struct Setup {
 
 impl Setup {
     /// Scaled setup of a parameter set.
-    pub(crate) fn new(p: &PcrParams, load: &Load, l_ref: f64, steps: usize) -> Self {
+    pub(crate) fn new(
+        p: &PcrParams,
+        load: &Load,
+        l_ref: f64,
+        steps: usize,
+        integrator: Integrator,
+    ) -> Self {
         let d1 = p.limbs[0].d;
         let ei = p.e * std::f64::consts::PI * d1.powi(4) / 64.0;
         let limbs = std::array::from_fn(|i| {
@@ -75,6 +83,7 @@ impl Setup {
             l_ref,
             ei,
             steps,
+            integrator,
             stable_sign: [0.0; 2],
         }
     }

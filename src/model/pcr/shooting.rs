@@ -47,6 +47,7 @@ fn limb_eval(setup: &Setup, i: usize, z: &Vec12, q: &[f64; 3], pose: &[f64; 3]) 
         flex: l.flex,
         length: l.length,
         steps: setup.steps,
+        integrator: setup.integrator,
     };
     LimbEval { y0, rod, rb }
 }

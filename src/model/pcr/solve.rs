@@ -66,7 +66,7 @@ impl Pcr {
                 reason: "steps, jacobian_steps and max_iterations must be positive".into(),
             });
         }
-        let mut setup = Setup::new(&params, &load, l_ref, options.steps);
+        let mut setup = Setup::new(&params, &load, l_ref, options.steps, options.integrator);
         let key = fingerprint(&params, l_ref, &options);
         // The unloaded straight configuration is stable: the sign of the Jacobian there marks
         // the stable branch for every later solve.

@@ -1,69 +1,138 @@
-//! Tests that need the solver's internals: the integration accuracy at the rod tip.
+//! Tests that need the solver's internals: the accuracy of the reference integration and of
+//! the fast kinematics against it.
 
 use super::rod::{self, Rod};
 use super::setup::Setup;
-use super::{Load, PcrFile};
+use super::{Integrator, Load, PcrFile, SolverOptions};
 
-/// Richardson step halving on the rods of solved configurations across the joint box: the
-/// RK4 error at the tip, estimated as |y_N - y_2N| * 16 / 15, is under 1 nm (and under
-/// 1e-7 rad for the tangent), and the differences shrink 16-fold per halving, so the
-/// estimate is in the asymptotic regime and can be trusted.
-#[test]
-fn rod_tip_integration_error_is_under_a_nanometre() {
+/// The robot of the test data solved with the reference integrator: 256 RK4 steps per rod.
+fn reference(robot: &super::Pcr) -> super::Pcr {
+    robot
+        .with_options(SolverOptions {
+            integrator: Integrator::Rk4,
+            steps: REFERENCE_STEPS,
+            jacobian_steps: 12,
+            ..*robot.options()
+        })
+        .expect("reference robot")
+}
+
+const REFERENCE_STEPS: usize = 256;
+
+fn robot() -> super::Pcr {
     let text = std::fs::read_to_string("tests/data/robots/pcr3pf.json").expect("data");
-    let robot = PcrFile::parse(&text).expect("file").robot().expect("robot");
-    let steps = robot.options().steps;
-    let l_ref = robot.l_ref();
+    PcrFile::parse(&text).expect("file").robot().expect("robot")
+}
+
+/// The joint box's 3 x 3 x 3 grid (corners are the largest deformations).
+fn grid() -> Vec<[f64; 3]> {
     let v = [-0.0025, 0.0, 0.0025];
-    let mut worst = (0.0_f64, 0.0_f64);
+    let mut out = Vec::new();
     for a in v {
         for b in v {
             for c in v {
-                let q = [a, b, c];
-                let eq = robot.fk(&q).expect("fk");
-                let setup = Setup::new(robot.params(), &Load::default(), l_ref, steps);
-                for i in 0..3 {
-                    let l = &setup.limbs[i];
-                    let y0 = rod::start_state(
-                        l.a[0] + q[i] / l_ref * l.u[0],
-                        l.a[1] + q[i] / l_ref * l.u[1],
-                        l.phi0,
-                        eq.scaled[3 * i + 2],
-                    );
-                    let tip = |n: usize| {
-                        let r = Rod {
-                            n: [eq.scaled[3 * i], eq.scaled[3 * i + 1]],
-                            flex: l.flex,
-                            length: l.length,
-                            steps: n,
-                        };
-                        rod::integrate(&[r], &[y0])[0]
-                    };
-                    let (t1, t2, t4) = (tip(steps), tip(2 * steps), tip(4 * steps));
-                    let d12 = (t1[rod::X] - t2[rod::X]).hypot(t1[rod::Y] - t2[rod::Y]) * l_ref;
-                    let d24 = (t2[rod::X] - t4[rod::X]).hypot(t2[rod::Y] - t4[rod::Y]) * l_ref;
-                    let dphi = (t1[rod::PHI] - t2[rod::PHI]).abs();
-                    worst = (
-                        worst.0.max(d12 * 16.0 / 15.0),
-                        worst.1.max(dphi * 16.0 / 15.0),
-                    );
-                    if d12 > 1e-12 {
-                        let order = d12 / d24;
-                        assert!(
-                            (12.0..20.0).contains(&order),
-                            "halving ratio {order} at {q:?}"
-                        );
-                    }
-                }
+                out.push([a, b, c]);
             }
         }
     }
-    assert!(worst.0 < 1e-9, "tip position error {:e} m", worst.0);
-    assert!(worst.1 < 1e-7, "tip angle error {:e} rad", worst.1);
+    out
+}
+
+/// Richardson step halving on the rods of solved configurations across the joint box: the
+/// error of the 256-step RK4 reference at the tip, estimated as |y_128 - y_256| / 15, is
+/// far under 1 nm, and the differences shrink 16-fold per halving, so the estimate is in the
+/// asymptotic regime and the reference can be trusted.
+#[test]
+fn reference_integration_error_is_far_under_a_nanometre() {
+    let robot = reference(&robot());
+    let l_ref = robot.l_ref();
+    let mut worst = (0.0_f64, 0.0_f64);
+    for q in grid() {
+        let eq = robot.fk(&q).expect("fk");
+        let setup = Setup::new(robot.params(), &Load::default(), l_ref, 1, Integrator::Rk4);
+        for i in 0..3 {
+            let l = &setup.limbs[i];
+            let y0 = rod::start_state(
+                l.a[0] + q[i] / l_ref * l.u[0],
+                l.a[1] + q[i] / l_ref * l.u[1],
+                l.phi0,
+                eq.scaled[3 * i + 2],
+            );
+            let tip = |n: usize| {
+                let r = Rod {
+                    n: [eq.scaled[3 * i], eq.scaled[3 * i + 1]],
+                    flex: l.flex,
+                    length: l.length,
+                    steps: n,
+                    integrator: Integrator::Rk4,
+                };
+                rod::integrate(&[r], &[y0])[0]
+            };
+            let s = REFERENCE_STEPS / 4;
+            let (t1, t2, t4) = (tip(s), tip(2 * s), tip(4 * s));
+            let d12 = (t1[rod::X] - t2[rod::X]).hypot(t1[rod::Y] - t2[rod::Y]) * l_ref;
+            let d24 = (t2[rod::X] - t4[rod::X]).hypot(t2[rod::Y] - t4[rod::Y]) * l_ref;
+            let dphi = (t2[rod::PHI] - t4[rod::PHI]).abs();
+            worst = (worst.0.max(d24 / 15.0), worst.1.max(dphi / 15.0));
+            if d12 > 1e-13 {
+                let order = d12 / d24;
+                assert!(
+                    (12.0..20.0).contains(&order),
+                    "halving ratio {order} at {q:?}"
+                );
+            }
+        }
+    }
+    assert!(worst.0 < 1e-11, "reference tip error {:e} m", worst.0);
+    assert!(
+        worst.1 < 1e-10,
+        "reference tip angle error {:e} rad",
+        worst.1
+    );
     println!(
-        "worst RK4 tip error with {steps} steps: {:.3e} m, {:.3e} rad",
+        "RK4 reference ({REFERENCE_STEPS} steps) tip error: {:.3e} m, {:.3e} rad",
         worst.0, worst.1
     );
+}
+
+/// The fast forward kinematics (Taylor series, default options) equals the 256-step RK4
+/// reference within 1 nm and 1e-7 rad across the joint box, unloaded and under a load, and
+/// its inverse kinematics returns the joints.
+#[test]
+fn fast_kinematics_equal_the_rk4_reference() {
+    let fast = robot();
+    assert_eq!(fast.options().integrator, Integrator::Taylor);
+    let load = Load {
+        force: [0.002, -0.001],
+        moment: 1e-5,
+    };
+    let mut worst = (0.0_f64, 0.0_f64, 0.0_f64);
+    for robot in [fast.clone(), fast.with_load(load).expect("load")] {
+        let slow = reference(&robot);
+        let mut qs = grid();
+        qs.extend([[0.0012, -0.0007, 0.0021], [-0.0019, 0.0023, 0.0004]]);
+        for q in qs {
+            let a = robot.fk(&q).expect("fast fk");
+            let b = slow.fk(&q).expect("reference fk");
+            let dp = (a.pose.x - b.pose.x).hypot(a.pose.y - b.pose.y);
+            let dt = (a.pose.theta - b.pose.theta).abs();
+            worst = (worst.0.max(dp), worst.1.max(dt), worst.2);
+            // Inverse kinematics of the pose returns the joints (inside the limits: at a
+            // limit, rounding may put the joint found a hair outside).
+            if q.iter().all(|v| v.abs() < 0.0025) {
+                let back = robot.ik(&a.pose).expect("ik");
+                let dq = (0..3).fold(0.0_f64, |m, k| m.max((back.q[k] - q[k]).abs()));
+                worst.2 = worst.2.max(dq);
+            }
+        }
+    }
+    println!(
+        "fast vs reference FK: {:.3e} m, {:.3e} rad; IK round trip {:.3e} m",
+        worst.0, worst.1, worst.2
+    );
+    assert!(worst.0 < 1e-9, "position differs by {:e} m", worst.0);
+    assert!(worst.1 < 1e-7, "angle differs by {:e} rad", worst.1);
+    assert!(worst.2 < 1e-10, "IK round trip off by {:e} m", worst.2);
 }
 
 /// Models are shared across threads (identification workers, the daemon's pool).

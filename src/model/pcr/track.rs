@@ -51,6 +51,7 @@ pub(crate) fn fingerprint(p: &PcrParams, l_ref: f64, opts: &SolverOptions) -> u6
     }
     l_ref.to_bits().hash(&mut h);
     opts.steps.hash(&mut h);
+    opts.integrator.hash(&mut h);
     h.finish()
 }
 
