@@ -64,12 +64,14 @@ enum Command {
     },
     /// Run the benchmarks of an area and print the figures.
     Bench {
-        /// Area: `serial`, `pcr`, `humanoid`, `all` (those three), `serial.fk` (only the
-        /// `serial.fk` table figures of `serial`), `drivers` or `api` (the daemon under many
-        /// concurrent clients).
+        /// Area: `serial`, `pcr`, `humanoid`, `identify` (identification from 90 to 100,000
+        /// measurements), `all` (those four), `serial.fk` (only the `serial.fk` table
+        /// figures of `serial`), `identify:N` (one size), `kernels` (nalgebra against faer
+        /// and the crossovers), `drivers` or `api` (the daemon under many concurrent
+        /// clients).
         area: String,
         /// Also write every figure (median, min, max, peak memory) of `serial`, `pcr`,
-        /// `humanoid` or `all` to this JSON file, to compare a run with an earlier one.
+        /// `humanoid`, `identify` or `all` to this JSON file, to compare a run with an earlier one.
         #[arg(long)]
         json: Option<PathBuf>,
     },
@@ -584,10 +586,15 @@ fn main() -> Result<()> {
                 "serial.fk" => Some(calibd::bench::serial::fk_tables()),
                 "humanoid" => Some(calibd::bench::humanoid::run()),
                 "pcr" => Some(calibd::bench::pcr::run()),
-                _ => None,
+                "identify" => Some(calibd::bench::identify::run()),
+                "kernels" => Some(calibd::bench::kernels::run()),
+                other => other
+                    .strip_prefix("identify:")
+                    .and_then(|n| n.parse::<usize>().ok())
+                    .map(|n| calibd::bench::identify::sweep(&[n])),
             };
             let areas: Vec<&str> = match area.as_str() {
-                "all" => vec!["serial", "pcr", "humanoid"],
+                "all" => vec!["serial", "pcr", "humanoid", "identify"],
                 "api" => {
                     let report =
                         runtime()?.block_on(calibd::bench::api::run(Default::default()))?;
@@ -600,7 +607,7 @@ fn main() -> Result<()> {
                 other if numerical_area(other) => vec![other],
                 other => {
                     bail!(
-                        "unknown benchmark area `{other}` (known: serial, serial.fk, pcr, humanoid, all, drivers, api)"
+                        "unknown benchmark area `{other}` (known: serial, serial.fk, pcr, humanoid, identify, identify:N, kernels, all, drivers, api)"
                     )
                 }
             };
@@ -734,5 +741,10 @@ fn main() -> Result<()> {
 
 /// The benchmark areas whose figures `--json` can write.
 fn numerical_area(a: &str) -> bool {
-    matches!(a, "serial" | "serial.fk" | "pcr" | "humanoid")
+    matches!(
+        a,
+        "serial" | "serial.fk" | "pcr" | "humanoid" | "identify" | "kernels"
+    ) || a
+        .strip_prefix("identify:")
+        .is_some_and(|n| n.parse::<usize>().is_ok())
 }

@@ -3,6 +3,8 @@
 
 pub mod api;
 pub mod humanoid;
+pub mod identify;
+pub mod kernels;
 pub mod pcr;
 pub mod serial;
 

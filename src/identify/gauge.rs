@@ -39,7 +39,11 @@ pub fn null_directions(
         js.column_mut(k).scale_mut(*s);
     }
     // The right singular vectors of R (from a QR of the tall matrix) are those of J.
-    let r = if js.nrows() > m { js.qr().r() } else { js };
+    let r = if js.nrows() > m {
+        super::dense::r_factor(&js)
+    } else {
+        js
+    };
     let svd = r.svd(false, true);
     let vt = svd
         .v_t

@@ -114,6 +114,32 @@ fn bound_state(x: &[f64], o: &LmOptions) -> Vec<i8> {
         .collect()
 }
 
+/// The scaled normal matrix and gradient of the columns `free`: `D^-1 J^T J D^-1` and
+/// `D^-1 J^T r`. From [`super::dense::GRAM_FAER_MIN_ROWS`] rows on they come from `J^T J`
+/// (faer, no scaled copy of the tall Jacobian); below it from the scaled copy, as before
+/// the faer kernels (the same arithmetic, step for step).
+fn scaled_normal(
+    j: &DMatrix<f64>,
+    r: &DVector<f64>,
+    g: &DVector<f64>,
+    free: &[usize],
+    d: &[f64],
+) -> (DMatrix<f64>, DVector<f64>) {
+    let mf = free.len();
+    if j.nrows() >= super::dense::GRAM_FAER_MIN_ROWS {
+        let jtj = super::dense::gram(j);
+        let a = DMatrix::from_fn(mf, mf, |p, q| {
+            jtj[(free[p], free[q])] / (d[free[p]] * d[free[q]])
+        });
+        return (a, DVector::from_fn(mf, |p, _| g[free[p]] / d[free[p]]));
+    }
+    let mut js = DMatrix::zeros(j.nrows(), mf);
+    for (c, &k) in free.iter().enumerate() {
+        js.set_column(c, &(j.column(k) / d[k]));
+    }
+    (js.tr_mul(&js), js.tr_mul(r))
+}
+
 /// Minimise `|r(x)|^2` from `x0` (projected into the bounds).
 pub fn levenberg_marquardt(
     problem: &dyn Problem,
@@ -177,15 +203,9 @@ pub fn levenberg_marquardt(
             stop = StopReason::SmallGradient;
             break;
         }
-        let mf = free.len();
-        let mut js = DMatrix::zeros(n, mf);
-        for (c, &k) in free.iter().enumerate() {
-            js.set_column(c, &(j.column(k) / d[k]));
-        }
-        let a = js.tr_mul(&js);
-        let gs = js.tr_mul(&r);
+        let (a, gs) = scaled_normal(&j, &r, &g, &free, &d);
         if mu == 0.0 {
-            mu = opts.initial_damping * (0..mf).map(|k| a[(k, k)]).fold(0.0, f64::max);
+            mu = opts.initial_damping * (0..free.len()).map(|k| a[(k, k)]).fold(0.0, f64::max);
         }
         let xnorm = free
             .iter()

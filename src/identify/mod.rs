@@ -7,11 +7,13 @@
 //! ([`robust`]). No I/O.
 
 mod bounds;
+pub mod dense;
 pub mod gauge;
 pub mod lm;
 pub mod prior;
 pub mod problem;
 pub mod rank;
+mod reduced;
 pub mod robust;
 pub mod solve;
 pub mod trust;

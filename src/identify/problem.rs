@@ -50,6 +50,9 @@ pub struct Restricted<'a> {
     inner: &'a dyn Problem,
     fixed: Vec<f64>,
     free: Vec<usize>,
+    /// The inner problem's full Jacobian, kept between calls (a tall Jacobian is not
+    /// allocated again on every iteration).
+    full: std::sync::Mutex<DMatrix<f64>>,
 }
 
 impl std::fmt::Debug for Restricted<'_> {
@@ -63,7 +66,12 @@ impl std::fmt::Debug for Restricted<'_> {
 impl<'a> Restricted<'a> {
     /// Vary `free` (indices into the inner unknowns); hold the rest at `fixed`.
     pub fn new(inner: &'a dyn Problem, fixed: Vec<f64>, free: Vec<usize>) -> Self {
-        Self { inner, fixed, free }
+        Self {
+            inner,
+            fixed,
+            free,
+            full: std::sync::Mutex::new(DMatrix::zeros(0, 0)),
+        }
     }
 
     /// The full unknown vector for a restricted one.
@@ -87,7 +95,21 @@ impl Problem for Restricted<'_> {
         self.inner.residuals(&self.expand(x), r)
     }
     fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
-        let mut full = DMatrix::zeros(self.inner.residual_count(), self.inner.unknown_count());
+        let (n, m) = (self.inner.residual_count(), self.inner.unknown_count());
+        if self.free.len() == m && self.free.iter().enumerate().all(|(k, &i)| k == i) {
+            // The inner problem writes straight into `j`, zeroed as a fresh matrix.
+            j.fill(0.0);
+            return self.inner.jacobian(&self.expand(x), j);
+        }
+        let mut full = self
+            .full
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if full.shape() == (n, m) {
+            full.fill(0.0);
+        } else {
+            *full = DMatrix::zeros(n, m);
+        }
         self.inner.jacobian(&self.expand(x), &mut full)?;
         for (k, &i) in self.free.iter().enumerate() {
             j.set_column(k, &full.column(i));

@@ -60,11 +60,28 @@ fn pivoted_qr(
     pivoting: &Pivoting,
     tol: f64,
 ) -> RankReport {
+    pivoted_qr_with(j, scale, pivoting, tol, true)
+}
+
+/// [`rank_revealing`] by our own loop at every size (no faer above the crossover), for the
+/// kernel benchmark.
+pub fn rank_revealing_loop(j: &DMatrix<f64>, pivoting: &Pivoting, tol: f64) -> RankReport {
+    pivoted_qr_with(j, None, pivoting, tol, false)
+}
+
+/// [`pivoted_qr`]; `allow_faer` false keeps our own loop at every size (for tests).
+fn pivoted_qr_with(
+    j: &DMatrix<f64>,
+    scale: Option<&[f64]>,
+    pivoting: &Pivoting,
+    tol: f64,
+    allow_faer: bool,
+) -> RankReport {
     // A tall matrix is first reduced to its R factor: Q is orthogonal, so column norms, the
     // pivoted QR and least-squares dependencies are the same, at a fraction of the cost.
     let reduced;
     let j = if j.nrows() > j.ncols() {
-        reduced = j.clone().qr().r();
+        reduced = super::dense::r_factor(j);
         &reduced
     } else {
         j
@@ -88,6 +105,9 @@ fn pivoted_qr(
     let mut a = j.clone();
     for (k, f) in factor.iter().enumerate() {
         a.column_mut(k).scale_mut(*f);
+    }
+    if allow_faer && *pivoting == Pivoting::Norm && m >= super::dense::PIVOTED_QR_FAER_MIN_COLS {
+        return faer_pivoted(j, &a, &norms, tol);
     }
     let order: Vec<usize> = match pivoting {
         Pivoting::Norm => (0..m).collect(),
@@ -153,6 +173,31 @@ fn pivoted_qr(
     }
 }
 
+/// Norm pivoting by faer's QR with column pivoting of the scaled matrix `a` (from
+/// [`super::dense::PIVOTED_QR_FAER_MIN_COLS`] columns): the columns before the first
+/// `|R_kk| < tol` are kept, as the loop of [`pivoted_qr`] keeps them.
+fn faer_pivoted(j: &DMatrix<f64>, a: &DMatrix<f64>, norms: &[f64], tol: f64) -> RankReport {
+    let qr = super::dense::pivoted_qr_faer(a);
+    let rank = qr
+        .r_diag
+        .iter()
+        .zip(&qr.order)
+        .position(|(&r, &k)| !(r >= tol && norms[k] > 0.0))
+        .unwrap_or(qr.r_diag.len());
+    let kept = qr.order[..rank].to_vec();
+    let mut dropped: Vec<usize> = qr.order[rank..].to_vec();
+    dropped.sort_unstable();
+    let dependencies = dropped.iter().map(|&c| dependency(j, &kept, c)).collect();
+    RankReport {
+        rank,
+        kept,
+        dropped,
+        r_diag: qr.r_diag[..rank].to_vec(),
+        dependencies,
+        tolerance: tol,
+    }
+}
+
 /// Least-squares expression of column `c` of `j` in the kept columns, coefficients sorted
 /// by decreasing magnitude and truncated to the significant ones.
 fn dependency(j: &DMatrix<f64>, kept: &[usize], c: usize) -> Vec<(usize, f64)> {
@@ -205,6 +250,41 @@ mod tests {
         // Priority 2, 0, 1 keeps 2 and 0 and drops 1.
         let r = rank_revealing(&j, &Pivoting::Priority(vec![2, 0, 1]), 1e-10);
         assert_eq!(r.dropped, vec![1]);
+    }
+
+    /// Above the crossover, faer's pivoted QR makes the rank decisions of our loop: the
+    /// same kept and dropped columns, the same |R_kk| to rounding, the same dependencies.
+    #[test]
+    fn faer_pivoted_qr_decides_as_the_loop() {
+        let mut rng = crate::util::Rng::new(4);
+        let (rows, m) = (400, 150);
+        let mut j = DMatrix::from_fn(rows, m, |_, c| {
+            rng.normal() * 10f64.powf(-2.0 + 4.0 * c as f64 / m as f64)
+        });
+        // Columns 20, 75 and 149 depend on others; column 60 is zero.
+        for (c, a, b) in [(20, 3, 4), (75, 10, 140), (149, 0, 1)] {
+            let v = j.column(a) * 0.5 - j.column(b) * 2.0;
+            j.set_column(c, &v);
+        }
+        j.column_mut(60).fill(0.0);
+        for scale in [None, Some(vec![1.0; m])] {
+            let s = scale.as_deref();
+            let ours = pivoted_qr_with(&j, s, &Pivoting::Norm, 1e-8, false);
+            let faer = pivoted_qr_with(&j, s, &Pivoting::Norm, 1e-8, true);
+            assert_eq!(ours.rank, m - 4);
+            assert_eq!(faer.rank, ours.rank);
+            let mut dropped = ours.dropped.clone();
+            dropped.sort_unstable();
+            assert_eq!(faer.dropped, dropped);
+            assert_eq!(faer.kept, ours.kept);
+            for (a, b) in ours.r_diag.iter().zip(&faer.r_diag) {
+                assert!((a - b).abs() <= 1e-10 * a, "{a} vs {b}");
+            }
+            for (c, dep) in faer.dropped.iter().zip(&faer.dependencies) {
+                let p = ours.dropped.iter().position(|d| d == c).expect("dropped");
+                assert_eq!(dep.len(), ours.dependencies[p].len(), "column {c}");
+            }
+        }
     }
 
     #[test]

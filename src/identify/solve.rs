@@ -7,12 +7,15 @@
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
+use super::reduced::{Rows, expand_cols, tall_r};
 use super::trust::{
-    Degeneracy, DegeneracyCheck, NearDependent, degeneracy, effect_sizes, physical_scales, spectrum,
+    Degeneracy, DegeneracyCheck, NearDependent, degeneracy, effect_sizes, physical_scales,
+    spectrum_of_r,
 };
+use super::uncertainty::uncertainty_of_r;
 use super::{
     IdentifyError, LmOptions, LmReport, Pivoting, Problem, Restricted, StopReason, Uncertainty,
-    levenberg_marquardt, rank_revealing, rank_revealing_scaled, uncertainty,
+    levenberg_marquardt, rank_revealing, rank_revealing_scaled,
 };
 use crate::util::{Monitor, SubMonitor};
 
@@ -204,7 +207,7 @@ struct Plan {
 fn plan(
     structural: &[usize],
     effect: &[f64],
-    j0: &DMatrix<f64>,
+    rows: &Rows<'_>,
     scale: &[f64],
     unknowns: &[Unknown],
     floor: Option<f64>,
@@ -214,7 +217,7 @@ fn plan(
         structural.iter().partition(|&&k| below(effect[k]));
     let mut near = Vec::new();
     loop {
-        let sp = spectrum(j0, &free, scale);
+        let sp = spectrum_of_r(&rows.r, &free, scale);
         let hold = sp
             .smallest
             .first()
@@ -222,15 +225,7 @@ fn plan(
         for (s, v) in sp.smallest.iter().take(if hold { 1 } else { 3 }) {
             let mut comps: Vec<(usize, f64)> = v.iter().copied().enumerate().collect();
             comps.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
-            let dir_effect = (0..j0.nrows())
-                .map(|r| {
-                    free.iter()
-                        .zip(v)
-                        .map(|(&k, c)| j0[(r, k)] * scale[k] * c)
-                        .sum::<f64>()
-                        .abs()
-                })
-                .fold(0.0, f64::max);
+            let dir_effect = rows.effect(&free, v, scale);
             near.push(NearDependent {
                 singular_value: *s,
                 effect_size: dir_effect,
@@ -269,6 +264,8 @@ struct Fit {
     rep: LmReport,
     x: Vec<f64>,
     unc: Uncertainty,
+    /// R factor of the final Jacobian (columns of the fit's free unknowns).
+    r: DMatrix<f64>,
 }
 
 fn run_fit(
@@ -294,9 +291,10 @@ fn run_fit(
     };
     let xs0: Vec<f64> = free.iter().map(|&k| x0[k]).collect();
     let rep = levenberg_marquardt(&restricted, &xs0, &lm_opts, monitor)?;
-    let unc = uncertainty(&rep.jacobian, &rep.residuals);
+    let r = tall_r(&rep.jacobian);
+    let unc = uncertainty_of_r(&r, rep.jacobian.nrows(), &rep.residuals);
     let x = restricted.expand(&rep.x);
-    Ok(Fit { rep, x, unc })
+    Ok(Fit { rep, x, unc, r })
 }
 
 /// Identify `unknowns` from `x0`: rank detection on the physically scaled Jacobian, effect
@@ -326,15 +324,29 @@ pub fn solve(
     problem.jacobian(x0, &mut j0)?;
     let scale = physical_scales(unknowns);
     let effect = effect_sizes(&j0, &scale);
+    // The tall Jacobian is reduced once: rank, spectra and dependencies work on R.
+    let rf0 = tall_r(&j0);
     let rank = if opts.physical_rank {
-        rank_revealing_scaled(&j0, &scale, &opts.pivoting, opts.rank_tolerance)
+        rank_revealing_scaled(&rf0, &scale, &opts.pivoting, opts.rank_tolerance)
     } else {
-        rank_revealing(&j0, &opts.pivoting, opts.rank_tolerance)
+        rank_revealing(&rf0, &opts.pivoting, opts.rank_tolerance)
     };
     let mut structural = rank.kept.clone();
     structural.sort_unstable();
     let given_floor = opts.effect_fraction.zip(opts.noise).map(|(f, v)| f * v);
-    let mut pl = plan(&structural, &effect, &j0, &scale, unknowns, given_floor);
+    let all: Vec<usize> = (0..m).collect();
+    let start_rows = Rows {
+        blocks: vec![(&j0, all.clone())],
+        r: rf0.clone(),
+    };
+    let mut pl = plan(
+        &structural,
+        &effect,
+        &start_rows,
+        &scale,
+        unknowns,
+        given_floor,
+    );
     let sub = SubMonitor::new(monitor, 0.05, 0.6);
     let mut fit = run_fit(problem, unknowns, x0, &pl.free, &opts.lm, &sub)?;
     // Without a stated noise, the fitted sigma sets the floor; refit once if it holds more.
@@ -344,13 +356,22 @@ pub fn solve(
             // Judge on the start and the first solution together (rows stacked): an unknown
             // or combination is held only if the data cannot see it at either point, since
             // a fitted frame can make an effect that vanishes at nominal a real one.
-            let mut both = DMatrix::zeros(2 * n, m);
-            both.rows_mut(0, n).copy_from(&j0);
+            // (The stacked rows through their blocks and the R factor of [R0; R_fit].)
+            let fit_effect = effect_sizes(&fit.rep.jacobian, &vec![1.0; pl.free.len()]);
+            let mut effect_both = effect.clone();
             for (p, &k) in pl.free.iter().enumerate() {
-                both.view_mut((n, k), (n, 1))
-                    .copy_from(&fit.rep.jacobian.view((0, p), (n, 1)));
+                effect_both[k] = effect_both[k].max(fit_effect[p] * scale[k]);
             }
-            let effect_both = effect_sizes(&both, &scale);
+            let r_fit = expand_cols(&fit.r, &pl.free, m);
+            let mut stacked = DMatrix::zeros(rf0.nrows() + r_fit.nrows(), m);
+            stacked.rows_mut(0, rf0.nrows()).copy_from(&rf0);
+            stacked
+                .rows_mut(rf0.nrows(), r_fit.nrows())
+                .copy_from(&r_fit);
+            let both = Rows {
+                blocks: vec![(&j0, all.clone()), (&fit.rep.jacobian, pl.free.clone())],
+                r: stacked,
+            };
             let again = plan(
                 &structural,
                 &effect_both,
@@ -368,7 +389,7 @@ pub fn solve(
         }
     }
     let free = pl.free.clone();
-    let Fit { rep, x, unc } = fit;
+    let Fit { rep, x, unc, r } = fit;
     let residuals = rep.residuals.rows(0, n).into_owned();
     let cost_after = residuals.norm_squared();
     monitor.progress(0.85, "nuisance-only fit");
@@ -391,11 +412,8 @@ pub fn solve(
         }
     };
     monitor.progress(0.95, "uncertainty");
-    let mut jd = DMatrix::zeros(n, m);
-    for (p, &k) in free.iter().enumerate() {
-        jd.set_column(k, &rep.jacobian.column(p).rows(0, n));
-    }
-    let condition_number = spectrum(&jd, &free, &scale).condition_number;
+    let condition_number =
+        spectrum_of_r(&expand_cols(&r, &free, m), &free, &scale).condition_number;
     let degenerate = degeneracy(&DegeneracyCheck {
         unknowns,
         scale: &scale,

@@ -71,6 +71,14 @@ pub struct Spectrum {
 
 /// The spectrum of the physically scaled Jacobian of the columns `free` of `j`.
 pub fn spectrum(j: &DMatrix<f64>, free: &[usize], scale: &[f64]) -> Spectrum {
+    spectrum_of_r(&super::reduced::tall_r(j), free, scale)
+}
+
+/// [`spectrum`] from the R factor of the Jacobian (or any matrix with the same `R^T R`,
+/// the Jacobian itself included):
+/// `J = Q R`, so `J[:, free] diag(scale)` and `R[:, free] diag(scale)` have the same
+/// singular values and right vectors, and the tall Jacobian is reduced only once.
+pub fn spectrum_of_r(r: &DMatrix<f64>, free: &[usize], scale: &[f64]) -> Spectrum {
     let m = free.len();
     if m == 0 {
         return Spectrum {
@@ -79,14 +87,24 @@ pub fn spectrum(j: &DMatrix<f64>, free: &[usize], scale: &[f64]) -> Spectrum {
             smallest: vec![],
         };
     }
-    let mut js = DMatrix::zeros(j.nrows(), m);
+    let mut js = DMatrix::zeros(r.nrows(), m);
     for (p, &k) in free.iter().enumerate() {
-        js.set_column(p, &(j.column(k) * scale.get(k).copied().unwrap_or(1.0)));
+        js.set_column(p, &(r.column(k) * scale.get(k).copied().unwrap_or(1.0)));
     }
-    // Same singular values and right vectors from R of a QR of the tall matrix.
-    let r = if js.nrows() > m { js.qr().r() } else { js };
-    let svd = r.svd(false, true);
-    let s = svd.singular_values;
+    // Same singular values and right vectors from R of a QR of a taller matrix.
+    // nalgebra here: a tall input is below the crossover (its arithmetic as before).
+    let r = if js.nrows() > m {
+        super::dense::r_factor_with(&js, super::dense::Backend::Nalgebra)
+    } else {
+        js
+    };
+    let Some((s, vt)) = super::dense::svd_right(&r) else {
+        return Spectrum {
+            singular_values: vec![],
+            condition_number: f64::INFINITY,
+            smallest: vec![],
+        };
+    };
     let mut order: Vec<usize> = (0..s.len()).collect();
     order.sort_by(|a, b| s[*b].total_cmp(&s[*a]));
     let sorted: Vec<f64> = order.iter().map(|&i| s[i]).collect();
@@ -96,14 +114,11 @@ pub fn spectrum(j: &DMatrix<f64>, free: &[usize], scale: &[f64]) -> Spectrum {
     } else {
         sorted.last().copied().unwrap_or(0.0)
     };
-    let smallest = match svd.v_t {
-        Some(vt) => order
-            .iter()
-            .rev()
-            .map(|&i| (s[i], (0..m).map(|k| vt[(i, k)]).collect()))
-            .collect(),
-        None => vec![],
-    };
+    let smallest = order
+        .iter()
+        .rev()
+        .map(|&i| (s[i], (0..m).map(|k| vt[(i, k)]).collect()))
+        .collect();
     Spectrum {
         singular_values: sorted,
         condition_number: if smin > 0.0 {

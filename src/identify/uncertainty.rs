@@ -21,7 +21,13 @@ pub struct Uncertainty {
 
 /// Uncertainty at a solution with Jacobian `j` and residuals `r`.
 pub fn uncertainty(j: &DMatrix<f64>, r: &DVector<f64>) -> Uncertainty {
-    let (n, m) = j.shape();
+    uncertainty_of_r(&super::reduced::tall_r(j), j.nrows(), r)
+}
+
+/// [`uncertainty`] from the R factor of the Jacobian (`J = Q R`: the same column norms,
+/// singular values and right vectors) or the Jacobian itself, and its row count `n`.
+pub fn uncertainty_of_r(rf: &DMatrix<f64>, n: usize, r: &DVector<f64>) -> Uncertainty {
+    let m = rf.ncols();
     let dof = n.saturating_sub(m);
     let sigma = if dof > 0 {
         (r.norm_squared() / dof as f64).sqrt()
@@ -38,24 +44,25 @@ pub fn uncertainty(j: &DMatrix<f64>, r: &DVector<f64>) -> Uncertainty {
         };
     }
     let d: Vec<f64> = (0..m)
-        .map(|k| j.column(k).norm())
+        .map(|k| rf.column(k).norm())
         .map(|v| if v > 0.0 { v } else { 1.0 })
         .collect();
-    let mut js = j.clone();
+    // The column-scaled R is the R factor of the column-scaled Jacobian.
+    let mut rmat = rf.clone();
     for k in 0..m {
-        js.column_mut(k).unscale_mut(d[k]);
+        rmat.column_mut(k).unscale_mut(d[k]);
     }
-    // SVD of R from a QR of the tall matrix: same singular values, far cheaper.
-    let rmat = if n > m { js.qr().r() } else { js };
-    let svd = rmat.svd(false, true);
-    let s = svd.singular_values.clone();
-    let Some(vt) = svd.v_t else {
+    // nalgebra here: a tall input is below the crossover (its arithmetic as before).
+    if rmat.nrows() > m {
+        rmat = super::dense::r_factor_with(&rmat, super::dense::Backend::Nalgebra);
+    }
+    let Some((s, vt)) = super::dense::svd_right(&rmat) else {
         return Uncertainty {
             std: vec![f64::NAN; m],
             sigma,
             dof,
             condition_number: f64::INFINITY,
-            singular_values: s.iter().copied().collect(),
+            singular_values: vec![],
         };
     };
     let mut order: Vec<usize> = (0..s.len()).collect();

@@ -124,7 +124,21 @@ impl PointProblem {
             .iter()
             .map(|id| chain.param_index(*id).unwrap_or(usize::MAX))
             .collect();
-        let tau = meas.iter().map(|m| chain.static_torques(&m.q)).collect();
+        // Static torques of every configuration, on every core for large sets.
+        let ranges = measurement_ranges(meas.len());
+        let mut tau: Vec<Vec<f64>> = vec![Vec::new(); meas.len()];
+        let mut rest = &mut tau[..];
+        let mut parts = Vec::with_capacity(ranges.len());
+        for range in &ranges {
+            let (head, tail) = rest.split_at_mut(range.len());
+            parts.push((range.start, head));
+            rest = tail;
+        }
+        on_threads(parts, &|(start, out): (usize, &mut [Vec<f64>])| {
+            for (k, t) in out.iter_mut().enumerate() {
+                *t = chain.static_torques(&meas[start + k].q);
+            }
+        });
         Ok(Self {
             chain,
             ids,
@@ -226,6 +240,42 @@ impl PointProblem {
     }
 }
 
+/// Measurements from which residuals and Jacobians are evaluated on every core (fewer run
+/// on the calling thread: a dispersion study already runs its identifications in
+/// parallel, with at most a few hundred measurements each).
+pub const PARALLEL_MIN_MEASUREMENTS: usize = 1024;
+
+/// Contiguous ranges of `n` measurements, one per worker.
+fn measurement_ranges(n: usize) -> Vec<std::ops::Range<usize>> {
+    let threads = if n < PARALLEL_MIN_MEASUREMENTS {
+        1
+    } else {
+        std::thread::available_parallelism().map_or(1, |t| t.get())
+    };
+    let chunk = n.div_ceil(threads).max(1);
+    (0..n)
+        .step_by(chunk)
+        .map(|s| s..(s + chunk).min(n))
+        .collect()
+}
+
+/// `f` on each part, on scoped threads when there are several (a worker's panic is
+/// passed on).
+fn on_threads<T: Send>(parts: Vec<T>, f: &(dyn Fn(T) + Sync)) {
+    if parts.len() <= 1 {
+        parts.into_iter().for_each(f);
+        return;
+    }
+    std::thread::scope(|s| {
+        let handles: Vec<_> = parts.into_iter().map(|p| s.spawn(move || f(p))).collect();
+        for h in handles {
+            if let Err(e) = h.join() {
+                std::panic::resume_unwind(e);
+            }
+        }
+    });
+}
+
 impl Problem for PointProblem {
     fn residual_count(&self) -> usize {
         3 * self.meas.len() + self.plate.distances.len()
@@ -238,15 +288,27 @@ impl Problem for PointProblem {
     fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError> {
         let chain = self.model(x);
         let centres = self.centres(x);
-        for (i, (m, tau)) in self.meas.iter().zip(&self.tau).enumerate() {
-            let target = match m.target {
-                Target::Ball(k) => centres[k],
-                Target::Point(p) => p,
-            };
-            let e = chain.tcp(&m.q, Some(tau)).p - target;
-            r[3 * i..3 * i + 3].copy_from_slice(e.as_slice());
-        }
         let base = 3 * self.meas.len();
+        let ranges = measurement_ranges(self.meas.len());
+        let mut rest = &mut r[..base];
+        let mut parts = Vec::with_capacity(ranges.len());
+        for range in &ranges {
+            let (head, tail) = rest.split_at_mut(3 * range.len());
+            parts.push((range.clone(), head));
+            rest = tail;
+        }
+        let fill = |(range, out): (std::ops::Range<usize>, &mut [f64])| {
+            for (row, i) in range.clone().enumerate() {
+                let (m, tau) = (&self.meas[i], &self.tau[i]);
+                let target = match m.target {
+                    Target::Ball(k) => centres[k],
+                    Target::Point(p) => p,
+                };
+                let e = chain.tcp(&m.q, Some(tau)).p - target;
+                out[3 * row..3 * row + 3].copy_from_slice(e.as_slice());
+            }
+        };
+        on_threads(parts, &fill);
         for (k, &(i, j, d)) in self.plate.distances.iter().enumerate() {
             r[base + k] = self.distance_weight * ((centres[i] - centres[j]).norm() - d);
         }
@@ -257,24 +319,44 @@ impl Problem for PointProblem {
         let chain = self.model(x);
         let centres = self.centres(x);
         j.fill(0.0);
-        let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
-        for (i, (m, tau)) in self.meas.iter().zip(&self.tau).enumerate() {
-            chain.point_jacobian(&m.q, Some(tau), &Vector3::zeros(), &mut buf);
-            for (c, &col) in self.cols.iter().enumerate() {
-                if let Some(v) = buf.get(col) {
-                    for a in 0..3 {
-                        j[(3 * i + a, c)] = v[a];
-                    }
-                }
-            }
-            if let Target::Ball(b) = m.target {
-                if let Some(o) = self.free_slot(b) {
-                    for a in 0..3 {
-                        j[(3 * i + a, o + a)] = -1.0;
-                    }
-                }
+        let (n, cols) = j.shape();
+        let ranges = measurement_ranges(self.meas.len());
+        // Each worker gets its rows of every column (column-major storage: one slice per
+        // column and worker).
+        let mut parts: Vec<(std::ops::Range<usize>, Vec<&mut [f64]>)> = ranges
+            .iter()
+            .map(|r| (r.clone(), Vec::with_capacity(cols)))
+            .collect();
+        for column in j.as_mut_slice().chunks_mut(n.max(1)) {
+            let mut rest = column;
+            for (range, slices) in parts.iter_mut() {
+                let (head, tail) = rest.split_at_mut(3 * range.len());
+                slices.push(head);
+                rest = tail;
             }
         }
+        let fill = |(range, mut out): (std::ops::Range<usize>, Vec<&mut [f64]>)| {
+            let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
+            for (row, i) in range.clone().enumerate() {
+                let (m, tau) = (&self.meas[i], &self.tau[i]);
+                chain.point_jacobian(&m.q, Some(tau), &Vector3::zeros(), &mut buf);
+                for (c, &col) in self.cols.iter().enumerate() {
+                    if let Some(v) = buf.get(col) {
+                        for a in 0..3 {
+                            out[c][3 * row + a] = v[a];
+                        }
+                    }
+                }
+                if let Target::Ball(b) = m.target {
+                    if let Some(o) = self.free_slot(b) {
+                        for a in 0..3 {
+                            out[o + a][3 * row + a] = -1.0;
+                        }
+                    }
+                }
+            }
+        };
+        on_threads(parts, &fill);
         let base = 3 * self.meas.len();
         for (k, &(bi, bj, _)) in self.plate.distances.iter().enumerate() {
             let diff = centres[bi] - centres[bj];
