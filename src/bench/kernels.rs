@@ -52,6 +52,7 @@ fn figure(name: String, d: Duration) -> Figure {
         ops: 1,
         target: None,
         peak_rss_bytes: None,
+        cpu: None,
     }
 }
 
