@@ -2,7 +2,7 @@
 //! candidate, updated in place (Woodbury) when a candidate enters or leaves. Every buffer is
 //! allocated once per design; a toggle allocates only the r x r inverse of its candidate.
 
-use super::kernels::{Info, Strided, dot, gemm, log_det_identity_plus, madd, small_inverse};
+use super::kernels::{Info, Strided, dot, gemm, log_det_identity_plus, small_inverse};
 use super::pool::Pool;
 
 /// Buffers of one toggle, sized for the largest block.
@@ -237,64 +237,19 @@ impl<'a> Design<'a> {
 }
 
 /// E = B_all U for a narrow U (m x R, row-major) and B_all column-major (rows x m), E
-/// row-major, without packing (the general GEMM packs both operands, which costs more than
-/// the product itself when R is 2 to 6): eight rows at a time held in registers through all
-/// m columns. With AVX2 and FMA the kernel is compiled for them and chosen at run time.
+/// row-major: one pass over B per column, no packing (the general GEMM packs both operands,
+/// which costs more than the product itself when R is 2 to 6).
 fn narrow<const R: usize>(all: &[f64], rows: usize, u: &[f64], e: &mut [f64]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU supports the features the function is compiled for.
-        unsafe { narrow_fma::<R>(all, rows, u, e) };
-        return;
-    }
-    narrow_body::<R, false>(all, rows, u, e);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn narrow_fma<const R: usize>(all: &[f64], rows: usize, u: &[f64], e: &mut [f64]) {
-    narrow_body::<R, true>(all, rows, u, e);
-}
-
-#[inline(always)]
-fn narrow_body<const R: usize, const FMA: bool>(
-    all: &[f64],
-    rows: usize,
-    u: &[f64],
-    e: &mut [f64],
-) {
-    const C: usize = 8;
     let e = &mut e[..rows * R];
-    let m = u.len() / R;
-    let mut r0 = 0;
-    while r0 + C <= rows {
-        let mut acc = [[0.0f64; C]; R];
-        for (c, uc) in u.chunks_exact(R).enumerate() {
-            // Copied into fixed-size arrays so the lanes become vector registers.
-            let mut b = [0.0f64; C];
-            b.copy_from_slice(&all[c * rows + r0..c * rows + r0 + C]);
-            let mut w = [0.0f64; R];
-            w.copy_from_slice(uc);
+    e.fill(0.0);
+    for (c, uc) in u.chunks_exact(R).enumerate() {
+        let mut w = [0.0; R];
+        w.copy_from_slice(uc);
+        let bc = &all[c * rows..(c + 1) * rows];
+        for (er, &b) in e.chunks_exact_mut(R).zip(bc) {
             for x in 0..R {
-                for l in 0..C {
-                    acc[x][l] = madd::<FMA>(b[l], w[x], acc[x][l]);
-                }
+                er[x] += b * w[x];
             }
-        }
-        for l in 0..C {
-            for x in 0..R {
-                e[(r0 + l) * R + x] = acc[x][l];
-            }
-        }
-        r0 += C;
-    }
-    for r in r0..rows {
-        for x in 0..R {
-            let mut s = 0.0;
-            for c in 0..m {
-                s = madd::<FMA>(all[c * rows + r], u[c * R + x], s);
-            }
-            e[r * R + x] = s;
         }
     }
 }
