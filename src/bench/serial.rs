@@ -8,12 +8,10 @@ use std::time::Duration;
 
 use super::{Figure, time};
 use crate::design::{DetmaxOptions, detmax};
-use crate::identify::{SolveOptions, solve};
 use crate::jobs::rows::CsvSink;
 use crate::jobs::serial::design::DesignPool;
 use crate::jobs::{DirResolver, JobError, Resolver};
 use crate::jobs::{NoReferences, prepare};
-use crate::measure::PointProblem;
 use crate::twin::SerialTwin;
 use crate::util::{NoMonitor, Rng};
 
@@ -160,30 +158,12 @@ pub fn run() -> Vec<Figure> {
         },
     ));
     let meas = twin.centring(120, 2);
-    let ids: Vec<_> = twin
-        .file
-        .identify
-        .iter()
-        .filter_map(|n| twin.nominal.param_by_name(n).ok())
-        .collect();
     figs.push(time(
         "identification, 31 parameters, 360 measurements",
         11,
         1,
         Some(Duration::from_millis(20)),
-        || {
-            let p = PointProblem::new(
-                twin.nominal.clone(),
-                ids.clone(),
-                twin.plate.clone(),
-                meas.clone(),
-            )
-            .expect("twin data are consistent");
-            let x0 = p.initial();
-            let s = solve(&p, &p.unknowns(), &x0, &SolveOptions::default(), &NoMonitor)
-                .expect("twin identification converges");
-            sink += s.cost_after;
-        },
+        || sink += super::identify::identify_once(&twin, &meas),
     ));
     let job = dispersion_job(&[75], 1);
     let prepared = crate::jobs::serial::identify::parse_inputs(

@@ -19,6 +19,17 @@ pub enum Backend {
     Auto,
 }
 
+impl Backend {
+    /// Whether faer computes, given whether the size has reached the kernel's crossover.
+    fn faer(self, past_crossover: bool) -> bool {
+        match self {
+            Backend::Nalgebra => false,
+            Backend::Faer => true,
+            Backend::Auto => past_crossover,
+        }
+    }
+}
+
 /// Rows from which the R factor of a tall matrix is computed by faer (blocked Householder
 /// on row blocks that stay in cache, both cores from [`PARALLEL_MIN_ELEMENTS`]). Measured:
 /// faer 0.94x nalgebra's time at 270 x 31, 0.21x at 540 x 31, 0.16x at 300,000 x 31.
@@ -70,11 +81,7 @@ pub fn r_factor(j: &DMatrix<f64>) -> DMatrix<f64> {
 
 /// [`r_factor`] with a chosen implementation.
 pub fn r_factor_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
-    let faer = match backend {
-        Backend::Nalgebra => false,
-        Backend::Faer => true,
-        Backend::Auto => j.nrows() >= QR_FAER_MIN_ROWS,
-    };
+    let faer = backend.faer(j.nrows() >= QR_FAER_MIN_ROWS);
     if !faer || j.ncols() == 0 || j.nrows() == 0 {
         return j.clone().qr().r();
     }
@@ -170,11 +177,7 @@ pub fn gram(j: &DMatrix<f64>) -> DMatrix<f64> {
 
 /// [`gram`] with a chosen implementation (faer from [`GRAM_FAER_MIN_ROWS`] rows).
 pub fn gram_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
-    let faer = match backend {
-        Backend::Nalgebra => false,
-        Backend::Faer => true,
-        Backend::Auto => j.nrows() >= GRAM_FAER_MIN_ROWS,
-    };
+    let faer = backend.faer(j.nrows() >= GRAM_FAER_MIN_ROWS);
     if !faer {
         return j.tr_mul(j);
     }
@@ -227,11 +230,7 @@ pub fn svd_right(a: &DMatrix<f64>) -> Option<(DVector<f64>, DMatrix<f64>)> {
 
 /// [`svd_right`] with a chosen implementation.
 pub fn svd_right_with(a: &DMatrix<f64>, backend: Backend) -> Option<(DVector<f64>, DMatrix<f64>)> {
-    let faer = match backend {
-        Backend::Nalgebra => false,
-        Backend::Faer => true,
-        Backend::Auto => a.ncols() >= SVD_FAER_MIN_COLS,
-    };
+    let faer = backend.faer(a.ncols() >= SVD_FAER_MIN_COLS);
     if !faer || a.nrows() == 0 || a.ncols() == 0 {
         let svd = a.clone().svd(false, true);
         return svd.v_t.map(|vt| (svd.singular_values, vt));

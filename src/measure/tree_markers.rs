@@ -212,10 +212,9 @@ pub fn fit(
     prior: &TreePrior,
     monitor: &dyn Monitor,
 ) -> Result<TreeFit, IdentifyError> {
-    let obs = with_features(model, obs);
     let mut start = model.clone();
     start.seed_compliance(groups, SEED_COMPLIANCE);
-    let problem = TreeProblem::new(start, model.free_params(groups), obs.clone());
+    let problem = TreeProblem::new(start, model.free_params(groups), with_features(model, obs));
     let x0 = problem.initial();
     let mut so = SolveOptions {
         pivoting: Pivoting::Priority(problem.priority_order()),
@@ -249,7 +248,7 @@ pub fn fit(
         (None, true) => {
             let ls = fit(
                 model,
-                &obs,
+                obs,
                 groups,
                 max_iterations,
                 &TreePrior::default(),
