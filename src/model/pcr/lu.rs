@@ -60,7 +60,8 @@ impl<const N: usize> Lu<N> {
         })
     }
 
-    /// Solves `A x = b`.
+    /// Solves `A x = b` (the straightforward counterpart of [`Lu::inverse`]).
+    #[cfg(test)]
     pub(crate) fn solve(&self, b: &[f64; N]) -> [f64; N] {
         let mut x: [f64; N] = std::array::from_fn(|i| b[self.perm[i]]);
         for i in 0..N {
@@ -73,6 +74,42 @@ impl<const N: usize> Lu<N> {
                 x[i] -= self.a[i][j] * x[j];
             }
             x[i] /= self.a[i][i];
+        }
+        x
+    }
+
+    /// The inverse `A^-1`, row-major. Substitution runs on whole rows of the permuted
+    /// identity (row operations of `N` independent lanes), not one column at a time: the
+    /// same arithmetic as `N` calls of [`Lu::solve`] per entry, without their chains of
+    /// dependent operations.
+    pub(crate) fn inverse(&self) -> [[f64; N]; N] {
+        let mut x = [[0.0; N]; N];
+        for (i, row) in x.iter_mut().enumerate() {
+            row[self.perm[i]] = 1.0;
+        }
+        for i in 0..N {
+            for j in 0..i {
+                let f = self.a[i][j];
+                if f != 0.0 {
+                    let xj = x[j];
+                    for (v, w) in x[i].iter_mut().zip(xj) {
+                        *v -= f * w;
+                    }
+                }
+            }
+        }
+        for i in (0..N).rev() {
+            for j in i + 1..N {
+                let f = self.a[i][j];
+                let xj = x[j];
+                for (v, w) in x[i].iter_mut().zip(xj) {
+                    *v -= f * w;
+                }
+            }
+            let d = self.a[i][i];
+            for v in x[i].iter_mut() {
+                *v /= d;
+            }
         }
         x
     }
@@ -133,6 +170,16 @@ mod tests {
             Lu::factor([[2.0, 1.0], [1.0, 3.0]]).map(|l| l.det_sign),
             Some(1.0)
         );
+        let inv = lu.inverse();
+        for (k, xk) in (0..5).map(|k| {
+            let mut e = [0.0; 5];
+            e[k] = 1.0;
+            (k, lu.solve(&e))
+        }) {
+            for i in 0..5 {
+                assert!((inv[i][k] - xk[i]).abs() <= 1e-15 * xk[i].abs().max(1.0));
+            }
+        }
         let singular = [[1.0, 2.0], [2.0, 4.0]];
         assert!(Lu::factor(singular).is_none_or(|l| l.pivot_ratio < 1e-15));
     }

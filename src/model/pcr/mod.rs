@@ -158,6 +158,14 @@ pub struct SolverOptions {
     pub min_fraction: f64,
     /// Continuation steps allowed for one solve.
     pub max_substeps: usize,
+    /// Accept a solution one chord step past the last integrated point, without the
+    /// integration that would confirm it, when ten times its predicted residual (from the
+    /// observed convergence rate) is within the tolerances. False integrates at every
+    /// solution returned.
+    pub accept_predicted: bool,
+    /// Broyden updates of the reused inverse Jacobian after every Newton step, so it follows
+    /// the solution along a path and fresh Jacobians are needed less often.
+    pub broyden: bool,
 }
 
 impl Default for SolverOptions {
@@ -171,9 +179,11 @@ impl Default for SolverOptions {
             tolerance_angle: 1e-12,
             max_step: 0.2,
             contraction: 0.5,
-            refresh_rate: 1e-3,
+            refresh_rate: 3e-3,
             min_fraction: 1e-4,
             max_substeps: 400,
+            accept_predicted: true,
+            broyden: true,
         }
     }
 }

@@ -73,9 +73,15 @@ pub(crate) struct Rod {
 }
 
 /// Proximal state: position `(x, y)`, angle `phi`, moment `m` (scaled).
+#[cfg(test)]
 pub(crate) fn start_state(x: f64, y: f64, phi: f64, m: f64) -> State {
     let (s, c) = phi.sin_cos();
     [x, y, c, s, phi, m]
+}
+
+/// Proximal state with the tangent `(cos phi, sin phi)` given (computed once per robot).
+pub(crate) fn start_state_tangent(x: f64, y: f64, phi: f64, tangent: [f64; 2], m: f64) -> State {
+    [x, y, tangent[0], tangent[1], phi, m]
 }
 
 #[inline(always)]

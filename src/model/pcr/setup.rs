@@ -16,6 +16,8 @@ pub(crate) struct LimbSetup {
     pub(crate) u: [f64; 2],
     /// Proximal tangent angle gamma + alpha.
     pub(crate) phi0: f64,
+    /// `(cos phi0, sin phi0)`, computed once (the proximal state needs them every solve).
+    pub(crate) tangent0: [f64; 2],
     /// Bending flexibility relative to limb 1, (d_1 / d_i)^4.
     pub(crate) flex: f64,
     /// Rod length (in L).
@@ -65,6 +67,7 @@ impl Setup {
                 a: [lp.ax / l_ref, lp.ay / l_ref],
                 u: [lp.gamma.cos(), lp.gamma.sin()],
                 phi0,
+                tangent0: [phi0.cos(), phi0.sin()],
                 flex: r2 * r2,
                 length: lp.l / l_ref,
                 b: [lp.bx / l_ref, lp.by / l_ref],

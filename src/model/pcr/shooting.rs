@@ -32,14 +32,17 @@ fn split(z: &Vec12, mode: &Mode) -> ([f64; 3], [f64; 3]) {
     }
 }
 
-fn limb_eval(setup: &Setup, i: usize, z: &Vec12, q: &[f64; 3], pose: &[f64; 3]) -> LimbEval {
+/// Per-limb quantities at `z`; `trig` = `(sin theta, cos theta)` of the platform angle
+/// (computed once for the three limbs).
+fn limb_eval(setup: &Setup, i: usize, z: &Vec12, q: &[f64; 3], trig: (f64, f64)) -> LimbEval {
     let l = &setup.limbs[i];
-    let (s, c) = pose[2].sin_cos();
+    let (s, c) = trig;
     let rb = [c * l.b[0] - s * l.b[1], s * l.b[0] + c * l.b[1]];
-    let y0 = rod::start_state(
+    let y0 = rod::start_state_tangent(
         l.a[0] + q[i] * l.u[0],
         l.a[1] + q[i] * l.u[1],
         l.phi0,
+        l.tangent0,
         z[3 * i + 2],
     );
     let rod = Rod {
@@ -50,6 +53,12 @@ fn limb_eval(setup: &Setup, i: usize, z: &Vec12, q: &[f64; 3], pose: &[f64; 3]) 
         integrator: setup.integrator,
     };
     LimbEval { y0, rod, rb }
+}
+
+/// The three limbs' quantities at `z`.
+fn limb_evals(setup: &Setup, z: &Vec12, q: &[f64; 3], pose: &[f64; 3]) -> [LimbEval; 3] {
+    let trig = pose[2].sin_cos();
+    std::array::from_fn(|i| limb_eval(setup, i, z, q, trig))
 }
 
 fn limb_residual(
@@ -85,11 +94,11 @@ pub(crate) type Tips = [[f64; 4]; 3];
 pub(crate) fn assemble(setup: &Setup, mode: &Mode, z: &Vec12, tips: &Tips) -> Vec12 {
     let (q, pose) = split(z, mode);
     let mut r = [0.0; N];
-    for i in 0..3 {
-        let e = limb_eval(setup, i, z, &q, &pose);
+    let es = limb_evals(setup, z, &q, &pose);
+    for (i, e) in es.iter().enumerate() {
         let t = &tips[i];
         let tip = [e.y0[X] + t[0], e.y0[Y] + t[1], 0.0, 0.0, t[2], t[3]];
-        limb_residual(setup, i, &e, &tip, &pose, &mut r);
+        limb_residual(setup, i, e, &tip, &pose, &mut r);
     }
     subtract_load(setup, &mut r);
     r
@@ -99,7 +108,7 @@ pub(crate) fn assemble(setup: &Setup, mode: &Mode, z: &Vec12, tips: &Tips) -> Ve
 pub(crate) fn residual_tips(setup: &Setup, mode: &Mode, z: &Vec12) -> (Vec12, Tips) {
     let (q, pose) = split(z, mode);
     let mut r = [0.0; N];
-    let e: [LimbEval; 3] = std::array::from_fn(|i| limb_eval(setup, i, z, &q, &pose));
+    let e = limb_evals(setup, z, &q, &pose);
     let tips = rod::integrate(&e.each_ref().map(|e| e.rod), &e.each_ref().map(|e| e.y0));
     for i in 0..3 {
         limb_residual(setup, i, &e[i], &tips[i], &pose, &mut r);
@@ -154,7 +163,7 @@ pub(crate) fn residual_jacobian(setup: &Setup, mode: &Mode, z: &Vec12) -> (Vec12
     let (q, pose) = split(z, mode);
     let mut r = [0.0; N];
     let mut jac = [[0.0; N]; N];
-    let e: [LimbEval; 3] = std::array::from_fn(|i| limb_eval(setup, i, z, &q, &pose));
+    let e = limb_evals(setup, z, &q, &pose);
     let (tips, v) = rod::integrate_var(
         &e.each_ref().map(|e| e.rod),
         &e.each_ref().map(|e| e.y0),
@@ -184,7 +193,7 @@ pub(crate) fn jacobians(
     let mut g = [[0.0; ROBOT_PARAMS]; N];
     let d1 = p.limbs[0].d;
     let seeds = [Seed::Nx, Seed::Ny, Seed::M0, Seed::Phi0, Seed::Flex];
-    let es: [LimbEval; 3] = std::array::from_fn(|i| limb_eval(setup, i, z, &q, &pose));
+    let es = limb_evals(setup, z, &q, &pose);
     let (tips, vs) = rod::integrate_var(
         &es.each_ref().map(|e| e.rod),
         &es.each_ref().map(|e| e.y0),

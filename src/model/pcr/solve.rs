@@ -274,9 +274,12 @@ impl Pcr {
     fn start<'a>(&self, eq: &'a Equilibrium, mode: &Mode) -> Start<'a> {
         let fk = matches!(mode, Mode::Fk(_));
         let warm = eq.warm.as_deref().filter(|w| w.fk == fk);
+        let same_rods = warm.filter(|w| w.key == self.key);
         Start {
-            z: unknowns(eq, mode, self.setup.l_ref),
-            tips: warm.filter(|w| w.key == self.key).map(|w| &w.tips),
+            // With the same rods, start from the point integrated last (the solution or one
+            // chord step before it): its distal states are known, its first residual free.
+            z: same_rods.map_or_else(|| unknowns(eq, mode, self.setup.l_ref), |w| w.integrated),
+            tips: same_rods.map(|w| &w.tips),
             inverse: warm.map(|w| &w.inverse),
         }
     }

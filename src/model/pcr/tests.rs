@@ -135,6 +135,85 @@ fn fast_kinematics_equal_the_rk4_reference() {
     assert!(worst.2 < 1e-10, "IK round trip off by {:e} m", worst.2);
 }
 
+/// The warm solves' shortcuts (solutions accepted on their predicted residual, Broyden
+/// updates of the reused inverse) give the answers of the straightforward solve (every
+/// solution integrated and checked, no updates) to the solver's tolerance, along a joint
+/// path of 3 um steps and a circle of poses, and stay within 1 nm and 1e-7 rad of the
+/// 256-step RK4 reference. The shortcuts are taken: fewer integrations in all.
+#[test]
+fn warm_shortcuts_equal_the_straightforward_solve() {
+    let fast = robot();
+    assert!(fast.options().accept_predicted && fast.options().broyden);
+    let plain = fast
+        .with_options(SolverOptions {
+            accept_predicted: false,
+            broyden: false,
+            ..*fast.options()
+        })
+        .expect("plain robot");
+    let slow = reference(&fast);
+    let path: Vec<[f64; 3]> = (0..300)
+        .map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / 2000.0;
+            [0.002 * a.cos(), 0.002 * a.sin(), 0.001 * (2.0 * a).sin()]
+        })
+        .collect();
+    let (mut a, mut b) = (
+        fast.fk(&path[0]).expect("fk"),
+        plain.fk(&path[0]).expect("fk"),
+    );
+    let (mut worst, mut worst_ref) = ((0.0_f64, 0.0_f64), (0.0_f64, 0.0_f64));
+    let (mut its_fast, mut its_plain) = (0, 0);
+    for (k, q) in path.iter().enumerate().skip(1) {
+        a = fast.fk_from(&a, q).expect("fast path fk");
+        b = plain.fk_from(&b, q).expect("plain path fk");
+        its_fast += a.iterations;
+        its_plain += b.iterations;
+        let dp = (a.pose.x - b.pose.x).hypot(a.pose.y - b.pose.y);
+        worst = (
+            worst.0.max(dp),
+            worst.1.max((a.pose.theta - b.pose.theta).abs()),
+        );
+        if k % 60 == 0 {
+            let r = slow.fk(q).expect("reference fk");
+            let dp = (a.pose.x - r.pose.x).hypot(a.pose.y - r.pose.y);
+            worst_ref = (
+                worst_ref.0.max(dp),
+                worst_ref.1.max((a.pose.theta - r.pose.theta).abs()),
+            );
+        }
+    }
+    let poses: Vec<crate::geometry::Pose2> = (0..100)
+        .map(|k| {
+            let t = std::f64::consts::TAU * k as f64 / 400.0;
+            crate::geometry::Pose2::new(0.0015 * t.cos(), 0.0015 * t.sin(), 0.0)
+        })
+        .collect();
+    let (mut a, mut b) = (
+        fast.ik(&poses[0]).expect("ik"),
+        plain.ik(&poses[0]).expect("ik"),
+    );
+    let mut worst_q = 0.0_f64;
+    for p in &poses[1..] {
+        a = fast.ik_from(&a, p).expect("fast path ik");
+        b = plain.ik_from(&b, p).expect("plain path ik");
+        its_fast += a.iterations;
+        its_plain += b.iterations;
+        worst_q = (0..3).fold(worst_q, |m, k| m.max((a.q[k] - b.q[k]).abs()));
+    }
+    println!(
+        "shortcuts vs plain: {:.3e} m, {:.3e} rad, IK {:.3e} m; vs reference {:.3e} m, {:.3e} rad; iterations {its_fast} vs {its_plain}",
+        worst.0, worst.1, worst_q, worst_ref.0, worst_ref.1
+    );
+    assert!(worst.0 < 1e-11 && worst.1 < 1e-10, "FK differs: {worst:?}");
+    assert!(worst_q < 1e-11, "IK differs by {worst_q:e} m");
+    assert!(
+        worst_ref.0 < 1e-9 && worst_ref.1 < 1e-7,
+        "vs reference: {worst_ref:?}"
+    );
+    assert!(its_fast < its_plain, "{its_fast} vs {its_plain} iterations");
+}
+
 /// Models are shared across threads (identification workers, the daemon's pool).
 #[test]
 fn robots_and_solutions_are_send_and_sync() {

@@ -26,7 +26,9 @@ pub(crate) struct Warm {
     pub(crate) key: u64,
     /// Approximate inverse Jacobian at the solution.
     pub(crate) inverse: Mat12,
-    /// Relative distal states at the solution.
+    /// The last integrated point of the solve (the solution, or one chord step before it).
+    pub(crate) integrated: Vec12,
+    /// Relative distal states at `integrated`.
     pub(crate) tips: Tips,
 }
 
@@ -61,6 +63,7 @@ pub(crate) fn equilibrium(setup: &Setup, key: u64, mode: &Mode, solved: Solved) 
         z,
         iterations,
         inverse,
+        integrated,
         tips,
     } = solved;
     let lr = setup.l_ref;
@@ -79,6 +82,7 @@ pub(crate) fn equilibrium(setup: &Setup, key: u64, mode: &Mode, solved: Solved) 
         fk: matches!(mode, Mode::Fk(_)),
         key,
         inverse,
+        integrated,
         tips,
     }));
     Equilibrium {
@@ -124,7 +128,7 @@ pub(crate) fn track(
                 if t >= 1.0 {
                     return Ok(Solved { iterations, ..s });
                 }
-                z = s.z;
+                z = s.integrated;
                 tips = Some(s.tips);
                 inverse = Some(s.inverse);
                 dt = (2.0 * dt).min(1.0);
