@@ -152,7 +152,8 @@ pub struct SolverOptions {
     /// Required contraction of successive Newton steps (Kantorovich-style branch guard).
     pub contraction: f64,
     /// An inherited inverse Jacobian is refreshed when a step is longer than this fraction
-    /// of the previous one (slow convergence).
+    /// of the previous one (slow convergence), from a solve's third step on (the second
+    /// also corrects the first one's quadratic error, which no fresh Jacobian removes).
     pub refresh_rate: f64,
     /// Smallest continuation step (fraction of the path) before a branch jump is reported.
     pub min_fraction: f64,
