@@ -61,11 +61,27 @@ pub struct DetmaxStep {
 }
 
 /// The exchange state of either kind of pool.
-#[derive(Clone)]
 enum Design<'a> {
     Thin(exchange::Design<'a>),
     Lanes(narrow::Design<'a>),
     Gram(gram::Design<'a>),
+}
+
+impl Clone for Design<'_> {
+    fn clone(&self) -> Self {
+        match self {
+            Self::Thin(d) => Self::Thin(d.clone()),
+            Self::Lanes(d) => Self::Lanes(d.clone()),
+            Self::Gram(d) => Self::Gram(d.clone()),
+        }
+    }
+
+    fn clone_from(&mut self, src: &Self) {
+        match (self, src) {
+            (Self::Lanes(a), Self::Lanes(b)) => a.clone_from(b),
+            (this, src) => *this = src.clone(),
+        }
+    }
 }
 
 impl<'a> Design<'a> {
@@ -132,6 +148,22 @@ impl<'a> Design<'a> {
         }
     }
 
+    /// log det(J^T J) of the design (no ridge), with the step `pending` [`Design::peek`]
+    /// proposed (candidate, add) taken, whether or not the design has taken it yet.
+    fn exact_log_det(&self, pool: &Pool, pending: Option<(usize, bool)>) -> f64 {
+        match self {
+            Self::Lanes(d) => d.exact_log_det(pending),
+            _ => pool.log_det(&self.selected_after_pending(pending)),
+        }
+    }
+
+    fn selected_after_pending(&self, pending: Option<(usize, bool)>) -> Vec<usize> {
+        match pending {
+            Some((i, add)) => self.selected_after(i, add),
+            None => self.selected(),
+        }
+    }
+
     /// The member set with candidate `i` toggled as [`Design::peek`] proposed, whether or
     /// not the design has taken the step yet.
     fn selected_after(&self, i: usize, add: bool) -> Vec<usize> {
@@ -163,7 +195,7 @@ fn step(pool: &Pool, design: &Design<'_>, exchanges: usize) -> DetmaxStep {
     let selected = design.selected();
     DetmaxStep {
         exchanges,
-        log_det: pool.log_det(&selected),
+        log_det: design.exact_log_det(pool, None),
         selected,
     }
 }
@@ -190,6 +222,8 @@ pub fn detmax(
     let min_rows = pool.rows.iter().copied().min().unwrap_or(1);
     let mut exchanges = 0;
     let mut history = vec![step(pool, &design, 0)];
+    // The trial design of an excursion, its buffers reused from try to try.
+    let mut d = design.clone();
     let mut k = 1;
     let kmax = opts.max_excursion.max(1);
     while k <= kmax {
@@ -206,7 +240,7 @@ pub fn detmax(
             if !up && (n.saturating_sub(k)) * min_rows < pool.m {
                 continue;
             }
-            let mut d = design.clone();
+            d.clone_from(&design);
             // The last step is looked at first and taken only if the excursion is accepted.
             let last = (0..k).all(|_| d.greedy(up, &mut memo).is_some())
                 && (0..k - 1).all(|_| d.greedy(!up, &mut memo).is_some());
@@ -221,14 +255,14 @@ pub fn detmax(
             let exact = if up {
                 log_det
             } else {
-                pool.log_det(&d.selected_after(last, !up))
+                d.exact_log_det(pool, Some((last, !up)))
             };
             if exact > current + 1e-9 * current.abs().max(1.0) {
                 d.commit(last, !up).ok_or_else(singular)?;
                 if (exact - d.log_det()).abs() > 1e-6 * exact.abs().max(1.0) {
                     d.rebuild(pool, ridge, 0).ok_or_else(singular)?;
                 }
-                design = d;
+                std::mem::swap(&mut design, &mut d);
                 current = exact;
                 improved = true;
                 break;
@@ -243,8 +277,13 @@ pub fn detmax(
         }
     }
     let selected = design.selected();
+    let log_det = pool.log_det(&selected);
+    // The last step is the selection: its determinant computed afresh.
+    if let Some(last) = history.last_mut() {
+        last.log_det = log_det;
+    }
     Ok(Selection {
-        log_det: pool.log_det(&selected),
+        log_det,
         log_det_start,
         selected,
         exchanges,

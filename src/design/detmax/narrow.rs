@@ -5,7 +5,7 @@
 //! registers, with no packing and no temporaries. The general [`super::exchange`] state is
 //! the reference it is tested against.
 
-use super::kernels::madd;
+use super::kernels::{Info, madd};
 use super::pool::Pool;
 
 /// Candidates per group (one 256-bit vector of f64).
@@ -54,13 +54,15 @@ impl LanePool {
 }
 
 /// Exchange state of a design over a [`LanePool`].
-#[derive(Clone)]
 pub(super) struct Design<'a> {
     lp: &'a LanePool,
     pub(super) member: Vec<bool>,
     pub(super) log_det: f64,
-    /// P = M^-1 (m x m, row-major, symmetric).
+    /// P = (M + ridge I)^-1 (m x m, row-major, symmetric).
     p: Vec<f64>,
+    /// M = sum of the members' B_i^T B_i (m x m, row-major), kept by every toggle so the
+    /// exact determinant of a design costs one Cholesky, not a product over its rows.
+    info: Vec<f64>,
     /// D_i = B_i P B_i^T, lane-interleaved: entry (x, y) of candidate 4 g + l at
     /// `d[((g r + x) r + y) L + l]`.
     d: Vec<f64>,
@@ -74,6 +76,36 @@ pub(super) struct Design<'a> {
     /// U = P B_a^T (m x r, row-major).
     u: Vec<f64>,
     pub(super) updates: usize,
+}
+
+impl Clone for Design<'_> {
+    fn clone(&self) -> Self {
+        Self {
+            lp: self.lp,
+            member: self.member.clone(),
+            log_det: self.log_det,
+            p: self.p.clone(),
+            info: self.info.clone(),
+            d: self.d.clone(),
+            dets: self.dets.clone(),
+            ba: self.ba.clone(),
+            ut: self.ut.clone(),
+            u: self.u.clone(),
+            updates: self.updates,
+        }
+    }
+
+    /// A copy into the buffers already held (an excursion's trial design, once per try).
+    fn clone_from(&mut self, src: &Self) {
+        self.lp = src.lp;
+        self.member.clone_from(&src.member);
+        self.log_det = src.log_det;
+        self.p.clone_from(&src.p);
+        self.info.clone_from(&src.info);
+        self.d.clone_from(&src.d);
+        self.dets.clone_from(&src.dets);
+        self.updates = src.updates;
+    }
 }
 
 impl<'a> Design<'a> {
@@ -93,6 +125,7 @@ impl<'a> Design<'a> {
             member,
             log_det: 0.0,
             p: vec![0.0; m * m],
+            info: Vec::new(),
             d: vec![0.0; lp.n.div_ceil(L) * r * r * L],
             dets: vec![0.0; lp.n.div_ceil(L) * 2 * L],
             ba: vec![0.0; m * r],
@@ -107,7 +140,13 @@ impl<'a> Design<'a> {
     /// Recompute P and every D_i from the member set (start, and to stop drift).
     pub(super) fn rebuild(&mut self, pool: &Pool, ridge: f64) -> Option<()> {
         let members: Vec<usize> = self.selected();
-        let f = pool.information_factor(&members, ridge)?;
+        self.info = pool.information(&members);
+        let mut a = Info::new(self.lp.m);
+        a.a.clone_from(&self.info);
+        for k in 0..self.lp.m {
+            a.a[k * self.lp.m + k] += ridge;
+        }
+        let f = a.factor()?;
         self.log_det = f.log_det();
         self.p = f.inverse();
         match self.lp.r {
@@ -181,6 +220,26 @@ impl<'a> Design<'a> {
         self.member[a] = sign > 0.0;
         self.updates += 1;
         Some(())
+    }
+
+    /// log det M (no ridge) of the members, with candidate `extra` added (true) or removed
+    /// (false) if given; -inf when singular.
+    pub(super) fn exact_log_det(&self, extra: Option<(usize, bool)>) -> f64 {
+        let (m, r) = (self.lp.m, self.lp.r);
+        let mut a = Info::new(m);
+        a.a.clone_from(&self.info);
+        if let Some((i, add)) = extra {
+            let sign = if add { 1.0 } else { -1.0 };
+            for c in 0..m {
+                for c2 in 0..=c {
+                    let v: f64 = (0..r)
+                        .map(|y| self.lp.at(i, y, c) * self.lp.at(i, y, c2))
+                        .sum();
+                    a.a[c * m + c2] += sign * v;
+                }
+            }
+        }
+        a.factor().map_or(f64::NEG_INFINITY, |f| f.log_det())
     }
 
     pub(super) fn selected(&self) -> Vec<usize> {
@@ -302,6 +361,16 @@ fn run<const R: usize, const FMA: bool>(k: Kernel<'_>, d: &mut Design<'_>) {
             for c in 0..m {
                 for y in 0..R {
                     d.u[c * R + y] = d.ut[y * m + c];
+                }
+            }
+            // M' = M + sign B_a^T B_a.
+            for c in 0..m {
+                let row = &mut d.info[c * m..(c + 1) * m];
+                for y in 0..R {
+                    let f = sign * d.ba[y * m + c];
+                    for (mv, &bv) in row.iter_mut().zip(&d.ba[y * m..(y + 1) * m]) {
+                        *mv = madd::<FMA>(f, bv, *mv);
+                    }
                 }
             }
             let outs =

@@ -176,7 +176,7 @@ impl Pool {
             return g.log_det_of(&mk, &mut super::lanes::Work::new(&g.env));
         }
         let m = self.m;
-        let a = DMatrix::from_row_slice(m, m, &self.information_of(subset));
+        let a = DMatrix::from_row_slice(m, m, &self.information(subset));
         match a.cholesky() {
             Some(c) => 2.0 * c.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>(),
             None => f64::NEG_INFINITY,
@@ -206,7 +206,7 @@ impl Pool {
     pub(super) fn information_factor(&self, members: &[usize], ridge: f64) -> Option<Factor> {
         let m = self.m;
         let mut info = Info::new(m);
-        info.a = self.information_of(members);
+        info.a = self.information(members);
         for k in 0..m {
             info.a[k * m + k] += ridge;
         }
@@ -215,7 +215,7 @@ impl Pool {
 
     /// The information matrix (row-major m x m) of a subset of a thin pool: the subset's
     /// rows gathered column by column, then one product (no per-block products).
-    fn information_of(&self, subset: &[usize]) -> Vec<f64> {
+    pub(super) fn information(&self, subset: &[usize]) -> Vec<f64> {
         let (m, rows) = (self.m, self.stacked.nrows());
         let all = self.stacked.as_slice();
         let total: usize = subset.iter().map(|&i| self.rows[i]).sum();
