@@ -83,7 +83,7 @@ pub(crate) fn jacobian_sign(setup: &Setup, mode: &Mode, z: &Vec12) -> Option<f64
 /// The inverse of the (coarse) Jacobian at `z`; a [`Failure::Singular`] if it is singular
 /// or its determinant has the sign opposite to the stable branch's (a fold or bifurcation
 /// was passed).
-fn fresh_inverse(setup: &Setup, mode: &Mode, z: &Vec12) -> Result<Mat12, Failure> {
+pub(crate) fn fresh_inverse(setup: &Setup, mode: &Mode, z: &Vec12) -> Result<Mat12, Failure> {
     let lu = Lu::factor(residual_jacobian(setup, mode, z).1).ok_or(Failure::Singular)?;
     if lu.pivot_ratio < 1e-13 {
         return Err(Failure::Singular);

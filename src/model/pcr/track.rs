@@ -112,6 +112,7 @@ pub(crate) fn track(
     let mut iterations = 0;
     let mut last = String::new();
     let mut branch_signal: Option<String> = None;
+    let mut subdivided = false;
     for _ in 0..opts.max_substeps {
         let t1 = (t + dt).min(1.0);
         let setup = setup0.blend(setup1, t1);
@@ -121,7 +122,24 @@ pub(crate) fn track(
             tips: tips.as_ref(),
             inverse: inverse.as_ref(),
         };
-        match newton::newton(&setup, &mode, &guess, opts) {
+        // Where the setup changes along the way (the load or the clamps are blended in) or
+        // the path had to be subdivided, every solution is checked against a fresh Jacobian:
+        // the warm solves' reused, Broyden-updated inverses never see the determinant's sign,
+        // and a bifurcation (buckling) may lie on the way.
+        let checked = newton::newton(&setup, &mode, &guess, opts).and_then(|s| {
+            if setup0 == setup1 && !subdivided {
+                return Ok(s);
+            }
+            let coarse = Setup {
+                steps: opts.jacobian_steps,
+                ..setup
+            };
+            match newton::fresh_inverse(&coarse, &mode, &s.z) {
+                Ok(inverse) => Ok(Solved { inverse, ..s }),
+                Err(f) => Err((f, s.iterations)),
+            }
+        });
+        match checked {
             Ok(s) => {
                 iterations += s.iterations;
                 t = t1;
@@ -134,6 +152,7 @@ pub(crate) fn track(
                 dt = (2.0 * dt).min(1.0);
             }
             Err((failure, it)) => {
+                subdivided = true;
                 iterations += it;
                 let shrink = match failure {
                     Failure::TooFar(step) => (0.8 * opts.max_step / step).clamp(0.05, 0.5),
