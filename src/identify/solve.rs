@@ -339,8 +339,8 @@ fn sigma_only(n: usize, m: usize, r: &DVector<f64>) -> Uncertainty {
     }
 }
 
-/// The R factor of a tall matrix (the matrix itself otherwise): the same singular values
-/// and right vectors, for the spectra of the fit plans.
+/// The R factor of a tall matrix (the matrix itself otherwise): the same column norms,
+/// pivoted QR and dependencies, for the rank detection.
 fn reduced(a: &DMatrix<f64>) -> DMatrix<f64> {
     if a.nrows() > a.ncols() {
         super::dense::r_factor(a)
@@ -376,13 +376,19 @@ pub fn solve(
     problem.jacobian(x0, &mut j0)?;
     let scale = physical_scales(unknowns);
     let effect = effect_sizes(&j0, &scale);
-    // The tall Jacobian is reduced once: rank, spectra and dependencies work on R (the
-    // factor the rank detection computed of the Jacobian itself before).
-    let rf0 = reduced(&j0);
+    // The tall Jacobian is reduced once: rank and dependencies work on its R factor (the
+    // one the rank detection computes of a tall matrix itself), the spectra of the plans
+    // on R from the crossover on and on the Jacobian below it (their arithmetic as before).
+    let rq0 = reduced(&j0);
     let rank = if opts.physical_rank {
-        rank_revealing_scaled(&rf0, &scale, &opts.pivoting, opts.rank_tolerance)
+        rank_revealing_scaled(&rq0, &scale, &opts.pivoting, opts.rank_tolerance)
     } else {
-        rank_revealing(&rf0, &opts.pivoting, opts.rank_tolerance)
+        rank_revealing(&rq0, &opts.pivoting, opts.rank_tolerance)
+    };
+    let rf0 = if n >= super::dense::QR_FAER_MIN_ROWS {
+        rq0
+    } else {
+        j0.clone()
     };
     let mut structural = rank.kept.clone();
     structural.sort_unstable();
@@ -421,7 +427,7 @@ pub fn solve(
             for (p, &k) in pl.free.iter().enumerate() {
                 effect_both[k] = effect_both[k].max(fit_effect[p] * scale[k]);
             }
-            let r_fit = expand_cols(&reduced(&fit.r), &pl.free, m);
+            let r_fit = expand_cols(&fit.r, &pl.free, m);
             let mut stacked = DMatrix::zeros(rf0.nrows() + r_fit.nrows(), m);
             stacked.rows_mut(0, rf0.nrows()).copy_from(&rf0);
             stacked
