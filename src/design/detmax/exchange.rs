@@ -2,7 +2,7 @@
 //! candidate, updated in place (Woodbury) when a candidate enters or leaves. Every buffer is
 //! allocated once per design; a toggle allocates only the r x r inverse of its candidate.
 
-use super::kernels::{Info, Strided, dot, gemm, log_det_identity_plus, small_inverse};
+use super::kernels::{Strided, dot, gemm, log_det_identity_plus, small_inverse};
 use super::pool::Pool;
 
 /// Buffers of one toggle, sized for the largest block.
@@ -81,27 +81,8 @@ impl<'a> Design<'a> {
         let pool = self.pool;
         let (m, rows) = (pool.m, pool.stacked.nrows());
         let all = pool.stacked.as_slice();
-        let mut info = Info::new(m);
-        for (i, &r) in pool.rows.iter().enumerate() {
-            if self.member[i] && r > 0 {
-                // M += B_i^T B_i, B_i being rows row0..row0+r of the column-major stack.
-                let bt = Strided {
-                    data: &all[pool.row0[i]..],
-                    rs: rows,
-                    cs: 1,
-                };
-                let b = Strided {
-                    data: &all[pool.row0[i]..],
-                    rs: 1,
-                    cs: rows,
-                };
-                gemm((m, r, m), 1.0, bt, b, 1.0, &mut info.a, m, 1);
-            }
-        }
-        for k in 0..m {
-            info.a[k * m + k] += ridge;
-        }
-        let f = info.factor()?;
+        let members = self.selected();
+        let f = pool.information_factor(&members, ridge)?;
         self.log_det = f.log_det();
         self.p = f.inverse();
         // W = B_all P (rows x m, row-major); D_i[x][y] = W_(r0+x) . B_(r0+y).

@@ -11,6 +11,7 @@ mod exchange;
 mod gram;
 mod kernels;
 mod lanes;
+mod narrow;
 mod pool;
 #[cfg(test)]
 mod tests;
@@ -60,23 +61,44 @@ pub struct DetmaxStep {
 }
 
 /// The exchange state of either kind of pool.
-#[derive(Clone)]
 enum Design<'a> {
     Thin(exchange::Design<'a>),
+    Lanes(narrow::Design<'a>),
     Gram(gram::Design<'a>),
+}
+
+impl Clone for Design<'_> {
+    fn clone(&self) -> Self {
+        match self {
+            Self::Thin(d) => Self::Thin(d.clone()),
+            Self::Lanes(d) => Self::Lanes(d.clone()),
+            Self::Gram(d) => Self::Gram(d.clone()),
+        }
+    }
+
+    fn clone_from(&mut self, src: &Self) {
+        match (self, src) {
+            (Self::Lanes(a), Self::Lanes(b)) => a.clone_from(b),
+            (this, src) => *this = src.clone(),
+        }
+    }
 }
 
 impl<'a> Design<'a> {
     fn new(pool: &'a Pool, start: &[usize], ridge: f64) -> Option<Self> {
         match &pool.gram {
             Some(g) => gram::Design::new(g, start, ridge).map(Self::Gram),
-            None => exchange::Design::new(pool, start, ridge).map(Self::Thin),
+            None => match &pool.lanes {
+                Some(lp) => narrow::Design::new(pool, lp, start, ridge).map(Self::Lanes),
+                None => exchange::Design::new(pool, start, ridge).map(Self::Thin),
+            },
         }
     }
 
     fn log_det(&self) -> f64 {
         match self {
             Self::Thin(d) => d.log_det,
+            Self::Lanes(d) => d.log_det,
             Self::Gram(d) => d.log_det,
         }
     }
@@ -84,6 +106,7 @@ impl<'a> Design<'a> {
     fn selected(&self) -> Vec<usize> {
         match self {
             Self::Thin(d) => d.selected(),
+            Self::Lanes(d) => d.selected(),
             Self::Gram(d) => d.selected(),
         }
     }
@@ -91,15 +114,77 @@ impl<'a> Design<'a> {
     fn greedy(&mut self, add: bool, memo: &mut gram::Memo) -> Option<usize> {
         match self {
             Self::Thin(d) => d.greedy(add),
+            Self::Lanes(d) => {
+                let (i, change) = d.best(add)?;
+                (change > f64::NEG_INFINITY).then_some(())?;
+                d.toggle(i, if add { 1.0 } else { -1.0 })?;
+                Some(i)
+            }
             Self::Gram(d) => d.greedy(add, memo),
         }
     }
 
+    /// The last greedy step of an excursion, looked at before it is taken: the candidate and
+    /// the log det after it. A lane design defers the toggle (most excursions are rejected);
+    /// [`Design::commit`] takes it.
+    fn peek(&mut self, add: bool, memo: &mut gram::Memo) -> Option<(usize, f64)> {
+        match self {
+            Self::Lanes(d) => {
+                let (i, change) = d.best(add)?;
+                (change > f64::NEG_INFINITY).then_some((i, d.log_det + change))
+            }
+            _ => {
+                let i = self.greedy(add, memo)?;
+                Some((i, self.log_det()))
+            }
+        }
+    }
+
+    /// Take the step [`Design::peek`] looked at (a no-op for designs that took it then).
+    fn commit(&mut self, i: usize, add: bool) -> Option<()> {
+        match self {
+            Self::Lanes(d) => d.toggle(i, if add { 1.0 } else { -1.0 }),
+            _ => Some(()),
+        }
+    }
+
+    /// log det(J^T J) of the design (no ridge), with the step `pending` [`Design::peek`]
+    /// proposed (candidate, add) taken, whether or not the design has taken it yet.
+    fn exact_log_det(&self, pool: &Pool, pending: Option<(usize, bool)>) -> f64 {
+        match self {
+            Self::Lanes(d) => d.exact_log_det(pending),
+            _ => pool.log_det(&self.selected_after_pending(pending)),
+        }
+    }
+
+    fn selected_after_pending(&self, pending: Option<(usize, bool)>) -> Vec<usize> {
+        match pending {
+            Some((i, add)) => self.selected_after(i, add),
+            None => self.selected(),
+        }
+    }
+
+    /// The member set with candidate `i` toggled as [`Design::peek`] proposed, whether or
+    /// not the design has taken the step yet.
+    fn selected_after(&self, i: usize, add: bool) -> Vec<usize> {
+        let mut s = self.selected();
+        match (self, add) {
+            (Self::Lanes(_), true) => {
+                let at = s.partition_point(|&x| x < i);
+                s.insert(at, i);
+            }
+            (Self::Lanes(_), false) => s.retain(|&x| x != i),
+            _ => {}
+        }
+        s
+    }
+
     /// Recompute the tracked state from the member set (the thin state drifts; the Gram
     /// state is recomputed at every step and never does).
-    fn rebuild(&mut self, ridge: f64, every: usize) -> Option<()> {
+    fn rebuild(&mut self, pool: &Pool, ridge: f64, every: usize) -> Option<()> {
         match self {
             Self::Thin(d) if d.updates > every => d.rebuild(ridge),
+            Self::Lanes(d) if d.updates > every => d.rebuild(pool, ridge),
             _ => Some(()),
         }
     }
@@ -110,7 +195,7 @@ fn step(pool: &Pool, design: &Design<'_>, exchanges: usize) -> DetmaxStep {
     let selected = design.selected();
     DetmaxStep {
         exchanges,
-        log_det: pool.log_det(&selected),
+        log_det: design.exact_log_det(pool, None),
         selected,
     }
 }
@@ -137,6 +222,8 @@ pub fn detmax(
     let min_rows = pool.rows.iter().copied().min().unwrap_or(1);
     let mut exchanges = 0;
     let mut history = vec![step(pool, &design, 0)];
+    // The trial design of an excursion, its buffers reused from try to try.
+    let mut d = design.clone();
     let mut k = 1;
     let kmax = opts.max_excursion.max(1);
     while k <= kmax {
@@ -144,7 +231,7 @@ pub fn detmax(
             return Err(crate::identify::IdentifyError::Cancelled);
         }
         monitor.progress(k as f64 / (kmax + 1) as f64, "detmax");
-        design.rebuild(ridge, 64).ok_or_else(singular)?;
+        design.rebuild(pool, ridge, 64).ok_or_else(singular)?;
         // Excursion up (add k, then remove k); if it does not improve, down (remove k, then
         // add k) unless removing k would leave fewer equations than parameters. A move is
         // accepted on the exact determinant, and the tracked state is rebuilt if it drifted.
@@ -153,24 +240,29 @@ pub fn detmax(
             if !up && (n.saturating_sub(k)) * min_rows < pool.m {
                 continue;
             }
-            let mut d = design.clone();
-            let ok = (0..k).all(|_| d.greedy(up, &mut memo).is_some())
-                && (0..k).all(|_| d.greedy(!up, &mut memo).is_some());
-            if !ok || d.log_det() <= current + 1e-9 * current.abs().max(1.0) {
+            d.clone_from(&design);
+            // The last step is looked at first and taken only if the excursion is accepted.
+            let last = (0..k).all(|_| d.greedy(up, &mut memo).is_some())
+                && (0..k - 1).all(|_| d.greedy(!up, &mut memo).is_some());
+            let Some((last, log_det)) = last.then(|| d.peek(!up, &mut memo)).flatten() else {
+                continue;
+            };
+            if log_det <= current + 1e-9 * current.abs().max(1.0) {
                 continue;
             }
             // Up excursions never pass through a design with fewer rows than now; down ones
             // can come close to singular, so their gain is checked on the exact determinant.
             let exact = if up {
-                d.log_det()
+                log_det
             } else {
-                pool.log_det(&d.selected())
+                d.exact_log_det(pool, Some((last, !up)))
             };
             if exact > current + 1e-9 * current.abs().max(1.0) {
+                d.commit(last, !up).ok_or_else(singular)?;
                 if (exact - d.log_det()).abs() > 1e-6 * exact.abs().max(1.0) {
-                    d.rebuild(ridge, 0).ok_or_else(singular)?;
+                    d.rebuild(pool, ridge, 0).ok_or_else(singular)?;
                 }
-                design = d;
+                std::mem::swap(&mut design, &mut d);
                 current = exact;
                 improved = true;
                 break;
@@ -185,8 +277,13 @@ pub fn detmax(
         }
     }
     let selected = design.selected();
+    let log_det = pool.log_det(&selected);
+    // The last step is the selection: its determinant computed afresh.
+    if let Some(last) = history.last_mut() {
+        last.log_det = log_det;
+    }
     Ok(Selection {
-        log_det: pool.log_det(&selected),
+        log_det,
         log_det_start,
         selected,
         exchanges,

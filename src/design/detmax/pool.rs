@@ -15,7 +15,8 @@ use std::borrow::Borrow;
 use nalgebra::DMatrix;
 
 use super::gram::GramPool;
-use super::kernels::{Strided, gemm};
+use super::kernels::{Factor, Info, Strided, gemm};
+use super::narrow::LanePool;
 
 /// Blocks with at most this many rows are kept as they are (serial designs: 3 rows per
 /// configuration, already full rank); larger ones are reduced to their rank.
@@ -48,6 +49,8 @@ pub struct Pool {
     pub(super) row0: Vec<usize>,
     /// The common row count when every block has the same one.
     pub(super) uniform: Option<usize>,
+    /// The blocks lane-interleaved, for uniform pools of 2, 3 or 6 rows (fused updates).
+    pub(super) lanes: Option<LanePool>,
 }
 
 impl Pool {
@@ -96,6 +99,7 @@ impl Pool {
             stacked: DMatrix::zeros(0, m),
             row0: Vec::new(),
             uniform: None,
+            lanes: None,
         }
     }
 
@@ -118,6 +122,8 @@ impl Pool {
             Some(&r) if rows.iter().all(|&x| x == r) => Some(r),
             _ => None,
         };
+        let lanes = uniform
+            .and_then(|r| LanePool::new(rows.len(), r, m, |i, x, c| stacked[(row0[i] + x, c)]));
         Self {
             m,
             rows,
@@ -126,6 +132,7 @@ impl Pool {
             stacked,
             row0,
             uniform,
+            lanes,
         }
     }
 
@@ -168,24 +175,8 @@ impl Pool {
             let mk = g.information(subset, 0.0);
             return g.log_det_of(&mk, &mut super::lanes::Work::new(&g.env));
         }
-        let j = self.stacked_rows(subset);
-        let (r, m) = j.shape();
-        let mut a = DMatrix::zeros(m, m);
-        let op = |rs, cs| Strided {
-            data: j.as_slice(),
-            rs,
-            cs,
-        };
-        gemm(
-            (m, r, m),
-            1.0,
-            op(r, 1),
-            op(1, r),
-            0.0,
-            a.as_mut_slice(),
-            1,
-            m,
-        );
+        let m = self.m;
+        let a = DMatrix::from_row_slice(m, m, &self.information(subset));
         match a.cholesky() {
             Some(c) => 2.0 * c.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>(),
             None => f64::NEG_INFINITY,
@@ -208,6 +199,48 @@ impl Pool {
             r0 += r;
         }
         out
+    }
+
+    /// Cholesky factor of the information matrix of `members` plus `ridge` I (thin pools);
+    /// None when it is not positive definite.
+    pub(super) fn information_factor(&self, members: &[usize], ridge: f64) -> Option<Factor> {
+        let m = self.m;
+        let mut info = Info::new(m);
+        info.a = self.information(members);
+        for k in 0..m {
+            info.a[k * m + k] += ridge;
+        }
+        info.factor()
+    }
+
+    /// The information matrix (row-major m x m) of a subset of a thin pool: the subset's
+    /// rows gathered column by column, then one product (no per-block products).
+    pub(super) fn information(&self, subset: &[usize]) -> Vec<f64> {
+        let (m, rows) = (self.m, self.stacked.nrows());
+        let all = self.stacked.as_slice();
+        let total: usize = subset.iter().map(|&i| self.rows[i]).sum();
+        let mut j = vec![0.0; total * m];
+        for (c, col) in j.chunks_exact_mut(total.max(1)).enumerate().take(m) {
+            let mut o = 0;
+            for &i in subset {
+                let (r, s) = (self.rows[i], c * rows + self.row0[i]);
+                col[o..o + r].copy_from_slice(&all[s..s + r]);
+                o += r;
+            }
+        }
+        let mut a = vec![0.0; m * m];
+        let jt = Strided {
+            data: &j,
+            rs: total,
+            cs: 1,
+        };
+        let jj = Strided {
+            data: &j,
+            rs: 1,
+            cs: total,
+        };
+        gemm((m, total, m), 1.0, jt, jj, 0.0, &mut a, m, 1);
+        a
     }
 
     /// Sum of squares of every entry (the scale of the start's ridge).
