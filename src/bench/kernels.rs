@@ -53,6 +53,7 @@ fn figure(name: String, d: Duration) -> Figure {
         target: None,
         peak_rss_bytes: None,
         cpu: None,
+        cpu_target: None,
     }
 }
 

@@ -1,7 +1,8 @@
 //! `calibd bench serial`: `serial.fk` jobs from a CSV file to a CSV file (streamed at 50,000
 //! and 1,000,000 rows, and at 50,000 through the whole result as before streaming), FK +
 //! gravity torques, one 31-parameter identification from 360 measurements, DETMAX 75 of 360,
-//! and a 2,000-identification dispersion study, all on the IRB 120 twin.
+//! the identifications of a dispersion study alone, and a 2,000-identification dispersion
+//! study, all on the IRB 120 twin.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -10,6 +11,7 @@ use super::{Figure, time};
 use crate::design::{DetmaxOptions, detmax};
 use crate::jobs::rows::CsvSink;
 use crate::jobs::serial::design::DesignPool;
+use crate::jobs::serial::identify::IdentifyInputs;
 use crate::jobs::{DirResolver, JobError, Resolver};
 use crate::jobs::{NoReferences, prepare};
 use crate::twin::SerialTwin;
@@ -137,6 +139,60 @@ fn tempfile_dir() -> std::io::Result<PathBuf> {
     Ok(dir)
 }
 
+/// The identification part of a dispersion study: DETMAX sets of each of `sizes` (four
+/// seeds each, selected once, outside the timing), each identified as the study does
+/// (values only) and as `serial.identify` does (with standard deviations); time per
+/// identification.
+fn dispersion_identifications(
+    inputs: &IdentifyInputs,
+    dp: &DesignPool,
+    sizes: &[usize],
+) -> Vec<Figure> {
+    let sets: Vec<Vec<usize>> = sizes
+        .iter()
+        .flat_map(|&n| (0..4).map(move |r| (n, r)))
+        .filter_map(|(n, r)| {
+            let o = DetmaxOptions {
+                n,
+                seed: ((n as u64) << 32) ^ (r + 1),
+                max_excursion: 4,
+            };
+            detmax(&dp.pool, &o, &NoMonitor).ok().map(|s| s.selected)
+        })
+        .collect();
+    let mut sink = 0.0;
+    let mut figs = Vec::new();
+    for (name, values_only) in [
+        (
+            "dispersion identification (DETMAX set of 20..100 of 360), values only",
+            true,
+        ),
+        (
+            "dispersion identification (DETMAX set of 20..100 of 360), with std",
+            false,
+        ),
+    ] {
+        figs.push(time(
+            name,
+            5,
+            sets.len(),
+            Some(Duration::from_micros(600)),
+            || {
+                for set in &sets {
+                    let r = if values_only {
+                        inputs.identify_values(Some(set), &NoMonitor)
+                    } else {
+                        inputs.identify(Some(set), &NoMonitor)
+                    };
+                    sink += r.map_or(0.0, |(_, s)| s.cost_after);
+                }
+            },
+        ));
+    }
+    std::hint::black_box(sink);
+    figs
+}
+
 /// Run the serial benchmarks.
 pub fn run() -> Vec<Figure> {
     let mut figs = fk_tables();
@@ -201,17 +257,21 @@ pub fn run() -> Vec<Figure> {
         },
     ));
     let sizes: Vec<usize> = (2..=10).map(|k| 10 * k).collect();
+    figs.extend(dispersion_identifications(&prepared, &dp, &sizes));
     let study = prepare(&dispersion_job(&sizes, 223), &NoReferences).expect("valid dispersion job");
-    figs.push(time(
-        "dispersion study, 9 sizes x 223 = 2,007 identifications (all cores)",
-        1,
-        1,
-        Some(Duration::from_secs(10)),
-        || {
-            let r = study.run(&NoMonitor).expect("study runs");
-            sink += r.result["identifications"].as_f64().unwrap_or(0.0);
-        },
-    ));
+    figs.push(
+        time(
+            "dispersion study, 9 sizes x 223 = 2,007 identifications (all cores)",
+            3,
+            1,
+            Some(Duration::from_secs(10)),
+            || {
+                let r = study.run(&NoMonitor).expect("study runs");
+                sink += r.result["identifications"].as_f64().unwrap_or(0.0);
+            },
+        )
+        .with_cpu_target(Duration::from_millis(2500)),
+    );
     std::hint::black_box(sink);
     figs
 }

@@ -133,17 +133,54 @@ fn scaled_normal(
         });
         return (a, DVector::from_fn(mf, |p, _| g[free[p]] / d[free[p]]));
     }
-    let mut js = DMatrix::zeros(j.nrows(), mf);
+    let n = j.nrows();
+    let mut js = DMatrix::zeros(n, mf);
     for (c, &k) in free.iter().enumerate() {
-        js.set_column(c, &(j.column(k) / d[k]));
+        let (src, dk) = (j.column(k), d[k]);
+        for (dst, v) in js.column_mut(c).iter_mut().zip(src.iter()) {
+            *dst = v / dk;
+        }
     }
-    (js.tr_mul(&js), js.tr_mul(r))
+    // `js^T js` entry by entry as nalgebra's `tr_mul` forms it (the same dot of two
+    // columns), one triangle computed and mirrored: a dot product is symmetric bit for bit.
+    let mut a = DMatrix::zeros(mf, mf);
+    for q in 0..mf {
+        for p in 0..=q {
+            let v = js.column(p).dot(&js.column(q));
+            a[(p, q)] = v;
+            a[(q, p)] = v;
+        }
+    }
+    (a, js.tr_mul(r))
+}
+
+/// Residuals and Jacobian of a problem already evaluated at the start point (as the caller
+/// of [`levenberg_marquardt_from`] has them from its own analysis of the start).
+#[derive(Debug, Clone)]
+pub struct LmStart {
+    /// Residuals at `x0`.
+    pub residuals: DVector<f64>,
+    /// Jacobian at `x0` (`residual_count` x `unknown_count`).
+    pub jacobian: DMatrix<f64>,
 }
 
 /// Minimise `|r(x)|^2` from `x0` (projected into the bounds).
 pub fn levenberg_marquardt(
     problem: &dyn Problem,
     x0: &[f64],
+    opts: &LmOptions,
+    monitor: &dyn Monitor,
+) -> Result<LmReport, IdentifyError> {
+    levenberg_marquardt_from(problem, x0, None, opts, monitor)
+}
+
+/// [`levenberg_marquardt`] given the residuals and Jacobian at `x0`: they replace the first
+/// evaluations when `x0` is inside the bounds and their shapes fit (the same iterates as
+/// evaluating them again).
+pub fn levenberg_marquardt_from(
+    problem: &dyn Problem,
+    x0: &[f64],
+    start: Option<LmStart>,
     opts: &LmOptions,
     monitor: &dyn Monitor,
 ) -> Result<LmReport, IdentifyError> {
@@ -156,15 +193,30 @@ pub fn levenberg_marquardt(
     }
     let mut x = x0.to_vec();
     project(&mut x, opts);
-    let mut r = DVector::zeros(n);
-    problem.residuals(&x, r.as_mut_slice())?;
+    let start = start.filter(|s| {
+        x.iter().zip(x0).all(|(a, b)| a.to_bits() == b.to_bits())
+            && s.residuals.len() == n
+            && s.jacobian.shape() == (n, m)
+    });
+    let (mut r, mut j) = match start {
+        Some(s) => (s.residuals, s.jacobian),
+        None => {
+            let mut r = DVector::zeros(n);
+            problem.residuals(&x, r.as_mut_slice())?;
+            if r.iter().all(|v| v.is_finite()) {
+                let mut j = DMatrix::zeros(n, m);
+                problem.jacobian(&x, &mut j)?;
+                (r, j)
+            } else {
+                (r, DMatrix::zeros(0, 0))
+            }
+        }
+    };
     if let Some(index) = r.iter().position(|v| !v.is_finite()) {
         return Err(IdentifyError::NonFinite { index });
     }
     let mut cost = r.norm_squared();
     let initial_cost = cost;
-    let mut j = DMatrix::zeros(n, m);
-    problem.jacobian(&x, &mut j)?;
     // Moré's scaling: the largest column norm seen so far.
     let mut d: Vec<f64> = (0..m)
         .map(|k| j.column(k).norm())

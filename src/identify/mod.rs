@@ -20,7 +20,9 @@ pub mod trust;
 pub mod uncertainty;
 
 pub use gauge::{Gauge, Gauged, null_directions};
-pub use lm::{LmOptions, LmReport, StopReason, levenberg_marquardt};
+pub use lm::{
+    LmOptions, LmReport, LmStart, StopReason, levenberg_marquardt, levenberg_marquardt_from,
+};
 pub use prior::{Prior, PriorReport, PriorSpec, solve_map};
 pub use problem::{Problem, Restricted};
 pub use rank::{Pivoting, RankReport, rank_revealing, rank_revealing_scaled};

@@ -14,8 +14,8 @@ use super::trust::{
 };
 use super::uncertainty::uncertainty_of_r;
 use super::{
-    IdentifyError, LmOptions, LmReport, Pivoting, Problem, Restricted, StopReason, Uncertainty,
-    levenberg_marquardt, rank_revealing, rank_revealing_scaled,
+    IdentifyError, LmOptions, LmReport, LmStart, Pivoting, Problem, Restricted, StopReason,
+    Uncertainty, levenberg_marquardt_from, rank_revealing, rank_revealing_scaled,
 };
 use crate::util::{Monitor, SubMonitor};
 
@@ -67,6 +67,11 @@ pub struct SolveOptions {
     /// through more than 1,000 turns) makes the
     /// result degenerate (default 1000).
     pub degenerate_factor: f64,
+    /// Compute the standard deviations and the condition numbers of the result (default
+    /// true). False leaves `params[].std` null, `condition_number` and the uncertainty's
+    /// spectrum NaN/empty (its `sigma` stays): for studies that use only the identified
+    /// values, which are the same either way.
+    pub uncertainty: bool,
 }
 
 impl Default for SolveOptions {
@@ -80,6 +85,7 @@ impl Default for SolveOptions {
             effect_fraction: Some(0.01),
             nuisance: None,
             degenerate_factor: 1000.0,
+            uncertainty: true,
         }
     }
 }
@@ -268,14 +274,26 @@ struct Fit {
     r: DMatrix<f64>,
 }
 
+/// The start of every fit of [`solve`]: `x0`, its residuals and full Jacobian (a fit over
+/// some columns starts from those columns instead of evaluating them again), and whether
+/// the fit's uncertainty is wanted.
+#[derive(Clone, Copy)]
+struct FitStart<'a> {
+    x0: &'a [f64],
+    r0: &'a DVector<f64>,
+    j0: &'a DMatrix<f64>,
+    uncertainty: bool,
+}
+
 fn run_fit(
     problem: &dyn Problem,
     unknowns: &[Unknown],
-    x0: &[f64],
+    start: &FitStart<'_>,
     free: &[usize],
     lm: &LmOptions,
     monitor: &dyn Monitor,
 ) -> Result<Fit, IdentifyError> {
+    let x0 = start.x0;
     let restricted = Restricted::new(problem, x0.to_vec(), free.to_vec());
     let pick = |f: &dyn Fn(&Unknown) -> Option<f64>, default: f64| -> Option<Vec<f64>> {
         free.iter().any(|&k| f(&unknowns[k]).is_some()).then(|| {
@@ -290,11 +308,45 @@ fn run_fit(
         ..lm.clone()
     };
     let xs0: Vec<f64> = free.iter().map(|&k| x0[k]).collect();
-    let rep = levenberg_marquardt(&restricted, &xs0, &lm_opts, monitor)?;
+    let first = LmStart {
+        residuals: start.r0.clone(),
+        jacobian: DMatrix::from_fn(start.j0.nrows(), free.len(), |i, c| start.j0[(i, free[c])]),
+    };
+    let rep = levenberg_marquardt_from(&restricted, &xs0, Some(first), &lm_opts, monitor)?;
     let r = tall_r(&rep.jacobian);
-    let unc = uncertainty_of_r(&r, rep.jacobian.nrows(), &rep.residuals);
+    let unc = if start.uncertainty {
+        uncertainty_of_r(&r, rep.jacobian.nrows(), &rep.residuals)
+    } else {
+        sigma_only(rep.jacobian.nrows(), free.len(), &rep.residuals)
+    };
     let x = restricted.expand(&rep.x);
     Ok(Fit { rep, x, unc, r })
+}
+
+/// The uncertainty without its spectrum: the residual sigma only (std NaN).
+fn sigma_only(n: usize, m: usize, r: &DVector<f64>) -> Uncertainty {
+    let dof = n.saturating_sub(m);
+    Uncertainty {
+        std: vec![f64::NAN; m],
+        sigma: if dof > 0 {
+            (r.norm_squared() / dof as f64).sqrt()
+        } else {
+            f64::NAN
+        },
+        dof,
+        condition_number: f64::NAN,
+        singular_values: vec![],
+    }
+}
+
+/// The R factor of a tall matrix (the matrix itself otherwise): the same column norms,
+/// pivoted QR and dependencies, for the rank detection.
+fn reduced(a: &DMatrix<f64>) -> DMatrix<f64> {
+    if a.nrows() > a.ncols() {
+        super::dense::r_factor(a)
+    } else {
+        a.clone()
+    }
 }
 
 /// Identify `unknowns` from `x0`: rank detection on the physically scaled Jacobian, effect
@@ -324,12 +376,19 @@ pub fn solve(
     problem.jacobian(x0, &mut j0)?;
     let scale = physical_scales(unknowns);
     let effect = effect_sizes(&j0, &scale);
-    // The tall Jacobian is reduced once: rank, spectra and dependencies work on R.
-    let rf0 = tall_r(&j0);
+    // The tall Jacobian is reduced once: rank and dependencies work on its R factor (the
+    // one the rank detection computes of a tall matrix itself), the spectra of the plans
+    // on R from the crossover on and on the Jacobian below it (their arithmetic as before).
+    let rq0 = reduced(&j0);
     let rank = if opts.physical_rank {
-        rank_revealing_scaled(&rf0, &scale, &opts.pivoting, opts.rank_tolerance)
+        rank_revealing_scaled(&rq0, &scale, &opts.pivoting, opts.rank_tolerance)
     } else {
-        rank_revealing(&rf0, &opts.pivoting, opts.rank_tolerance)
+        rank_revealing(&rq0, &opts.pivoting, opts.rank_tolerance)
+    };
+    let rf0 = if n >= super::dense::QR_FAER_MIN_ROWS {
+        rq0
+    } else {
+        j0.clone()
     };
     let mut structural = rank.kept.clone();
     structural.sort_unstable();
@@ -347,8 +406,14 @@ pub fn solve(
         unknowns,
         given_floor,
     );
+    let start = FitStart {
+        x0,
+        r0: &r0,
+        j0: &j0,
+        uncertainty: opts.uncertainty,
+    };
     let sub = SubMonitor::new(monitor, 0.05, 0.6);
-    let mut fit = run_fit(problem, unknowns, x0, &pl.free, &opts.lm, &sub)?;
+    let mut fit = run_fit(problem, unknowns, &start, &pl.free, &opts.lm, &sub)?;
     // Without a stated noise, the fitted sigma sets the floor; refit once if it holds more.
     if let (None, Some(f)) = (opts.noise, opts.effect_fraction) {
         let floor = f * fit.unc.sigma;
@@ -384,7 +449,7 @@ pub fn solve(
             pl = again;
             if more {
                 let sub = SubMonitor::new(monitor, 0.6, 0.85);
-                fit = run_fit(problem, unknowns, x0, &pl.free, &opts.lm, &sub)?;
+                fit = run_fit(problem, unknowns, &start, &pl.free, &opts.lm, &sub)?;
             }
         }
     }
@@ -403,7 +468,11 @@ pub fn solve(
                 None
             } else {
                 let sub = SubMonitor::new(monitor, 0.85, 0.95);
-                match run_fit(problem, unknowns, x0, &nf, &opts.lm, &sub) {
+                let lean = FitStart {
+                    uncertainty: false,
+                    ..start
+                };
+                match run_fit(problem, unknowns, &lean, &nf, &opts.lm, &sub) {
                     Ok(f) => Some(f.rep.cost),
                     Err(IdentifyError::Cancelled) => return Err(IdentifyError::Cancelled),
                     Err(_) => None,
@@ -412,8 +481,11 @@ pub fn solve(
         }
     };
     monitor.progress(0.95, "uncertainty");
-    let condition_number =
-        spectrum_of_r(&expand_cols(&r, &free, m), &free, &scale).condition_number;
+    let condition_number = if opts.uncertainty {
+        spectrum_of_r(&expand_cols(&r, &free, m), &free, &scale).condition_number
+    } else {
+        f64::NAN
+    };
     let degenerate = degeneracy(&DegeneracyCheck {
         unknowns,
         scale: &scale,
@@ -441,7 +513,9 @@ pub fn solve(
             unit: u.unit.clone(),
             nominal: u.nominal * u.to_report,
             value: x[k] * u.to_report,
-            std: pos.map(|p| unc.std[p] * u.to_report),
+            std: pos
+                .filter(|_| opts.uncertainty)
+                .map(|p| unc.std[p] * u.to_report),
             identifiable: pos.is_some(),
             effect_size: effect[k],
             at_bound,

@@ -7,6 +7,7 @@ use nalgebra::{DMatrix, Vector3};
 
 use super::{BallPlate, MeasureError};
 use crate::identify::{IdentifyError, Problem, Unknown};
+use crate::model::chain::JacobianScratch;
 use crate::model::{Chain, ParamId, Quantity};
 
 /// What the TCP coincided with.
@@ -337,9 +338,16 @@ impl Problem for PointProblem {
         }
         let fill = |(range, mut out): (std::ops::Range<usize>, Vec<&mut [f64]>)| {
             let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
+            let mut scratch = JacobianScratch::default();
             for (row, i) in range.clone().enumerate() {
                 let (m, tau) = (&self.meas[i], &self.tau[i]);
-                chain.point_jacobian(&m.q, Some(tau), &Vector3::zeros(), &mut buf);
+                chain.point_jacobian_with(
+                    &m.q,
+                    Some(tau),
+                    &Vector3::zeros(),
+                    &mut buf,
+                    &mut scratch,
+                );
                 for (c, &col) in self.cols.iter().enumerate() {
                     if let Some(v) = buf.get(col) {
                         for a in 0..3 {

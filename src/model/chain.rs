@@ -11,7 +11,7 @@
 //! errors * Dtrans(axis, q + offset)` with the offset a length. A mimic joint ([`Mimic`])
 //! takes `multiplier * q[leader] + mimic offset` as its variable and has no column of its own.
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 use super::ModelError;
 use super::joint::{JointKind, Mimic, Motion as JointMotion};
@@ -134,12 +134,72 @@ pub struct Chain {
     pre: Vec<Frame>,
     /// Cached base and tool frames with the values they were built from.
     ends: [([f64; 6], Frame); 2],
+    /// Cached rotation factors of the base and tool frames (see [`EndRotations`]).
+    end_rots: [EndRotations; 2],
+    /// Cached constant rotations of each MDH joint (`None` for URDF joints).
+    mdh_rots: Vec<Option<MdhRotations>>,
     /// Index of the joint of each joint variable (moving joints that are not mimic joints).
     actuated: Vec<usize>,
     /// Joint variable of each joint, if it has its own.
     var_of: Vec<Option<usize>>,
     /// Index of the first parameter of each joint in the flat parameter list.
     param_start: Vec<usize>,
+}
+
+/// `Rx(alpha)` and `Ry(beta)` of an MDH joint with the values they were built from, so that
+/// the point Jacobian takes no sine or cosine of a constant per configuration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct MdhRotations {
+    alpha: f64,
+    beta: f64,
+    rx: Frame,
+    ry: Frame,
+}
+
+/// `Rz(a)` and `Ry(b)` of a base or tool frame `x y z a b c` with the values they were built
+/// from (the factors its generators are recorded with).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct EndRotations {
+    values: [f64; 6],
+    rz: Matrix3<f64>,
+    ry: Matrix3<f64>,
+}
+
+impl EndRotations {
+    fn of(v: &[f64; 6]) -> Self {
+        Self {
+            values: *v,
+            rz: Frame::rot_z(v[3]).r,
+            ry: Frame::rot_y(v[4]).r,
+        }
+    }
+}
+
+fn mdh_rotations(j: &Joint) -> Option<MdhRotations> {
+    match j.geometry {
+        Geometry::Mdh { alpha, beta, .. } => Some(MdhRotations {
+            alpha,
+            beta,
+            rx: Frame::rot_x(alpha),
+            ry: Frame::rot_y(beta),
+        }),
+        Geometry::Urdf { .. } => None,
+    }
+}
+
+/// Reusable work space of [`Chain::body_point_jacobian_with`]: the generators recorded on
+/// the way out (no allocation per configuration once it has grown).
+#[derive(Default)]
+pub struct JacobianScratch {
+    recs: Vec<(usize, Gen, f64)>,
+}
+
+impl std::fmt::Debug for JacobianScratch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("JacobianScratch")
+            .field("capacity", &self.recs.capacity())
+            .finish()
+    }
 }
 
 /// Where a joint's generator acts, recorded during the forward pass for the Jacobian.
@@ -173,6 +233,8 @@ impl Chain {
             units,
             pre: Vec::new(),
             ends: [([f64::NAN; 6], Frame::identity()); 2],
+            end_rots: [EndRotations::of(&[f64::NAN; 6]); 2],
+            mdh_rots: Vec::new(),
             actuated: Vec::new(),
             var_of: Vec::new(),
             param_start: Vec::new(),
@@ -184,6 +246,7 @@ impl Chain {
     /// Recompute the caches; called after any geometric change.
     fn refresh(&mut self) {
         self.pre = self.joints.iter().map(pre_frame).collect();
+        self.mdh_rots = self.joints.iter().map(mdh_rotations).collect();
         self.refresh_ends();
         self.actuated = (0..self.joints.len())
             .filter(|&j| self.joints[j].has_variable())
@@ -209,6 +272,25 @@ impl Chain {
             (self.base, Frame::from_xyzabc(&self.base)),
             (self.tool, Frame::from_xyzabc(&self.tool)),
         ];
+        self.end_rots = [EndRotations::of(&self.base), EndRotations::of(&self.tool)];
+    }
+
+    /// `Rz(a)` and `Ry(b)` of the base (`k = 0`) or tool (`k = 1`) values `v`, from the
+    /// cache when they have not changed.
+    fn end_rotations(&self, k: usize, v: &[f64; 6]) -> EndRotations {
+        if self.end_rots[k].values == *v {
+            self.end_rots[k]
+        } else {
+            EndRotations::of(v)
+        }
+    }
+
+    /// `Rx(alpha)` and `Ry(beta)` of MDH joint `j`, from the cache when they have not changed.
+    fn mdh_rotations(&self, j: usize, alpha: f64, beta: f64) -> (Frame, Frame) {
+        match self.mdh_rots.get(j).copied().flatten() {
+            Some(c) if c.alpha == alpha && c.beta == beta => (c.rx, c.ry),
+            _ => (Frame::rot_x(alpha), Frame::rot_y(beta)),
+        }
     }
 
     /// Base frame ({0} in {W}), from the cache when the values have not changed.
@@ -361,7 +443,10 @@ impl Chain {
     pub fn set_param(&mut self, id: ParamId, v: f64) {
         self.set_param_raw(id, v);
         match id {
-            ParamId::Joint(j, _) => self.pre[j] = pre_frame(&self.joints[j]),
+            ParamId::Joint(j, _) => {
+                self.pre[j] = pre_frame(&self.joints[j]);
+                self.mdh_rots[j] = mdh_rotations(&self.joints[j]);
+            }
             _ => self.refresh_ends(),
         }
     }
@@ -372,6 +457,7 @@ impl Chain {
             self.set_param_raw(*id, *v);
         }
         self.pre = self.joints.iter().map(pre_frame).collect();
+        self.mdh_rots = self.joints.iter().map(mdh_rotations).collect();
         self.refresh_ends();
     }
 
@@ -545,14 +631,43 @@ impl Chain {
         local: &Vector3<f64>,
         jac: &mut [Vector3<f64>],
     ) -> Vector3<f64> {
+        self.body_point_jacobian_with(q, tau, body, local, jac, &mut JacobianScratch::default())
+    }
+
+    /// [`Chain::point_jacobian`] with a reusable work space (for many configurations).
+    pub fn point_jacobian_with(
+        &self,
+        q: &[f64],
+        tau: Option<&[f64]>,
+        local: &Vector3<f64>,
+        jac: &mut [Vector3<f64>],
+        scratch: &mut JacobianScratch,
+    ) -> Vector3<f64> {
+        self.body_point_jacobian_with(q, tau, self.joints.len(), local, jac, scratch)
+    }
+
+    /// [`Chain::body_point_jacobian`] with a reusable work space. The constant rotations of
+    /// the MDH joints and of the base and tool frames come from the chain's caches (the
+    /// same values, computed once per parameter change rather than once per configuration).
+    pub fn body_point_jacobian_with(
+        &self,
+        q: &[f64],
+        tau: Option<&[f64]>,
+        body: usize,
+        local: &Vector3<f64>,
+        jac: &mut [Vector3<f64>],
+        scratch: &mut JacobianScratch,
+    ) -> Vector3<f64> {
         for v in jac.iter_mut() {
             *v = Vector3::zeros();
         }
         // Records (parameter column, generator, coefficient) gathered on the way out.
-        let mut recs: Vec<(usize, Gen, f64)> = Vec::with_capacity(8 * self.joints.len() + 12);
+        let recs = &mut scratch.recs;
+        recs.clear();
         let nb = self.param_index(ParamId::Base(0)).unwrap_or(0);
-        push_xyzabc_gens(&Frame::identity(), &self.base, nb, &mut recs);
-        let mut t = Frame::from_xyzabc(&self.base);
+        let base_rots = self.end_rotations(0, &self.base);
+        push_xyzabc_gens(&Frame::identity(), &self.base, &base_rots, nb, recs);
+        let mut t = self.base_frame();
         let last = if body >= self.joints.len() {
             self.joints.len()
         } else {
@@ -574,13 +689,14 @@ impl Chain {
             };
             match &joint.geometry {
                 Geometry::Mdh { alpha, a, beta, d } => {
+                    let (rx, ry) = self.mdh_rotations(j, *alpha, *beta);
                     let f0 = t;
                     let x0 = Gen::Rot {
                         axis: f0.r.column(0).into(),
                         origin: f0.p,
                     };
                     push(JointField::Alpha, x0, 1.0);
-                    let f1 = f0.mul(&Frame::rot_x(*alpha));
+                    let f1 = f0.mul(&rx);
                     let dx = Gen::Trans {
                         dir: f1.r.column(0).into(),
                     };
@@ -591,7 +707,7 @@ impl Chain {
                         origin: f1.p,
                     };
                     push(JointField::Beta, y1, 1.0);
-                    let f2 = f1.mul(&Frame::rot_y(*beta));
+                    let f2 = f1.mul(&ry);
                     let zg = Gen::Rot {
                         axis: f2.r.column(2).into(),
                         origin: f2.p,
@@ -663,11 +779,12 @@ impl Chain {
         }
         if body >= self.joints.len() {
             let nt = self.param_index(ParamId::Tool(0)).unwrap_or(0);
-            push_xyzabc_gens(&t, &self.tool, nt, &mut recs);
-            t = t.mul(&Frame::from_xyzabc(&self.tool));
+            let tool_rots = self.end_rotations(1, &self.tool);
+            push_xyzabc_gens(&t, &self.tool, &tool_rots, nt, recs);
+            t = t.mul(&self.tool_frame());
         }
         let p = t.apply(local);
-        for (col, g, coef) in recs {
+        for &(col, g, coef) in recs.iter() {
             let v = match g {
                 Gen::Rot { axis, origin } => axis.cross(&(p - origin)),
                 Gen::Trans { dir } => dir,
@@ -694,7 +811,13 @@ impl Chain {
 }
 
 /// Records the generators of `frame * Dx Dy Dz Rz(a) Ry(b) Rx(c)` starting at column `col0`.
-fn push_xyzabc_gens(frame: &Frame, v: &[f64; 6], col0: usize, recs: &mut Vec<(usize, Gen, f64)>) {
+fn push_xyzabc_gens(
+    frame: &Frame,
+    v: &[f64; 6],
+    rots: &EndRotations,
+    col0: usize,
+    recs: &mut Vec<(usize, Gen, f64)>,
+) {
     for k in 0..3 {
         recs.push((
             col0 + k,
@@ -714,7 +837,7 @@ fn push_xyzabc_gens(frame: &Frame, v: &[f64; 6], col0: usize, recs: &mut Vec<(us
         },
         1.0,
     ));
-    let rz = r * Frame::rot_z(v[3]).r;
+    let rz = r * rots.rz;
     recs.push((
         col0 + 4,
         Gen::Rot {
@@ -723,7 +846,7 @@ fn push_xyzabc_gens(frame: &Frame, v: &[f64; 6], col0: usize, recs: &mut Vec<(us
         },
         1.0,
     ));
-    let ry = rz * Frame::rot_y(v[4]).r;
+    let ry = rz * rots.ry;
     recs.push((
         col0 + 5,
         Gen::Rot {

@@ -451,9 +451,8 @@ fn rebuild_group<const R: usize, const FMA: bool>(
     for c2 in 0..m {
         // w[x] = (B P)(x, c2), then D(x, y) += w[x] B(y, c2).
         let mut w = [[0.0; L]; R];
-        for c in 0..m {
-            let pc = p[c * m + c2];
-            let bc = &bg[c * R * L..(c + 1) * R * L];
+        for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(m)).take(m) {
+            let pc = prow[c2];
             for x in 0..R {
                 for l in 0..L {
                     w[x][l] = madd::<FMA>(bc[x * L + l], pc, w[x][l]);
@@ -488,9 +487,8 @@ fn update_group<const R: usize, const FMA: bool>(
     dg: &mut [f64],
 ) -> [[[f64; L]; R]; R] {
     let mut e = [[[0.0; L]; R]; R];
-    for c in 0..m {
-        let bc = &bg[c * R * L..(c + 1) * R * L];
-        let uc = &u[c * R..(c + 1) * R];
+    // Iterators, not indices: no bounds checks in the innermost loop.
+    for (bc, uc) in bg.chunks_exact(R * L).zip(u.chunks_exact(R)).take(m) {
         for x in 0..R {
             for y in 0..R {
                 for l in 0..L {

@@ -142,7 +142,7 @@ fn study(
                     )
                     .ok()
                     .and_then(|sel| {
-                        inp.identify(Some(&sel.selected), &crate::util::NoMonitor)
+                        inp.identify_values(Some(&sel.selected), &crate::util::NoMonitor)
                             .ok()
                     })
                     .filter(|(_, sol)| sol.converged())

@@ -466,6 +466,19 @@ impl IdentifyInputs {
         let (problem, sol, _) = super::prior::identify::<PointProblem>(self, subset, monitor)?;
         Ok((problem, sol))
     }
+
+    /// [`IdentifyInputs::identify`] without standard deviations and condition numbers
+    /// (`params[].std` null): the same identified values and convergence, for studies that
+    /// use only those.
+    pub fn identify_values(
+        &self,
+        subset: Option<&[usize]>,
+        monitor: &dyn Monitor,
+    ) -> Result<(PointProblem, Solution), JobError> {
+        let (problem, sol, _) =
+            super::prior::identify_with::<PointProblem>(self, subset, false, monitor)?;
+        Ok((problem, sol))
+    }
 }
 
 /// Absolute position errors of a model against Cartesian measurements (each model with its

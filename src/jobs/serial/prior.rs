@@ -131,6 +131,7 @@ fn map_fit<P: SerialFit>(
     p: &P,
     noise: f64,
     weight: f64,
+    uncertainty: bool,
     monitor: &dyn Monitor,
 ) -> Result<(Solution, PriorReport), JobError> {
     let spec = inp.options.prior.clone().unwrap_or_default();
@@ -145,14 +146,11 @@ fn map_fit<P: SerialFit>(
         noise,
         weight,
     };
-    Ok(solve_map(
-        p,
-        &unknowns,
-        &x0,
-        &prior,
-        &p.options(inp),
-        monitor,
-    )?)
+    let options = SolveOptions {
+        uncertainty,
+        ..p.options(inp)
+    };
+    Ok(solve_map(p, &unknowns, &x0, &prior, &options, monitor)?)
 }
 
 /// Identify from the measurements `subset` (all when `None`): least squares without
@@ -163,21 +161,37 @@ pub fn identify<P: SerialFit>(
     subset: Option<&[usize]>,
     monitor: &dyn Monitor,
 ) -> Result<(P, Solution, PriorReport), JobError> {
+    identify_with(inp, subset, true, monitor)
+}
+
+/// [`identify`]; `uncertainty` false skips the standard deviations and condition numbers
+/// of the result ([`SolveOptions::uncertainty`]): the same identified values.
+pub fn identify_with<P: SerialFit>(
+    inp: &IdentifyInputs,
+    subset: Option<&[usize]>,
+    uncertainty: bool,
+    monitor: &dyn Monitor,
+) -> Result<(P, Solution, PriorReport), JobError> {
     let all: Vec<usize> = match subset {
         Some(s) => s.to_vec(),
         None => (0..P::count(inp)).collect(),
     };
     let p = P::build(inp, &all)?;
     let x0 = p.start();
+    let options = |uncertainty: bool| SolveOptions {
+        uncertainty,
+        ..p.options(inp)
+    };
     if inp.options.prior.is_none() {
-        let sol = solve(&p, &p.names(), &x0, &p.options(inp), monitor)?;
+        let sol = solve(&p, &p.names(), &x0, &options(uncertainty), monitor)?;
         return Ok((p, sol, PriorReport::least_squares()));
     }
     let noise = match inp.options.noise {
         Some(n) => n,
         None => {
+            // Only the residual sigma of this fit is used.
             let sub = SubMonitor::new(monitor, 0.0, 0.2);
-            let ls = solve(&p, &p.names(), &x0, &p.options(inp), &sub)?;
+            let ls = solve(&p, &p.names(), &x0, &options(false), &sub)?;
             ls.uncertainty.sigma
         }
     };
@@ -200,7 +214,7 @@ pub fn identify<P: SerialFit>(
                 let tr: Vec<usize> = tr.iter().map(|&i| all[i]).collect();
                 let te: Vec<usize> = te.iter().map(|&i| all[i]).collect();
                 let fit = P::build(inp, &tr)
-                    .and_then(|q| map_fit(inp, &q, noise, w, &NoMonitor).map(|f| (q, f)));
+                    .and_then(|q| map_fit(inp, &q, noise, w, false, &NoMonitor).map(|f| (q, f)));
                 match fit {
                     Ok((q, (sol, _))) => Ok(q.held_out(inp, &sol.x, &te)),
                     Err(e) => Err(IdentifyError::Model(e.to_string())),
@@ -212,7 +226,7 @@ pub fn identify<P: SerialFit>(
         None => (1.0, None),
     };
     let sub = SubMonitor::new(monitor, 0.2, 1.0);
-    let (sol, mut rep) = map_fit(inp, &p, noise, weight, &sub)?;
+    let (sol, mut rep) = map_fit(inp, &p, noise, weight, uncertainty, &sub)?;
     if errors.is_some() {
         rep.mode = "map_cv";
         rep.k_fold_errors = errors;
