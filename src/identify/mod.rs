@@ -15,6 +15,7 @@ pub mod problem;
 pub mod rank;
 mod reduced;
 pub mod robust;
+pub mod solution;
 pub mod solve;
 pub mod trust;
 pub mod uncertainty;
