@@ -163,23 +163,16 @@ impl<'a> Design<'a> {
                 1,
             );
             // D_i' = D_i - sign E_i S^-1 E_i^T.
-            match (pool.uniform, r) {
-                (Some(2), 2) => update_uniform::<2>(&mut self.d, e, &sinv, sign),
-                (Some(3), 3) => update_uniform::<3>(&mut self.d, e, &sinv, sign),
-                (Some(6), 6) => update_uniform::<6>(&mut self.d, e, &sinv, sign),
-                _ => {
-                    gemm((rows, r, r), 1.0, op(e, r, 1), sv, 0.0, es, r, 1);
-                    for (i, &ri) in pool.rows.iter().enumerate() {
-                        let (r0, o) = (pool.row0[i], self.off[i]);
-                        for x in 0..ri {
-                            let ex = &es[(r0 + x) * r..(r0 + x + 1) * r];
-                            for y in 0..=x {
-                                let v = dot(ex, &e[(r0 + y) * r..(r0 + y + 1) * r]);
-                                self.d[o + x * ri + y] -= sign * v;
-                                if y != x {
-                                    self.d[o + y * ri + x] = self.d[o + x * ri + y];
-                                }
-                            }
+            gemm((rows, r, r), 1.0, op(e, r, 1), sv, 0.0, es, r, 1);
+            for (i, &ri) in pool.rows.iter().enumerate() {
+                let (r0, o) = (pool.row0[i], self.off[i]);
+                for x in 0..ri {
+                    let ex = &es[(r0 + x) * r..(r0 + x + 1) * r];
+                    for y in 0..=x {
+                        let v = dot(ex, &e[(r0 + y) * r..(r0 + y + 1) * r]);
+                        self.d[o + x * ri + y] -= sign * v;
+                        if y != x {
+                            self.d[o + y * ri + x] = self.d[o + x * ri + y];
                         }
                     }
                 }
@@ -238,39 +231,6 @@ fn narrow<const R: usize>(all: &[f64], rows: usize, u: &[f64], e: &mut [f64]) {
 /// A strided operand.
 fn op(data: &[f64], rs: usize, cs: usize) -> Strided<'_> {
     Strided { data, rs, cs }
-}
-
-/// D_i -= sign * E_i S^-1 E_i^T for blocks that all have R rows (unrolled; `e` row-major).
-fn update_uniform<const R: usize>(d: &mut [f64], e: &[f64], sinv: &[f64], sign: f64) {
-    let mut s = [[0.0f64; R]; R];
-    for k in 0..R {
-        for c in 0..R {
-            s[k][c] = sinv[k * R + c];
-        }
-    }
-    for (i, di) in d.chunks_exact_mut(R * R).enumerate() {
-        let mut ei = [[0.0f64; R]; R];
-        for x in 0..R {
-            ei[x].copy_from_slice(&e[(i * R + x) * R..(i * R + x + 1) * R]);
-        }
-        let mut es = [[0.0f64; R]; R];
-        for x in 0..R {
-            for k in 0..R {
-                for c in 0..R {
-                    es[x][c] += ei[x][k] * s[k][c];
-                }
-            }
-        }
-        for x in 0..R {
-            for y in 0..R {
-                let mut v = 0.0;
-                for c in 0..R {
-                    v += es[x][c] * ei[y][c];
-                }
-                di[x * R + y] -= sign * v;
-            }
-        }
-    }
 }
 
 #[cfg(test)]

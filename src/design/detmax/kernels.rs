@@ -15,11 +15,12 @@ pub(super) struct Factor {
 }
 
 impl Info {
-    pub(super) fn new(m: usize) -> Self {
-        Self {
-            m,
-            a: vec![0.0; m * m],
+    /// The information matrix `a` (row-major m x m) plus `ridge` I.
+    pub(super) fn ridged(m: usize, mut a: Vec<f64>, ridge: f64) -> Self {
+        for k in 0..m {
+            a[k * m + k] += ridge;
         }
+        Self { m, a }
     }
 
     pub(super) fn factor(&self) -> Option<Factor> {

@@ -47,8 +47,6 @@ pub struct Pool {
     pub(super) stacked: DMatrix<f64>,
     /// First row of each block in `stacked`.
     pub(super) row0: Vec<usize>,
-    /// The common row count when every block has the same one.
-    pub(super) uniform: Option<usize>,
     /// The blocks lane-interleaved, for uniform pools of 2, 3 or 6 rows (fused updates).
     pub(super) lanes: Option<LanePool>,
 }
@@ -98,7 +96,6 @@ impl Pool {
             frobenius2,
             stacked: DMatrix::zeros(0, m),
             row0: Vec::new(),
-            uniform: None,
             lanes: None,
         }
     }
@@ -131,7 +128,6 @@ impl Pool {
             frobenius2: stacked.iter().map(|v| v * v).sum(),
             stacked,
             row0,
-            uniform,
             lanes,
         }
     }
@@ -204,13 +200,7 @@ impl Pool {
     /// Cholesky factor of the information matrix of `members` plus `ridge` I (thin pools);
     /// None when it is not positive definite.
     pub(super) fn information_factor(&self, members: &[usize], ridge: f64) -> Option<Factor> {
-        let m = self.m;
-        let mut info = Info::new(m);
-        info.a = self.information(members);
-        for k in 0..m {
-            info.a[k * m + k] += ridge;
-        }
-        info.factor()
+        Info::ridged(self.m, self.information(members), ridge).factor()
     }
 
     /// The information matrix (row-major m x m) of a subset of a thin pool: the subset's

@@ -144,12 +144,7 @@ impl<'a> Design<'a> {
     pub(super) fn rebuild(&mut self, pool: &Pool, ridge: f64) -> Option<()> {
         let members: Vec<usize> = self.selected();
         self.info = pool.information(&members);
-        let mut a = Info::new(self.lp.m);
-        a.a.clone_from(&self.info);
-        for k in 0..self.lp.m {
-            a.a[k * self.lp.m + k] += ridge;
-        }
-        let f = a.factor()?;
+        let f = Info::ridged(self.lp.m, self.info.clone(), ridge).factor()?;
         self.log_det = f.log_det();
         self.p = f.inverse();
         match self.lp.r {
@@ -229,8 +224,7 @@ impl<'a> Design<'a> {
     /// (false) if given; -inf when singular.
     pub(super) fn exact_log_det(&self, extra: Option<(usize, bool)>) -> f64 {
         let (m, r) = (self.lp.m, self.lp.r);
-        let mut a = Info::new(m);
-        a.a.clone_from(&self.info);
+        let mut a = Info::ridged(m, self.info.clone(), 0.0);
         if let Some((i, add)) = extra {
             let sign = if add { 1.0 } else { -1.0 };
             for c in 0..m {
