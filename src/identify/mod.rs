@@ -9,6 +9,7 @@
 mod bounds;
 pub mod dense;
 pub mod gauge;
+mod lean;
 pub mod lm;
 pub mod prior;
 pub mod problem;

@@ -19,6 +19,12 @@ pub trait Problem: Sync {
     fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
         central_differences(self, x, j)
     }
+    /// This problem with only the unknowns `free` varying and the others held at `x`, in a
+    /// cheaper form than [`Restricted`] (the same residuals and Jacobian to rounding), if
+    /// the problem has one for that set; `None` (the default): use [`Restricted`].
+    fn held(&self, _x: &[f64], _free: &[usize]) -> Option<Box<dyn Problem + '_>> {
+        None
+    }
 }
 
 /// Central-difference Jacobian of any problem (used as default and to check analytic ones).

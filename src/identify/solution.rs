@@ -61,6 +61,11 @@ pub struct SolveOptions {
     /// spectrum NaN/empty (its `sigma` stays): for studies that use only the identified
     /// values, which are the same either way.
     pub uncertainty: bool,
+    /// Report the near-dependent combinations of the plans (default true). False leaves
+    /// `near_dependent` empty except for combinations held, and skips the spectra where a
+    /// cheap certificate shows nothing is to be held: the same identified values, free set
+    /// and convergence.
+    pub near_dependent: bool,
 }
 
 impl Default for SolveOptions {
@@ -75,6 +80,7 @@ impl Default for SolveOptions {
             nuisance: None,
             degenerate_factor: 1000.0,
             uncertainty: true,
+            near_dependent: true,
         }
     }
 }

@@ -38,12 +38,19 @@ fn plan(
     scale: &[f64],
     unknowns: &[Unknown],
     floor: Option<f64>,
+    report: bool,
 ) -> Plan {
     let below = |v: f64| floor.is_some_and(|f| v < f);
     let (screened, mut free): (Vec<usize>, Vec<usize>) =
         structural.iter().partition(|&&k| below(effect[k]));
     let mut near = Vec::new();
     loop {
+        if !report
+            && (free.len() <= 1
+                || floor.is_none_or(|f| super::lean::clearly_above(rows, &free, scale, f)))
+        {
+            break;
+        }
         let sp = spectrum_of_r(&rows.r, &free, scale);
         let hold = sp
             .smallest
@@ -104,6 +111,8 @@ struct FitStart<'a> {
     r0: &'a DVector<f64>,
     j0: &'a DMatrix<f64>,
     uncertainty: bool,
+    /// Fit through the problem's cheap held form ([`Problem::held`]) where it has one.
+    cheap: bool,
 }
 
 fn run_fit(
@@ -133,7 +142,9 @@ fn run_fit(
         residuals: start.r0.clone(),
         jacobian: DMatrix::from_fn(start.j0.nrows(), free.len(), |i, c| start.j0[(i, free[c])]),
     };
-    let rep = levenberg_marquardt_from(&restricted, &xs0, Some(first), &lm_opts, monitor)?;
+    let cheap = start.cheap.then(|| problem.held(x0, free)).flatten();
+    let target: &dyn Problem = cheap.as_deref().unwrap_or(&restricted);
+    let rep = levenberg_marquardt_from(target, &xs0, Some(first), &lm_opts, monitor)?;
     let r = tall_r(&rep.jacobian);
     let unc = if start.uncertainty {
         uncertainty_of_r(&r, rep.jacobian.nrows(), &rep.residuals)
@@ -226,12 +237,14 @@ pub fn solve(
         &scale,
         unknowns,
         given_floor,
+        opts.near_dependent,
     );
     let start = FitStart {
         x0,
         r0: &r0,
         j0: &j0,
         uncertainty: opts.uncertainty,
+        cheap: false,
     };
     let sub = SubMonitor::new(monitor, 0.05, 0.6);
     let mut fit = run_fit(problem, unknowns, &start, &pl.free, &opts.lm, &sub)?;
@@ -265,6 +278,7 @@ pub fn solve(
                 &scale,
                 unknowns,
                 Some(floor),
+                opts.near_dependent,
             );
             let more = again.free != pl.free;
             pl = again;
@@ -289,8 +303,11 @@ pub fn solve(
                 None
             } else {
                 let sub = SubMonitor::new(monitor, 0.85, 0.95);
+                // Only its cost is used: the cheap form of the problem serves (the same
+                // cost to rounding).
                 let lean = FitStart {
                     uncertainty: false,
+                    cheap: true,
                     ..start
                 };
                 match run_fit(problem, unknowns, &lean, &nf, &opts.lm, &sub) {

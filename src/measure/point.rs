@@ -10,6 +10,9 @@ use crate::identify::{IdentifyError, Problem, Unknown};
 use crate::model::chain::JacobianScratch;
 use crate::model::{Chain, ParamId, Quantity};
 
+#[path = "point_frames.rs"]
+mod point_frames;
+
 /// What the TCP coincided with.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Target {
@@ -233,6 +236,14 @@ impl PointProblem {
         out
     }
 
+    /// The weighted distance rows (after the three rows per measurement) of `r`.
+    fn distance_rows(&self, centres: &[Vector3<f64>], r: &mut [f64]) {
+        let base = 3 * self.meas.len();
+        for (k, &(i, j, d)) in self.plate.distances.iter().enumerate() {
+            r[base + k] = self.distance_weight * ((centres[i] - centres[j]).norm() - d);
+        }
+    }
+
     fn free_slot(&self, ball: usize) -> Option<usize> {
         self.free_balls
             .iter()
@@ -310,10 +321,14 @@ impl Problem for PointProblem {
             }
         };
         on_threads(parts, &fill);
-        for (k, &(i, j, d)) in self.plate.distances.iter().enumerate() {
-            r[base + k] = self.distance_weight * ((centres[i] - centres[j]).norm() - d);
-        }
+        self.distance_rows(&centres, r);
         Ok(())
+    }
+
+    /// With every chain parameter held (a nuisance-only fit), the cheap form of
+    /// [`point_frames`]: each measurement's flange frame computed once.
+    fn held(&self, x: &[f64], free: &[usize]) -> Option<Box<dyn Problem + '_>> {
+        point_frames::FramesFit::new(self, x, free).map(|f| Box::new(f) as Box<dyn Problem + '_>)
     }
 
     fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {

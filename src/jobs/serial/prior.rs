@@ -178,8 +178,10 @@ pub fn identify_with<P: SerialFit>(
     };
     let p = P::build(inp, &all)?;
     let x0 = p.start();
+    // Values only: neither standard deviations nor near-dependent combinations.
     let options = |uncertainty: bool| SolveOptions {
         uncertainty,
+        near_dependent: uncertainty,
         ..p.options(inp)
     };
     if inp.options.prior.is_none() {
