@@ -135,10 +135,15 @@ fn scaled_normal(
     }
     let n = j.nrows();
     let mut js = DMatrix::zeros(n, mf);
+    // Column by column on the contiguous storage (the same divisions, vectorised).
+    let (src, dst) = (j.as_slice(), js.as_mut_slice());
     for (c, &k) in free.iter().enumerate() {
-        let (src, dk) = (j.column(k), d[k]);
-        for (dst, v) in js.column_mut(c).iter_mut().zip(src.iter()) {
-            *dst = v / dk;
+        let dk = d[k];
+        for (o, v) in dst[c * n..(c + 1) * n]
+            .iter_mut()
+            .zip(&src[k * n..(k + 1) * n])
+        {
+            *o = v / dk;
         }
     }
     // `js^T js` entry by entry as nalgebra's `tr_mul` forms it (the same dot of two
