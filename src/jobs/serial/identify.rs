@@ -467,9 +467,9 @@ impl IdentifyInputs {
         Ok((problem, sol))
     }
 
-    /// [`IdentifyInputs::identify`] without standard deviations and condition numbers
-    /// (`params[].std` null): the same identified values and convergence, for studies that
-    /// use only those.
+    /// [`IdentifyInputs::identify`] without standard deviations, condition numbers and
+    /// near-dependent reports (`params[].std` null): the same identified values and
+    /// convergence, for studies that use only those.
     pub fn identify_values(
         &self,
         subset: Option<&[usize]>,

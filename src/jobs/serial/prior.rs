@@ -164,8 +164,9 @@ pub fn identify<P: SerialFit>(
     identify_with(inp, subset, true, monitor)
 }
 
-/// [`identify`]; `uncertainty` false skips the standard deviations and condition numbers
-/// of the result ([`SolveOptions::uncertainty`]): the same identified values.
+/// [`identify`]; `uncertainty` false skips the standard deviations, condition numbers and
+/// near-dependent reports of the result ([`SolveOptions::uncertainty`],
+/// [`SolveOptions::near_dependent`]): the same identified values.
 pub fn identify_with<P: SerialFit>(
     inp: &IdentifyInputs,
     subset: Option<&[usize]>,
