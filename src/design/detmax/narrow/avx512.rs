@@ -90,25 +90,18 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
     det: &mut [f64],
 ) {
     let mut d = [[_mm512_setzero_pd(); R]; R];
-    for c2 in 0..m {
-        // w[x] = (B P)(x, c2), then D(x, y) += w[x] B(y, c2).
-        let mut w = [_mm512_setzero_pd(); R];
-        for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(m)).take(m) {
-            let pc = _mm512_set1_pd(prow[c2]);
-            for (x, wx) in w.iter_mut().enumerate() {
-                // SAFETY: `bc` holds R rows of eight lanes.
-                let b = unsafe { _mm512_loadu_pd(bc[x * L..(x + 1) * L].as_ptr()) };
-                *wx = _mm512_fmadd_pd(b, pc, *wx);
-            }
-        }
-        let bc2 = &bg[c2 * R * L..(c2 + 1) * R * L];
-        for x in 0..R {
-            for y in 0..R {
-                // SAFETY: `bc2` holds R rows of eight lanes.
-                let b = unsafe { _mm512_loadu_pd(bc2[y * L..(y + 1) * L].as_ptr()) };
-                d[x][y] = _mm512_fmadd_pd(w[x], b, d[x][y]);
-            }
-        }
+    // Three columns of B P at a time: 3 R independent sums keep both FMA pipes busy (one
+    // column at a time, the R sums wait on the FMA latency).
+    let mut c2 = 0;
+    while c2 + 3 <= m {
+        // SAFETY: the caller's CPU has AVX-512F and FMA.
+        unsafe { rebuild_columns::<R, 3>(bg, p, m, c2, &mut d) };
+        c2 += 3;
+    }
+    while c2 < m {
+        // SAFETY: as above.
+        unsafe { rebuild_columns::<R, 1>(bg, p, m, c2, &mut d) };
+        c2 += 1;
     }
     let mut out = [[[0.0; L]; R]; R];
     for x in 0..R {
@@ -118,4 +111,44 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
         }
     }
     dets_group::<R, L, 0>(&out, det);
+}
+
+/// D += W W' for columns c2..c2 + C of W = B P (w[j][x] = (B P)(x, c2 + j)), each column summed
+/// over the pool's m columns in order (as the portable kernel does).
+///
+/// # Safety
+/// The CPU must have AVX-512F and FMA.
+#[target_feature(enable = "avx512f,fma")]
+#[inline]
+unsafe fn rebuild_columns<const R: usize, const C: usize>(
+    bg: &[f64],
+    p: &[f64],
+    m: usize,
+    c2: usize,
+    d: &mut [[__m512d; R]; R],
+) {
+    let mut w = [[_mm512_setzero_pd(); R]; C];
+    for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(m)).take(m) {
+        let mut b = [_mm512_setzero_pd(); R];
+        for (x, bx) in b.iter_mut().enumerate() {
+            // SAFETY: `bc` holds R rows of eight lanes.
+            *bx = unsafe { _mm512_loadu_pd(bc[x * L..(x + 1) * L].as_ptr()) };
+        }
+        for (j, wj) in w.iter_mut().enumerate() {
+            let pc = _mm512_set1_pd(prow[c2 + j]);
+            for x in 0..R {
+                wj[x] = _mm512_fmadd_pd(b[x], pc, wj[x]);
+            }
+        }
+    }
+    for (j, wj) in w.iter().enumerate() {
+        let bc2 = &bg[(c2 + j) * R * L..(c2 + j + 1) * R * L];
+        for x in 0..R {
+            for y in 0..R {
+                // SAFETY: `bc2` holds R rows of eight lanes.
+                let b = unsafe { _mm512_loadu_pd(bc2[y * L..(y + 1) * L].as_ptr()) };
+                d[x][y] = _mm512_fmadd_pd(wj[x], b, d[x][y]);
+            }
+        }
+    }
 }
