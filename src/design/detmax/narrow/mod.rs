@@ -206,7 +206,7 @@ impl<'a> Design<'a> {
                 block[x * r + y] = sign * block[x * r + y] + if x == y { 1.0 } else { 0.0 };
             }
         }
-        let (ld, sinv) = super::kernels::small_inverse(&block[..r * r], r)?;
+        let (ld, sinv) = super::kernels::small_inverse6(&block[..r * r], r)?;
         for y in 0..r {
             for k in 0..m {
                 self.ba[y * m + k] = self.lp.at(a, y, k);
