@@ -213,6 +213,7 @@ type LaneState = [Lanes; DIM];
 /// are made, so only the last addition waits for the last term; `x`, `y`, `phi` smallest
 /// terms first.
 #[inline(always)]
+#[allow(clippy::needless_range_loop)] // one lane index across several arrays
 fn advance<const T: usize>(y: &mut LaneState, h: &Lanes, t: &Series<T>) {
     let mut o = [[0.0; L]; DIM];
     o[C] = t.c[0];
