@@ -211,6 +211,7 @@ pub fn run() -> Vec<Figure> {
                 n,
                 seed: 1,
                 max_excursion: 6,
+                path: true,
             },
             &NoMonitor,
         )

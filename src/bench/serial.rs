@@ -156,6 +156,7 @@ fn dispersion_identifications(
                 n,
                 seed: ((n as u64) << 32) ^ (r + 1),
                 max_excursion: 4,
+                path: false,
             };
             detmax(&dp.pool, &o, &NoMonitor).ok().map(|s| s.selected)
         })
@@ -249,6 +250,7 @@ pub fn run() -> Vec<Figure> {
                     n: 75,
                     seed,
                     max_excursion: 6,
+                    path: true,
                 },
                 &NoMonitor,
             )

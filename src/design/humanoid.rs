@@ -335,6 +335,7 @@ pub fn compare_baselines(
         n,
         seed,
         max_excursion: 6,
+        path: true,
     };
     // The blocks go into the pool one at a time (a 1000-posture pool of 54-row blocks
     // would hold 35 MB of them).

@@ -170,6 +170,7 @@ fn nocp_stops_on_the_plateau_and_beats_random_and_detmax() {
             n,
             seed: 1,
             max_excursion: 4,
+            path: true,
         },
         &NoMonitor,
     )

@@ -74,27 +74,32 @@ impl Factor {
     /// The full inverse (row-major), from L^-1.
     pub(super) fn inverse(&self) -> Vec<f64> {
         let m = self.m;
-        // Columns of L^-1 by forward substitution, stored row-major in `li`.
-        let mut li = vec![0.0; m * m];
-        for c in 0..m {
-            for i in c..m {
-                let mut s = if i == c { 1.0 } else { 0.0 };
-                for k in c..i {
-                    s -= self.l[i * m + k] * li[k * m + c];
-                }
-                li[i * m + c] = s / self.l[i * m + i];
-            }
-        }
-        // P = L^-T L^-1.
-        let mut p = vec![0.0; m * m];
-        for i in 0..m {
-            for j in 0..=i {
-                let s: f64 = (i..m).map(|k| li[k * m + i] * li[k * m + j]).sum();
-                p[i * m + j] = s;
-                p[j * m + i] = s;
-            }
-        }
+        let (mut li, mut p) = (vec![0.0; m * m], vec![0.0; m * m]);
+        inverse_into(&self.l, m, &mut li, &mut p);
         p
+    }
+}
+
+/// P = A^-1 = L^-T L^-1 from the Cholesky factor `l` (m x m, row-major) into `p`, with the
+/// columns of L^-1 in `li` (both at least m x m).
+fn inverse_into(l: &[f64], m: usize, li: &mut [f64], p: &mut [f64]) {
+    // Columns of L^-1 by forward substitution, stored row-major in `li`.
+    for c in 0..m {
+        for i in c..m {
+            let mut s = if i == c { 1.0 } else { 0.0 };
+            for k in c..i {
+                s -= l[i * m + k] * li[k * m + c];
+            }
+            li[i * m + c] = s / l[i * m + i];
+        }
+    }
+    // P = L^-T L^-1.
+    for i in 0..m {
+        for j in 0..=i {
+            let s: f64 = (i..m).map(|k| li[k * m + i] * li[k * m + j]).sum();
+            p[i * m + j] = s;
+            p[j * m + i] = s;
+        }
     }
 }
 
@@ -125,6 +130,9 @@ pub(super) fn log_det_identity_plus(d: &[f64], r: usize, sign: f64, scratch: &mu
 
 /// log det and inverse of a small symmetric positive-definite matrix (r x r, row-major).
 pub(super) fn small_inverse(a: &[f64], r: usize) -> Option<(f64, Vec<f64>)> {
+    if r <= 6 {
+        return small_inverse6(a, r).map(|(ld, p)| (ld, p[..r * r].to_vec()));
+    }
     let f = Info {
         m: r,
         a: a.to_vec(),
@@ -211,4 +219,16 @@ pub(super) fn dot(a: &[f64], b: &[f64]) -> f64 {
         s += a[k] * b[k];
     }
     s
+}
+
+/// [`small_inverse`] for r <= 6 on the stack (the lane design's toggle, 163 times per
+/// DETMAX run): the same operations in the same order, nothing allocated.
+pub(super) fn small_inverse6(a: &[f64], r: usize) -> Option<(f64, [f64; 36])> {
+    let (mut l, mut li, mut p) = ([0.0; 36], [0.0; 36], [0.0; 36]);
+    if r > 6 || !cholesky_into(&a[..r * r], r, &mut l) {
+        return None;
+    }
+    let ld = (0..r).map(|i| 2.0 * l[i * r + i].ln()).sum();
+    inverse_into(&l, r, &mut li, &mut p);
+    Some((ld, p))
 }

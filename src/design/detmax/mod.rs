@@ -31,6 +31,9 @@ pub struct DetmaxOptions {
     pub seed: u64,
     /// Largest excursion size tried before stopping.
     pub max_excursion: usize,
+    /// Record the search's path in [`Selection::history`] (one exact determinant per
+    /// improving excursion); off, the history is empty (a study that only wants the set).
+    pub path: bool,
 }
 
 /// A selection and how it was found.
@@ -45,7 +48,7 @@ pub struct Selection {
     /// Improving excursions made.
     pub exchanges: usize,
     /// The search's path: the random start, then the design after each improving
-    /// excursion (the last step is the selection).
+    /// excursion (the last step is the selection); empty unless [`DetmaxOptions::path`].
     pub history: Vec<DetmaxStep>,
 }
 
@@ -221,7 +224,10 @@ pub fn detmax(
     let mut memo = gram::Memo::new();
     let min_rows = pool.rows.iter().copied().min().unwrap_or(1);
     let mut exchanges = 0;
-    let mut history = vec![step(pool, &design, 0)];
+    let mut history = Vec::new();
+    if opts.path {
+        history.push(step(pool, &design, 0));
+    }
     // The trial design of an excursion, its buffers reused from try to try.
     let mut d = design.clone();
     let mut k = 1;
@@ -270,7 +276,9 @@ pub fn detmax(
         }
         if improved {
             exchanges += 1;
-            history.push(step(pool, &design, exchanges));
+            if opts.path {
+                history.push(step(pool, &design, exchanges));
+            }
             k = 1;
         } else {
             k += 1;

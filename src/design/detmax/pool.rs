@@ -171,12 +171,8 @@ impl Pool {
             let mk = g.information(subset, 0.0);
             return g.log_det_of(&mk, &mut super::lanes::Work::new(&g.env));
         }
-        let m = self.m;
-        let a = DMatrix::from_row_slice(m, m, &self.information(subset));
-        match a.cholesky() {
-            Some(c) => 2.0 * c.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>(),
-            None => f64::NEG_INFINITY,
-        }
+        self.information_factor(subset, 0.0)
+            .map_or(f64::NEG_INFINITY, |f| f.log_det())
     }
 
     /// The stacked (reduced) blocks of a subset; None for a pool kept as information

@@ -143,6 +143,7 @@ fn both_pool_kinds_pick_the_straightforward_set() {
                 n,
                 seed,
                 max_excursion,
+                path: true,
             };
             let (want, want_ld, want_exchanges) = reference(&blocks, &opts);
             let got = detmax(&pool, &opts, &NoMonitor).unwrap();
@@ -184,6 +185,7 @@ fn finds_the_exhaustive_optimum_on_a_small_pool() {
         n,
         seed: 1,
         max_excursion: 3,
+        path: true,
     };
     let s = detmax(&pool, &opts, &NoMonitor).unwrap();
     assert!((s.log_det - best).abs() < 1e-9, "{} vs {}", s.log_det, best);
@@ -215,6 +217,7 @@ fn large_blocks_reach_the_exhaustive_optimum() {
         n: 3,
         seed: 2,
         max_excursion: 3,
+        path: true,
     };
     let s = detmax(&pool, &opts, &NoMonitor).unwrap();
     assert!((s.log_det - best).abs() < 1e-9, "{} vs {}", s.log_det, best);
@@ -249,6 +252,7 @@ fn reduced_blocks_pick_the_same_set_as_the_full_blocks() {
         n: 5,
         seed: 7,
         max_excursion: 4,
+        path: true,
     };
     let a = detmax(&reduced, &opts, &NoMonitor).unwrap();
     let b = detmax(&exact, &opts, &NoMonitor).unwrap();
@@ -276,7 +280,7 @@ fn reduced_blocks_pick_the_same_set_as_the_full_blocks() {
 
 /// Uniform pools of 2, 3 and 6 rows take the fused lane path; it picks the set of the general
 /// Woodbury path and of the straightforward implementation, with the same excursions and
-/// history (pools not a multiple of the four lanes, rebuilds every 64 updates included).
+/// history (pools not a multiple of the eight lanes, rebuilds every 64 updates included).
 #[test]
 fn lane_path_picks_the_general_paths_set() {
     let mut rng = Rng::new(17);
@@ -298,6 +302,7 @@ fn lane_path_picks_the_general_paths_set() {
                 n,
                 seed,
                 max_excursion,
+                path: true,
             };
             let a = detmax(&lanes, &opts, &NoMonitor).unwrap();
             let b = detmax(&general, &opts, &NoMonitor).unwrap();
@@ -317,5 +322,58 @@ fn lane_path_picks_the_general_paths_set() {
                 assert!((a.log_det - want_ld).abs() < 1e-9 * want_ld.abs().max(1.0));
             }
         }
+    }
+}
+
+/// The AVX-512, AVX2 and portable lane kernels give the same selection, path and
+/// determinants bit for bit (each lane sees the same operations in the same order; the
+/// portable kernel does not fuse, so it is compared to 1e-9), and a search that does not
+/// record its path picks the same set.
+#[test]
+fn every_kernel_width_picks_the_same_set() {
+    use super::narrow::WIDEST;
+    let mut rng = Rng::new(29);
+    for (r, count, m, n) in [(3, 150, 27, 40), (2, 61, 9, 11), (6, 45, 20, 8)] {
+        let blocks: Vec<DMatrix<f64>> = (0..count)
+            .map(|_| DMatrix::from_fn(r, m, |_, _| rng.normal()))
+            .collect();
+        let pool = Pool::from_blocks(&blocks);
+        let opts = DetmaxOptions {
+            n,
+            seed: 5,
+            max_excursion: 4,
+            path: true,
+        };
+        let run = |w: usize| {
+            WIDEST.with(|c| c.set(w));
+            let s = detmax(&pool, &opts, &NoMonitor).unwrap();
+            WIDEST.with(|c| c.set(8));
+            s
+        };
+        let (wide, avx2, portable) = (run(8), run(4), run(0));
+        let what = format!("{r} rows, {count} candidates");
+        assert!(wide.exchanges > 0, "{what}: the search moved");
+        assert_eq!(wide.selected, avx2.selected, "{what}");
+        assert_eq!(wide.log_det.to_bits(), avx2.log_det.to_bits(), "{what}");
+        let steps = wide.history.iter().zip(&avx2.history);
+        assert!(
+            steps
+                .clone()
+                .all(|(a, b)| a.log_det.to_bits() == b.log_det.to_bits())
+        );
+        assert_eq!(wide.selected, portable.selected, "{what}");
+        assert!((wide.log_det - portable.log_det).abs() < 1e-9 * wide.log_det.abs().max(1.0));
+        let quiet = detmax(
+            &pool,
+            &DetmaxOptions {
+                path: false,
+                ..opts.clone()
+            },
+            &NoMonitor,
+        );
+        let quiet = quiet.unwrap();
+        assert_eq!(quiet.selected, wide.selected, "{what}");
+        assert_eq!(quiet.log_det.to_bits(), wide.log_det.to_bits(), "{what}");
+        assert!(quiet.history.is_empty() && wide.history.len() == wide.exchanges + 1);
     }
 }

@@ -298,6 +298,7 @@ impl DesignJob {
                 n: self.n,
                 seed: self.seed,
                 max_excursion: self.max_excursion,
+                path: true,
             },
             monitor,
         )?;

@@ -137,6 +137,7 @@ fn study(
                             n,
                             seed: task_seed,
                             max_excursion: 4,
+                            path: false,
                         },
                         &crate::util::NoMonitor,
                     )

@@ -25,6 +25,8 @@ mod setup;
 mod shooting;
 mod solve;
 mod taylor;
+#[cfg(target_arch = "x86_64")]
+mod taylor_x86;
 #[cfg(test)]
 mod tests;
 mod track;

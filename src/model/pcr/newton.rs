@@ -27,6 +27,7 @@ pub(crate) enum Failure {
 /// Largest residual relative to its tolerance (converged when <= 1). Positions and angles
 /// use the absolute tolerances; the force and moment balance a tolerance relative to the
 /// largest scaled wrench (at least 1), because their rounding noise grows with the forces.
+#[inline(always)]
 pub(crate) fn residual_ratio(setup: &Setup, opts: &SolverOptions, z: &Vec12, r: &Vec12) -> f64 {
     let wrench = z[..9].iter().fold(1.0_f64, |m, v| m.max(v.abs()));
     let mut worst = 0.0_f64;
@@ -96,6 +97,7 @@ pub(crate) fn fresh_inverse(setup: &Setup, mode: &Mode, z: &Vec12) -> Result<Mat
 }
 
 /// `h v`, each row's dot product in four interleaved partial sums (vector lanes).
+#[inline(always)]
 fn mat_vec(h: &Mat12, v: &Vec12) -> Vec12 {
     std::array::from_fn(|i| {
         let mut acc = [0.0; 4];
@@ -115,6 +117,7 @@ const SAFETY: f64 = 10.0;
 /// "Good" Broyden update of an inverse Jacobian `h` with the step `s` and the change `y` of
 /// the residual it caused: afterwards `h y = s`, and `h` is unchanged on vectors orthogonal
 /// to `h^T s`. Skipped when the update is numerically meaningless.
+#[inline(always)]
 fn broyden(h: &mut Mat12, s: &Vec12, y: &Vec12) {
     let hy = mat_vec(h, y);
     // s^T h, as a sum of rows.
@@ -158,6 +161,35 @@ fn broyden(h: &mut Mat12, s: &Vec12, y: &Vec12) {
 /// that was then thrown away is not used. (Residuals at tolerance mean 1e-12 m; the
 /// model's accuracy requirement is 1 nm.)
 pub(crate) fn newton(
+    setup: &Setup,
+    mode: &Mode,
+    start: &Start<'_>,
+    opts: &SolverOptions,
+) -> Result<Solved, (Failure, usize)> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2, the feature the function is compiled for.
+        return unsafe { newton_avx2(setup, mode, start, opts) };
+    }
+    newton_body(setup, mode, start, opts)
+}
+
+/// [`newton`] compiled for AVX2: the 12 x 12 products and Broyden updates in 256-bit
+/// vectors. No fused multiply-add, so the results are bit for bit the portable code's.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn newton_avx2(
+    setup: &Setup,
+    mode: &Mode,
+    start: &Start<'_>,
+    opts: &SolverOptions,
+) -> Result<Solved, (Failure, usize)> {
+    newton_body(setup, mode, start, opts)
+}
+
+/// The body of [`newton`].
+#[inline(always)]
+fn newton_body(
     setup: &Setup,
     mode: &Mode,
     start: &Start<'_>,

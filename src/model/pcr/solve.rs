@@ -166,7 +166,10 @@ impl Pcr {
     /// Checks joint values against finiteness and the limits.
     pub fn check_joints(&self, q: &[f64; 3]) -> Result<(), PcrError> {
         for (k, v) in q.iter().enumerate() {
-            check_finite(&format!("joint q{}", k + 1), *v)?;
+            if !v.is_finite() {
+                // The name is formatted only for the error (this check runs on every solve).
+                check_finite(&format!("joint q{}", k + 1), *v)?;
+            }
             let [lower, upper] = self.limits[k];
             if *v < lower || *v > upper {
                 return Err(PcrError::JointOutOfLimits {

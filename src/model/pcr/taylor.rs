@@ -12,6 +12,10 @@
 //! length `h` sums the series with its coefficients pre-scaled by `h^j`. With [`ORDER`] 13
 //! and four steps per rod the tip error on the 3-PF workspace is about 1e-11 m (RK4 needs
 //! 48 steps for 6e-10 m), with less than half of the arithmetic, done four rods at a time.
+//! The residual's integration runs on x86-64 as a kernel of vector intrinsics
+//! (`taylor_x86`) with the same operations in the same order as the portable code here.
+//! Sums are ordered for short dependency chains: each new coefficient waits for a product
+//! and two additions after the previous one (see `products_outward`), not for a whole sum.
 //!
 //! The variational columns are the exact derivatives of the coefficient recursion (each
 //! product `a b` differentiates to `da b + a db`), so they are exact derivatives of the
@@ -23,18 +27,18 @@ use super::rod::{C, DIM, M, PHI, Rod, S, Seed, State, X, Y, forcing, seed_start}
 /// Order of the Taylor series: terms `0..=ORDER` of `c`, `s` and `m` per step.
 pub(crate) const ORDER: usize = 13;
 /// Number of Taylor coefficients per component.
-const TERMS: usize = ORDER + 1;
+pub(super) const TERMS: usize = ORDER + 1;
 /// Largest number of terms supported by the generic functions.
 const MAX_TERMS: usize = 32;
 /// Rods integrated side by side: four lanes of every arithmetic operation, which the
 /// compiler turns into vector instructions, and independent dependency chains that keep the
 /// processor's pipelines full.
-const L: usize = 4;
+pub(super) const L: usize = 4;
 /// One value per lane.
-type Lanes = [f64; L];
+pub(super) type Lanes = [f64; L];
 
 /// `1 / j` for `j = 0..=MAX_TERMS` (entry 0 unused).
-const INV: [f64; MAX_TERMS + 1] = {
+pub(super) const INV: [f64; MAX_TERMS + 1] = {
     let mut a = [0.0; MAX_TERMS + 1];
     let mut j = 1;
     while j <= MAX_TERMS {
@@ -46,11 +50,11 @@ const INV: [f64; MAX_TERMS + 1] = {
 
 /// Per lane: the rod's force, flexibility and step length.
 #[derive(Clone, Copy)]
-struct Coeffs {
-    nx: Lanes,
-    ny: Lanes,
-    flex: Lanes,
-    h: Lanes,
+pub(super) struct Coeffs {
+    pub(super) nx: Lanes,
+    pub(super) ny: Lanes,
+    pub(super) flex: Lanes,
+    pub(super) h: Lanes,
 }
 
 /// Taylor coefficients of one step for every lane, scaled by `h^j`: `c`, `s`, `m` and
@@ -105,41 +109,128 @@ impl<const T: usize> Series<T> {
     }
 }
 
-/// Fills `t` (every entry is written) with the coefficients of a step from `(c0, s0, m0)`.
+/// Per order `j`, the factors of the recursion for every lane: `h / (j + 1)` and the same
+/// times `flex nx` and `flex ny` (computed once per integration).
+pub(super) struct Factors<const T: usize> {
+    pub(super) f: [Lanes; T],
+    pub(super) kx: [Lanes; T],
+    pub(super) ky: [Lanes; T],
+}
+
+impl<const T: usize> Factors<T> {
+    #[inline(always)]
+    pub(super) fn new(co: &Coeffs) -> Self {
+        let f: [Lanes; T] = std::array::from_fn(|j| std::array::from_fn(|l| co.h[l] * INV[j + 1]));
+        Self {
+            f,
+            kx: std::array::from_fn(|j| std::array::from_fn(|l| co.flex[l] * co.nx[l] * f[j][l])),
+            ky: std::array::from_fn(|j| std::array::from_fn(|l| co.flex[l] * co.ny[l] * f[j][l])),
+        }
+    }
+}
+
+/// Cauchy products `sum_i a_i b_(j-i)` and `sum_i c_i b_(j-i)` for `i = 0..=j`, summed in
+/// the order the terms are ready while the series is built: the middle terms first, from
+/// the middle outwards in two partial sums, then the end terms `i = 0` (with `b_j`, the
+/// newest `b`) and `i = j` (with `a_j` and `c_j`, the newest of all). The chain of dependent
+/// operations from one order to the next is then a product and two additions long.
 #[inline(always)]
-fn series<const T: usize>(t: &mut Series<T>, c0: Lanes, s0: Lanes, m0: Lanes, co: &Coeffs) {
+fn products_outward<const T: usize>(
+    a: &[Lanes; T],
+    c: &[Lanes; T],
+    b: &[Lanes; T],
+    j: usize,
+) -> [Lanes; 2] {
+    let (mut p0, mut p1, mut q0, mut q1) = ([0.0; L], [0.0; L], [0.0; L], [0.0; L]);
+    let half = j / 2;
+    for i in (1..=half).rev() {
+        for l in 0..L {
+            p0[l] += a[i][l] * b[j - i][l];
+            q0[l] += c[i][l] * b[j - i][l];
+        }
+    }
+    for i in half + 1..j {
+        for l in 0..L {
+            p1[l] += a[i][l] * b[j - i][l];
+            q1[l] += c[i][l] * b[j - i][l];
+        }
+    }
+    if j == 0 {
+        return [
+            std::array::from_fn(|l| a[0][l] * b[0][l]),
+            std::array::from_fn(|l| c[0][l] * b[0][l]),
+        ];
+    }
+    [
+        std::array::from_fn(|l| ((p0[l] + p1[l]) + a[0][l] * b[j][l]) + a[j][l] * b[0][l]),
+        std::array::from_fn(|l| ((q0[l] + q1[l]) + c[0][l] * b[j][l]) + c[j][l] * b[0][l]),
+    ]
+}
+
+/// Fills `t` (every entry is written) with the coefficients of a step from `(c0, s0, m0)`.
+/// `k = flex m` is computed from `(c, s)` directly (`fa.kx`, `fa.ky`), not from `m`, so it
+/// is ready one multiplication earlier for the next order.
+#[inline(always)]
+fn series<const T: usize>(
+    t: &mut Series<T>,
+    c0: Lanes,
+    s0: Lanes,
+    m0: Lanes,
+    co: &Coeffs,
+    fa: &Factors<T>,
+) {
     t.c[0] = c0;
     t.s[0] = s0;
     t.m[0] = m0;
     t.k[0] = std::array::from_fn(|l| co.flex[l] * m0[l]);
-    for j in 0..T - 1 {
-        let [a, b] = products(&t.s, &t.c, &t.k, j);
-        for l in 0..L {
-            let f = co.h[l] * INV[j + 1];
-            t.c[j + 1][l] = -f * a[l];
-            t.s[j + 1][l] = f * b[l];
-            t.m[j + 1][l] = f * (co.nx[l] * t.s[j][l] - co.ny[l] * t.c[j][l]);
-            t.k[j + 1][l] = co.flex[l] * t.m[j + 1][l];
-        }
+    // Unrolled: every index is a constant, so the coefficients can stay in registers.
+    macro_rules! orders {
+        ($($j:literal)*) => { $( if $j + 1 < T { order::<T, $j>(t, co, fa); } )* };
+    }
+    const { assert!(T <= MAX_TERMS) };
+    orders!(0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20 21 22 23 24 25 26 27 28 29 30);
+}
+
+/// Order `J + 1` of the series from the orders up to `J`.
+#[inline(always)]
+fn order<const T: usize, const J: usize>(t: &mut Series<T>, co: &Coeffs, fa: &Factors<T>) {
+    let [a, b] = products_outward(&t.s, &t.c, &t.k, J);
+    for l in 0..L {
+        let f = fa.f[J][l];
+        let (s, c) = (t.s[J][l], t.c[J][l]);
+        t.c[J + 1][l] = -f * a[l];
+        t.s[J + 1][l] = f * b[l];
+        t.m[J + 1][l] = f * (co.nx[l] * s - co.ny[l] * c);
+        t.k[J + 1][l] = fa.kx[J][l] * s - fa.ky[J][l] * c;
     }
 }
 
 /// Lane states: x, y, c, s, phi, m.
 type LaneState = [Lanes; DIM];
 
-/// Adds a step of length `h` with coefficients `t` to the lane states `y`.
+/// Adds a step of length `h` with coefficients `t` to the lane states `y`. The new `c`,
+/// `s`, `m` (which the next step's series needs first) are summed in the order their terms
+/// are made, so only the last addition waits for the last term; `x`, `y`, `phi` smallest
+/// terms first.
 #[inline(always)]
+#[allow(clippy::needless_range_loop)] // one lane index across several arrays
 fn advance<const T: usize>(y: &mut LaneState, h: &Lanes, t: &Series<T>) {
     let mut o = [[0.0; L]; DIM];
-    // Smallest terms first.
+    o[C] = t.c[0];
+    o[S] = t.s[0];
+    o[M] = t.m[0];
+    for j in 1..T {
+        for l in 0..L {
+            o[C][l] += t.c[j][l];
+            o[S][l] += t.s[j][l];
+            o[M][l] += t.m[j][l];
+        }
+    }
     for j in (0..T).rev() {
         for l in 0..L {
             o[X][l] += t.c[j][l] * INV[j + 1];
             o[Y][l] += t.s[j][l] * INV[j + 1];
             o[PHI][l] += t.k[j][l] * INV[j + 1];
-            o[C][l] += t.c[j][l];
-            o[S][l] += t.s[j][l];
-            o[M][l] += t.m[j][l];
         }
     }
     for l in 0..L {
@@ -155,7 +246,7 @@ fn advance<const T: usize>(y: &mut LaneState, h: &Lanes, t: &Series<T>) {
 /// Step count, per-lane coefficients and lane states of the rods `first..first + L` (lanes
 /// past the last rod repeat it).
 #[inline(always)]
-fn pack<const R: usize>(
+pub(super) fn pack<const R: usize>(
     rods: &[Rod; R],
     y0: &[State; R],
     first: usize,
@@ -172,28 +263,20 @@ fn pack<const R: usize>(
     (steps, co, y)
 }
 
-/// Whether the processor has AVX2: the lanes then run in one 256-bit register instead of
-/// two 128-bit ones. Only vector width changes (no fused multiply-add), so the results are
-/// bit for bit those of the portable code.
-#[cfg(target_arch = "x86_64")]
-fn avx2() -> bool {
-    std::arch::is_x86_feature_detected!("avx2")
-}
-
 /// Integrates `R` rods from `y0` (Taylor steps of [`ORDER`]); returns the distal states.
 pub(crate) fn integrate<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [State; R] {
     #[cfg(target_arch = "x86_64")]
-    if avx2() {
-        // SAFETY: the processor supports AVX2, the only feature the function is compiled for.
-        return unsafe { integrate_avx2(rods, y0) };
+    {
+        use super::taylor_x86::{avx2, avx512, integrate_avx2, integrate_avx512};
+        if avx512() {
+            // SAFETY: the processor has the features the function is compiled for.
+            return unsafe { integrate_avx512(rods, y0) };
+        }
+        if avx2() {
+            // SAFETY: the processor has AVX2, the feature the function is compiled for.
+            return unsafe { integrate_avx2(rods, y0) };
+        }
     }
-    integrate_terms::<R, TERMS>(rods, y0)
-}
-
-/// [`integrate`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn integrate_avx2<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [State; R] {
     integrate_terms::<R, TERMS>(rods, y0)
 }
 
@@ -203,9 +286,10 @@ fn integrate_terms<const R: usize, const T: usize>(rods: &[Rod; R], y0: &[State;
     let mut out = *y0;
     for first in (0..R).step_by(L) {
         let (steps, co, mut y) = pack(rods, y0, first);
+        let fa = Factors::<T>::new(&co);
         let mut t = Series::<T>::zero();
         for _ in 0..steps {
-            series(&mut t, y[C], y[S], y[M], &co);
+            series(&mut t, y[C], y[S], y[M], &co, &fa);
             advance(&mut y, &co.h, &t);
         }
         for (l, o) in out.iter_mut().skip(first).take(L).enumerate() {
@@ -255,27 +339,16 @@ pub(crate) fn integrate_var<const R: usize, const K: usize>(
     seeds: [Seed; K],
 ) -> ([State; R], [[State; K]; R]) {
     #[cfg(target_arch = "x86_64")]
-    if avx2() {
-        // SAFETY: the processor supports AVX2, the only feature the function is compiled for.
-        return unsafe { integrate_var_avx2(rods, y0, seeds) };
+    if super::taylor_x86::avx2() {
+        // SAFETY: the processor has AVX2, the feature the function is compiled for.
+        return unsafe { super::taylor_x86::integrate_var_avx2(rods, y0, seeds) };
     }
-    integrate_var_body(rods, y0, seeds)
-}
-
-/// [`integrate_var`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn integrate_var_avx2<const R: usize, const K: usize>(
-    rods: &[Rod; R],
-    y0: &[State; R],
-    seeds: [Seed; K],
-) -> ([State; R], [[State; K]; R]) {
     integrate_var_body(rods, y0, seeds)
 }
 
 /// The body of [`integrate_var`].
 #[inline(always)]
-fn integrate_var_body<const R: usize, const K: usize>(
+pub(super) fn integrate_var_body<const R: usize, const K: usize>(
     rods: &[Rod; R],
     y0: &[State; R],
     seeds: [Seed; K],
@@ -290,9 +363,10 @@ fn integrate_var_body<const R: usize, const K: usize>(
             let cols: [State; L] = std::array::from_fn(|l| seed_start(seeds[j], &y0[idx(l)]));
             std::array::from_fn(|i| std::array::from_fn(|l| cols[l][i]))
         });
+        let fa = Factors::<TERMS>::new(&co);
         let (mut t, mut d) = (Series::<TERMS>::zero(), Series::<TERMS>::zero());
         for _ in 0..steps {
-            series(&mut t, y[C], y[S], y[M], &co);
+            series(&mut t, y[C], y[S], y[M], &co, &fa);
             for (vj, fcj) in v.iter_mut().zip(&fc) {
                 series_var(&mut d, vj, &t, fcj, &co);
                 advance(vj, &co.h, &d);
@@ -346,8 +420,9 @@ mod tests {
         assert!(worst < 1e-11, "Taylor vs RK4: {worst:e}");
     }
 
-    /// The dispatched integration (AVX2 where the processor has it) equals the portable
-    /// code bit for bit: only the vector width differs.
+    /// The dispatched integration (the intrinsics kernel for AVX-512 VL or AVX2 where the
+    /// processor has them) equals the portable code bit for bit: the same operations in the
+    /// same order, only the vector width and the registers differ.
     #[test]
     fn dispatched_integration_equals_portable_code_bit_for_bit() {
         let seeds = [Seed::Nx, Seed::Ny, Seed::M0, Seed::Phi0, Seed::Flex];
@@ -358,10 +433,30 @@ mod tests {
         ];
         let (r, y0) = (rods.map(|p| p.0), rods.map(|p| p.1));
         let bits = |a: &[State]| -> Vec<u64> { a.iter().flatten().map(|v| v.to_bits()).collect() };
-        assert_eq!(
-            bits(&integrate(&r, &y0)),
-            bits(&integrate_terms::<3, TERMS>(&r, &y0))
-        );
+        let portable = bits(&integrate_terms::<3, TERMS>(&r, &y0));
+        assert_eq!(bits(&integrate(&r, &y0)), portable);
+        #[cfg(target_arch = "x86_64")]
+        {
+            use crate::model::pcr::taylor_x86::{avx2, avx512, integrate_avx2, integrate_avx512};
+            if avx2() {
+                // SAFETY: the processor has AVX2.
+                assert_eq!(bits(&unsafe { integrate_avx2(&r, &y0) }), portable);
+                // Five rods: a full group of four lanes and a partial one.
+                let (r5, y5) = (
+                    [r[0], r[1], r[2], r[1], r[0]],
+                    [y0[2], y0[0], y0[1], y0[0], y0[2]],
+                );
+                let p5 = bits(&integrate_terms::<5, TERMS>(&r5, &y5));
+                // SAFETY: as above.
+                assert_eq!(bits(&unsafe { integrate_avx2(&r5, &y5) }), p5);
+                if avx512() {
+                    // SAFETY: the processor has AVX-512 F and VL.
+                    assert_eq!(bits(&unsafe { integrate_avx512(&r, &y0) }), portable);
+                    // SAFETY: as above.
+                    assert_eq!(bits(&unsafe { integrate_avx512(&r5, &y5) }), p5);
+                }
+            }
+        }
         let (a, da) = integrate_var(&r, &y0, seeds);
         let (b, db) = integrate_var_body(&r, &y0, seeds);
         assert_eq!(bits(&a), bits(&b));

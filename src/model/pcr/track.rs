@@ -108,7 +108,8 @@ pub(crate) fn track(
     let (mut t, mut dt) = (0.0_f64, 1.0_f64);
     let mut z = start.z;
     let mut tips = start.tips.copied();
-    let mut inverse = start.inverse.copied();
+    // The start's inverse until a step is solved (not copied: 1 KB per solve).
+    let mut inverse: Option<Mat12> = None;
     let mut iterations = 0;
     let mut last = String::new();
     let mut branch_signal: Option<String> = None;
@@ -120,7 +121,7 @@ pub(crate) fn track(
         let guess = Start {
             z,
             tips: tips.as_ref(),
-            inverse: inverse.as_ref(),
+            inverse: inverse.as_ref().or(start.inverse),
         };
         // Where the setup changes along the way (the load or the clamps are blended in) or
         // the path had to be subdivided, every solution is checked against a fresh Jacobian:

@@ -1,18 +1,22 @@
 //! Exchange state for pools whose blocks all have 2, 3 or 6 rows (a serial arm's ball-centring
-//! or tracker measurement is 3 rows). The candidates are stored in groups of four,
+//! or tracker measurement is 3 rows). The candidates are stored in groups of eight,
 //! lane-interleaved, so the Woodbury update of every D_i after a toggle is one fused pass
 //! over the pool in SIMD lanes: E_i = B_i U and D_i -= sign E_i S^-1 E_i^T together, in
 //! registers, with no packing and no temporaries. The general [`super::exchange`] state is
 //! the reference it is tested against.
 
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 mod pass;
+#[cfg(test)]
+pub(super) use pass::WIDEST;
 
 use super::kernels::Info;
 use super::pool::Pool;
 use pass::{Kernel, dispatch};
 
-/// Candidates per group (one 256-bit vector of f64).
-pub(super) const L: usize = 4;
+/// Candidates per group (one 512-bit vector of f64, or two 256-bit ones).
+pub(super) const L: usize = 8;
 
 /// The blocks of a uniform pool, lane-interleaved: entry (x, c) of candidate 4 g + l at
 /// `b[((g m + c) r + x) L + l]`; padding candidates are zero.
@@ -202,7 +206,7 @@ impl<'a> Design<'a> {
                 block[x * r + y] = sign * block[x * r + y] + if x == y { 1.0 } else { 0.0 };
             }
         }
-        let (ld, sinv) = super::kernels::small_inverse(&block[..r * r], r)?;
+        let (ld, sinv) = super::kernels::small_inverse6(&block[..r * r], r)?;
         for y in 0..r {
             for k in 0..m {
                 self.ba[y * m + k] = self.lp.at(a, y, k);

@@ -56,25 +56,64 @@ pub(super) enum Kernel<'s> {
     Update { sinv: &'s [f64], sign: f64 },
 }
 
-/// Run a kernel with FMA and 256-bit vectors when the CPU has them.
+/// Run a kernel with FMA and 512-bit vectors (a group's eight lanes at once) when the CPU has
+/// them, else with FMA and 256-bit vectors (a group in two halves of four). Each lane sees
+/// the same operations in the same order on every path, so the results are identical.
 pub(super) fn dispatch<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU supports the features the function is compiled for.
-        unsafe { run_fma::<R>(k, d) };
-        return;
+    {
+        let widest = widest();
+        if widest >= 8
+            && std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU supports the features the function is compiled for.
+            unsafe { run_avx512::<R>(k, d) };
+            return;
+        }
+        if widest >= 4
+            && std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: as above.
+            unsafe { run_fma::<R>(k, d) };
+            return;
+        }
     }
-    run::<R, false>(k, d);
+    run::<R, false, 4>(k, d);
+}
+
+#[cfg(test)]
+thread_local! {
+    /// The widest kernel a test lets this thread use (8: AVX-512, 4: AVX2, 0: portable).
+    pub(in super::super) static WIDEST: std::cell::Cell<usize> = const { std::cell::Cell::new(8) };
+}
+
+/// The widest kernel allowed: all of them, except where a test narrows it.
+#[inline]
+fn widest() -> usize {
+    #[cfg(test)]
+    return WIDEST.with(|w| w.get());
+    #[cfg(not(test))]
+    8
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+unsafe fn run_avx512<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
+    run::<R, true, 8>(k, d);
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn run_fma<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
-    run::<R, true>(k, d);
+    run::<R, true, 4>(k, d);
 }
 
+/// One pass, `W` lanes at a time (W = 8: a whole group, in the AVX-512 kernels, only when
+/// called from `run_avx512`; W = 4: a group in two halves).
 #[inline(always)]
-fn run<const R: usize, const FMA: bool>(k: Kernel<'_>, d: &mut Design<'_>) {
+fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
     let m = d.lp.m;
     let blocks = d.lp.b.chunks_exact(m * R * L);
     match k {
@@ -83,8 +122,18 @@ fn run<const R: usize, const FMA: bool>(k: Kernel<'_>, d: &mut Design<'_>) {
                 d.d.chunks_exact_mut(R * R * L)
                     .zip(d.dets.chunks_exact_mut(2 * L));
             for (bg, (dg, det)) in blocks.zip(outs) {
-                let dr = rebuild_group::<R, FMA>(bg, &d.p, m, dg);
-                dets_group::<R>(&dr, det);
+                #[cfg(target_arch = "x86_64")]
+                if W == L {
+                    // SAFETY: a whole group per vector only from `run_avx512`.
+                    unsafe { super::avx512::rebuild_group::<R>(bg, &d.p, m, dg, det) };
+                    continue;
+                }
+                let dr = rebuild_group::<R, FMA, W, 0>(bg, &d.p, m, dg);
+                dets_group::<R, W, 0>(&dr, det);
+                if W < L {
+                    let dr = rebuild_group::<R, FMA, W, 1>(bg, &d.p, m, dg);
+                    dets_group::<R, W, 1>(&dr, det);
+                }
             }
         }
         Kernel::Update { sinv, sign } => {
@@ -135,8 +184,18 @@ fn run<const R: usize, const FMA: bool>(k: Kernel<'_>, d: &mut Design<'_>) {
                 d.d.chunks_exact_mut(R * R * L)
                     .zip(d.dets.chunks_exact_mut(2 * L));
             for (bg, (dg, det)) in blocks.zip(outs) {
-                let dr = update_group::<R, FMA>(bg, &d.u, m, &s, sign, dg);
-                dets_group::<R>(&dr, det);
+                #[cfg(target_arch = "x86_64")]
+                if W == L {
+                    // SAFETY: a whole group per vector only from `run_avx512`.
+                    unsafe { super::avx512::update_group::<R>(bg, &d.u, m, &s, sign, dg, det) };
+                    continue;
+                }
+                let dr = update_group::<R, FMA, W, 0>(bg, &d.u, m, &s, sign, dg);
+                dets_group::<R, W, 0>(&dr, det);
+                if W < L {
+                    let dr = update_group::<R, FMA, W, 1>(bg, &d.u, m, &s, sign, dg);
+                    dets_group::<R, W, 1>(&dr, det);
+                }
             }
         }
     }
@@ -160,15 +219,18 @@ fn dot<const FMA: bool>(a: &[f64], b: &[f64]) -> f64 {
     s
 }
 
-/// det(I + D) and det(I - D) of the four candidates of a group (0 where not positive
-/// definite), into `out` (adding lanes, then removing lanes).
+/// det(I + D) and det(I - D) of the `W` candidates from lane `H W` of a group (0 where not
+/// positive definite), into `out` (the group's adding lanes, then its removing lanes).
 #[inline(always)]
-fn dets_group<const R: usize>(d: &[[[f64; L]; R]; R], out: &mut [f64]) {
+pub(super) fn dets_group<const R: usize, const W: usize, const H: usize>(
+    d: &[[[f64; W]; R]; R],
+    out: &mut [f64],
+) {
     for (s, sign) in [(0, 1.0), (1, -1.0)] {
-        let o = &mut out[s * L..(s + 1) * L];
+        let o = &mut out[s * L + H * W..s * L + (H + 1) * W];
         if R == 3 {
             // The closed form of det_identity_plus, lane by lane.
-            for l in 0..L {
+            for l in 0..W {
                 let a = sign * d[0][0][l] + 1.0;
                 let b = sign * d[0][1][l];
                 let c = sign * d[0][2][l];
@@ -184,7 +246,7 @@ fn dets_group<const R: usize>(d: &[[[f64; L]; R]; R], out: &mut [f64]) {
                 };
             }
         } else {
-            for l in 0..L {
+            for l in 0..W {
                 let mut block = [0.0; 36];
                 for x in 0..R {
                     for y in 0..R {
@@ -197,79 +259,80 @@ fn dets_group<const R: usize>(d: &[[[f64; L]; R]; R], out: &mut [f64]) {
     }
 }
 
-/// D = B P B^T for the four candidates of one group.
+/// D = B P B^T for the `W` candidates from lane `H W` of one group.
 #[inline(always)]
-fn rebuild_group<const R: usize, const FMA: bool>(
+fn rebuild_group<const R: usize, const FMA: bool, const W: usize, const H: usize>(
     bg: &[f64],
     p: &[f64],
     m: usize,
     dg: &mut [f64],
-) -> [[[f64; L]; R]; R] {
-    let mut d = [[[0.0; L]; R]; R];
+) -> [[[f64; W]; R]; R] {
+    let mut d = [[[0.0; W]; R]; R];
     for c2 in 0..m {
         // w[x] = (B P)(x, c2), then D(x, y) += w[x] B(y, c2).
-        let mut w = [[0.0; L]; R];
+        let mut w = [[0.0; W]; R];
         for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(m)).take(m) {
             let pc = prow[c2];
             for x in 0..R {
-                for l in 0..L {
-                    w[x][l] = madd::<FMA>(bc[x * L + l], pc, w[x][l]);
+                for l in 0..W {
+                    w[x][l] = madd::<FMA>(bc[x * L + H * W + l], pc, w[x][l]);
                 }
             }
         }
         let bc2 = &bg[c2 * R * L..(c2 + 1) * R * L];
         for x in 0..R {
             for y in 0..R {
-                for l in 0..L {
-                    d[x][y][l] = madd::<FMA>(w[x][l], bc2[y * L + l], d[x][y][l]);
+                for l in 0..W {
+                    d[x][y][l] = madd::<FMA>(w[x][l], bc2[y * L + H * W + l], d[x][y][l]);
                 }
             }
         }
     }
     for x in 0..R {
         for y in 0..R {
-            dg[(x * R + y) * L..(x * R + y + 1) * L].copy_from_slice(&d[x][y]);
+            let o = (x * R + y) * L + H * W;
+            dg[o..o + W].copy_from_slice(&d[x][y]);
         }
     }
     d
 }
 
-/// D -= sign (B U) S^-1 (B U)^T for the four candidates of one group.
+/// D -= sign (B U) S^-1 (B U)^T for the `W` candidates from lane `H W` of one group.
 #[inline(always)]
-fn update_group<const R: usize, const FMA: bool>(
+fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>(
     bg: &[f64],
     u: &[f64],
     m: usize,
     s: &[[f64; R]; R],
     sign: f64,
     dg: &mut [f64],
-) -> [[[f64; L]; R]; R] {
-    let mut e = [[[0.0; L]; R]; R];
+) -> [[[f64; W]; R]; R] {
+    let mut e = [[[0.0; W]; R]; R];
     // Iterators, not indices: no bounds checks in the innermost loop.
     for (bc, uc) in bg.chunks_exact(R * L).zip(u.chunks_exact(R)).take(m) {
         for x in 0..R {
             for y in 0..R {
-                for l in 0..L {
-                    e[x][y][l] = madd::<FMA>(bc[x * L + l], uc[y], e[x][y][l]);
+                for l in 0..W {
+                    e[x][y][l] = madd::<FMA>(bc[x * L + H * W + l], uc[y], e[x][y][l]);
                 }
             }
         }
     }
-    let mut es = [[[0.0; L]; R]; R];
+    let mut es = [[[0.0; W]; R]; R];
     for x in 0..R {
         for y in 0..R {
             for k in 0..R {
-                for l in 0..L {
+                for l in 0..W {
                     es[x][y][l] = madd::<FMA>(e[x][k][l], s[k][y], es[x][y][l]);
                 }
             }
         }
     }
-    let mut out = [[[0.0; L]; R]; R];
+    let mut out = [[[0.0; W]; R]; R];
     for x in 0..R {
         for y in 0..R {
-            let o = (x * R + y) * L;
-            for l in 0..L {
+            let o = (x * R + y) * L + H * W;
+            for l in 0..W {
                 let mut v = 0.0;
                 for k in 0..R {
                     v = madd::<FMA>(es[x][k][l], e[y][k][l], v);
