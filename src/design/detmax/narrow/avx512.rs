@@ -21,7 +21,7 @@ fn lanes(v: __m512d) -> [f64; L] {
 }
 
 /// D -= sign (B U) S^-1 (B U)^T for the eight candidates of one group, and their
-/// determinants into `det` (as `pass::update_group` with eight lanes).
+/// determinants (signs `sg`) into `det` (as `pass::update_group` with eight lanes).
 ///
 /// # Safety
 /// The CPU must have AVX-512F and FMA.
@@ -33,6 +33,7 @@ pub(super) unsafe fn update_group<const R: usize>(
     s: &[[f64; R]; R],
     sign: f64,
     dg: &mut [f64],
+    sg: &[f64],
     det: &mut [f64],
 ) {
     let mut e = [[_mm512_setzero_pd(); R]; R];
@@ -73,10 +74,10 @@ pub(super) unsafe fn update_group<const R: usize>(
             out[x][y] = lanes(dv);
         }
     }
-    dets_group::<R, L, 0>(&out, det);
+    dets_group::<R, L, 0>(&out, sg, det);
 }
 
-/// D = B P B^T for the eight candidates of one group, and their determinants into `det`
+/// D = B P B^T for the eight candidates of one group, and their determinants (signs `sg`) into `det`
 /// (as `pass::rebuild_group` with eight lanes).
 ///
 /// # Safety
@@ -87,6 +88,7 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
     p: &[f64],
     m: usize,
     dg: &mut [f64],
+    sg: &[f64],
     det: &mut [f64],
 ) {
     let mut d = [[_mm512_setzero_pd(); R]; R];
@@ -110,7 +112,7 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
             dg[(x * R + y) * L..(x * R + y + 1) * L].copy_from_slice(&out[x][y]);
         }
     }
-    dets_group::<R, L, 0>(&out, det);
+    dets_group::<R, L, 0>(&out, sg, det);
 }
 
 /// D += W W' for columns c2..c2 + C of W = B P (w[j][x] = (B P)(x, c2 + j)), each column summed

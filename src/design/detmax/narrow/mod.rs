@@ -73,10 +73,13 @@ pub(super) struct Design<'a> {
     /// D_i = B_i P B_i^T, lane-interleaved: entry (x, y) of candidate 4 g + l at
     /// `d[((g r + x) r + y) L + l]`.
     d: Vec<f64>,
-    /// det(I + D_i) and det(I - D_i), lane-interleaved: candidate 4 g + l at
-    /// `dets[(2 g + s) L + l]`, s = 0 for adding and 1 for removing (0: not positive
-    /// definite). Kept by the kernels, so a greedy scan reads one number per candidate.
+    /// det(I + D_i) of an outside candidate, det(I - D_i) of a member (0: not positive
+    /// definite): the determinant its toggle would bring, kept by the kernels so a greedy
+    /// scan reads one number per candidate.
     dets: Vec<f64>,
+    /// The sign of candidate i's toggle (+1 outside, -1 member; padding +1), the kernels'
+    /// per-lane sign of `dets`.
+    sgn: Vec<f64>,
     /// Scratch of a toggle: B_a (r x m, row-major) and U^T (r x m).
     ba: Vec<f64>,
     ut: Vec<f64>,
@@ -95,6 +98,7 @@ impl Clone for Design<'_> {
             info: self.info.clone(),
             d: self.d.clone(),
             dets: self.dets.clone(),
+            sgn: self.sgn.clone(),
             ba: self.ba.clone(),
             ut: self.ut.clone(),
             u: self.u.clone(),
@@ -111,6 +115,7 @@ impl Clone for Design<'_> {
         self.info.clone_from(&src.info);
         self.d.clone_from(&src.d);
         self.dets.clone_from(&src.dets);
+        self.sgn.clone_from(&src.sgn);
         self.updates = src.updates;
     }
 }
@@ -134,7 +139,8 @@ impl<'a> Design<'a> {
             p: vec![0.0; m * m],
             info: Vec::new(),
             d: vec![0.0; lp.n.div_ceil(L) * r * r * L],
-            dets: vec![0.0; lp.n.div_ceil(L) * 2 * L],
+            dets: vec![0.0; lp.n.div_ceil(L) * L],
+            sgn: vec![1.0; lp.n.div_ceil(L) * L],
             ba: vec![0.0; m * r],
             ut: vec![0.0; m * r],
             u: vec![0.0; m * r],
@@ -147,6 +153,9 @@ impl<'a> Design<'a> {
     /// Recompute P and every D_i from the member set (start, and to stop drift).
     pub(super) fn rebuild(&mut self, pool: &Pool, ridge: f64) -> Option<()> {
         let members: Vec<usize> = self.selected();
+        for (s, &inside) in self.sgn.iter_mut().zip(&self.member) {
+            *s = if inside { -1.0 } else { 1.0 };
+        }
         self.info = pool.information(&members);
         let f = Info::ridged(self.lp.m, self.info.clone(), ridge).factor()?;
         self.log_det = f.log_det();
@@ -172,14 +181,13 @@ impl<'a> Design<'a> {
     /// The candidate whose toggle (add: an outside one, else an inside one) leaves the
     /// largest determinant, with the change of log det; nothing is changed.
     pub(super) fn best(&self, add: bool) -> Option<(usize, f64)> {
-        let s = usize::from(!add);
         // Compare determinants, take the logarithm of the winner only.
         let mut best: Option<(usize, f64)> = None;
         for i in 0..self.lp.n {
             if self.member[i] == add {
                 continue;
             }
-            let det = self.dets[(2 * (i / L) + s) * L + i % L];
+            let det = self.dets[i];
             if best.is_none_or(|b| det > b.1) {
                 best = Some((i, det));
             }
@@ -212,6 +220,9 @@ impl<'a> Design<'a> {
                 self.ba[y * m + k] = self.lp.at(a, y, k);
             }
         }
+        // The kernel writes a's determinant for its next toggle, the other way.
+        self.member[a] = sign > 0.0;
+        self.sgn[a] = -sign;
         let kernel = Kernel::Update { sinv: &sinv, sign };
         match r {
             2 => dispatch::<2>(kernel, self),
@@ -219,7 +230,6 @@ impl<'a> Design<'a> {
             _ => dispatch::<6>(kernel, self),
         }
         self.log_det += ld;
-        self.member[a] = sign > 0.0;
         self.updates += 1;
         Some(())
     }

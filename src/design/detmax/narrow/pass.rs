@@ -120,19 +120,19 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
         Kernel::Rebuild => {
             let outs =
                 d.d.chunks_exact_mut(R * R * L)
-                    .zip(d.dets.chunks_exact_mut(2 * L));
-            for (bg, (dg, det)) in blocks.zip(outs) {
+                    .zip(d.dets.chunks_exact_mut(L).zip(d.sgn.chunks_exact(L)));
+            for (bg, (dg, (det, sg))) in blocks.zip(outs) {
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
-                    unsafe { super::avx512::rebuild_group::<R>(bg, &d.p, m, dg, det) };
+                    unsafe { super::avx512::rebuild_group::<R>(bg, &d.p, m, dg, sg, det) };
                     continue;
                 }
                 let dr = rebuild_group::<R, FMA, W, 0>(bg, &d.p, m, dg);
-                dets_group::<R, W, 0>(&dr, det);
+                dets_group::<R, W, 0>(&dr, sg, det);
                 if W < L {
                     let dr = rebuild_group::<R, FMA, W, 1>(bg, &d.p, m, dg);
-                    dets_group::<R, W, 1>(&dr, det);
+                    dets_group::<R, W, 1>(&dr, sg, det);
                 }
             }
         }
@@ -182,19 +182,19 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
             }
             let outs =
                 d.d.chunks_exact_mut(R * R * L)
-                    .zip(d.dets.chunks_exact_mut(2 * L));
-            for (bg, (dg, det)) in blocks.zip(outs) {
+                    .zip(d.dets.chunks_exact_mut(L).zip(d.sgn.chunks_exact(L)));
+            for (bg, (dg, (det, sg))) in blocks.zip(outs) {
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
-                    unsafe { super::avx512::update_group::<R>(bg, &d.u, m, &s, sign, dg, det) };
+                    unsafe { super::avx512::update_group::<R>(bg, &d.u, m, &s, sign, dg, sg, det) };
                     continue;
                 }
                 let dr = update_group::<R, FMA, W, 0>(bg, &d.u, m, &s, sign, dg);
-                dets_group::<R, W, 0>(&dr, det);
+                dets_group::<R, W, 0>(&dr, sg, det);
                 if W < L {
                     let dr = update_group::<R, FMA, W, 1>(bg, &d.u, m, &s, sign, dg);
-                    dets_group::<R, W, 1>(&dr, det);
+                    dets_group::<R, W, 1>(&dr, sg, det);
                 }
             }
         }
@@ -219,42 +219,44 @@ fn dot<const FMA: bool>(a: &[f64], b: &[f64]) -> f64 {
     s
 }
 
-/// det(I + D) and det(I - D) of the `W` candidates from lane `H W` of a group (0 where not
-/// positive definite), into `out` (the group's adding lanes, then its removing lanes).
+/// det(I + sign D) of the `W` candidates from lane `H W` of a group, each with its own sign
+/// (`sg`: +1 for an outside candidate, whose add is what a scan asks, -1 for a member), 0
+/// where not positive definite, into `out` (the group's lanes).
 #[inline(always)]
 pub(super) fn dets_group<const R: usize, const W: usize, const H: usize>(
     d: &[[[f64; W]; R]; R],
+    sg: &[f64],
     out: &mut [f64],
 ) {
-    for (s, sign) in [(0, 1.0), (1, -1.0)] {
-        let o = &mut out[s * L + H * W..s * L + (H + 1) * W];
-        if R == 3 {
-            // The closed form of det_identity_plus, lane by lane.
-            for l in 0..W {
-                let a = sign * d[0][0][l] + 1.0;
-                let b = sign * d[0][1][l];
-                let c = sign * d[0][2][l];
-                let e = sign * d[1][1][l] + 1.0;
-                let f = sign * d[1][2][l];
-                let h = sign * d[2][2][l] + 1.0;
-                let m2 = a * e - b * b;
-                let det = a * (e * h - f * f) - b * (b * h - f * c) + c * (b * f - e * c);
-                o[l] = if a > 0.0 && m2 > 0.0 && det > 0.0 {
-                    det
-                } else {
-                    0.0
-                };
-            }
-        } else {
-            for l in 0..W {
-                let mut block = [0.0; 36];
-                for x in 0..R {
-                    for y in 0..R {
-                        block[x * R + y] = d[x][y][l];
-                    }
+    let sg = &sg[H * W..(H + 1) * W];
+    let o = &mut out[H * W..(H + 1) * W];
+    if R == 3 {
+        // The closed form of det_identity_plus, lane by lane.
+        for l in 0..W {
+            let sign = sg[l];
+            let a = sign * d[0][0][l] + 1.0;
+            let b = sign * d[0][1][l];
+            let c = sign * d[0][2][l];
+            let e = sign * d[1][1][l] + 1.0;
+            let f = sign * d[1][2][l];
+            let h = sign * d[2][2][l] + 1.0;
+            let m2 = a * e - b * b;
+            let det = a * (e * h - f * f) - b * (b * h - f * c) + c * (b * f - e * c);
+            o[l] = if a > 0.0 && m2 > 0.0 && det > 0.0 {
+                det
+            } else {
+                0.0
+            };
+        }
+    } else {
+        for l in 0..W {
+            let mut block = [0.0; 36];
+            for x in 0..R {
+                for y in 0..R {
+                    block[x * R + y] = d[x][y][l];
                 }
-                o[l] = det_identity_plus(&block[..R * R], R, sign);
             }
+            o[l] = det_identity_plus(&block[..R * R], R, sg[l]);
         }
     }
 }
