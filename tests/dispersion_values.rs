@@ -35,6 +35,7 @@ fn values_only_identification_equals_the_full_one() {
                 n,
                 seed,
                 max_excursion: 4,
+                path: false,
             },
             &NoMonitor,
         )
