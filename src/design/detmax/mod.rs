@@ -153,7 +153,7 @@ impl<'a> Design<'a> {
 
     /// log det(J^T J) of the design (no ridge), with the step `pending` [`Design::peek`]
     /// proposed (candidate, add) taken, whether or not the design has taken it yet.
-    fn exact_log_det(&self, pool: &Pool, pending: Option<(usize, bool)>) -> f64 {
+    fn exact_log_det(&mut self, pool: &Pool, pending: Option<(usize, bool)>) -> f64 {
         match self {
             Self::Lanes(d) => d.exact_log_det(pending),
             _ => pool.log_det(&self.selected_after_pending(pending)),
@@ -194,7 +194,7 @@ impl<'a> Design<'a> {
 }
 
 /// The step of `design` after `exchanges` improving excursions.
-fn step(pool: &Pool, design: &Design<'_>, exchanges: usize) -> DetmaxStep {
+fn step(pool: &Pool, design: &mut Design<'_>, exchanges: usize) -> DetmaxStep {
     let selected = design.selected();
     DetmaxStep {
         exchanges,
@@ -226,7 +226,7 @@ pub fn detmax(
     let mut exchanges = 0;
     let mut history = Vec::new();
     if opts.path {
-        history.push(step(pool, &design, 0));
+        history.push(step(pool, &mut design, 0));
     }
     // The trial design of an excursion, its buffers reused from try to try.
     let mut d = design.clone();
@@ -277,7 +277,7 @@ pub fn detmax(
         if improved {
             exchanges += 1;
             if opts.path {
-                history.push(step(pool, &design, exchanges));
+                history.push(step(pool, &mut design, exchanges));
             }
             k = 1;
         } else {

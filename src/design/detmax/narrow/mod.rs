@@ -67,9 +67,13 @@ pub(super) struct Design<'a> {
     pub(super) log_det: f64,
     /// P = (M + ridge I)^-1 (m x m, row-major, symmetric).
     p: Vec<f64>,
-    /// M = sum of the members' B_i^T B_i (m x m, row-major), kept by every toggle so the
-    /// exact determinant of a design costs one Cholesky, not a product over its rows.
+    /// M = sum of the members' B_i^T B_i (m x m, row-major) but for the toggles in
+    /// `info_pending`, which it takes when an exact determinant asks (most trial designs
+    /// are dropped without one): an exact determinant costs one Cholesky, not a product
+    /// over the design's rows.
     info: Vec<f64>,
+    /// Toggles (candidate, sign) made since `info` was last brought up to date.
+    info_pending: Vec<(usize, f64)>,
     /// D_i = B_i P B_i^T, lane-interleaved: entry (x, y) of candidate 4 g + l at
     /// `d[((g r + x) r + y) L + l]`.
     d: Vec<f64>,
@@ -96,6 +100,7 @@ impl Clone for Design<'_> {
             log_det: self.log_det,
             p: self.p.clone(),
             info: self.info.clone(),
+            info_pending: self.info_pending.clone(),
             d: self.d.clone(),
             dets: self.dets.clone(),
             sgn: self.sgn.clone(),
@@ -113,6 +118,7 @@ impl Clone for Design<'_> {
         self.log_det = src.log_det;
         self.p.clone_from(&src.p);
         self.info.clone_from(&src.info);
+        self.info_pending.clone_from(&src.info_pending);
         self.d.clone_from(&src.d);
         self.dets.clone_from(&src.dets);
         self.sgn.clone_from(&src.sgn);
@@ -138,6 +144,7 @@ impl<'a> Design<'a> {
             log_det: 0.0,
             p: vec![0.0; m * m],
             info: Vec::new(),
+            info_pending: Vec::new(),
             d: vec![0.0; lp.n.div_ceil(L) * r * r * L],
             dets: vec![0.0; lp.n.div_ceil(L) * L],
             sgn: vec![1.0; lp.n.div_ceil(L) * L],
@@ -157,6 +164,7 @@ impl<'a> Design<'a> {
             *s = if inside { -1.0 } else { 1.0 };
         }
         self.info = pool.information(&members);
+        self.info_pending.clear();
         let f = Info::ridged(self.lp.m, self.info.clone(), ridge).factor()?;
         self.log_det = f.log_det();
         self.p = f.inverse();
@@ -230,14 +238,22 @@ impl<'a> Design<'a> {
             _ => dispatch::<6>(kernel, self),
         }
         self.log_det += ld;
+        self.info_pending.push((a, sign));
         self.updates += 1;
         Some(())
     }
 
     /// log det M (no ridge) of the members, with candidate `extra` added (true) or removed
     /// (false) if given; -inf when singular.
-    pub(super) fn exact_log_det(&self, extra: Option<(usize, bool)>) -> f64 {
+    pub(super) fn exact_log_det(&mut self, extra: Option<(usize, bool)>) -> f64 {
         let (m, r) = (self.lp.m, self.lp.r);
+        if !self.info_pending.is_empty() {
+            match r {
+                2 => dispatch::<2>(Kernel::Info, self),
+                3 => dispatch::<3>(Kernel::Info, self),
+                _ => dispatch::<6>(Kernel::Info, self),
+            }
+        }
         let mut a = Info::ridged(m, self.info.clone(), 0.0);
         if let Some((i, add)) = extra {
             let sign = if add { 1.0 } else { -1.0 };

@@ -52,6 +52,8 @@ pub(super) fn det_identity_plus(d: &[f64], r: usize, sign: f64) -> f64 {
 pub(super) enum Kernel<'s> {
     /// D_i = B_i P B_i^T for every candidate.
     Rebuild,
+    /// M += sign B_a^T B_a for the toggles M has not taken yet (`Design::info_pending`).
+    Info,
     /// D_i -= sign E_i S^-1 E_i^T with E_i = B_i U.
     Update { sinv: &'s [f64], sign: f64 },
 }
@@ -136,6 +138,26 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                 }
             }
         }
+        Kernel::Info => {
+            // M' = M + sign B_a^T B_a, toggle by toggle in the order they were made.
+            for &(a, sign) in &d.info_pending {
+                for y in 0..R {
+                    for k in 0..m {
+                        d.ba[y * m + k] = d.lp.at(a, y, k);
+                    }
+                }
+                for c in 0..m {
+                    let row = &mut d.info[c * m..(c + 1) * m];
+                    for y in 0..R {
+                        let f = sign * d.ba[y * m + c];
+                        for (mv, &bv) in row.iter_mut().zip(&d.ba[y * m..(y + 1) * m]) {
+                            *mv = madd::<FMA>(f, bv, *mv);
+                        }
+                    }
+                }
+            }
+            d.info_pending.clear();
+        }
         Kernel::Update { sinv, sign } => {
             let mut s = [[0.0; R]; R];
             for x in 0..R {
@@ -168,16 +190,6 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
             for c in 0..m {
                 for y in 0..R {
                     d.u[c * R + y] = d.ut[y * m + c];
-                }
-            }
-            // M' = M + sign B_a^T B_a.
-            for c in 0..m {
-                let row = &mut d.info[c * m..(c + 1) * m];
-                for y in 0..R {
-                    let f = sign * d.ba[y * m + c];
-                    for (mv, &bv) in row.iter_mut().zip(&d.ba[y * m..(y + 1) * m]) {
-                        *mv = madd::<FMA>(f, bv, *mv);
-                    }
                 }
             }
             let outs =
