@@ -7,25 +7,11 @@
 
 use calibd::design::{DetmaxOptions, detmax};
 use calibd::jobs::serial::design::DesignPool;
-use calibd::jobs::serial::identify::parse_inputs;
-use calibd::jobs::{Inputs, NoReferences};
 use calibd::util::NoMonitor;
 
 #[test]
 fn values_only_identification_equals_the_full_one() {
-    let job = calibd::bench::serial::dispersion_job(&[75], 1);
-    let inputs = parse_inputs(
-        &Inputs::new(&NoReferences),
-        &job["model"],
-        None,
-        &job["measurements"],
-        serde_json::from_value(job["ball_plate"].clone())
-            .ok()
-            .as_ref(),
-        None,
-        Default::default(),
-    )
-    .expect("twin inputs are valid");
+    let inputs = calibd::bench::serial::dispersion_inputs().expect("twin inputs are valid");
     let pool = DesignPool::new(&inputs).expect("pool builds");
     let mut worst = 0.0_f64;
     for (n, seed) in [(20, 3), (45, 4), (100, 5)] {

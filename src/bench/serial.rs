@@ -22,6 +22,22 @@ pub fn dispersion_job(sizes: &[usize], repetitions: usize) -> serde_json::Value 
     crate::jobs::examples::twin_dispersion(sizes, repetitions)
 }
 
+/// The identification inputs of the twin's dispersion job (its 360 ball-centring
+/// measurements and model), as the study prepares them.
+pub fn dispersion_inputs() -> Result<IdentifyInputs, JobError> {
+    let job = dispersion_job(&[75], 1);
+    let plate = serde_json::from_value(job["ball_plate"].clone()).ok();
+    crate::jobs::serial::identify::parse_inputs(
+        &crate::jobs::Inputs::new(&NoReferences),
+        &job["model"],
+        None,
+        &job["measurements"],
+        plate.as_ref(),
+        None,
+        Default::default(),
+    )
+}
+
 /// Write a `serial.fk` job over the IRB 120 twin into `dir`: the model file, a joints CSV
 /// of `rows` random configurations (degrees) and `fk.json` naming both; the job file's path.
 pub fn write_fk_job(dir: &Path, rows: usize) -> std::io::Result<PathBuf> {
@@ -222,19 +238,7 @@ pub fn run() -> Vec<Figure> {
         Some(Duration::from_millis(20)),
         || sink += super::identify::identify_once(&twin, &meas),
     ));
-    let job = dispersion_job(&[75], 1);
-    let prepared = crate::jobs::serial::identify::parse_inputs(
-        &crate::jobs::Inputs::new(&NoReferences),
-        &job["model"],
-        None,
-        &job["measurements"],
-        serde_json::from_value(job["ball_plate"].clone())
-            .ok()
-            .as_ref(),
-        None,
-        Default::default(),
-    )
-    .expect("twin inputs are valid");
+    let prepared = dispersion_inputs().expect("twin inputs are valid");
     let dp = DesignPool::new(&prepared).expect("pool builds");
     let mut seed = 0;
     figs.push(time(
