@@ -58,6 +58,15 @@ impl LanePool {
         let (g, l) = (i / L, i % L);
         self.b[((g * self.m + c) * self.r + x) * L + l]
     }
+
+    /// Candidate i's block into `out` (r x m, row-major).
+    fn block_into(&self, i: usize, out: &mut [f64]) {
+        for y in 0..self.r {
+            for k in 0..self.m {
+                out[y * self.m + k] = self.at(i, y, k);
+            }
+        }
+    }
 }
 
 /// Exchange state of a design over a [`LanePool`].
@@ -214,7 +223,7 @@ impl<'a> Design<'a> {
 
     /// Add (sign +1) or remove (sign -1) candidate `a`: P and every D_i by Woodbury.
     pub(super) fn toggle(&mut self, a: usize, sign: f64) -> Option<()> {
-        let (m, r) = (self.lp.m, self.lp.r);
+        let r = self.lp.r;
         let mut block = [0.0; 36];
         self.d_of(a, &mut block);
         for x in 0..r {
@@ -223,11 +232,7 @@ impl<'a> Design<'a> {
             }
         }
         let (ld, sinv) = super::kernels::small_inverse6(&block[..r * r], r)?;
-        for y in 0..r {
-            for k in 0..m {
-                self.ba[y * m + k] = self.lp.at(a, y, k);
-            }
-        }
+        self.lp.block_into(a, &mut self.ba);
         // The kernel writes a's determinant for its next toggle, the other way.
         self.member[a] = sign > 0.0;
         self.sgn[a] = -sign;

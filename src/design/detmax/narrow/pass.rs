@@ -141,11 +141,7 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
         Kernel::Info => {
             // M' = M + sign B_a^T B_a, toggle by toggle in the order they were made.
             for &(a, sign) in &d.info_pending {
-                for y in 0..R {
-                    for k in 0..m {
-                        d.ba[y * m + k] = d.lp.at(a, y, k);
-                    }
-                }
+                d.lp.block_into(a, &mut d.ba);
                 for c in 0..m {
                     let row = &mut d.info[c * m..(c + 1) * m];
                     for y in 0..R {
