@@ -102,6 +102,12 @@ impl Frame {
     /// Rotation about z by `a` radians.
     pub fn rot_z(a: f64) -> Self {
         let (s, c) = a.sin_cos();
+        Self::rot_z_sin_cos(s, c)
+    }
+
+    /// [`Frame::rot_z`] of the angle whose sine and cosine are `s` and `c`.
+    #[inline]
+    pub fn rot_z_sin_cos(s: f64, c: f64) -> Self {
         Self {
             r: Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0),
             p: Vector3::zeros(),
@@ -111,6 +117,12 @@ impl Frame {
     /// Rotation by `a` radians about the unit axis `u` (Rodrigues).
     pub fn rot_axis(u: &Vector3<f64>, a: f64) -> Self {
         let (s, c) = a.sin_cos();
+        Self::rot_axis_sin_cos(u, s, c)
+    }
+
+    /// [`Frame::rot_axis`] of the angle whose sine and cosine are `s` and `c`.
+    #[inline]
+    pub fn rot_axis_sin_cos(u: &Vector3<f64>, s: f64, c: f64) -> Self {
         let k = u.cross_matrix();
         Self {
             r: Matrix3::identity() + k * s + k * k * (1.0 - c),

@@ -8,6 +8,7 @@ use nalgebra::{DMatrix, Vector3};
 use super::{BallPlate, MeasureError};
 use crate::identify::{IdentifyError, Problem, Unknown};
 use crate::model::chain::JacobianScratch;
+use crate::model::trig::{TrigMemo, TrigMemos};
 use crate::model::{Chain, ParamId, Quantity};
 
 #[path = "point_frames.rs"]
@@ -92,6 +93,8 @@ pub struct PointProblem {
     free_balls: Vec<usize>,
     meas: Vec<PointMeasurement>,
     tau: Vec<Vec<f64>>,
+    /// Joint sines and cosines of each measurement's last evaluation.
+    trig: TrigMemos,
     /// Weight of the distance rows (residual per unit of distance error).
     pub distance_weight: f64,
 }
@@ -104,6 +107,18 @@ impl PointProblem {
         ids: Vec<ParamId>,
         plate: BallPlate,
         meas: Vec<PointMeasurement>,
+    ) -> Result<Self, MeasureError> {
+        Self::with_torques(chain, ids, plate, meas, None)
+    }
+
+    /// [`PointProblem::new`] given the static torques of the measurements with the
+    /// starting model (as [`Chain::static_torques`] gives them), when the caller has them.
+    pub fn with_torques(
+        chain: Chain,
+        ids: Vec<ParamId>,
+        plate: BallPlate,
+        meas: Vec<PointMeasurement>,
+        torques: Option<Vec<Vec<f64>>>,
     ) -> Result<Self, MeasureError> {
         for (r, m) in meas.iter().enumerate() {
             if let Target::Ball(k) = m.target {
@@ -128,21 +143,11 @@ impl PointProblem {
             .iter()
             .map(|id| chain.param_index(*id).unwrap_or(usize::MAX))
             .collect();
-        // Static torques of every configuration, on every core for large sets.
-        let ranges = measurement_ranges(meas.len());
-        let mut tau: Vec<Vec<f64>> = vec![Vec::new(); meas.len()];
-        let mut rest = &mut tau[..];
-        let mut parts = Vec::with_capacity(ranges.len());
-        for range in &ranges {
-            let (head, tail) = rest.split_at_mut(range.len());
-            parts.push((range.start, head));
-            rest = tail;
-        }
-        on_threads(parts, &|(start, out): (usize, &mut [Vec<f64>])| {
-            for (k, t) in out.iter_mut().enumerate() {
-                *t = chain.static_torques(&meas[start + k].q);
-            }
-        });
+        let tau = match torques {
+            Some(t) if t.len() == meas.len() => t,
+            _ => start_torques(&chain, &meas),
+        };
+        let trig = TrigMemos::new(meas.len(), chain.joints.len());
         Ok(Self {
             chain,
             ids,
@@ -151,6 +156,7 @@ impl PointProblem {
             free_balls,
             meas,
             tau,
+            trig,
             distance_weight: 10.0,
         })
     }
@@ -252,6 +258,45 @@ impl PointProblem {
     }
 }
 
+/// Static torques of every configuration with `chain` (compliance off), on every core for
+/// large sets.
+pub fn start_torques(chain: &Chain, meas: &[PointMeasurement]) -> Vec<Vec<f64>> {
+    let ranges = measurement_ranges(meas.len());
+    let mut tau: Vec<Vec<f64>> = vec![Vec::new(); meas.len()];
+    let mut rest = &mut tau[..];
+    let mut parts = Vec::with_capacity(ranges.len());
+    for range in &ranges {
+        let (head, tail) = rest.split_at_mut(range.len());
+        parts.push((range.start, head));
+        rest = tail;
+    }
+    on_threads(parts, &|(start, out): (usize, &mut [Vec<f64>])| {
+        for (k, t) in out.iter_mut().enumerate() {
+            *t = chain.static_torques(&meas[start + k].q);
+        }
+    });
+    tau
+}
+
+/// Each range's memos (`joints` per measurement) out of `all`, or none for every range.
+fn memo_parts<'m>(
+    all: Option<&'m mut [TrigMemo]>,
+    ranges: &[std::ops::Range<usize>],
+    joints: usize,
+) -> Vec<Option<&'m mut [TrigMemo]>> {
+    let Some(mut rest) = all else {
+        return ranges.iter().map(|_| None).collect();
+    };
+    ranges
+        .iter()
+        .map(|r| {
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(r.len() * joints);
+            rest = tail;
+            Some(head)
+        })
+        .collect()
+}
+
 /// Measurements from which residuals and Jacobians are evaluated on every core (fewer run
 /// on the calling thread: a dispersion study already runs its identifications in
 /// parallel, with at most a few hundred measurements each).
@@ -302,21 +347,38 @@ impl Problem for PointProblem {
         let centres = self.centres(x);
         let base = 3 * self.meas.len();
         let ranges = measurement_ranges(self.meas.len());
+        let nj = chain.joints.len();
+        let mut memos = self.trig.try_take();
+        let memos = memos
+            .as_deref_mut()
+            .filter(|v| v.len() == nj * self.meas.len());
         let mut rest = &mut r[..base];
         let mut parts = Vec::with_capacity(ranges.len());
-        for range in &ranges {
+        for (range, memo) in ranges
+            .iter()
+            .zip(memo_parts(memos.map(|v| &mut v[..]), &ranges, nj))
+        {
             let (head, tail) = rest.split_at_mut(3 * range.len());
-            parts.push((range.clone(), head));
+            parts.push((range.clone(), head, memo));
             rest = tail;
         }
-        let fill = |(range, out): (std::ops::Range<usize>, &mut [f64])| {
+        type Part<'a> = (
+            std::ops::Range<usize>,
+            &'a mut [f64],
+            Option<&'a mut [TrigMemo]>,
+        );
+        let fill = |(range, out, mut memo): Part<'_>| {
             for (row, i) in range.clone().enumerate() {
                 let (m, tau) = (&self.meas[i], &self.tau[i]);
                 let target = match m.target {
                     Target::Ball(k) => centres[k],
                     Target::Point(p) => p,
                 };
-                let e = chain.tcp(&m.q, Some(tau)).p - target;
+                let frame = match memo.as_deref_mut() {
+                    Some(mm) => chain.tcp_memo(&m.q, Some(tau), &mut mm[nj * row..nj * (row + 1)]),
+                    None => chain.tcp(&m.q, Some(tau)),
+                };
+                let e = frame.p - target;
                 out[3 * row..3 * row + 3].copy_from_slice(e.as_slice());
             }
         };
@@ -337,32 +399,53 @@ impl Problem for PointProblem {
         j.fill(0.0);
         let (n, cols) = j.shape();
         let ranges = measurement_ranges(self.meas.len());
+        let nj = chain.joints.len();
+        let mut memos = self.trig.try_take();
+        let memos = memos
+            .as_deref_mut()
+            .filter(|v| v.len() == nj * self.meas.len());
         // Each worker gets its rows of every column (column-major storage: one slice per
         // column and worker).
-        let mut parts: Vec<(std::ops::Range<usize>, Vec<&mut [f64]>)> = ranges
+        type Part<'a> = (
+            std::ops::Range<usize>,
+            Vec<&'a mut [f64]>,
+            Option<&'a mut [TrigMemo]>,
+        );
+        let mut parts: Vec<Part<'_>> = ranges
             .iter()
-            .map(|r| (r.clone(), Vec::with_capacity(cols)))
+            .zip(memo_parts(memos.map(|v| &mut v[..]), &ranges, nj))
+            .map(|(r, memo)| (r.clone(), Vec::with_capacity(cols), memo))
             .collect();
         for column in j.as_mut_slice().chunks_mut(n.max(1)) {
             let mut rest = column;
-            for (range, slices) in parts.iter_mut() {
+            for (range, slices, _) in parts.iter_mut() {
                 let (head, tail) = rest.split_at_mut(3 * range.len());
                 slices.push(head);
                 rest = tail;
             }
         }
-        let fill = |(range, mut out): (std::ops::Range<usize>, Vec<&mut [f64]>)| {
+        let fill = |(range, mut out, mut memo): Part<'_>| {
             let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
             let mut scratch = JacobianScratch::default();
             for (row, i) in range.clone().enumerate() {
                 let (m, tau) = (&self.meas[i], &self.tau[i]);
-                chain.point_jacobian_with(
-                    &m.q,
-                    Some(tau),
-                    &Vector3::zeros(),
-                    &mut buf,
-                    &mut scratch,
-                );
+                match memo.as_deref_mut() {
+                    Some(mm) => chain.point_jacobian_memo(
+                        &m.q,
+                        Some(tau),
+                        &Vector3::zeros(),
+                        &mut buf,
+                        &mut scratch,
+                        &mut mm[nj * row..nj * (row + 1)],
+                    ),
+                    None => chain.point_jacobian_with(
+                        &m.q,
+                        Some(tau),
+                        &Vector3::zeros(),
+                        &mut buf,
+                        &mut scratch,
+                    ),
+                };
                 for (c, &col) in self.cols.iter().enumerate() {
                     if let Some(v) = buf.get(col) {
                         for a in 0..3 {

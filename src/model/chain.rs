@@ -16,6 +16,7 @@ use nalgebra::{Matrix3, Vector3};
 use super::ModelError;
 use super::joint::{JointKind, Mimic, Motion as JointMotion};
 use super::params::{JointField, ParamId, Quantity, URDF_ERRORS, XYZABC};
+use super::trig::{self, TrigMemo};
 use crate::geometry::{Frame, Motion};
 
 /// Geometry of one joint.
@@ -314,13 +315,25 @@ impl Chain {
     /// `t * pre_j * motion_j`: one joint of the forward pass.
     #[inline]
     fn advance(&self, t: &Frame, j: usize, m: JointMotion) -> Frame {
+        self.advance_memo(t, j, m, None)
+    }
+
+    /// [`Chain::advance`] taking the joint angle's sine and cosine through `memo`.
+    #[inline]
+    fn advance_memo(
+        &self,
+        t: &Frame,
+        j: usize,
+        m: JointMotion,
+        memo: Option<&mut TrigMemo>,
+    ) -> Frame {
         let a = t.mul(&self.pre[j]);
         let theta = m.theta;
         match &self.joints[j].geometry {
             Geometry::Mdh { d, .. } => {
                 let d = *d + m.shift;
                 // a * Rz(theta) * Dz(d): rotate the first two columns, move along the third.
-                let (s, c) = theta.sin_cos();
+                let (s, c) = trig::sin_cos(theta, memo);
                 let (c0, c1, c2) = (
                     a.r.column(0).into_owned(),
                     a.r.column(1).into_owned(),
@@ -332,7 +345,10 @@ impl Chain {
                 Frame { r, p: a.p + c2 * d }
             }
             Geometry::Urdf { axis, .. } => match self.joints[j].kind {
-                JointKind::Revolute => a.mul(&Frame::rot_axis(axis, theta)),
+                JointKind::Revolute => {
+                    let (s, c) = trig::sin_cos(theta, memo);
+                    a.mul(&Frame::rot_axis_sin_cos(axis, s, c))
+                }
                 JointKind::Prismatic => Frame {
                     r: a.r,
                     p: a.p + a.r * (axis * m.shift),
@@ -566,6 +582,16 @@ impl Chain {
             .mul(&self.tool_frame())
     }
 
+    /// [`Chain::tcp`] with the joint sines and cosines of this configuration through `memo`
+    /// (one per joint): the same frame bit for bit.
+    pub fn tcp_memo(&self, q: &[f64], tau: Option<&[f64]>, memo: &mut [TrigMemo]) -> Frame {
+        let mut t = Frame::identity();
+        for j in 0..self.joints.len() {
+            t = self.advance_memo(&t, j, self.motion(j, q, tau), memo.get_mut(j));
+        }
+        self.base_frame().mul(&t).mul(&self.tool_frame())
+    }
+
     /// Static motor torques (N*m; N for prismatic joints) of the joint variables that hold
     /// the chain against gravity at `q` (zero velocity and acceleration), compliance off. A
     /// mimic joint's load reaches its leader's variable times the multiplier (virtual work).
@@ -658,6 +684,35 @@ impl Chain {
         jac: &mut [Vector3<f64>],
         scratch: &mut JacobianScratch,
     ) -> Vector3<f64> {
+        self.body_point_jacobian_memo(q, tau, body, local, jac, scratch, None)
+    }
+
+    /// [`Chain::point_jacobian_with`] with the joint sines and cosines of this configuration
+    /// through `memo` (one per joint): the same values bit for bit.
+    pub fn point_jacobian_memo(
+        &self,
+        q: &[f64],
+        tau: Option<&[f64]>,
+        local: &Vector3<f64>,
+        jac: &mut [Vector3<f64>],
+        scratch: &mut JacobianScratch,
+        memo: &mut [TrigMemo],
+    ) -> Vector3<f64> {
+        let body = self.joints.len();
+        self.body_point_jacobian_memo(q, tau, body, local, jac, scratch, Some(memo))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn body_point_jacobian_memo(
+        &self,
+        q: &[f64],
+        tau: Option<&[f64]>,
+        body: usize,
+        local: &Vector3<f64>,
+        jac: &mut [Vector3<f64>],
+        scratch: &mut JacobianScratch,
+        mut memo: Option<&mut [TrigMemo]>,
+    ) -> Vector3<f64> {
         for v in jac.iter_mut() {
             *v = Vector3::zeros();
         }
@@ -682,6 +737,7 @@ impl Chain {
             let col = |f: JointField| fields.iter().position(|x| *x == f).map(|c| ps + c);
             // A mimic joint's multiplier moves it by the leader's variable per unit.
             let q_lead = joint.mimic.as_ref().map_or(0.0, |mm| q[mm.leader]);
+            let mj = memo.as_deref_mut().and_then(|m| m.get_mut(j));
             let mut push = |f: JointField, g: Gen, coef: f64| {
                 if let Some(c) = col(f) {
                     recs.push((c, g, coef));
@@ -724,9 +780,12 @@ impl Chain {
                         zg
                     };
                     push(JointField::Multiplier, mg, q_lead);
-                    t = f2
-                        .mul(&Frame::rot_z(m.theta))
-                        .mul(&Frame::trans(0.0, 0.0, *d + m.shift));
+                    let (sin, cos) = trig::sin_cos(m.theta, mj);
+                    t = f2.mul(&Frame::rot_z_sin_cos(sin, cos)).mul(&Frame::trans(
+                        0.0,
+                        0.0,
+                        *d + m.shift,
+                    ));
                 }
                 Geometry::Urdf {
                     origin,
@@ -773,7 +832,7 @@ impl Chain {
                         }
                         JointKind::Fixed => {}
                     }
-                    t = self.advance(&t, j, m);
+                    t = self.advance_memo(&t, j, m, mj);
                 }
             }
         }

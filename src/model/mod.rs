@@ -10,6 +10,7 @@ pub mod joint;
 pub mod params;
 pub mod pcr;
 pub mod srdf;
+pub mod trig;
 pub mod urdf;
 
 pub use chain::{Chain, Geometry, Joint, PointMass};

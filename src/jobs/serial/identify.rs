@@ -102,6 +102,9 @@ pub struct IdentifyInputs {
     pub warnings: Vec<String>,
     /// Options.
     pub options: IdentifyOptions,
+    /// Static torques of every calibration measurement with the starting model, computed
+    /// on first use (see [`IdentifyInputs::start_torques`]).
+    torques: std::sync::OnceLock<Vec<Vec<f64>>>,
 }
 
 /// Parse the inputs shared by `serial.identify` and `serial.dispersion`.
@@ -169,6 +172,7 @@ pub fn parse_inputs(
             validation_distances,
             warnings,
             options,
+            torques: Default::default(),
         };
         super::prior::validate(&inputs)?;
         return Ok(inputs);
@@ -308,6 +312,7 @@ pub(crate) fn point_inputs(
         validation_distances: None,
         warnings,
         options,
+        torques: Default::default(),
     };
     super::prior::validate(&inputs)?;
     Ok(inputs)
@@ -380,6 +385,17 @@ fn check_options(options: &IdentifyOptions) -> Result<(), JobError> {
 }
 
 impl IdentifyInputs {
+    /// Static torques of the calibration measurements `idx` with the starting model
+    /// (compliance off), as [`PointProblem::new`] computes them: those of every
+    /// measurement are computed once, on first use, and shared by the identifications of
+    /// subsets (a dispersion study identifies thousands).
+    pub fn start_torques(&self, idx: &[usize]) -> Vec<Vec<f64>> {
+        let all = self
+            .torques
+            .get_or_init(|| crate::measure::point::start_torques(&self.model.chain, &self.meas));
+        idx.iter().map(|&i| all[i].clone()).collect()
+    }
+
     /// Solver settings from the options.
     pub fn solve_options(&self, problem: &PointProblem) -> SolveOptions {
         let mut o = SolveOptions {

@@ -34,11 +34,12 @@ impl SerialFit for PointProblem {
         inp.meas.len()
     }
     fn build(inp: &IdentifyInputs, idx: &[usize]) -> Result<Self, JobError> {
-        Ok(PointProblem::new(
+        Ok(PointProblem::with_torques(
             inp.model.chain.clone(),
             inp.ids.clone(),
             inp.plate.clone(),
             idx.iter().map(|&i| inp.meas[i].clone()).collect(),
+            Some(inp.start_torques(idx)),
         )?)
     }
     fn start(&self) -> Vec<f64> {
