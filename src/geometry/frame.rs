@@ -162,6 +162,64 @@ impl Frame {
         }
     }
 
+    /// `self * Frame::rot_x(a)` given `m = Frame::rot_x(a).r`, without the products with
+    /// its zeros and ones: the same values (those products are exact and add nothing; only
+    /// the sign of a zero result can differ).
+    #[inline]
+    pub fn then_rot_x(&self, m: &Matrix3<f64>) -> Frame {
+        let (c0, c1, c2) = (self.r.column(0), self.r.column(1), self.r.column(2));
+        Frame {
+            r: Matrix3::from_columns(&[
+                c0.into_owned(),
+                c1 * m[(1, 1)] + c2 * m[(2, 1)],
+                c1 * m[(1, 2)] + c2 * m[(2, 2)],
+            ]),
+            p: self.p,
+        }
+    }
+
+    /// `self * Frame::rot_y(b)` given `m = Frame::rot_y(b).r`, as [`Frame::then_rot_x`].
+    #[inline]
+    pub fn then_rot_y(&self, m: &Matrix3<f64>) -> Frame {
+        let (c0, c1, c2) = (self.r.column(0), self.r.column(1), self.r.column(2));
+        Frame {
+            r: Matrix3::from_columns(&[
+                c0 * m[(0, 0)] + c2 * m[(2, 0)],
+                c1.into_owned(),
+                c0 * m[(0, 2)] + c2 * m[(2, 2)],
+            ]),
+            p: self.p,
+        }
+    }
+
+    /// `self * Frame::rot_z_sin_cos(s, c)`, as [`Frame::then_rot_x`].
+    #[inline]
+    pub fn then_rot_z_sin_cos(&self, s: f64, c: f64) -> Frame {
+        let (c0, c1, c2) = (self.r.column(0), self.r.column(1), self.r.column(2));
+        Frame {
+            r: Matrix3::from_columns(&[c0 * c + c1 * s, c0 * (-s) + c1 * c, c2.into_owned()]),
+            p: self.p,
+        }
+    }
+
+    /// `self * Frame::trans(x, 0, 0)`, as [`Frame::then_rot_x`].
+    #[inline]
+    pub fn then_dx(&self, x: f64) -> Frame {
+        Frame {
+            r: self.r,
+            p: self.r.column(0) * x + self.p,
+        }
+    }
+
+    /// `self * Frame::trans(0, 0, z)`, as [`Frame::then_rot_x`].
+    #[inline]
+    pub fn then_dz(&self, z: f64) -> Frame {
+        Frame {
+            r: self.r,
+            p: self.r.column(2) * z + self.p,
+        }
+    }
+
     /// The inverse transform.
     pub fn inverse(&self) -> Frame {
         let rt = self.r.transpose();
@@ -211,6 +269,36 @@ mod tests {
         let id = f * f.inverse();
         assert!((id.r - Matrix3::identity()).norm() < 1e-14);
         assert!(id.p.norm() < 1e-14);
+    }
+
+    /// The structured products equal the general ones bit for bit (no zero results here).
+    #[test]
+    fn structured_products_equal_the_general_ones() {
+        let f = Frame::from_xyzabc(&[1.0, -2.0, 3.0, 0.3, -0.4, 1.2]);
+        let bits =
+            |g: &Frame| -> Vec<u64> { g.r.iter().chain(g.p.iter()).map(|v| v.to_bits()).collect() };
+        let (a, b, t) = (0.37_f64, -1.1_f64, 2.9_f64);
+        let (s, c) = t.sin_cos();
+        assert_eq!(
+            bits(&f.then_rot_x(&Frame::rot_x(a).r)),
+            bits(&f.mul(&Frame::rot_x(a)))
+        );
+        assert_eq!(
+            bits(&f.then_rot_y(&Frame::rot_y(b).r)),
+            bits(&f.mul(&Frame::rot_y(b)))
+        );
+        assert_eq!(
+            bits(&f.then_rot_z_sin_cos(s, c)),
+            bits(&f.mul(&Frame::rot_z(t)))
+        );
+        assert_eq!(
+            bits(&f.then_dx(0.25)),
+            bits(&f.mul(&Frame::trans(0.25, 0.0, 0.0)))
+        );
+        assert_eq!(
+            bits(&f.then_dz(-7.5)),
+            bits(&f.mul(&Frame::trans(0.0, 0.0, -7.5)))
+        );
     }
 
     #[test]

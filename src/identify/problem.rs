@@ -19,6 +19,18 @@ pub trait Problem: Sync {
     fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
         central_differences(self, x, j)
     }
+    /// The Jacobian columns of the unknowns `cols` alone at `x` into `j` (column `c` is
+    /// unknown `cols[c]`), the same values as those columns of [`Problem::jacobian`], when
+    /// the problem computes them directly: `Ok(true)`. `Ok(false)` (the default): not
+    /// supported, `j` untouched.
+    fn jacobian_columns(
+        &self,
+        _x: &[f64],
+        _cols: &[usize],
+        _j: &mut DMatrix<f64>,
+    ) -> Result<bool, IdentifyError> {
+        Ok(false)
+    }
     /// This problem with only the unknowns `free` varying and the others held at `x`, in a
     /// cheaper form than [`Restricted`] (the same residuals and Jacobian to rounding), if
     /// the problem has one for that set; `None` (the default): use [`Restricted`].
@@ -107,6 +119,10 @@ impl Problem for Restricted<'_> {
             j.fill(0.0);
             return self.inner.jacobian(&self.expand(x), j);
         }
+        let x = self.expand(x);
+        if self.inner.jacobian_columns(&x, &self.free, j)? {
+            return Ok(());
+        }
         let mut full = self
             .full
             .lock()
@@ -116,7 +132,7 @@ impl Problem for Restricted<'_> {
         } else {
             *full = DMatrix::zeros(n, m);
         }
-        self.inner.jacobian(&self.expand(x), &mut full)?;
+        self.inner.jacobian(&x, &mut full)?;
         for (k, &i) in self.free.iter().enumerate() {
             j.set_column(k, &full.column(i));
         }

@@ -394,10 +394,53 @@ impl Problem for PointProblem {
     }
 
     fn jacobian(&self, x: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
+        self.fill_jacobian(x, None, j);
+        Ok(())
+    }
+
+    fn jacobian_columns(
+        &self,
+        x: &[f64],
+        cols: &[usize],
+        j: &mut DMatrix<f64>,
+    ) -> Result<bool, IdentifyError> {
+        self.fill_jacobian(x, Some(cols), j);
+        Ok(true)
+    }
+}
+
+impl PointProblem {
+    /// The Jacobian at `x` into `j`: every unknown's column, or those of `cols` (column
+    /// `c` of `j` is unknown `cols[c]`; the chain computes only those).
+    fn fill_jacobian(&self, x: &[f64], cols: Option<&[usize]>, j: &mut DMatrix<f64>) {
+        let m = self.unknown_count();
+        // Output column of each unknown.
+        let at: Vec<Option<usize>> = match cols {
+            None => (0..m).map(Some).collect(),
+            Some(cols) => {
+                let mut at = vec![None; m];
+                for (c, &k) in cols.iter().enumerate() {
+                    at[k] = Some(c);
+                }
+                at
+            }
+        };
+        let wanted: Vec<bool> = match cols {
+            None => Vec::new(),
+            Some(_) => {
+                let mut w = vec![false; self.chain.param_ids().len()];
+                for (c, &col) in self.cols.iter().enumerate() {
+                    if let (Some(slot), Some(_)) = (w.get_mut(col), at[c]) {
+                        *slot = true;
+                    }
+                }
+                w
+            }
+        };
         let chain = self.model(x);
         let centres = self.centres(x);
         j.fill(0.0);
-        let (n, cols) = j.shape();
+        let (n, width) = j.shape();
         let ranges = measurement_ranges(self.meas.len());
         let nj = chain.joints.len();
         let mut memos = self.trig.try_take();
@@ -414,7 +457,7 @@ impl Problem for PointProblem {
         let mut parts: Vec<Part<'_>> = ranges
             .iter()
             .zip(memo_parts(memos.map(|v| &mut v[..]), &ranges, nj))
-            .map(|(r, memo)| (r.clone(), Vec::with_capacity(cols), memo))
+            .map(|(r, memo)| (r.clone(), Vec::with_capacity(width), memo))
             .collect();
         for column in j.as_mut_slice().chunks_mut(n.max(1)) {
             let mut rest = column;
@@ -427,6 +470,7 @@ impl Problem for PointProblem {
         let fill = |(range, mut out, mut memo): Part<'_>| {
             let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
             let mut scratch = JacobianScratch::default();
+            scratch.set_wanted(wanted.clone());
             for (row, i) in range.clone().enumerate() {
                 let (m, tau) = (&self.meas[i], &self.tau[i]);
                 match memo.as_deref_mut() {
@@ -447,16 +491,18 @@ impl Problem for PointProblem {
                     ),
                 };
                 for (c, &col) in self.cols.iter().enumerate() {
-                    if let Some(v) = buf.get(col) {
+                    if let (Some(v), Some(oc)) = (buf.get(col), at[c]) {
                         for a in 0..3 {
-                            out[c][3 * row + a] = v[a];
+                            out[oc][3 * row + a] = v[a];
                         }
                     }
                 }
                 if let Target::Ball(b) = m.target {
                     if let Some(o) = self.free_slot(b) {
                         for a in 0..3 {
-                            out[o + a][3 * row + a] = -1.0;
+                            if let Some(oc) = at[o + a] {
+                                out[oc][3 * row + a] = -1.0;
+                            }
                         }
                     }
                 }
@@ -470,11 +516,12 @@ impl Problem for PointProblem {
             for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
                 if let Some(o) = self.free_slot(ball) {
                     for a in 0..3 {
-                        j[(base + k, o + a)] = self.distance_weight * sign * u[a];
+                        if let Some(oc) = at[o + a] {
+                            j[(base + k, oc)] = self.distance_weight * sign * u[a];
+                        }
                     }
                 }
             }
         }
-        Ok(())
     }
 }

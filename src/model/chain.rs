@@ -193,6 +193,16 @@ fn mdh_rotations(j: &Joint) -> Option<MdhRotations> {
 #[derive(Default)]
 pub struct JacobianScratch {
     recs: Vec<(usize, Gen, f64)>,
+    /// Parameter columns to compute (all when empty); the others are left zero.
+    wanted: Vec<bool>,
+}
+
+impl JacobianScratch {
+    /// Compute only the parameter columns `k` with `wanted[k]` (all when `wanted` is
+    /// empty); the others are left zero. The columns computed are the same either way.
+    pub fn set_wanted(&mut self, wanted: Vec<bool>) {
+        self.wanted = wanted;
+    }
 }
 
 impl std::fmt::Debug for JacobianScratch {
@@ -752,18 +762,20 @@ impl Chain {
                         origin: f0.p,
                     };
                     push(JointField::Alpha, x0, 1.0);
-                    let f1 = f0.mul(&rx);
+                    // The elementary factors without their products with zeros and ones
+                    // (the same values, see `Frame::then_rot_x`).
+                    let f1 = f0.then_rot_x(&rx.r);
                     let dx = Gen::Trans {
                         dir: f1.r.column(0).into(),
                     };
                     push(JointField::A, dx, 1.0);
-                    let f1 = f1.mul(&Frame::trans(*a, 0.0, 0.0));
+                    let f1 = f1.then_dx(*a);
                     let y1 = Gen::Rot {
                         axis: f1.r.column(1).into(),
                         origin: f1.p,
                     };
                     push(JointField::Beta, y1, 1.0);
-                    let f2 = f1.mul(&ry);
+                    let f2 = f1.then_rot_y(&ry.r);
                     let zg = Gen::Rot {
                         axis: f2.r.column(2).into(),
                         origin: f2.p,
@@ -781,11 +793,7 @@ impl Chain {
                     };
                     push(JointField::Multiplier, mg, q_lead);
                     let (sin, cos) = trig::sin_cos(m.theta, mj);
-                    t = f2.mul(&Frame::rot_z_sin_cos(sin, cos)).mul(&Frame::trans(
-                        0.0,
-                        0.0,
-                        *d + m.shift,
-                    ));
+                    t = f2.then_rot_z_sin_cos(sin, cos).then_dz(*d + m.shift);
                 }
                 Geometry::Urdf {
                     origin,
@@ -843,7 +851,11 @@ impl Chain {
             t = t.mul(&self.tool_frame());
         }
         let p = t.apply(local);
+        let wanted = &scratch.wanted;
         for &(col, g, coef) in recs.iter() {
+            if wanted.get(col) == Some(&false) {
+                continue;
+            }
             let v = match g {
                 Gen::Rot { axis, origin } => axis.cross(&(p - origin)),
                 Gen::Trans { dir } => dir,
