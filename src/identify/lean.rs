@@ -28,11 +28,25 @@ pub(crate) fn clearly_above(rows: &Rows<'_>, free: &[usize], scale: &[f64], floo
             .iter()
             .map(|k| cols.iter().position(|c| c == k))
             .collect();
+        // The dots of each column with those before it at once (each as nalgebra's `dot`).
+        let n = j.nrows();
+        let column = |c: usize| &j.as_slice()[c * n..(c + 1) * n];
+        let mut others: Vec<&[f64]> = Vec::with_capacity(m);
+        let mut at_p: Vec<usize> = Vec::with_capacity(m);
+        let mut d = vec![0.0; m];
         for q in 0..m {
             let Some(cq) = at[q] else { continue };
+            others.clear();
+            at_p.clear();
             for p in 0..=q {
-                let Some(cp) = at[p] else { continue };
-                g[(p, q)] += j.column(cp).dot(&j.column(cq)) * scale[free[p]] * scale[free[q]];
+                if let Some(cp) = at[p] {
+                    others.push(column(cp));
+                    at_p.push(p);
+                }
+            }
+            super::dots::dots(&others, column(cq), &mut d[..others.len()]);
+            for (&p, &v) in at_p.iter().zip(&d) {
+                g[(p, q)] += v * scale[free[p]] * scale[free[q]];
             }
         }
     }

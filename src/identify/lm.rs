@@ -147,16 +147,31 @@ fn scaled_normal(
         }
     }
     // `js^T js` entry by entry as nalgebra's `tr_mul` forms it (the same dot of two
-    // columns), one triangle computed and mirrored: a dot product is symmetric bit for bit.
+    // columns, see `super::dots`), one triangle computed and mirrored: a dot product is
+    // symmetric bit for bit.
+    let cols: Vec<&[f64]> = js.as_slice().chunks_exact(n.max(1)).take(mf).collect();
     let mut a = DMatrix::zeros(mf, mf);
+    let mut column = vec![0.0; mf];
     for q in 0..mf {
-        for p in 0..=q {
-            let v = js.column(p).dot(&js.column(q));
+        super::dots::dots(&cols[..=q], cols[q], &mut column[..=q]);
+        for (p, &v) in column[..=q].iter().enumerate() {
             a[(p, q)] = v;
             a[(q, p)] = v;
         }
     }
-    (a, js.tr_mul(r))
+    (a, tr_mul(&js, r))
+}
+
+/// `j^T r` as nalgebra's `tr_mul` forms it (one dot per column).
+fn tr_mul(j: &DMatrix<f64>, r: &DVector<f64>) -> DVector<f64> {
+    let n = j.nrows();
+    let mut out = DVector::zeros(j.ncols());
+    if n == 0 {
+        return out;
+    }
+    let cols: Vec<&[f64]> = j.as_slice().chunks_exact(n).collect();
+    super::dots::dots(&cols, r.as_slice(), out.as_mut_slice());
+    out
 }
 
 /// Residuals and Jacobian of a problem already evaluated at the start point (as the caller
@@ -245,7 +260,7 @@ pub fn levenberg_marquardt_from(
             stop = StopReason::ZeroResidual;
             break;
         }
-        let g = j.tr_mul(&r);
+        let g = tr_mul(&j, &r);
         // Active set: unknowns on a bound whose descent direction points outwards.
         let bounds = bound_state(&x, opts);
         let free: Vec<usize> = (0..m)

@@ -8,6 +8,7 @@
 
 mod bounds;
 pub mod dense;
+mod dots;
 pub mod gauge;
 mod lean;
 pub mod lm;
