@@ -193,6 +193,9 @@ fn mdh_rotations(j: &Joint) -> Option<MdhRotations> {
 #[derive(Default)]
 pub struct JacobianScratch {
     recs: Vec<(usize, Gen, f64)>,
+    /// The base frame's generators (the same for every configuration) with the base
+    /// values and first column they were recorded for.
+    base: Option<([u64; 6], usize, Vec<(usize, Gen, f64)>)>,
     /// Parameter columns to compute (all when empty); the others are left zero.
     wanted: Vec<bool>,
 }
@@ -256,8 +259,7 @@ impl Chain {
 
     /// Recompute the caches; called after any geometric change.
     fn refresh(&mut self) {
-        self.pre = self.joints.iter().map(pre_frame).collect();
-        self.mdh_rots = self.joints.iter().map(mdh_rotations).collect();
+        self.refresh_joints();
         self.refresh_ends();
         self.actuated = (0..self.joints.len())
             .filter(|&j| self.joints[j].has_variable())
@@ -279,11 +281,33 @@ impl Chain {
     }
 
     fn refresh_ends(&mut self) {
-        self.ends = [
-            (self.base, Frame::from_xyzabc(&self.base)),
-            (self.tool, Frame::from_xyzabc(&self.tool)),
-        ];
         self.end_rots = [EndRotations::of(&self.base), EndRotations::of(&self.tool)];
+        // `Frame::from_xyzabc` with the rotation factors just computed (the same values).
+        let frame = |v: &[f64; 6], e: &EndRotations| Frame {
+            r: e.rz * e.ry * Frame::rot_x(v[5]).r,
+            p: Vector3::new(v[0], v[1], v[2]),
+        };
+        self.ends = [
+            (self.base, frame(&self.base, &self.end_rots[0])),
+            (self.tool, frame(&self.tool, &self.end_rots[1])),
+        ];
+    }
+
+    /// The constant parts of every joint (`pre` and the MDH rotations), each MDH `pre`
+    /// from its cached rotations (the same values as [`pre_frame`]).
+    fn refresh_joints(&mut self) {
+        self.mdh_rots = self.joints.iter().map(mdh_rotations).collect();
+        self.pre = self
+            .joints
+            .iter()
+            .zip(&self.mdh_rots)
+            .map(|(j, r)| match (&j.geometry, r) {
+                (Geometry::Mdh { a, .. }, Some(r)) => {
+                    r.rx.mul(&Frame::trans(*a, 0.0, 0.0)).mul(&r.ry)
+                }
+                _ => pre_frame(j),
+            })
+            .collect();
     }
 
     /// `Rz(a)` and `Ry(b)` of the base (`k = 0`) or tool (`k = 1`) values `v`, from the
@@ -482,8 +506,7 @@ impl Chain {
         for (id, v) in ids.iter().zip(values) {
             self.set_param_raw(*id, *v);
         }
-        self.pre = self.joints.iter().map(pre_frame).collect();
-        self.mdh_rots = self.joints.iter().map(mdh_rotations).collect();
+        self.refresh_joints();
         self.refresh_ends();
     }
 
@@ -727,11 +750,22 @@ impl Chain {
             *v = Vector3::zeros();
         }
         // Records (parameter column, generator, coefficient) gathered on the way out.
+        let nb = self.param_index(ParamId::Base(0)).unwrap_or(0);
+        let key = self.base.map(f64::to_bits);
+        let base = match scratch.base.take() {
+            Some(b) if b.0 == key && b.1 == nb => b,
+            _ => {
+                let mut gens = Vec::with_capacity(6);
+                let base_rots = self.end_rotations(0, &self.base);
+                push_xyzabc_gens(&Frame::identity(), &self.base, &base_rots, nb, &mut gens);
+                (key, nb, gens)
+            }
+        };
         let recs = &mut scratch.recs;
         recs.clear();
-        let nb = self.param_index(ParamId::Base(0)).unwrap_or(0);
-        let base_rots = self.end_rotations(0, &self.base);
-        push_xyzabc_gens(&Frame::identity(), &self.base, &base_rots, nb, recs);
+        recs.extend_from_slice(&base.2);
+        scratch.base = Some(base);
+        let wanted = &scratch.wanted;
         let mut t = self.base_frame();
         let last = if body >= self.joints.len() {
             self.joints.len()
@@ -750,7 +784,9 @@ impl Chain {
             let mj = memo.as_deref_mut().and_then(|m| m.get_mut(j));
             let mut push = |f: JointField, g: Gen, coef: f64| {
                 if let Some(c) = col(f) {
-                    recs.push((c, g, coef));
+                    if wanted.get(c) != Some(&false) {
+                        recs.push((c, g, coef));
+                    }
                 }
             };
             match &joint.geometry {
@@ -851,7 +887,6 @@ impl Chain {
             t = t.mul(&self.tool_frame());
         }
         let p = t.apply(local);
-        let wanted = &scratch.wanted;
         for &(col, g, coef) in recs.iter() {
             if wanted.get(col) == Some(&false) {
                 continue;
