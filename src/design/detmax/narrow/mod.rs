@@ -196,29 +196,47 @@ impl<'a> Design<'a> {
     }
 
     /// The candidate whose toggle (add: an outside one, else an inside one) leaves the
-    /// largest determinant, with the change of log det; nothing is changed.
+    /// largest determinant, with the change of log det; nothing is changed. Ties go to the
+    /// lowest index.
     pub(super) fn best(&self, add: bool) -> Option<(usize, f64)> {
-        // Compare determinants, take the logarithm of the winner only.
-        let mut best: Option<(usize, f64)> = None;
-        for i in 0..self.lp.n {
-            if self.member[i] == add {
-                continue;
-            }
-            let det = self.dets[i];
-            if best.is_none_or(|b| det > b.1) {
-                best = Some((i, det));
-            }
-        }
-        best.map(|(i, det)| {
-            (
-                i,
-                if det > 0.0 {
-                    det.ln()
+        // Compare determinants, take the logarithm of the winner only: the largest in lanes
+        // (a member's sign is -1, an outside candidate's +1), then the first that holds it.
+        let n = self.lp.n;
+        let want = if add { 1.0 } else { -1.0 };
+        let (dets, sgn) = (&self.dets[..n], &self.sgn[..n]);
+        let mut lanes = [f64::NEG_INFINITY; L];
+        let mut chunks = dets.chunks_exact(L).zip(sgn.chunks_exact(L));
+        for (d, s) in chunks.by_ref() {
+            for l in 0..L {
+                let v = if s[l] == want {
+                    d[l]
                 } else {
                     f64::NEG_INFINITY
-                },
-            )
-        })
+                };
+                lanes[l] = if v > lanes[l] { v } else { lanes[l] };
+            }
+        }
+        let tail = n - n % L;
+        for (l, (&d, &s)) in dets[tail..].iter().zip(&sgn[tail..]).enumerate() {
+            if s == want && d > lanes[l] {
+                lanes[l] = d;
+            }
+        }
+        let det = lanes
+            .iter()
+            .fold(f64::NEG_INFINITY, |a, &b| if b > a { b } else { a });
+        if det == f64::NEG_INFINITY {
+            return None;
+        }
+        let i = (0..n).find(|&i| sgn[i] == want && dets[i] == det)?;
+        Some((
+            i,
+            if det > 0.0 {
+                det.ln()
+            } else {
+                f64::NEG_INFINITY
+            },
+        ))
     }
 
     /// Add (sign +1) or remove (sign -1) candidate `a`: P and every D_i by Woodbury.
