@@ -32,7 +32,8 @@ pub struct DetmaxOptions {
     /// Largest excursion size tried before stopping.
     pub max_excursion: usize,
     /// Record the search's path in [`Selection::history`] (one exact determinant per
-    /// improving excursion); off, the history is empty (a study that only wants the set).
+    /// improving excursion) and the start's determinant; off, the history is empty and
+    /// [`Selection::log_det_start`] is NaN (a study that only wants the set).
     pub path: bool,
 }
 
@@ -43,7 +44,7 @@ pub struct Selection {
     pub selected: Vec<usize>,
     /// log det(J^T J) of the selection.
     pub log_det: f64,
-    /// log det of the random start.
+    /// log det of the random start (NaN unless [`DetmaxOptions::path`]).
     pub log_det_start: f64,
     /// Improving excursions made.
     pub exchanges: usize,
@@ -219,7 +220,11 @@ pub fn detmax(
         crate::identify::IdentifyError::Model("the pool's information matrix is singular".into())
     };
     let mut design = Design::new(pool, &start, ridge).ok_or_else(singular)?;
-    let log_det_start = pool.log_det(&start);
+    let log_det_start = if opts.path {
+        pool.log_det(&start)
+    } else {
+        f64::NAN
+    };
     let mut current = design.log_det();
     let mut memo = gram::Memo::new();
     let min_rows = pool.rows.iter().copied().min().unwrap_or(1);
@@ -285,7 +290,13 @@ pub fn detmax(
         }
     }
     let selected = design.selected();
-    let log_det = pool.log_det(&selected);
+    // With the path, from the members afresh (the last step's); else from the design's
+    // information matrix (the same sum, kept by toggles).
+    let log_det = if opts.path {
+        pool.log_det(&selected)
+    } else {
+        design.exact_log_det(pool, None)
+    };
     // The last step is the selection: its determinant computed afresh.
     if let Some(last) = history.last_mut() {
         last.log_det = log_det;
