@@ -171,18 +171,21 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                 }
             }
             for c in 0..m {
-                let mut us = [0.0; R];
-                for (y, v) in us.iter_mut().enumerate() {
+                let mut f = [0.0; R];
+                for (y, v) in f.iter_mut().enumerate() {
                     for k in 0..R {
                         *v = madd::<FMA>(d.ut[k * m + c], s[k][y], *v);
                     }
+                    *v *= -sign;
                 }
+                // Each entry takes its R terms in registers (y in order, as row by row).
                 let row = &mut d.p[c * m..(c + 1) * m];
-                for (y, &v) in us.iter().enumerate() {
-                    let f = -sign * v;
-                    for (pv, &uv) in row.iter_mut().zip(&d.ut[y * m..(y + 1) * m]) {
-                        *pv = madd::<FMA>(f, uv, *pv);
+                for (k, pv) in row.iter_mut().enumerate() {
+                    let mut v = *pv;
+                    for (y, &fy) in f.iter().enumerate() {
+                        v = madd::<FMA>(fy, d.ut[y * m + k], v);
                     }
+                    *pv = v;
                 }
             }
             for c in 0..m {
