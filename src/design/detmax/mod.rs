@@ -237,13 +237,13 @@ pub fn detmax(
     // The trial designs of an excursion, their buffers reused from try to try. An excursion
     // of size k starts with the k - 1 greedy steps the one of size k - 1 took in the same
     // direction: `ahead[up]` keeps them (`ahead_k[up]` steps from `design`, None when not
-    // valid), so each larger excursion takes one new step out, not k. `d` takes the steps
-    // back. Only lane designs look at their last step without taking it, so only they can
-    // keep a size-1 excursion's step for the next size.
+    // valid), so each larger excursion takes one new step out, not k; a third takes the
+    // steps back. Only lane designs look at their last step without taking it, so only they
+    // can keep a size-1 excursion's step for the next size; the others have one trial design.
     let reuse = matches!(design, Design::Lanes(_));
-    let mut ahead = [design.clone(), design.clone()];
+    let n_ahead = if reuse { 2 } else { 1 };
+    let mut trials = vec![design.clone(); n_ahead + usize::from(reuse)];
     let mut ahead_k: [Option<usize>; 2] = [None, None];
-    let mut d = design.clone();
     let mut k = 1;
     let kmax = opts.max_excursion.max(1);
     while k <= kmax {
@@ -262,8 +262,9 @@ pub fn detmax(
             if !up && (n.saturating_sub(k)) * min_rows < pool.m {
                 continue;
             }
-            let out = &mut ahead[usize::from(up)];
-            let taken = &mut ahead_k[usize::from(up)];
+            let (ahead, back) = trials.split_at_mut(n_ahead);
+            let slot = if reuse { usize::from(up) } else { 0 };
+            let (out, taken) = (&mut ahead[slot], &mut ahead_k[slot]);
             let mut steps = match *taken {
                 Some(s) if reuse && s + 1 == k => s,
                 _ => {
@@ -279,9 +280,9 @@ pub fn detmax(
                 continue;
             }
             // The steps back, on a copy when the steps out are kept for the next size.
-            let trial = if reuse && k > 1 {
+            let trial = if let (true, Some(d)) = (k > 1, back.first_mut()) {
                 d.clone_from(out);
-                &mut d
+                d
             } else {
                 out
             };
