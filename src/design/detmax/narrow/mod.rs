@@ -208,10 +208,10 @@ impl<'a> Design<'a> {
         // Compare determinants, take the logarithm of the winner only: the largest of the
         // group maxima, then the first candidate of the first group that holds it.
         let (col, want) = if add { (0, 1.0) } else { (1, -1.0) };
-        let det = self
-            .gmax
-            .iter()
-            .fold(f64::NEG_INFINITY, |a, g| if g[col] > a { g[col] } else { a });
+        let det = self.gmax.iter().fold(
+            f64::NEG_INFINITY,
+            |a, g| if g[col] > a { g[col] } else { a },
+        );
         if det == f64::NEG_INFINITY {
             return None;
         }

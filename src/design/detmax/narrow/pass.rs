@@ -226,7 +226,10 @@ fn group_max(det: &[f64], sg: &[f64]) -> [f64; 2] {
         out[l] = if sg[l] > 0.0 && v > out[l] { v } else { out[l] };
         ins[l] = if sg[l] < 0.0 && v > ins[l] { v } else { ins[l] };
     }
-    let top = |x: [f64; L]| x.iter().fold(f64::NEG_INFINITY, |a, &b| if b > a { b } else { a });
+    let top = |x: [f64; L]| {
+        x.iter()
+            .fold(f64::NEG_INFINITY, |a, &b| if b > a { b } else { a })
+    };
     [top(out), top(ins)]
 }
 
