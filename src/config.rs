@@ -67,20 +67,12 @@ pub struct TokenConfig {
 /// Authentication settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
+#[derive(Default)]
 pub struct AuthConfig {
     /// Allow reads (GET) without a token (default false: results and datasets are the lab's).
     pub anonymous_read: bool,
     /// Tokens. Empty: an operator token is created in `DATA/operator.token`.
     pub tokens: Vec<TokenConfig>,
-}
-
-impl Default for AuthConfig {
-    fn default() -> Self {
-        Self {
-            anonymous_read: false,
-            tokens: Vec::new(),
-        }
-    }
 }
 
 /// Every daemon setting.

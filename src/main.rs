@@ -403,11 +403,11 @@ struct StderrMonitor {
 
 impl calibd::util::Monitor for StderrMonitor {
     fn progress(&self, fraction: f64, stage: &str) {
-        if let Ok(mut last) = self.last.lock() {
-            if *last != stage {
-                eprintln!("[{:>5.1}%] {stage}", 100.0 * fraction);
-                *last = stage.to_string();
-            }
+        if let Ok(mut last) = self.last.lock()
+            && *last != stage
+        {
+            eprintln!("[{:>5.1}%] {stage}", 100.0 * fraction);
+            *last = stage.to_string();
         }
     }
     fn is_cancelled(&self) -> bool {

@@ -256,7 +256,7 @@ fn design_job_returns_feasible_postures_and_history() {
     let done = job.run(&NoMonitor).unwrap();
     let r = &done.result;
     let n = r["posture_count"].as_u64().unwrap() as usize;
-    assert!(n >= 4 && n <= 24, "{n}");
+    assert!((4..=24).contains(&n), "{n}");
     assert_eq!(done.main_table.as_ref().unwrap().rows.len(), n);
     let hist = r["o1_history"].as_array().unwrap();
     assert!(!hist.is_empty());

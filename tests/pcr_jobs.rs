@@ -141,7 +141,7 @@ fn fk_and_ik_jobs_agree_with_each_other_and_the_library() {
     let text =
         std::fs::read_to_string(examples().join("data/pcr_twin/pcr3pf.json")).expect("model");
     let robot = PcrFile::parse(&text)
-        .and_then(|f| Ok(f.robot()))
+        .map(|f| f.robot())
         .expect("file")
         .expect("robot");
     let joints = calibd::jobs::Table::from_csv(

@@ -75,15 +75,15 @@ async fn job(
         error: rec.error.clone(),
     };
     let mut head = vec![sse(&first)];
-    if rec.state == crate::store::JobState::Running {
-        if let Some(stage) = &rec.stage {
-            head.push(sse(&Event::Progress {
-                id,
-                fraction: rec.progress,
-                stage: stage.clone(),
-                message: rec.message.clone(),
-            }));
-        }
+    if rec.state == crate::store::JobState::Running
+        && let Some(stage) = &rec.stage
+    {
+        head.push(sse(&Event::Progress {
+            id,
+            fraction: rec.progress,
+            stage: stage.clone(),
+            message: rec.message.clone(),
+        }));
     }
     let live = stream::unfold(
         (rx, rec.state.is_final()),

@@ -150,7 +150,7 @@ async fn check_host(
         return ApiError::BadRequest("the request has no Host header".into()).into_response();
     };
     let name = host_name(&given);
-    if s.allowed_hosts.iter().any(|h| *h == name) {
+    if s.allowed_hosts.contains(&name) {
         return next.run(req).await;
     }
     let mut shown: String = name.chars().take(100).collect();

@@ -240,8 +240,8 @@ pub async fn jobs(
     }
     let v = c.get(&q).await?;
     println!(
-        "{:>6}  {:<20} {:<12} {:>6}  {}",
-        "id", "kind", "state", "%", "submitted"
+        "{:>6}  {:<20} {:<12} {:>6}  submitted",
+        "id", "kind", "state", "%"
     );
     for j in v["jobs"].as_array().into_iter().flatten() {
         println!(

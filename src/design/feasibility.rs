@@ -111,14 +111,14 @@ impl Constraints {
             return Some(v);
         }
         for (joint, (t, e)) in torques.iter().zip(&self.efforts).enumerate() {
-            if let Some(e) = e {
-                if t.abs() > *e {
-                    return Some(Violation::Torque {
-                        joint,
-                        torque: *t,
-                        effort: *e,
-                    });
-                }
+            if let Some(e) = e
+                && t.abs() > *e
+            {
+                return Some(Violation::Torque {
+                    joint,
+                    torque: *t,
+                    effort: *e,
+                });
             }
         }
         if let Some(b) = &self.ee_box {

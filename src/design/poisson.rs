@@ -93,11 +93,11 @@ pub fn poisson_disc(
             'scan: for i in c[0].saturating_sub(2)..(c[0] + 3).min(dims[0]) {
                 for j in c[1].saturating_sub(2)..(c[1] + 3).min(dims[1]) {
                     for l in c[2].saturating_sub(2)..(c[2] + 3).min(dims[2]) {
-                        if let Some(s) = grid[index(&[i, j, l])] {
-                            if dist2(&samples[s], &p) < r2 {
-                                clear = false;
-                                break 'scan;
-                            }
+                        if let Some(s) = grid[index(&[i, j, l])]
+                            && dist2(&samples[s], &p) < r2
+                        {
+                            clear = false;
+                            break 'scan;
                         }
                     }
                 }

@@ -150,7 +150,7 @@ fn nocp_stops_on_the_plateau_and_beats_random_and_detmax() {
     let r = nocp(&Planar, &opts, &NoMonitor).unwrap();
     assert!(r.plateau, "{:?}", r.history);
     let n = r.set.len();
-    assert!(n >= 4 && n < 40, "{n}");
+    assert!((4..40).contains(&n), "{n}");
     let last = r.history.last().unwrap().o1;
     assert!((last - r.set.o1()).abs() < opts.epsilon * r.set.o1());
     assert!(r.set.postures.iter().all(|q| Planar.feasible(q)));

@@ -229,7 +229,7 @@ mod tests {
 
     #[test]
     fn streamed_csv_equals_the_joined_strings_to_the_byte() {
-        let rows = vec![
+        let rows = [
             vec![0.1 + 0.2, -0.0, 1e-300, 123456789.125],
             vec![f64::MAX, f64::MIN_POSITIVE, -3.5, 1.0 / 3.0],
         ];

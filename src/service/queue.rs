@@ -131,6 +131,6 @@ mod tests {
         assert_eq!(q.take().unwrap().id, 1);
         assert_eq!(q.take().unwrap().id, 3);
         assert!(q.is_held("irb120") && q.is_held("uwave"));
-        assert!(q.remove(99) == false && q.is_empty());
+        assert!(!q.remove(99) && q.is_empty());
     }
 }

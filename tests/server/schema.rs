@@ -54,20 +54,20 @@ pub fn check(root: &Value, s: &Value, v: &Value, at: &str) -> Vec<String> {
     if !errs.is_empty() {
         return errs;
     }
-    if let Some(e) = s.get("enum").and_then(Value::as_array) {
-        if !e.contains(v) {
-            errs.push(format!("{at}: {v} not in {e:?}"));
-        }
+    if let Some(e) = s.get("enum").and_then(Value::as_array)
+        && !e.contains(v)
+    {
+        errs.push(format!("{at}: {v} not in {e:?}"));
     }
-    if let (Some(min), Some(x)) = (s.get("minimum").and_then(Value::as_f64), v.as_f64()) {
-        if x < min {
-            errs.push(format!("{at}: {x} < minimum {min}"));
-        }
+    if let (Some(min), Some(x)) = (s.get("minimum").and_then(Value::as_f64), v.as_f64())
+        && x < min
+    {
+        errs.push(format!("{at}: {x} < minimum {min}"));
     }
-    if let (Some(max), Some(x)) = (s.get("maximum").and_then(Value::as_f64), v.as_f64()) {
-        if x > max {
-            errs.push(format!("{at}: {x} > maximum {max}"));
-        }
+    if let (Some(max), Some(x)) = (s.get("maximum").and_then(Value::as_f64), v.as_f64())
+        && x > max
+    {
+        errs.push(format!("{at}: {x} > maximum {max}"));
     }
     if let Some(o) = v.as_object() {
         let props = s.get("properties").and_then(Value::as_object);

@@ -103,9 +103,8 @@ async fn client(
                     },
                     _ => Some("error unknown command".to_string()),
                 };
-                if let Some(r) = reply {
-                    if f.send(r).await.is_err() { return; }
-                }
+                if let Some(r) = reply
+                    && f.send(r).await.is_err() { return; }
             }
             m = rx.recv(), if raw => match m {
                 Ok((from, frame)) if from != id => {

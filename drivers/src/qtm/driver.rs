@@ -406,10 +406,11 @@ impl<C: Connect> Actor<C> {
         let n = f.frame_number;
         self.state.send_modify(|s| {
             s.frames += 1;
-            if let Some(l) = s.last_frame_number {
-                if n > l.wrapping_add(1) && n > l {
-                    s.missed_frames += u64::from(n - l - 1);
-                }
+            if let Some(l) = s.last_frame_number
+                && n > l.wrapping_add(1)
+                && n > l
+            {
+                s.missed_frames += u64::from(n - l - 1);
             }
             s.last_frame_number = Some(n);
         });
@@ -427,10 +428,10 @@ impl<C: Connect> Actor<C> {
             Packet::NoMoreData => self.state.send_modify(|s| s.no_data += 1),
             Packet::Event(e) => {
                 self.state.send_modify(|s| s.last_event = Some(e));
-                if matches!(self.pending.front(), Some((_, Pending::Event(_)))) {
-                    if let Some((_, Pending::Event(r))) = self.pending.pop_front() {
-                        let _ = r.send(Ok(e));
-                    }
+                if matches!(self.pending.front(), Some((_, Pending::Event(_))))
+                    && let Some((_, Pending::Event(r))) = self.pending.pop_front()
+                {
+                    let _ = r.send(Ok(e));
                 }
             }
             Packet::Command(s) => match self.pending.pop_front() {

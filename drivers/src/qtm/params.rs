@@ -70,13 +70,13 @@ pub fn parse_3d(xml: &str) -> Result<Settings3d, CodecError> {
             "3D parameters XML has no The_3D element",
         ));
     }
-    if let Some(n) = declared {
-        if n != out.labels.len() {
-            return Err(CodecError::malformed(format!(
-                "3D parameters: Labels says {n} but {} Label elements follow",
-                out.labels.len()
-            )));
-        }
+    if let Some(n) = declared
+        && n != out.labels.len()
+    {
+        return Err(CodecError::malformed(format!(
+            "3D parameters: Labels says {n} but {} Label elements follow",
+            out.labels.len()
+        )));
     }
     Ok(out)
 }

@@ -58,10 +58,10 @@ impl Challenge {
     pub fn parse(header: &str) -> Option<Challenge> {
         let rest = header.trim().strip_prefix("Digest")?.trim();
         let p = parse_params(rest);
-        if let Some(a) = get(&p, "algorithm") {
-            if !a.eq_ignore_ascii_case("MD5") {
-                return None;
-            }
+        if let Some(a) = get(&p, "algorithm")
+            && !a.eq_ignore_ascii_case("MD5")
+        {
+            return None;
         }
         Some(Challenge {
             realm: get(&p, "realm")?.to_string(),

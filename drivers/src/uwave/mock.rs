@@ -206,10 +206,10 @@ impl Session {
         } else {
             Some(end_of_search(50))
         };
-        if let Some(r) = reply {
-            if io.write_all((r.render() + "\r").as_bytes()).await.is_err() {
-                return Next::Stop;
-            }
+        if let Some(r) = reply
+            && io.write_all((r.render() + "\r").as_bytes()).await.is_err()
+        {
+            return Next::Stop;
         }
         Next::Go
     }

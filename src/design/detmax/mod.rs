@@ -32,7 +32,8 @@ pub struct DetmaxOptions {
     /// Largest excursion size tried before stopping.
     pub max_excursion: usize,
     /// Record the search's path in [`Selection::history`] (one exact determinant per
-    /// improving excursion); off, the history is empty (a study that only wants the set).
+    /// improving excursion) and the start's determinant; off, the history is empty and
+    /// [`Selection::log_det_start`] is NaN (a study that only wants the set).
     pub path: bool,
 }
 
@@ -43,7 +44,7 @@ pub struct Selection {
     pub selected: Vec<usize>,
     /// log det(J^T J) of the selection.
     pub log_det: f64,
-    /// log det of the random start.
+    /// log det of the random start (NaN unless [`DetmaxOptions::path`]).
     pub log_det_start: f64,
     /// Improving excursions made.
     pub exchanges: usize,
@@ -182,13 +183,14 @@ impl<'a> Design<'a> {
         s
     }
 
-    /// Recompute the tracked state from the member set (the thin state drifts; the Gram
-    /// state is recomputed at every step and never does).
-    fn rebuild(&mut self, pool: &Pool, ridge: f64, every: usize) -> Option<()> {
+    /// Recompute the tracked state from the member set when more than `every` updates were
+    /// made since (the thin state drifts; the Gram state is recomputed at every step and
+    /// never does); whether it did.
+    fn rebuild(&mut self, pool: &Pool, ridge: f64, every: usize) -> Option<bool> {
         match self {
-            Self::Thin(d) if d.updates > every => d.rebuild(ridge),
-            Self::Lanes(d) if d.updates > every => d.rebuild(pool, ridge),
-            _ => Some(()),
+            Self::Thin(d) if d.updates > every => d.rebuild(ridge).map(|()| true),
+            Self::Lanes(d) if d.updates > every => d.rebuild(pool, ridge).map(|()| true),
+            _ => Some(false),
         }
     }
 }
@@ -219,7 +221,11 @@ pub fn detmax(
         crate::identify::IdentifyError::Model("the pool's information matrix is singular".into())
     };
     let mut design = Design::new(pool, &start, ridge).ok_or_else(singular)?;
-    let log_det_start = pool.log_det(&start);
+    let log_det_start = if opts.path {
+        pool.log_det(&start)
+    } else {
+        f64::NAN
+    };
     let mut current = design.log_det();
     let mut memo = gram::Memo::new();
     let min_rows = pool.rows.iter().copied().min().unwrap_or(1);
@@ -228,8 +234,16 @@ pub fn detmax(
     if opts.path {
         history.push(step(pool, &mut design, 0));
     }
-    // The trial design of an excursion, its buffers reused from try to try.
-    let mut d = design.clone();
+    // The trial designs of an excursion, their buffers reused from try to try. An excursion
+    // of size k starts with the k - 1 greedy steps the one of size k - 1 took in the same
+    // direction: `ahead[up]` keeps them (`ahead_k[up]` steps from `design`, None when not
+    // valid), so each larger excursion takes one new step out, not k; a third takes the
+    // steps back. Only lane designs look at their last step without taking it, so only they
+    // can keep a size-1 excursion's step for the next size; the others have one trial design.
+    let reuse = matches!(design, Design::Lanes(_));
+    let n_ahead = if reuse { 2 } else { 1 };
+    let mut trials = vec![design.clone(); n_ahead + usize::from(reuse)];
+    let mut ahead_k: [Option<usize>; 2] = [None, None];
     let mut k = 1;
     let kmax = opts.max_excursion.max(1);
     while k <= kmax {
@@ -237,7 +251,9 @@ pub fn detmax(
             return Err(crate::identify::IdentifyError::Cancelled);
         }
         monitor.progress(k as f64 / (kmax + 1) as f64, "detmax");
-        design.rebuild(pool, ridge, 64).ok_or_else(singular)?;
+        if design.rebuild(pool, ridge, 64).ok_or_else(singular)? {
+            ahead_k = [None, None];
+        }
         // Excursion up (add k, then remove k); if it does not improve, down (remove k, then
         // add k) unless removing k would leave fewer equations than parameters. A move is
         // accepted on the exact determinant, and the tracked state is rebuilt if it drifted.
@@ -246,11 +262,36 @@ pub fn detmax(
             if !up && (n.saturating_sub(k)) * min_rows < pool.m {
                 continue;
             }
-            d.clone_from(&design);
+            let (ahead, back) = trials.split_at_mut(n_ahead);
+            let slot = if reuse { usize::from(up) } else { 0 };
+            let (out, taken) = (&mut ahead[slot], &mut ahead_k[slot]);
+            let mut steps = match *taken {
+                Some(s) if reuse && s + 1 == k => s,
+                _ => {
+                    out.clone_from(&design);
+                    0
+                }
+            };
+            *taken = None;
+            while steps < k && out.greedy(up, &mut memo).is_some() {
+                steps += 1;
+            }
+            if steps < k {
+                continue;
+            }
+            // The steps back, on a copy when the steps out are kept for the next size.
+            let trial = if let (true, Some(d)) = (k > 1, back.first_mut()) {
+                d.clone_from(out);
+                d
+            } else {
+                out
+            };
+            if reuse {
+                *taken = Some(k);
+            }
             // The last step is looked at first and taken only if the excursion is accepted.
-            let last = (0..k).all(|_| d.greedy(up, &mut memo).is_some())
-                && (0..k - 1).all(|_| d.greedy(!up, &mut memo).is_some());
-            let Some((last, log_det)) = last.then(|| d.peek(!up, &mut memo)).flatten() else {
+            let back = (0..k - 1).all(|_| trial.greedy(!up, &mut memo).is_some());
+            let Some((last, log_det)) = back.then(|| trial.peek(!up, &mut memo)).flatten() else {
                 continue;
             };
             if log_det <= current + 1e-9 * current.abs().max(1.0) {
@@ -261,14 +302,15 @@ pub fn detmax(
             let exact = if up {
                 log_det
             } else {
-                d.exact_log_det(pool, Some((last, !up)))
+                trial.exact_log_det(pool, Some((last, !up)))
             };
             if exact > current + 1e-9 * current.abs().max(1.0) {
-                d.commit(last, !up).ok_or_else(singular)?;
-                if (exact - d.log_det()).abs() > 1e-6 * exact.abs().max(1.0) {
-                    d.rebuild(pool, ridge, 0).ok_or_else(singular)?;
+                trial.commit(last, !up).ok_or_else(singular)?;
+                if (exact - trial.log_det()).abs() > 1e-6 * exact.abs().max(1.0) {
+                    trial.rebuild(pool, ridge, 0).ok_or_else(singular)?;
                 }
-                std::mem::swap(&mut design, &mut d);
+                std::mem::swap(&mut design, trial);
+                ahead_k = [None, None];
                 current = exact;
                 improved = true;
                 break;
@@ -285,7 +327,13 @@ pub fn detmax(
         }
     }
     let selected = design.selected();
-    let log_det = pool.log_det(&selected);
+    // With the path, from the members afresh (the last step's); else from the design's
+    // information matrix (the same sum, kept by toggles).
+    let log_det = if opts.path {
+        pool.log_det(&selected)
+    } else {
+        design.exact_log_det(pool, None)
+    };
     // The last step is the selection: its determinant computed afresh.
     if let Some(last) = history.last_mut() {
         last.log_det = log_det;

@@ -328,7 +328,7 @@ fn lane_path_picks_the_general_paths_set() {
 /// The AVX-512, AVX2 and portable lane kernels give the same selection, path and
 /// determinants bit for bit (each lane sees the same operations in the same order; the
 /// portable kernel does not fuse, so it is compared to 1e-9), and a search that does not
-/// record its path picks the same set.
+/// record its path picks the same set (and reports its determinant to rounding).
 #[test]
 fn every_kernel_width_picks_the_same_set() {
     use super::narrow::WIDEST;
@@ -373,7 +373,15 @@ fn every_kernel_width_picks_the_same_set() {
         );
         let quiet = quiet.unwrap();
         assert_eq!(quiet.selected, wide.selected, "{what}");
-        assert_eq!(quiet.log_det.to_bits(), wide.log_det.to_bits(), "{what}");
+        // Its determinant comes from the design's information matrix, kept by toggles, not
+        // from the members afresh: the same sum to rounding.
+        assert!(
+            (quiet.log_det - wide.log_det).abs() < 1e-12 * wide.log_det.abs().max(1.0),
+            "{what}: {} vs {}",
+            quiet.log_det,
+            wide.log_det
+        );
+        assert!(quiet.log_det_start.is_nan() && wide.log_det_start.is_finite());
         assert!(quiet.history.is_empty() && wide.history.len() == wide.exchanges + 1);
     }
 }

@@ -113,7 +113,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<MocapCampaignJob, Job
     };
     let o = &s.options;
     for (k, v) in [("settle_s", o.settle_s), ("record_s", o.record_s)] {
-        if !(v.is_finite() && v >= 0.0 && v <= 60.0) {
+        if !(v.is_finite() && (0.0..=60.0).contains(&v)) {
             return Err(JobError::invalid(
                 format!("options.{k}"),
                 format!("{v} s must be in [0, 60]"),

@@ -153,13 +153,13 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CampaignJob, JobError
         }
         _ => {}
     }
-    if let Some(v) = &s.validation {
-        if v.per_ball == 0 {
-            return Err(JobError::invalid(
-                "validation.per_ball",
-                "must be at least 1",
-            ));
-        }
+    if let Some(v) = &s.validation
+        && v.per_ball == 0
+    {
+        return Err(JobError::invalid(
+            "validation.per_ball",
+            "must be at least 1",
+        ));
     }
     s.options.centring.validate("options.centring")?;
     if s.options.retry.attempts == 0 {

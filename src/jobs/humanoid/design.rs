@@ -274,10 +274,10 @@ impl DesignJob {
             },
             tries: d.tries,
         };
-        if let Some(n) = n {
-            if n == 0 {
-                return Err(JobError::invalid("n", "must be at least 1"));
-            }
+        if let Some(n) = n
+            && n == 0
+        {
+            return Err(JobError::invalid("n", "must be at least 1"));
         }
         Ok(DesignJob {
             loaded,

@@ -110,18 +110,18 @@ impl IdentifyJob {
         set: SampleSet,
         options: FitSpec,
     ) -> Result<IdentifyJob, JobError> {
-        if let Some(cv) = &options.cross_validation {
-            if cv.folds < 2 || cv.folds > set.samples.len() {
-                return Err(JobError::invalid(
-                    "options.cross_validation.folds",
-                    format!(
-                        "{} folds for {} samples: use 2..={}",
-                        cv.folds,
-                        set.samples.len(),
-                        set.samples.len()
-                    ),
-                ));
-            }
+        if let Some(cv) = &options.cross_validation
+            && (cv.folds < 2 || cv.folds > set.samples.len())
+        {
+            return Err(JobError::invalid(
+                "options.cross_validation.folds",
+                format!(
+                    "{} folds for {} samples: use 2..={}",
+                    cv.folds,
+                    set.samples.len(),
+                    set.samples.len()
+                ),
+            ));
         }
         let groups = options.groups()?;
         let fit = options.fit_options()?;

@@ -230,13 +230,13 @@ impl FitSpec {
         if let Some(n) = self.max_iterations {
             o.max_iterations = n.max(1);
         }
-        if let Some(n) = self.noise_m {
-            if !(n > 0.0 && n.is_finite()) {
-                return Err(JobError::invalid(
-                    "options.noise_m",
-                    format!("{n} must be positive"),
-                ));
-            }
+        if let Some(n) = self.noise_m
+            && !(n > 0.0 && n.is_finite())
+        {
+            return Err(JobError::invalid(
+                "options.noise_m",
+                format!("{n} must be positive"),
+            ));
         }
         o.prior = match (&self.prior, &self.prior_weight) {
             (None, Some(_)) => {
@@ -268,13 +268,13 @@ impl FitSpec {
             }
         };
         if let Some(r) = &self.robust {
-            if let Some(s) = r.scale_m {
-                if !(s > 0.0 && s.is_finite()) {
-                    return Err(JobError::invalid(
-                        "options.robust.scale_m",
-                        format!("{s} must be positive"),
-                    ));
-                }
+            if let Some(s) = r.scale_m
+                && !(s > 0.0 && s.is_finite())
+            {
+                return Err(JobError::invalid(
+                    "options.robust.scale_m",
+                    format!("{s} must be positive"),
+                ));
             }
             o.robust = Some(Robust {
                 kind: r.loss,

@@ -158,17 +158,17 @@ pub fn samples_from_table(
         let mut q = Vec::with_capacity(qcols.len());
         for (k, &c) in qcols.iter().enumerate() {
             let v = row[c];
-            if let Some([lo, hi]) = limits[k] {
-                if !(v >= lo - 1e-9 && v <= hi + 1e-9) {
-                    return Err(JobError::row(
-                        field,
-                        r + 1,
-                        format!(
-                            "{} = {v} rad is outside the joint limits [{lo}, {hi}]",
-                            model.variables[k]
-                        ),
-                    ));
-                }
+            if let Some([lo, hi]) = limits[k]
+                && !(v >= lo - 1e-9 && v <= hi + 1e-9)
+            {
+                return Err(JobError::row(
+                    field,
+                    r + 1,
+                    format!(
+                        "{} = {v} rad is outside the joint limits [{lo}, {hi}]",
+                        model.variables[k]
+                    ),
+                ));
             }
             q.push(v);
         }

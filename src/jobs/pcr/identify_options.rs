@@ -92,13 +92,13 @@ pub fn calibration_options(o: &IdentifyOptions) -> Result<CalibrationOptions, Jo
         ("options.rank_tolerance", o.rank_tolerance),
         ("options.bound_sigmas", o.bound_sigmas),
     ] {
-        if let Some(v) = v {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(JobError::invalid(
-                    name,
-                    format!("{v} must be a positive number"),
-                ));
-            }
+        if let Some(v) = v
+            && !(v.is_finite() && v > 0.0)
+        {
+            return Err(JobError::invalid(
+                name,
+                format!("{v} must be a positive number"),
+            ));
         }
     }
     if let Some(t) = o.rank_tolerance {

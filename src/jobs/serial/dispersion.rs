@@ -3,6 +3,7 @@
 //! size, and the spread of every parameter at the largest size (the paper's Figs. 8-9,
 //! Table 7). Repetitions run on all cores.
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use std::sync::Mutex;
@@ -95,6 +96,33 @@ struct Run {
     values: Vec<f64>,
 }
 
+/// What the study keeps of one identification.
+#[derive(Clone)]
+struct Fitted {
+    mean_error: f64,
+    std_error: f64,
+    values: Vec<f64>,
+}
+
+/// Identifications by selected set (None: failed or not converged), shared by the workers.
+#[derive(Default)]
+struct Memo(Mutex<HashMap<Vec<usize>, Option<Fitted>>>);
+
+impl Memo {
+    /// The fit of `set`, from the memo or by `fit` (outside the lock: two workers may fit
+    /// the same set at once, and both get the same result).
+    fn get_or_fit(&self, set: &[usize], fit: impl FnOnce() -> Option<Fitted>) -> Option<Fitted> {
+        if let Some(f) = self.0.lock().ok().and_then(|m| m.get(set).cloned()) {
+            return f;
+        }
+        let f = fit();
+        if let Ok(mut m) = self.0.lock() {
+            m.insert(set.to_vec(), f.clone());
+        }
+        f
+    }
+}
+
 /// The study as a library call: results per (size, repetition), in order.
 fn study(
     inp: &IdentifyInputs,
@@ -114,6 +142,23 @@ fn study(
     let results: Mutex<Vec<Option<Run>>> = Mutex::new((0..tasks.len()).map(|_| None).collect());
     let failures = AtomicUsize::new(0);
     let cancelled = std::sync::atomic::AtomicBool::new(false);
+    // Repetitions from different starts often end on the same set (at 80 of 360, about
+    // half do); its identification is the same, so each set is fitted once.
+    let memo = Memo::default();
+    let fit = |selected: &[usize]| {
+        inp.identify_values(Some(selected), &crate::util::NoMonitor)
+            .ok()
+            .filter(|(_, sol)| sol.converged())
+            .map(|(problem, sol)| {
+                let e = position_errors(&problem.model(&sol.x), validation);
+                let s = Summary::of(&e, "");
+                Fitted {
+                    mean_error: s.mean,
+                    std_error: s.std,
+                    values: sol.params.iter().map(|p| p.value).collect(),
+                }
+            })
+    };
     let threads = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .min(tasks.len().max(1));
@@ -142,21 +187,13 @@ fn study(
                         &crate::util::NoMonitor,
                     )
                     .ok()
-                    .and_then(|sel| {
-                        inp.identify_values(Some(&sel.selected), &crate::util::NoMonitor)
-                            .ok()
-                    })
-                    .filter(|(_, sol)| sol.converged())
-                    .map(|(problem, sol)| {
-                        let e = position_errors(&problem.model(&sol.x), validation);
-                        let s = Summary::of(&e, "");
-                        Run {
-                            size: n,
-                            repetition: r,
-                            mean_error: s.mean,
-                            std_error: s.std,
-                            values: sol.params.iter().map(|p| p.value).collect(),
-                        }
+                    .and_then(|sel| memo.get_or_fit(&sel.selected, || fit(&sel.selected)))
+                    .map(|f| Run {
+                        size: n,
+                        repetition: r,
+                        mean_error: f.mean_error,
+                        std_error: f.std_error,
+                        values: f.values,
                     });
                     if run.is_none() {
                         failures.fetch_add(1, Ordering::Relaxed);
@@ -378,5 +415,34 @@ impl DispersionJob {
 impl Kind for DispersionJob {
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
         computed(self, cx, Self::study)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Fitted, Memo};
+    use std::cell::Cell;
+
+    /// Each set is fitted once; a repeat gets the stored fit, failures included.
+    #[test]
+    fn the_memo_fits_each_set_once() {
+        let memo = Memo::default();
+        let calls = Cell::new(0);
+        let fit = |v: f64| {
+            calls.set(calls.get() + 1);
+            (v > 0.0).then(|| Fitted {
+                mean_error: v,
+                std_error: 2.0 * v,
+                values: vec![v; 3],
+            })
+        };
+        let a = memo.get_or_fit(&[1, 4, 9], || fit(1.5));
+        let again = memo.get_or_fit(&[1, 4, 9], || fit(99.0));
+        assert_eq!(again.map(|f| f.values), a.map(|f| f.values));
+        assert!(memo.get_or_fit(&[2, 3], || fit(-1.0)).is_none());
+        assert!(memo.get_or_fit(&[2, 3], || fit(7.0)).is_none());
+        let other = memo.get_or_fit(&[1, 4], || fit(7.0));
+        assert_eq!(other.map(|f| f.mean_error), Some(7.0));
+        assert_eq!(calls.get(), 3);
     }
 }

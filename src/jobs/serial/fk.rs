@@ -178,7 +178,7 @@ impl FkJob {
         let k = c.units.to_file(Quantity::Angle);
         let mut n = 0;
         let mut one = |row: usize, q: &[f64]| {
-            if row % 1024 == 0 && monitor.is_cancelled() {
+            if row.is_multiple_of(1024) && monitor.is_cancelled() {
                 return Err(JobError::Cancelled);
             }
             let v = pose(c, q);

@@ -131,12 +131,12 @@ impl PcrProblem {
             .cache
             .lock()
             .map_err(|_| model_err("solution cache poisoned"))?;
-        if cache.key == Some(key) {
-            if let Some(robot) = &cache.robot {
-                let sols: Option<Vec<Equilibrium>> = cache.solutions.iter().cloned().collect();
-                if let Some(sols) = sols {
-                    return Ok((robot.clone(), sols));
-                }
+        if cache.key == Some(key)
+            && let Some(robot) = &cache.robot
+        {
+            let sols: Option<Vec<Equilibrium>> = cache.solutions.iter().cloned().collect();
+            if let Some(sols) = sols {
+                return Ok((robot.clone(), sols));
             }
         }
         let robot = self.base.with_params(p).map_err(model_err)?;

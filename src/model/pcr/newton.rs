@@ -273,11 +273,12 @@ fn newton_body(
             prev_ratio = f64::INFINITY;
             continue;
         }
-        if opts.broyden && step > 1e-7 {
-            if let Some(hm) = h.as_mut() {
-                let y: Vec12 = std::array::from_fn(|k| r1[k] - r[k]);
-                broyden(hm, &dz, &y);
-            }
+        if opts.broyden
+            && step > 1e-7
+            && let Some(hm) = h.as_mut()
+        {
+            let y: Vec12 = std::array::from_fn(|k| r1[k] - r[k]);
+            broyden(hm, &dz, &y);
         }
         (prev_ratio, z, r, tips, ratio) = (ratio, z1, r1, t1, ratio1);
         // The second step also corrects the quadratic error of the first (a warm start is

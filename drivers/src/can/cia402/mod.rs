@@ -135,9 +135,9 @@ impl<C: CanConnect> Actor<C> {
         let work = async {
             bus.send(CanFrame::new(SDO_RX + node, &req))
                 .await
-                .map_err(|source| io_err(source))?;
+                .map_err(io_err)?;
             loop {
-                let f = bus.recv().await.map_err(|source| io_err(source))?;
+                let f = bus.recv().await.map_err(io_err)?;
                 if f.extended || f.id != u32::from(SDO_TX + node) {
                     continue; // heartbeats, PDOs, other nodes
                 }
@@ -264,11 +264,11 @@ impl<C: CanConnect> Actor<C> {
                     }),
                     Err(e) => Err(e),
                 };
-                if let (Ok(d), obj::STATUSWORD) = (&r, i) {
-                    if d.len() >= 2 {
-                        let sw = u16::from_le_bytes([d[0], d[1]]);
-                        self.state.send_modify(|s| s.statusword = Some(sw));
-                    }
+                if let (Ok(d), obj::STATUSWORD) = (&r, i)
+                    && d.len() >= 2
+                {
+                    let sw = u16::from_le_bytes([d[0], d[1]]);
+                    self.state.send_modify(|s| s.statusword = Some(sw));
                 }
                 let _ = reply.send(r);
             }

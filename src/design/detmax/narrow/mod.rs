@@ -90,9 +90,12 @@ pub(super) struct Design<'a> {
     /// definite): the determinant its toggle would bring, kept by the kernels so a greedy
     /// scan reads one number per candidate.
     dets: Vec<f64>,
-    /// The sign of candidate i's toggle (+1 outside, -1 member; padding +1), the kernels'
+    /// The sign of candidate i's toggle (+1 outside, -1 member; padding 0), the kernels'
     /// per-lane sign of `dets`.
     sgn: Vec<f64>,
+    /// Per group, the largest det of its outside candidates and of its members (-inf: none),
+    /// kept by the passes, so a greedy scan reads one number per group.
+    gmax: Vec<[f64; 2]>,
     /// Scratch of a toggle: B_a (r x m, row-major) and U^T (r x m).
     ba: Vec<f64>,
     ut: Vec<f64>,
@@ -113,6 +116,7 @@ impl Clone for Design<'_> {
             d: self.d.clone(),
             dets: self.dets.clone(),
             sgn: self.sgn.clone(),
+            gmax: self.gmax.clone(),
             ba: self.ba.clone(),
             ut: self.ut.clone(),
             u: self.u.clone(),
@@ -131,6 +135,7 @@ impl Clone for Design<'_> {
         self.d.clone_from(&src.d);
         self.dets.clone_from(&src.dets);
         self.sgn.clone_from(&src.sgn);
+        self.gmax.clone_from(&src.gmax);
         self.updates = src.updates;
     }
 }
@@ -156,7 +161,8 @@ impl<'a> Design<'a> {
             info_pending: Vec::new(),
             d: vec![0.0; lp.n.div_ceil(L) * r * r * L],
             dets: vec![0.0; lp.n.div_ceil(L) * L],
-            sgn: vec![1.0; lp.n.div_ceil(L) * L],
+            sgn: vec![0.0; lp.n.div_ceil(L) * L],
+            gmax: vec![[f64::NEG_INFINITY; 2]; lp.n.div_ceil(L)],
             ba: vec![0.0; m * r],
             ut: vec![0.0; m * r],
             u: vec![0.0; m * r],
@@ -196,29 +202,29 @@ impl<'a> Design<'a> {
     }
 
     /// The candidate whose toggle (add: an outside one, else an inside one) leaves the
-    /// largest determinant, with the change of log det; nothing is changed.
+    /// largest determinant, with the change of log det; nothing is changed. Ties go to the
+    /// lowest index.
     pub(super) fn best(&self, add: bool) -> Option<(usize, f64)> {
-        // Compare determinants, take the logarithm of the winner only.
-        let mut best: Option<(usize, f64)> = None;
-        for i in 0..self.lp.n {
-            if self.member[i] == add {
-                continue;
-            }
-            let det = self.dets[i];
-            if best.is_none_or(|b| det > b.1) {
-                best = Some((i, det));
-            }
+        // Compare determinants, take the logarithm of the winner only: the largest of the
+        // group maxima, then the first candidate of the first group that holds it.
+        let (col, want) = if add { (0, 1.0) } else { (1, -1.0) };
+        let det = self.gmax.iter().fold(
+            f64::NEG_INFINITY,
+            |a, g| if g[col] > a { g[col] } else { a },
+        );
+        if det == f64::NEG_INFINITY {
+            return None;
         }
-        best.map(|(i, det)| {
-            (
-                i,
-                if det > 0.0 {
-                    det.ln()
-                } else {
-                    f64::NEG_INFINITY
-                },
-            )
-        })
+        let g = self.gmax.iter().position(|m| m[col] == det)?;
+        let l = (0..L).find(|&l| self.sgn[g * L + l] == want && self.dets[g * L + l] == det)?;
+        Some((
+            g * L + l,
+            if det > 0.0 {
+                det.ln()
+            } else {
+                f64::NEG_INFINITY
+            },
+        ))
     }
 
     /// Add (sign +1) or remove (sign -1) candidate `a`: P and every D_i by Woodbury.

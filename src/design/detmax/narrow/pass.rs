@@ -123,11 +123,12 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
             let outs =
                 d.d.chunks_exact_mut(R * R * L)
                     .zip(d.dets.chunks_exact_mut(L).zip(d.sgn.chunks_exact(L)));
-            for (bg, (dg, (det, sg))) in blocks.zip(outs) {
+            for ((bg, (dg, (det, sg))), gm) in blocks.zip(outs).zip(&mut d.gmax) {
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
                     unsafe { super::avx512::rebuild_group::<R>(bg, &d.p, m, dg, sg, det) };
+                    *gm = group_max(det, sg);
                     continue;
                 }
                 let dr = rebuild_group::<R, FMA, W, 0>(bg, &d.p, m, dg);
@@ -136,6 +137,7 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                     let dr = rebuild_group::<R, FMA, W, 1>(bg, &d.p, m, dg);
                     dets_group::<R, W, 1>(&dr, sg, det);
                 }
+                *gm = group_max(det, sg);
             }
         }
         Kernel::Info => {
@@ -169,18 +171,21 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                 }
             }
             for c in 0..m {
-                let mut us = [0.0; R];
-                for (y, v) in us.iter_mut().enumerate() {
+                let mut f = [0.0; R];
+                for (y, v) in f.iter_mut().enumerate() {
                     for k in 0..R {
                         *v = madd::<FMA>(d.ut[k * m + c], s[k][y], *v);
                     }
+                    *v *= -sign;
                 }
+                // Each entry takes its R terms in registers (y in order, as row by row).
                 let row = &mut d.p[c * m..(c + 1) * m];
-                for (y, &v) in us.iter().enumerate() {
-                    let f = -sign * v;
-                    for (pv, &uv) in row.iter_mut().zip(&d.ut[y * m..(y + 1) * m]) {
-                        *pv = madd::<FMA>(f, uv, *pv);
+                for (k, pv) in row.iter_mut().enumerate() {
+                    let mut v = *pv;
+                    for (y, &fy) in f.iter().enumerate() {
+                        v = madd::<FMA>(fy, d.ut[y * m + k], v);
                     }
+                    *pv = v;
                 }
             }
             for c in 0..m {
@@ -191,11 +196,12 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
             let outs =
                 d.d.chunks_exact_mut(R * R * L)
                     .zip(d.dets.chunks_exact_mut(L).zip(d.sgn.chunks_exact(L)));
-            for (bg, (dg, (det, sg))) in blocks.zip(outs) {
+            for ((bg, (dg, (det, sg))), gm) in blocks.zip(outs).zip(&mut d.gmax) {
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
                     unsafe { super::avx512::update_group::<R>(bg, &d.u, m, &s, sign, dg, sg, det) };
+                    *gm = group_max(det, sg);
                     continue;
                 }
                 let dr = update_group::<R, FMA, W, 0>(bg, &d.u, m, &s, sign, dg);
@@ -204,9 +210,27 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                     let dr = update_group::<R, FMA, W, 1>(bg, &d.u, m, &s, sign, dg);
                     dets_group::<R, W, 1>(&dr, sg, det);
                 }
+                *gm = group_max(det, sg);
             }
         }
     }
+}
+
+/// The largest det of a group's outside candidates (sign +1) and of its members (-1); -inf
+/// where it has none (padding has sign 0).
+#[inline(always)]
+fn group_max(det: &[f64], sg: &[f64]) -> [f64; 2] {
+    let (mut out, mut ins) = ([f64::NEG_INFINITY; L], [f64::NEG_INFINITY; L]);
+    for l in 0..L {
+        let v = det[l];
+        out[l] = if sg[l] > 0.0 && v > out[l] { v } else { out[l] };
+        ins[l] = if sg[l] < 0.0 && v > ins[l] { v } else { ins[l] };
+    }
+    let top = |x: [f64; L]| {
+        x.iter()
+            .fold(f64::NEG_INFINITY, |a, &b| if b > a { b } else { a })
+    };
+    [top(out), top(ins)]
 }
 
 /// Dot product with four accumulators (fused when compiled for FMA).
