@@ -7,6 +7,8 @@ pub mod design;
 pub mod dispersion;
 pub mod fk;
 pub mod identify;
+mod identify_inputs;
+mod identify_result;
 pub mod joints;
 mod plots;
 pub mod prior;
