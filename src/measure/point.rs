@@ -3,6 +3,8 @@
 //! tracker). Residual = model TCP position - target, three rows per measurement, plus one
 //! weighted row per known distance that involves an unknown ball centre.
 
+use std::sync::{Mutex, MutexGuard};
+
 use nalgebra::{DMatrix, Vector3};
 
 use super::{BallPlate, MeasureError};
@@ -82,6 +84,26 @@ pub fn plausible_range(chain: &Chain, q: Quantity) -> f64 {
     }
 }
 
+/// A chain reused by the evaluations of a problem (one at a time; another evaluation at the
+/// same moment copies the chain instead). A copy of the problem starts without one.
+#[derive(Debug, Default)]
+struct WorkChain(Mutex<Option<Chain>>);
+
+type WorkGuard<'a> = MutexGuard<'a, Option<Chain>>;
+
+impl WorkChain {
+    /// The work chain, unless another evaluation holds it.
+    fn take(&self) -> Option<WorkGuard<'_>> {
+        self.0.try_lock().ok()
+    }
+}
+
+impl Clone for WorkChain {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
 /// The identification problem: unknowns = the chosen chain parameters, then the centres of
 /// the plate's unknown balls (x, y, z each).
 #[derive(Debug, Clone)]
@@ -95,6 +117,8 @@ pub struct PointProblem {
     tau: Vec<Vec<f64>>,
     /// Joint sines and cosines of each measurement's last evaluation.
     trig: TrigMemos,
+    /// The chain evaluations run on, its parameters set in place.
+    work: WorkChain,
     /// Weight of the distance rows (residual per unit of distance error).
     pub distance_weight: f64,
 }
@@ -157,6 +181,7 @@ impl PointProblem {
             meas,
             tau,
             trig,
+            work: WorkChain::default(),
             distance_weight: 10.0,
         })
     }
@@ -223,6 +248,14 @@ impl PointProblem {
     /// The chain with the chain part of `x` applied.
     pub fn model(&self, x: &[f64]) -> Chain {
         let mut c = self.chain.clone();
+        c.set_params(&self.ids, &x[..self.ids.len()]);
+        c
+    }
+
+    /// [`PointProblem::model`] on the work chain: the same parameter values, set in place
+    /// (every unknown is set, the others stay nominal), without copying the joints.
+    fn set_on<'c>(&self, work: &'c mut WorkGuard<'_>, x: &[f64]) -> &'c Chain {
+        let c = work.get_or_insert_with(|| self.chain.clone());
         c.set_params(&self.ids, &x[..self.ids.len()]);
         c
     }
@@ -343,7 +376,17 @@ impl Problem for PointProblem {
     }
 
     fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError> {
-        let chain = self.model(x);
+        let (mut work, fresh): (WorkGuard<'_>, Chain);
+        let chain: &Chain = match self.work.take() {
+            Some(w) => {
+                work = w;
+                self.set_on(&mut work, x)
+            }
+            None => {
+                fresh = self.model(x);
+                &fresh
+            }
+        };
         let centres = self.centres(x);
         let base = 3 * self.meas.len();
         let ranges = measurement_ranges(self.meas.len());
@@ -437,7 +480,17 @@ impl PointProblem {
                 w
             }
         };
-        let chain = self.model(x);
+        let (mut work, fresh): (WorkGuard<'_>, Chain);
+        let chain: &Chain = match self.work.take() {
+            Some(w) => {
+                work = w;
+                self.set_on(&mut work, x)
+            }
+            None => {
+                fresh = self.model(x);
+                &fresh
+            }
+        };
         let centres = self.centres(x);
         j.fill(0.0);
         let (n, width) = j.shape();
