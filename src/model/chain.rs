@@ -257,19 +257,23 @@ impl Chain {
 
     /// The constant parts of every joint (`pre` and the MDH rotations), each MDH `pre`
     /// from its cached rotations (the same values as [`pre_frame`]).
+    /// (In place: a work chain refreshed at every evaluation allocates nothing.)
     fn refresh_joints(&mut self) {
-        self.mdh_rots = self.joints.iter().map(mdh_rotations).collect();
-        self.pre = self
-            .joints
-            .iter()
-            .zip(&self.mdh_rots)
-            .map(|(j, r)| match (&j.geometry, r) {
-                (Geometry::Mdh { a, .. }, Some(r)) => {
-                    r.rx.mul(&Frame::trans(*a, 0.0, 0.0)).mul(&r.ry)
-                }
-                _ => pre_frame(j),
-            })
-            .collect();
+        self.mdh_rots.clear();
+        self.mdh_rots.extend(self.joints.iter().map(mdh_rotations));
+        self.pre.clear();
+        self.pre
+            .extend(
+                self.joints
+                    .iter()
+                    .zip(&self.mdh_rots)
+                    .map(|(j, r)| match (&j.geometry, r) {
+                        (Geometry::Mdh { a, .. }, Some(r)) => {
+                            r.rx.mul(&Frame::trans(*a, 0.0, 0.0)).mul(&r.ry)
+                        }
+                        _ => pre_frame(j),
+                    }),
+            );
     }
 
     /// `Rz(a)` and `Ry(b)` of the base (`k = 0`) or tool (`k = 1`) values `v`, from the
