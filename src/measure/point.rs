@@ -89,11 +89,9 @@ pub fn plausible_range(chain: &Chain, q: Quantity) -> f64 {
 #[derive(Debug, Default)]
 struct WorkChain(Mutex<Option<Chain>>);
 
-type WorkGuard<'a> = MutexGuard<'a, Option<Chain>>;
-
 impl WorkChain {
     /// The work chain, unless another evaluation holds it.
-    fn take(&self) -> Option<WorkGuard<'_>> {
+    fn take(&self) -> Option<MutexGuard<'_, Option<Chain>>> {
         self.0.try_lock().ok()
     }
 }
@@ -252,12 +250,18 @@ impl PointProblem {
         c
     }
 
-    /// [`PointProblem::model`] on the work chain: the same parameter values, set in place
-    /// (every unknown is set, the others stay nominal), without copying the joints.
-    fn set_on<'c>(&self, work: &'c mut WorkGuard<'_>, x: &[f64]) -> &'c Chain {
-        let c = work.get_or_insert_with(|| self.chain.clone());
-        c.set_params(&self.ids, &x[..self.ids.len()]);
-        c
+    /// `f` of [`PointProblem::model`], on the work chain when it is free: the same parameter
+    /// values set in place (every unknown is set, the others stay nominal), without copying
+    /// the joints.
+    fn with_chain<R>(&self, x: &[f64], f: impl FnOnce(&Chain) -> R) -> R {
+        match self.work.take() {
+            Some(mut work) => {
+                let c = work.get_or_insert_with(|| self.chain.clone());
+                c.set_params(&self.ids, &x[..self.ids.len()]);
+                f(c)
+            }
+            None => f(&self.model(x)),
+        }
     }
 
     /// Ball centres for unknowns `x` (fixed ones from the plate).
@@ -376,58 +380,52 @@ impl Problem for PointProblem {
     }
 
     fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError> {
-        let (mut work, fresh): (WorkGuard<'_>, Chain);
-        let chain: &Chain = match self.work.take() {
-            Some(w) => {
-                work = w;
-                self.set_on(&mut work, x)
+        self.with_chain(x, |chain| {
+            let centres = self.centres(x);
+            let base = 3 * self.meas.len();
+            let ranges = measurement_ranges(self.meas.len());
+            let nj = chain.joints.len();
+            let mut memos = self.trig.try_take();
+            let memos = memos
+                .as_deref_mut()
+                .filter(|v| v.len() == nj * self.meas.len());
+            let mut rest = &mut r[..base];
+            let mut parts = Vec::with_capacity(ranges.len());
+            for (range, memo) in
+                ranges
+                    .iter()
+                    .zip(memo_parts(memos.map(|v| &mut v[..]), &ranges, nj))
+            {
+                let (head, tail) = rest.split_at_mut(3 * range.len());
+                parts.push((range.clone(), head, memo));
+                rest = tail;
             }
-            None => {
-                fresh = self.model(x);
-                &fresh
-            }
-        };
-        let centres = self.centres(x);
-        let base = 3 * self.meas.len();
-        let ranges = measurement_ranges(self.meas.len());
-        let nj = chain.joints.len();
-        let mut memos = self.trig.try_take();
-        let memos = memos
-            .as_deref_mut()
-            .filter(|v| v.len() == nj * self.meas.len());
-        let mut rest = &mut r[..base];
-        let mut parts = Vec::with_capacity(ranges.len());
-        for (range, memo) in ranges
-            .iter()
-            .zip(memo_parts(memos.map(|v| &mut v[..]), &ranges, nj))
-        {
-            let (head, tail) = rest.split_at_mut(3 * range.len());
-            parts.push((range.clone(), head, memo));
-            rest = tail;
-        }
-        type Part<'a> = (
-            std::ops::Range<usize>,
-            &'a mut [f64],
-            Option<&'a mut [TrigMemo]>,
-        );
-        let fill = |(range, out, mut memo): Part<'_>| {
-            for (row, i) in range.clone().enumerate() {
-                let (m, tau) = (&self.meas[i], &self.tau[i]);
-                let target = match m.target {
-                    Target::Ball(k) => centres[k],
-                    Target::Point(p) => p,
-                };
-                let frame = match memo.as_deref_mut() {
-                    Some(mm) => chain.tcp_memo(&m.q, Some(tau), &mut mm[nj * row..nj * (row + 1)]),
-                    None => chain.tcp(&m.q, Some(tau)),
-                };
-                let e = frame.p - target;
-                out[3 * row..3 * row + 3].copy_from_slice(e.as_slice());
-            }
-        };
-        on_threads(parts, &fill);
-        self.distance_rows(&centres, r);
-        Ok(())
+            type Part<'a> = (
+                std::ops::Range<usize>,
+                &'a mut [f64],
+                Option<&'a mut [TrigMemo]>,
+            );
+            let fill = |(range, out, mut memo): Part<'_>| {
+                for (row, i) in range.clone().enumerate() {
+                    let (m, tau) = (&self.meas[i], &self.tau[i]);
+                    let target = match m.target {
+                        Target::Ball(k) => centres[k],
+                        Target::Point(p) => p,
+                    };
+                    let frame = match memo.as_deref_mut() {
+                        Some(mm) => {
+                            chain.tcp_memo(&m.q, Some(tau), &mut mm[nj * row..nj * (row + 1)])
+                        }
+                        None => chain.tcp(&m.q, Some(tau)),
+                    };
+                    let e = frame.p - target;
+                    out[3 * row..3 * row + 3].copy_from_slice(e.as_slice());
+                }
+            };
+            on_threads(parts, &fill);
+            self.distance_rows(&centres, r);
+            Ok(())
+        })
     }
 
     /// With every chain parameter held (a nuisance-only fit), the cheap form of
@@ -480,101 +478,92 @@ impl PointProblem {
                 w
             }
         };
-        let (mut work, fresh): (WorkGuard<'_>, Chain);
-        let chain: &Chain = match self.work.take() {
-            Some(w) => {
-                work = w;
-                self.set_on(&mut work, x)
+        self.with_chain(x, |chain| {
+            let centres = self.centres(x);
+            j.fill(0.0);
+            let (n, width) = j.shape();
+            let ranges = measurement_ranges(self.meas.len());
+            let nj = chain.joints.len();
+            let mut memos = self.trig.try_take();
+            let memos = memos
+                .as_deref_mut()
+                .filter(|v| v.len() == nj * self.meas.len());
+            // Each worker gets its rows of every column (column-major storage: one slice per
+            // column and worker).
+            type Part<'a> = (
+                std::ops::Range<usize>,
+                Vec<&'a mut [f64]>,
+                Option<&'a mut [TrigMemo]>,
+            );
+            let mut parts: Vec<Part<'_>> = ranges
+                .iter()
+                .zip(memo_parts(memos.map(|v| &mut v[..]), &ranges, nj))
+                .map(|(r, memo)| (r.clone(), Vec::with_capacity(width), memo))
+                .collect();
+            for column in j.as_mut_slice().chunks_mut(n.max(1)) {
+                let mut rest = column;
+                for (range, slices, _) in parts.iter_mut() {
+                    let (head, tail) = rest.split_at_mut(3 * range.len());
+                    slices.push(head);
+                    rest = tail;
+                }
             }
-            None => {
-                fresh = self.model(x);
-                &fresh
-            }
-        };
-        let centres = self.centres(x);
-        j.fill(0.0);
-        let (n, width) = j.shape();
-        let ranges = measurement_ranges(self.meas.len());
-        let nj = chain.joints.len();
-        let mut memos = self.trig.try_take();
-        let memos = memos
-            .as_deref_mut()
-            .filter(|v| v.len() == nj * self.meas.len());
-        // Each worker gets its rows of every column (column-major storage: one slice per
-        // column and worker).
-        type Part<'a> = (
-            std::ops::Range<usize>,
-            Vec<&'a mut [f64]>,
-            Option<&'a mut [TrigMemo]>,
-        );
-        let mut parts: Vec<Part<'_>> = ranges
-            .iter()
-            .zip(memo_parts(memos.map(|v| &mut v[..]), &ranges, nj))
-            .map(|(r, memo)| (r.clone(), Vec::with_capacity(width), memo))
-            .collect();
-        for column in j.as_mut_slice().chunks_mut(n.max(1)) {
-            let mut rest = column;
-            for (range, slices, _) in parts.iter_mut() {
-                let (head, tail) = rest.split_at_mut(3 * range.len());
-                slices.push(head);
-                rest = tail;
-            }
-        }
-        let fill = |(range, mut out, mut memo): Part<'_>| {
-            let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
-            let mut scratch = JacobianScratch::default();
-            scratch.set_wanted(wanted.clone());
-            for (row, i) in range.clone().enumerate() {
-                let (m, tau) = (&self.meas[i], &self.tau[i]);
-                match memo.as_deref_mut() {
-                    Some(mm) => chain.point_jacobian_memo(
-                        &m.q,
-                        Some(tau),
-                        &Vector3::zeros(),
-                        &mut buf,
-                        &mut scratch,
-                        &mut mm[nj * row..nj * (row + 1)],
-                    ),
-                    None => chain.point_jacobian_with(
-                        &m.q,
-                        Some(tau),
-                        &Vector3::zeros(),
-                        &mut buf,
-                        &mut scratch,
-                    ),
-                };
-                for (c, &col) in self.cols.iter().enumerate() {
-                    if let (Some(v), Some(oc)) = (buf.get(col), at[c]) {
-                        for a in 0..3 {
-                            out[oc][3 * row + a] = v[a];
+            let fill = |(range, mut out, mut memo): Part<'_>| {
+                let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
+                let mut scratch = JacobianScratch::default();
+                scratch.set_wanted(wanted.clone());
+                for (row, i) in range.clone().enumerate() {
+                    let (m, tau) = (&self.meas[i], &self.tau[i]);
+                    match memo.as_deref_mut() {
+                        Some(mm) => chain.point_jacobian_memo(
+                            &m.q,
+                            Some(tau),
+                            &Vector3::zeros(),
+                            &mut buf,
+                            &mut scratch,
+                            &mut mm[nj * row..nj * (row + 1)],
+                        ),
+                        None => chain.point_jacobian_with(
+                            &m.q,
+                            Some(tau),
+                            &Vector3::zeros(),
+                            &mut buf,
+                            &mut scratch,
+                        ),
+                    };
+                    for (c, &col) in self.cols.iter().enumerate() {
+                        if let (Some(v), Some(oc)) = (buf.get(col), at[c]) {
+                            for a in 0..3 {
+                                out[oc][3 * row + a] = v[a];
+                            }
+                        }
+                    }
+                    if let Target::Ball(b) = m.target {
+                        if let Some(o) = self.free_slot(b) {
+                            for a in 0..3 {
+                                if let Some(oc) = at[o + a] {
+                                    out[oc][3 * row + a] = -1.0;
+                                }
+                            }
                         }
                     }
                 }
-                if let Target::Ball(b) = m.target {
-                    if let Some(o) = self.free_slot(b) {
+            };
+            on_threads(parts, &fill);
+            let base = 3 * self.meas.len();
+            for (k, &(bi, bj, _)) in self.plate.distances.iter().enumerate() {
+                let diff = centres[bi] - centres[bj];
+                let u = diff / diff.norm().max(f64::MIN_POSITIVE);
+                for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
+                    if let Some(o) = self.free_slot(ball) {
                         for a in 0..3 {
                             if let Some(oc) = at[o + a] {
-                                out[oc][3 * row + a] = -1.0;
+                                j[(base + k, oc)] = self.distance_weight * sign * u[a];
                             }
                         }
                     }
                 }
             }
-        };
-        on_threads(parts, &fill);
-        let base = 3 * self.meas.len();
-        for (k, &(bi, bj, _)) in self.plate.distances.iter().enumerate() {
-            let diff = centres[bi] - centres[bj];
-            let u = diff / diff.norm().max(f64::MIN_POSITIVE);
-            for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
-                if let Some(o) = self.free_slot(ball) {
-                    for a in 0..3 {
-                        if let Some(oc) = at[o + a] {
-                            j[(base + k, oc)] = self.distance_weight * sign * u[a];
-                        }
-                    }
-                }
-            }
-        }
+        })
     }
 }
