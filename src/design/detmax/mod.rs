@@ -290,8 +290,9 @@ pub fn detmax(
                 *taken = Some(k);
             }
             // The last step is looked at first and taken only if the excursion is accepted.
-            let back = (0..k - 1).all(|_| trial.greedy(!up, &mut memo).is_some());
-            let Some((last, log_det)) = back.then(|| trial.peek(!up, &mut memo)).flatten() else {
+            let came_back = (0..k - 1).all(|_| trial.greedy(!up, &mut memo).is_some());
+            let Some((last, log_det)) = came_back.then(|| trial.peek(!up, &mut memo)).flatten()
+            else {
                 continue;
             };
             if log_det <= current + 1e-9 * current.abs().max(1.0) {
