@@ -379,3 +379,55 @@ async fn every_error_body_is_json() {
         assert!(e["error"]["message"].is_string(), "{m} {path}: {e}");
     }
 }
+
+/// A 600-byte URDF whose joints form a cycle (`a -> b -> a`) once walked the graph forever
+/// until the allocator aborted the daemon (issue 28). It is refused at submission with the
+/// joints named; the daemon stays up; `calibd run` on the same file exits non-zero at once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_model_whose_joints_form_a_cycle_is_refused_not_walked() {
+    let urdf = r#"<robot name="loop">
+  <link name="base"/><link name="a"/><link name="b"/>
+  <joint name="j_ab" type="revolute"><parent link="a"/><child link="b"/>
+    <axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+  <joint name="j_ba" type="revolute"><parent link="b"/><child link="a"/>
+    <axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+</robot>"#;
+    let job = json!({"kind": "serial.fk", "model": urdf,
+        "chain": {"root": "base", "tip": "b"}, "joints": [{"q1": 0, "q2": 0}]});
+    let s = start(|_| {}).await;
+    let r = s
+        .req(Method::POST, "/v1/jobs", Some(OPERATOR))
+        .json(&job)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    let e: Value = r.json().await.unwrap();
+    let m = e["error"]["message"].as_str().unwrap();
+    assert!(
+        m.contains("cycle") && m.contains("`j_ab`") && m.contains("`j_ba`"),
+        "{m}"
+    );
+    assert_eq!(s.get("/v1/health").await.0, 200, "the daemon is still up");
+
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("loop.json");
+    std::fs::write(&file, job.to_string()).unwrap();
+    let out = tokio::process::Command::new(env!("CARGO_BIN_EXE_calibd"))
+        .arg("run")
+        .arg(&file)
+        .current_dir(dir.path())
+        .kill_on_drop(true)
+        .output();
+    // Bounded so a regression fails the test instead of hanging CI (not a timing assertion).
+    let out = tokio::time::timeout(Duration::from_secs(120), out)
+        .await
+        .expect("calibd run returns")
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("cycle") && err.contains("`j_ab`") && err.contains("`j_ba`"),
+        "{err}"
+    );
+}

@@ -3,7 +3,7 @@
 //! and the calibrated URDF written back by editing only the `<origin>` of changed joints,
 //! so meshes, transmissions and comments survive.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use nalgebra::Vector3;
 
@@ -35,15 +35,7 @@ impl UrdfModel {
     pub fn parse(text: &str) -> Result<Self, ModelError> {
         let robot =
             urdf_rs::read_from_string(text).map_err(|e| ModelError::Parse(format!("URDF: {e}")))?;
-        let mut parent_joint = HashMap::new();
-        for (i, j) in robot.joints.iter().enumerate() {
-            if parent_joint.insert(j.child.link.clone(), i).is_some() {
-                return Err(ModelError::Parse(format!(
-                    "URDF: link `{}` is the child of two joints",
-                    j.child.link
-                )));
-            }
-        }
+        let parent_joint = check_graph(&robot)?;
         Ok(Self {
             text: text.to_string(),
             robot,
@@ -284,6 +276,88 @@ impl UrdfModel {
     }
 }
 
+/// The kinematic graph of a URDF must be a tree: unique link and joint names, every joint
+/// between two existing, different links, no link with two parent joints, no cycle. Checked
+/// before any walk over the graph, so a hostile file cannot make one run forever. Returns
+/// the index of the joint whose child is each link.
+fn check_graph(robot: &urdf_rs::Robot) -> Result<HashMap<String, usize>, ModelError> {
+    let bad = |msg: String| Err(ModelError::Parse(format!("URDF: {msg}")));
+    let mut links = HashSet::with_capacity(robot.links.len());
+    for l in &robot.links {
+        if !links.insert(l.name.as_str()) {
+            return bad(format!("link `{}` is declared twice", l.name));
+        }
+    }
+    let mut joint_names = HashSet::with_capacity(robot.joints.len());
+    let mut parent_joint: HashMap<String, usize> = HashMap::with_capacity(robot.joints.len());
+    for (i, j) in robot.joints.iter().enumerate() {
+        if !joint_names.insert(j.name.as_str()) {
+            return bad(format!("joint `{}` is declared twice", j.name));
+        }
+        for (role, link) in [("parent", &j.parent.link), ("child", &j.child.link)] {
+            if !links.contains(link.as_str()) {
+                return bad(format!(
+                    "joint `{}` is dangling: its {role} link `{link}` is not declared",
+                    j.name
+                ));
+            }
+        }
+        if j.parent.link == j.child.link {
+            return bad(format!(
+                "joint `{}` joins link `{}` to itself (a cycle)",
+                j.name, j.child.link
+            ));
+        }
+        if let Some(&other) = parent_joint.get(&j.child.link) {
+            return bad(format!(
+                "link `{}` has two parents: it is the child of joints `{}` and `{}`",
+                j.child.link, robot.joints[other].name, j.name
+            ));
+        }
+        parent_joint.insert(j.child.link.clone(), i);
+    }
+    // With one parent per link, a cycle is a walk up the parents that comes back. Each link
+    // is walked once: `state` marks links known to reach a root (2) or on the current walk (1).
+    let mut state: HashMap<&str, u8> = HashMap::with_capacity(links.len());
+    for start in robot.links.iter().map(|l| l.name.as_str()) {
+        let mut walk: Vec<&str> = Vec::new();
+        let mut link = start;
+        loop {
+            match state.get(link) {
+                Some(2) => break,
+                Some(_) => {
+                    // `link` is on this walk: the joints from it back to itself form the cycle.
+                    let from = walk.iter().position(|l| *l == link).unwrap_or(0);
+                    let joints: Vec<&str> = walk[from..]
+                        .iter()
+                        .filter_map(|l| parent_joint.get(*l))
+                        .map(|&ji| robot.joints[ji].name.as_str())
+                        .collect();
+                    return bad(format!(
+                        "joints form a cycle: {} (link `{link}` is its own ancestor)",
+                        joints
+                            .iter()
+                            .map(|n| format!("`{n}`"))
+                            .collect::<Vec<_>>()
+                            .join(" <- ")
+                    ));
+                }
+                None => {}
+            }
+            state.insert(link, 1);
+            walk.push(link);
+            match parent_joint.get(link) {
+                Some(&ji) => link = robot.joints[ji].parent.link.as_str(),
+                None => break,
+            }
+        }
+        for l in walk {
+            state.insert(l, 2);
+        }
+    }
+    Ok(parent_joint)
+}
+
 /// Replace (or insert) the `<origin .../>` of the `<joint name=.. type=..>` element.
 fn replace_origin(text: &str, name: &str, new_tag: &str) -> Option<String> {
     replace_child(text, name, "origin", new_tag)
@@ -371,6 +445,129 @@ mod tests {
         assert!(a.angle_to(&b) < 1e-12);
         // Meshes and the rest of the text are untouched.
         assert!(text.contains("<mesh") == PANDA.contains("<mesh"));
+    }
+
+    /// A URDF of `n` links and the joints `(parent, child)` between them.
+    fn graph_urdf(n: usize, joints: &[(usize, usize)]) -> String {
+        let mut t = String::from("<robot name=\"g\">\n");
+        for l in 0..n {
+            t.push_str(&format!("<link name=\"l{l}\"/>\n"));
+        }
+        for (k, (p, c)) in joints.iter().enumerate() {
+            t.push_str(&format!(
+                "<joint name=\"j{k}\" type=\"revolute\"><parent link=\"l{p}\"/><child link=\"l{c}\"/>\
+                 <axis xyz=\"0 0 1\"/><limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/></joint>\n"
+            ));
+        }
+        t.push_str("</robot>\n");
+        t
+    }
+
+    /// Whether the joints (at most one parent per child) contain a cycle: a second,
+    /// independent method (repeated removal of links with no parent, Kahn's algorithm).
+    fn has_cycle(n: usize, joints: &[(usize, usize)]) -> bool {
+        let mut indegree = vec![0usize; n];
+        for &(_, c) in joints {
+            indegree[c] += 1;
+        }
+        let mut ready: Vec<usize> = (0..n).filter(|&l| indegree[l] == 0).collect();
+        let mut seen = 0;
+        while let Some(l) = ready.pop() {
+            seen += 1;
+            for &(p, c) in joints {
+                if p == l {
+                    indegree[c] -= 1;
+                    if indegree[c] == 0 {
+                        ready.push(c);
+                    }
+                }
+            }
+        }
+        seen < n
+    }
+
+    #[test]
+    fn random_link_graphs_are_accepted_exactly_when_they_are_trees() {
+        let mut rng = crate::util::Rng::new(28);
+        let (mut trees, mut cycles) = (0, 0);
+        for _ in 0..3000 {
+            let n = 1 + rng.below(9);
+            // A random forest (each link but the first picks an earlier parent, or none)...
+            let mut joints: Vec<(usize, usize)> = Vec::new();
+            for c in 1..n {
+                if rng.below(5) > 0 {
+                    joints.push((rng.below(c), c));
+                }
+            }
+            // ...then, half of the time, one joint re-aimed at a random parent, which may
+            // close a loop (a -> b -> a, a self-joint, a longer cycle) or stay a tree.
+            if !joints.is_empty() && rng.below(2) == 0 {
+                let k = rng.below(joints.len());
+                joints[k].0 = rng.below(n);
+            }
+            let text = graph_urdf(n, &joints);
+            let parsed = UrdfModel::parse(&text);
+            if has_cycle(n, &joints) {
+                cycles += 1;
+                let e = parsed.expect_err(&text).to_string();
+                assert!(e.contains("cycle"), "{e}\n{text}");
+                assert!(e.contains("`j"), "the joints are named: {e}");
+            } else {
+                trees += 1;
+                let m = parsed.unwrap_or_else(|e| panic!("{e}\n{text}"));
+                // Every joint's child descends from link 0's tree root along a finite path.
+                for (k, &(_, c)) in joints.iter().enumerate() {
+                    let mut root = c;
+                    while let Some(&(p, _)) = joints.iter().find(|(_, cc)| *cc == root) {
+                        root = p;
+                    }
+                    let path = m.path(&format!("l{root}"), &format!("l{c}")).unwrap();
+                    assert!(path.contains(&k), "{path:?} {k}");
+                }
+            }
+        }
+        assert!(
+            trees > 500 && cycles > 200,
+            "{trees} trees, {cycles} cycles"
+        );
+    }
+
+    #[test]
+    fn bad_graphs_name_the_joints() {
+        let two_cycle = graph_urdf(4, &[(0, 3), (1, 2), (2, 1)]);
+        let e = UrdfModel::parse(&two_cycle).unwrap_err().to_string();
+        assert!(
+            e.contains("cycle") && e.contains("`j1`") && e.contains("`j2`"),
+            "{e}"
+        );
+        assert!(!e.contains("`j0`"), "j0 is not on the cycle: {e}");
+        // Closing a loop onto a link that has a parent gives it two parents.
+        let closed = graph_urdf(3, &[(0, 1), (1, 2), (2, 1)]);
+        let e = UrdfModel::parse(&closed).unwrap_err().to_string();
+        assert!(
+            e.contains("two parents") && e.contains("`j0`") && e.contains("`j2`"),
+            "{e}"
+        );
+        let selfie = graph_urdf(2, &[(0, 1), (1, 1)]);
+        let e = UrdfModel::parse(&selfie).unwrap_err().to_string();
+        assert!(e.contains("`j1`") && e.contains("to itself"), "{e}");
+        let two_parents = graph_urdf(3, &[(0, 2), (1, 2)]);
+        let e = UrdfModel::parse(&two_parents).unwrap_err().to_string();
+        assert!(
+            e.contains("two parents") && e.contains("`j0`") && e.contains("`j1`"),
+            "{e}"
+        );
+        let dangling = graph_urdf(2, &[(0, 1)]).replace("l1\"/></joint>", "l7\"/></joint>");
+        let dangling = dangling.replace("<child link=\"l1\"/>", "<child link=\"l7\"/>");
+        let e = UrdfModel::parse(&dangling).unwrap_err().to_string();
+        assert!(
+            e.contains("dangling") && e.contains("`j0`") && e.contains("`l7`"),
+            "{e}"
+        );
+        // A tip that is not below the root.
+        let m = UrdfModel::parse(&graph_urdf(3, &[(0, 1), (0, 2)])).unwrap();
+        let e = m.path("l1", "l2").unwrap_err().to_string();
+        assert!(e.contains("does not descend"), "{e}");
     }
 
     #[test]
