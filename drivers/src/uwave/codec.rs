@@ -300,8 +300,16 @@ impl ReceiverInfo {
 
 /// Codec for the receiver side of the port: decodes CR-terminated lines, encodes raw
 /// request bytes (the caller includes the CR, since the request bytes are configuration).
+///
+/// A port opened while the receiver streams starts mid-line (`0000006.452M\r`): the first
+/// line after an open is dropped when it does not parse, whatever it holds. From the second
+/// line on, a line that does not parse is an error. Each connection starts from
+/// `UwaveCodec::default()` (the link clones the codec it was given for every open).
 #[derive(Debug, Clone, Copy, Default)]
-pub struct UwaveCodec;
+pub struct UwaveCodec {
+    /// A first complete line has been seen since the port was opened.
+    synced: bool,
+}
 
 impl Decoder for UwaveCodec {
     type Item = UwaveLine;
@@ -323,12 +331,25 @@ impl Decoder for UwaveCodec {
                 return Ok(None);
             };
             let line = src.split_to(pos + 1);
-            let text = std::str::from_utf8(&line[..pos])
-                .map_err(|_| CodecError::malformed(format!("non-UTF-8 line {}", quote(&line))))?;
+            let first = !std::mem::replace(&mut self.synced, true);
+            let text = match std::str::from_utf8(&line[..pos]) {
+                Ok(t) => t,
+                Err(_) if first => continue,
+                Err(_) => {
+                    return Err(CodecError::malformed(format!(
+                        "non-UTF-8 line {}",
+                        quote(&line)
+                    )));
+                }
+            };
             if text.is_empty() {
                 continue;
             }
-            return parse_line(text).map(Some);
+            match parse_line(text) {
+                // The tail of a line sent before the port was opened.
+                Err(_) if first => continue,
+                parsed => return parsed.map(Some),
+            }
         }
     }
 }
@@ -346,7 +367,7 @@ mod tests {
     use super::*;
 
     fn decode_all(bytes: &[u8]) -> Vec<Result<UwaveLine, String>> {
-        let mut c = UwaveCodec;
+        let mut c = UwaveCodec::default();
         let mut b = BytesMut::from(bytes);
         let mut out = Vec::new();
         loop {
@@ -360,6 +381,25 @@ mod tests {
             }
         }
         out
+    }
+
+    #[test]
+    fn a_port_opened_mid_line_drops_the_fragment_then_parses() {
+        // Opened while the receiver streamed: the tail of a DT1 line comes first.
+        let r = decode_all(b"0000006.452M\rDT10001+0000006.453M\rDT10001+0000006.454M\r");
+        assert_eq!(r.len(), 2, "{r:?}");
+        assert!(matches!(r[0], Ok(UwaveLine::Data { value, .. }) if value == 6.453));
+        // Non-UTF-8 noise of the open is a fragment too.
+        let r = decode_all(b"\xff\xfe5M\rDT10001+0000006.453M\r");
+        assert_eq!(r.len(), 1, "{r:?}");
+        // A complete first line is kept; after it, a bad line is an error, not skipped.
+        let r = decode_all(b"DT10001+0000006.453M\r0000006.452M\r");
+        assert!(r[0].is_ok());
+        assert!(
+            r[1].as_ref()
+                .is_err_and(|e| e.contains("unknown line type")),
+            "{r:?}"
+        );
     }
 
     #[test]
@@ -463,20 +503,22 @@ mod tests {
 
     #[test]
     fn partial_line_waits_and_garbage_fails() {
-        let mut c = UwaveCodec;
+        let mut c = UwaveCodec::default();
         let mut b = BytesMut::from(&b"DT10000+0000"[..]);
         assert!(matches!(c.decode(&mut b), Ok(None)));
         b.extend_from_slice(b"0011.88M\r");
         assert!(matches!(c.decode(&mut b), Ok(Some(UwaveLine::Data { .. }))));
-        let r = decode_all(b"XX1 hello\r");
+        // Garbage after a first good line (a first line that does not parse is dropped as
+        // the fragment of an open: see a_port_opened_mid_line_drops_the_fragment_then_parses).
+        let r = decode_all(b"DT10000+00000011.88M\rXX1 hello\r");
         assert!(
-            r[0].as_ref()
+            r[1].as_ref()
                 .is_err_and(|e| e.contains("unknown line type"))
         );
-        let r = decode_all(b"DT10000+00abc011.88M\r");
-        assert!(r[0].is_err());
-        let r = decode_all(b"DT1000+1.0Q\r");
-        assert!(r[0].is_err());
+        let r = decode_all(b"DT10000+00000011.88M\rDT10000+00abc011.88M\r");
+        assert!(r[1].is_err());
+        let r = decode_all(b"DT10000+00000011.88M\rDT1000+1.0Q\r");
+        assert!(r[1].is_err());
         let r = decode_all(&[b'D'; 200]);
         assert!(r[0].as_ref().is_err_and(|e| e.contains("no CR")));
         // The naive "first number" bug: the channel must never be read as the value.

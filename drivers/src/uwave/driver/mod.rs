@@ -216,7 +216,7 @@ impl UwaveHandle {
         let (stx, srx) = watch::channel(UwaveState::default());
         let axes = cfg.axes;
         let actor = Actor {
-            link: Link::new(DEVICE, connector, UwaveCodec, cfg.backoff),
+            link: Link::new(DEVICE, connector, UwaveCodec::default(), cfg.backoff),
             cfg,
             rx,
             state: stx,
