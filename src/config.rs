@@ -89,6 +89,9 @@ pub struct Config {
     pub max_queued: usize,
     /// Largest request body in bytes (job documents with inline tables, dataset uploads).
     pub max_body_bytes: usize,
+    /// Bytes of request bodies in flight at once, over all clients; a request beyond it is
+    /// refused with 503 and `Retry-After` (bounds the memory parallel uploads take).
+    pub max_body_bytes_in_flight: u64,
     /// Time limit for producing a response, in seconds (event streams are not limited).
     pub request_timeout_s: u64,
     /// Most open client connections; one more is closed at once (idle and half-sent
@@ -143,6 +146,7 @@ impl Default for Config {
             workers: 0,
             max_queued: 10_000,
             max_body_bytes: 16 * 1024 * 1024,
+            max_body_bytes_in_flight: 64 * 1024 * 1024,
             request_timeout_s: 30,
             max_connections: 512,
             header_read_timeout_s: 10,
@@ -169,6 +173,10 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ("CALIBD_WORKERS", "workers: integer, 0 = one per core"),
     ("CALIBD_MAX_QUEUED", "max_queued: integer"),
     ("CALIBD_MAX_BODY_BYTES", "max_body_bytes: integer"),
+    (
+        "CALIBD_MAX_BODY_BYTES_IN_FLIGHT",
+        "max_body_bytes_in_flight: integer",
+    ),
     ("CALIBD_REQUEST_TIMEOUT_S", "request_timeout_s: integer"),
     ("CALIBD_MAX_CONNECTIONS", "max_connections: integer"),
     (
@@ -311,6 +319,9 @@ impl Config {
                 "CALIBD_WORKERS" => self.workers = parse(name, &v)?,
                 "CALIBD_MAX_QUEUED" => self.max_queued = parse(name, &v)?,
                 "CALIBD_MAX_BODY_BYTES" => self.max_body_bytes = parse(name, &v)?,
+                "CALIBD_MAX_BODY_BYTES_IN_FLIGHT" => {
+                    self.max_body_bytes_in_flight = parse(name, &v)?
+                }
                 "CALIBD_REQUEST_TIMEOUT_S" => self.request_timeout_s = parse(name, &v)?,
                 "CALIBD_MAX_CONNECTIONS" => self.max_connections = parse(name, &v)?,
                 "CALIBD_HEADER_READ_TIMEOUT_S" => self.header_read_timeout_s = parse(name, &v)?,

@@ -63,6 +63,7 @@ pub async fn start(
     clock: Clock,
     shutdown: CancellationToken,
 ) -> Result<(AppState, crate::service::Workers, Startup), ServeError> {
+    crate::util::tune_allocator();
     // The recorder first, so the service's gauges are recorded from the start.
     let metrics = api::metrics_handle();
     let store = match &config.store {
@@ -141,6 +142,7 @@ pub async fn start(
         scheduler,
         auth: Arc::new(auth),
         max_body_bytes: config.max_body_bytes,
+        body_budget: api::budget::BodyBudget::new(config.max_body_bytes_in_flight),
         request_timeout: Duration::from_secs(config.request_timeout_s.max(1)),
         limits: api::ServeLimits {
             max_connections: config.max_connections.max(1),

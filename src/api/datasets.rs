@@ -44,7 +44,7 @@ async fn upload(
     let media_type = media_type(headers.get(header::CONTENT_TYPE))?;
     let name = q.name.unwrap_or_else(|| "dataset".into());
     check_name("name", &name)?;
-    let info = s.service.put_dataset(name, media_type, b.to_vec()).await?;
+    let info = s.service.put_dataset(name, media_type, Vec::from(b)).await?;
     Ok((StatusCode::CREATED, Json(info)).into_response())
 }
 

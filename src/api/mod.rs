@@ -4,6 +4,7 @@
 //! and `/metrics`. The API knows the job service and the store, not models.
 
 pub mod auth;
+pub mod budget;
 mod conn;
 mod datasets;
 mod error;
@@ -50,6 +51,8 @@ pub struct AppState {
     pub auth: Arc<Auth>,
     /// Largest request body.
     pub max_body_bytes: usize,
+    /// Bytes of request bodies in flight at once, over all clients.
+    pub body_budget: budget::BodyBudget,
     /// Time limit for a response.
     pub request_timeout: Duration,
     /// Connection limits of the server.
@@ -89,6 +92,7 @@ pub fn app(state: AppState) -> Router {
         .route_layer(middleware::from_fn(track))
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
+        .layer(middleware::from_fn_with_state(state.clone(), budget::limit))
         .layer(middleware::from_fn_with_state(state.clone(), check_host))
         .layer(middleware::from_fn(security_headers))
         .layer(DefaultBodyLimit::max(limit))

@@ -141,6 +141,21 @@ pub trait Kind: Send + Sync + std::fmt::Debug + 'static {
             "internal error: this kind does not stream its main table".into(),
         ))
     }
+
+    /// Whether the daemon should stream this job's main table to a file instead of running
+    /// it through [`Kind::run`]: its input is a large file read row by row, so the table
+    /// would not fit in memory or in a JSON result. Only kinds that stream their table.
+    fn large_main_table(&self) -> bool {
+        false
+    }
+
+    /// The result fields of a streamed run that wrote `rows` rows: everything but the rows,
+    /// which are only in the main table.
+    fn streamed_fields(&self, _rows: usize) -> Result<Map<String, Value>, JobError> {
+        Err(JobError::Failed(
+            "internal error: this kind does not stream its main table".into(),
+        ))
+    }
 }
 
 /// Run a numerical kind: `f` on the blocking pool with the context's monitor; its typed
@@ -303,6 +318,8 @@ pub struct Completed {
     pub result: Value,
     /// The main table.
     pub main_table: Option<Table>,
+    /// The main table as a CSV file, when it was streamed ([`Job::run_streamed_in`]).
+    pub main_csv_file: Option<std::path::PathBuf>,
     /// Artefacts.
     pub artefacts: Vec<Artefact>,
     /// The model proposed for a cell, if any.
@@ -398,8 +415,60 @@ impl Job {
         Ok(Completed {
             result,
             main_table: out.main_table,
+            main_csv_file: None,
             artefacts: out.artefacts,
             candidate,
+        })
+    }
+
+    /// Whether the daemon streams this job's main table ([`Kind::large_main_table`]).
+    pub fn large_main_table(&self) -> bool {
+        self.prepared.streams_main_csv() && self.prepared.large_main_table()
+    }
+
+    /// Run the job in `cx` writing its main table row by row to the CSV file `csv` (on the
+    /// blocking pool) instead of holding it: the result carries every field but the rows.
+    pub async fn run_streamed_in(
+        &self,
+        cx: Cx,
+        csv: std::path::PathBuf,
+    ) -> Result<Completed, JobError> {
+        let started = chrono::Utc::now();
+        let kind = self.prepared.clone();
+        let path = csv.clone();
+        let rows = cx
+            .compute(move |m| {
+                let io = |e: std::io::Error| {
+                    JobError::Failed(format!("writing the main table {}: {e}", path.display()))
+                };
+                let file = std::fs::File::create(&path).map_err(io)?;
+                let mut out = std::io::BufWriter::with_capacity(1 << 16, file);
+                let n = kind.write_main_csv(&mut out, m)?;
+                out.into_inner().map_err(|e| io(e.into_error()))?;
+                Ok(n)
+            })
+            .await;
+        let rows = match rows {
+            Ok(n) => n,
+            Err(e) => {
+                let _ = std::fs::remove_file(&csv);
+                return Err(e);
+            }
+        };
+        let fields = self.prepared.streamed_fields(rows)?;
+        let result = envelope::wrap(
+            &self.kind,
+            started,
+            chrono::Utc::now(),
+            &self.inputs_sha256,
+            fields,
+        );
+        Ok(Completed {
+            result,
+            main_table: None,
+            main_csv_file: Some(csv),
+            artefacts: Vec::new(),
+            candidate: None,
         })
     }
 }

@@ -128,6 +128,13 @@ impl Service {
                 config.devices.push(d);
             }
         }
+        // Spooled inputs and tables are a cache of the last run: start empty.
+        let spool = store.spool_dir();
+        if let Err(e) = std::fs::remove_dir_all(&spool)
+            && e.kind() != std::io::ErrorKind::NotFound
+        {
+            tracing::warn!(path = %spool.display(), error = %e, "cannot empty the spool folder");
+        }
         let (events, _) = broadcast::channel(4096);
         let (progress_tx, progress_rx) = mpsc::unbounded_channel();
         let svc = Service {

@@ -119,4 +119,14 @@ impl Resolver for StoreResolver {
             Err(e) => Err(input_err(e.to_string())),
         }
     }
+
+    fn file(&self, reference: &str) -> Option<std::path::PathBuf> {
+        match self.0.spooled_dataset(reference) {
+            Ok(p) => p,
+            Err(e) => {
+                tracing::warn!(dataset = reference, error = %e, "spooling a dataset failed: read whole");
+                None
+            }
+        }
+    }
 }

@@ -16,7 +16,7 @@ use super::events::JobMonitor;
 use super::storage::call;
 use super::{Entry, Event, Running, Service, StoreResolver, lock};
 use crate::jobs::{self, JobError};
-use crate::store::{JobState, Run, StoreError};
+use crate::store::{JobState, MainTableCsv, Run, StoreError};
 use tracing::Instrument;
 
 /// The running worker tasks; [`Workers::join`] waits for them after shutdown.
@@ -211,8 +211,25 @@ async fn run_one(svc: &Service, entry: Entry, claimed: Option<Run>) {
     let mut handle = tokio::spawn(
         async move {
             tracing::info!("started");
-            let r = job2.run_in(cx).await;
-            conclude(&svc2, run, r).await
+            let r = if job2.large_main_table() {
+                // A table read from a large file goes to a file row by row, never whole.
+                let dir = svc2.shared.store.spool_dir();
+                match std::fs::create_dir_all(&dir) {
+                    Ok(()) => {
+                        let path = dir.join(format!("job-{id}-{}.csv", run.attempt));
+                        job2.run_streamed_in(cx, path).await
+                    }
+                    Err(e) => Err(JobError::Failed(format!(
+                        "cannot create the spool folder {}: {e}",
+                        dir.display()
+                    ))),
+                }
+            } else {
+                job2.run_in(cx).await
+            };
+            let outcome = conclude(&svc2, run, r).await;
+            crate::util::release_memory();
+            outcome
         }
         .instrument(span),
     );
@@ -295,11 +312,20 @@ async fn conclude(svc: &Service, run: Run, ran: Result<jobs::Completed, JobError
             let artefacts = done.artefacts;
             let decision = done.candidate.as_ref().map(|c| svc.shared.lab.decide(c));
             let csv = done.main_table.as_ref().map(|t| t.to_csv());
+            let file = done.main_csv_file.clone();
             let d = decision.clone();
             let stored = call(&svc.shared.store, move |st| {
-                st.finish_job(run, &done.result, csv.as_deref(), &artefacts, d.as_ref())
+                let main = match (&csv, &file) {
+                    (Some(t), _) => Some(MainTableCsv::Text(t)),
+                    (None, Some(f)) => Some(MainTableCsv::File(f)),
+                    (None, None) => None,
+                };
+                st.finish_job(run, &done.result, main, &artefacts, d.as_ref())
             })
             .await;
+            if let Some(f) = &done.main_csv_file {
+                let _ = std::fs::remove_file(f);
+            }
             match stored {
                 Ok(true) => Outcome::Succeeded(decision),
                 Ok(false) => Outcome::Ended(

@@ -17,6 +17,7 @@ mod records;
 mod results;
 mod runs;
 mod schedules;
+mod spool;
 mod shared;
 pub mod testpg;
 
@@ -34,7 +35,7 @@ pub use jobs::{
 };
 pub use migrate::SCHEMA_VERSION;
 pub use pg::{Location, PgLocation};
-pub use results::ArtefactInfo;
+pub use results::{ArtefactInfo, MainTableCsv};
 pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};
 pub use shared::{CancelRequest, Claimed};
 

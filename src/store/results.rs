@@ -8,6 +8,16 @@ use super::{Run, Store, StoreError, jobs::JobState, now};
 use crate::jobs::Artefact;
 use crate::lab::Decision;
 
+/// A job's main table as it reaches the store: CSV text, or a CSV file written row by row
+/// (a large table is copied into the database in chunks, never held whole in memory).
+#[derive(Debug, Clone, Copy)]
+pub enum MainTableCsv<'a> {
+    /// The CSV text.
+    Text(&'a str),
+    /// A CSV file.
+    File(&'a std::path::Path),
+}
+
 /// An artefact's description (no content).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ArtefactInfo {
@@ -27,7 +37,7 @@ impl Store {
         &self,
         run: Run,
         result: &Value,
-        main_table_csv: Option<&str>,
+        main_table_csv: Option<MainTableCsv<'_>>,
         artefacts: &[Artefact],
         decision: Option<&Decision>,
     ) -> Result<bool, StoreError> {
@@ -47,10 +57,23 @@ impl Store {
                 super::runs::check_run(&tx, run)?;
                 return Ok(false);
             }
-            tx.execute(
-                "INSERT INTO results (job_id, result, main_table_csv) VALUES (?1, ?2, ?3)",
-                params![id, text, main_table_csv],
-            )?;
+            match main_table_csv {
+                Some(MainTableCsv::File(path)) => {
+                    super::spool::insert_result_with_file(&tx, id, &text, path)?;
+                }
+                Some(MainTableCsv::Text(csv)) => {
+                    tx.execute(
+                        "INSERT INTO results (job_id, result, main_table_csv) VALUES (?1, ?2, ?3)",
+                        params![id, text, csv],
+                    )?;
+                }
+                None => {
+                    tx.execute(
+                        "INSERT INTO results (job_id, result, main_table_csv) VALUES (?1, ?2, NULL)",
+                        params![id, text],
+                    )?;
+                }
+            }
             for a in artefacts {
                 tx.execute(
                     "INSERT INTO artefacts (job_id, name, media_type, content) VALUES (?1, ?2, ?3, ?4)",
@@ -103,13 +126,24 @@ impl Store {
             return pg.main_table_csv(id);
         }
         self.read(|c| {
-            Ok(c.query_row(
-                "SELECT main_table_csv FROM results WHERE job_id = ?1",
-                [id],
-                |r| r.get::<_, Option<String>>(0),
-            )
-            .optional()?
-            .flatten())
+            // Text, or a BLOB when the table was copied in chunks from a file.
+            let csv = c
+                .query_row(
+                    "SELECT main_table_csv FROM results WHERE job_id = ?1",
+                    [id],
+                    |r| {
+                        Ok(match r.get_ref(0)? {
+                            rusqlite::types::ValueRef::Text(t)
+                            | rusqlite::types::ValueRef::Blob(t) => {
+                                Some(String::from_utf8_lossy(t).into_owned())
+                            }
+                            _ => None,
+                        })
+                    },
+                )
+                .optional()?
+                .flatten();
+            Ok(csv)
         })
     }
 

@@ -210,7 +210,7 @@ fn a_sqlite_history_copies_into_postgres() {
     s.finish_job(
         run,
         &serde_json::json!({"ok": 1}),
-        Some("x\n"),
+        Some(crate::store::MainTableCsv::Text("x\n")),
         std::slice::from_ref(&art),
         None,
     )

@@ -257,4 +257,26 @@ impl Kind for FkJob {
     ) -> Result<usize, JobError> {
         self.write_csv(out, monitor)
     }
+
+    fn large_main_table(&self) -> bool {
+        matches!(self.joints, Joints::File { .. })
+    }
+
+    fn streamed_fields(&self, rows: usize) -> Result<serde_json::Map<String, Value>, JobError> {
+        let units = PoseUnits {
+            length: self.model.length_unit(),
+            angle: self.model.angle_unit(),
+        };
+        let units = serde_json::to_value(units)
+            .map_err(|e| JobError::Failed(format!("internal error: {e}")))?;
+        let mut m = serde_json::Map::new();
+        m.insert("units".into(), units);
+        // The poses are only in the main table (`GET /v1/jobs/{id}/table`): a table read
+        // from a large file is never inlined in the JSON result.
+        m.insert(
+            "poses_in_main_table".into(),
+            serde_json::json!({"rows": rows, "columns": POSE_COLUMNS}),
+        );
+        Ok(m)
+    }
 }

@@ -9,7 +9,7 @@ use super::{Pg, now};
 use crate::jobs::Artefact;
 use crate::lab::Decision;
 use crate::procedures::{EntryStatus, JournalEntry};
-use crate::store::{ArtefactInfo, CellModel, DatasetInfo, Run, StoreError};
+use crate::store::{ArtefactInfo, CellModel, DatasetInfo, MainTableCsv, Run, StoreError};
 
 /// Record a schedule occurrence within `c` and move the schedule's `checked_until`.
 pub(super) fn record_run_tx(
@@ -64,11 +64,25 @@ impl Pg {
         &self,
         run: Run,
         result: &Value,
-        main_table_csv: Option<&str>,
+        main_table_csv: Option<MainTableCsv<'_>>,
         artefacts: &[Artefact],
         decision: Option<&Decision>,
     ) -> Result<bool, StoreError> {
         let text = serde_json::to_string(result)?;
+        // PostgreSQL takes the table as one parameter: a file is read whole here.
+        let from_file = match main_table_csv {
+            Some(MainTableCsv::File(path)) => Some(std::fs::read_to_string(path).map_err(
+                |source| StoreError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                },
+            )?),
+            _ => None,
+        };
+        let main_table_csv = match main_table_csv {
+            Some(MainTableCsv::Text(t)) => Some(t),
+            _ => from_file.as_deref(),
+        };
         let id = run.job;
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
