@@ -97,6 +97,10 @@ enum Command {
         /// schedules; claim numerical jobs from the shared queue.
         #[arg(long)]
         workers_only: bool,
+        /// Append the log to this file instead of the terminal (a daemon started with `&`
+        /// then leaves the terminal to `calibd submit --watch`).
+        #[arg(long, env = "CALIBD_LOG_FILE", value_name = "FILE")]
+        log_file: Option<PathBuf>,
     },
     /// The store: `calibd store copy --from sqlite:FOLDER --to postgres://…` moves a lab's
     /// history into an empty PostgreSQL database (password: CALIBD_STORE_PASSWORD or
@@ -166,8 +170,10 @@ enum Command {
         #[command(flatten)]
         remote: Remote,
     },
-    /// Check that a daemon answers `GET /v1/health` with 200 (no token needed): prints one
-    /// line, exits 0 when healthy and 1 otherwise. The container image's HEALTHCHECK.
+    /// Check that a daemon answers `GET /v1/health` with 200 (no token needed).
+    ///
+    /// Prints one line, exits 0 when healthy and 1 otherwise. The container image's
+    /// HEALTHCHECK.
     Health {
         /// The daemon's URL.
         #[arg(long, env = "CALIBD_URL", default_value = "http://127.0.0.1:8750")]
@@ -210,7 +216,8 @@ struct Remote {
     /// The daemon's URL.
     #[arg(long, env = "CALIBD_URL", default_value = "http://127.0.0.1:8750")]
     server: String,
-    /// Bearer token (default: DATA/operator.token).
+    /// Bearer token (default: DATA/operator.token). A token on the command line is
+    /// visible to every user of the machine in `ps`: prefer CALIBD_TOKEN or the file.
     #[arg(long, env = "CALIBD_TOKEN", hide_env_values = true)]
     token: Option<String>,
     /// The daemon's data folder, to find operator.token.
@@ -242,6 +249,30 @@ fn init_tracing(json: bool) {
     } else {
         b.init();
     }
+}
+
+/// The daemon's log appended to `path` (its folder created), without terminal colours.
+fn init_tracing_to_file(json: bool, path: &std::path::Path) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .with_context(|| format!("opening the log file {}", path.display()))?;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,tower_http=info"));
+    let b = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(false)
+        .with_writer(std::sync::Mutex::new(file));
+    if json {
+        b.json().init();
+    } else {
+        b.init();
+    }
+    Ok(())
 }
 
 fn runtime() -> Result<tokio::runtime::Runtime> {
@@ -345,6 +376,7 @@ fn serve(
     data: Option<PathBuf>,
     config: Option<PathBuf>,
     workers_only: bool,
+    log_file: Option<PathBuf>,
 ) -> Result<()> {
     let mut cfg = calibd::config::Config::load(config.as_deref(), &|k| std::env::var(k).ok())?;
     if let Some(l) = listen {
@@ -353,7 +385,11 @@ fn serve(
     if let Some(d) = data {
         cfg.data = d;
     }
-    init_tracing(cfg.log_format == calibd::config::LogFormat::Json);
+    let json = cfg.log_format == calibd::config::LogFormat::Json;
+    match &log_file {
+        Some(p) => init_tracing_to_file(json, p)?,
+        None => init_tracing(json),
+    }
     if workers_only {
         return runtime()?.block_on(async move {
             calibd::server::run_workers(&cfg, shutdown_signal(), |_| {
@@ -425,6 +461,13 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
         .with_context(|| format!("{} is not valid JSON", job.display()))?;
     let dir = job.parent().map(Path::to_path_buf).unwrap_or_default();
     let prepared = calibd::jobs::prepare(&doc, &calibd::jobs::DirResolver { dir })?;
+    if let Some(folder) = out
+        .and_then(Path::parent)
+        .filter(|d| !d.as_os_str().is_empty())
+    {
+        std::fs::create_dir_all(folder)
+            .with_context(|| format!("creating {}", folder.display()))?;
+    }
     let monitor = StderrMonitor {
         last: std::sync::Mutex::new(String::new()),
     };
@@ -660,7 +703,8 @@ fn main() -> Result<()> {
             data,
             config,
             workers_only,
-        } => serve(listen, data, config, workers_only),
+            log_file,
+        } => serve(listen, data, config, workers_only, log_file),
         Command::Store {
             command:
                 StoreCommand::Copy {

@@ -46,6 +46,25 @@ pub enum ClientError {
     Protocol(String),
 }
 
+/// Why a request got no answer, with the cause and, when nothing listens, the likely fix.
+fn connect_message(e: &reqwest::Error) -> String {
+    let mut text = e.to_string();
+    let mut source = std::error::Error::source(e);
+    while let Some(s) = source {
+        let said = s.to_string();
+        if !text.contains(&said) {
+            text.push_str(": ");
+            text.push_str(&said);
+        }
+        source = s.source();
+    }
+    if e.is_connect() {
+        format!("is `calibd serve` running there? ({text})")
+    } else {
+        text
+    }
+}
+
 /// How often `submit` sends a submission again when its answer was lost.
 const SUBMIT_RETRIES: u32 = 4;
 
@@ -126,7 +145,7 @@ impl Client {
     ) -> Result<reqwest::Response, ClientError> {
         let res = r.send().await.map_err(|e| ClientError::Connect {
             url: self.base.clone(),
-            message: e.to_string(),
+            message: connect_message(&e),
         })?;
         if res.status().is_success() {
             return Ok(res);
@@ -145,6 +164,11 @@ impl Client {
             (None, Some(places)) if status == 401 => {
                 format!("{message}; no token was found: looked in {places}")
             }
+            (Some(_), _) if status == 401 => format!(
+                "{message}; the daemon refused the token: use its operator token (the file \
+                 operator.token in its data folder) or one made by `calibd token` and listed \
+                 under [[auth.tokens]] in its settings"
+            ),
             _ => message,
         };
         Err(ClientError::Api { status, message })
@@ -343,6 +367,23 @@ pub fn progress_line(fraction: f64, stage: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[tokio::test]
+    async fn an_absent_daemon_is_named_with_the_fix() {
+        // A port nothing listens on.
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .unwrap();
+        let c = Client::new(&format!("http://127.0.0.1:{port}"), None);
+        let e = c.get("/v1/health").await.unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("cannot reach http://127.0.0.1:{port}"))
+                && e.contains("is `calibd serve` running there?")
+                && e.to_ascii_lowercase().contains("refused"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn progress_line_fills_in_proportion() {

@@ -28,7 +28,10 @@ pub enum JobError {
         message: String,
     },
     /// The kind is not one calibd knows.
-    #[error("unknown job kind `{0}`")]
+    #[error(
+        "unknown job kind `{0}`; the kinds are: {}",
+        crate::jobs::KINDS.iter().map(|k| k.name).collect::<Vec<_>>().join(", ")
+    )]
     UnknownKind(String),
     /// A model file is invalid.
     #[error("`model`: {0}")]

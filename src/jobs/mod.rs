@@ -513,6 +513,17 @@ mod tests {
     }
 
     #[test]
+    fn an_unknown_kind_lists_the_kinds() {
+        let e = prepare(&serde_json::json!({"kind": "serial.fkk"}), &NoReferences)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`serial.fkk`"), "{e}");
+        for k in KINDS {
+            assert!(e.contains(k.name), "{} missing from: {e}", k.name);
+        }
+    }
+
+    #[test]
     fn a_result_that_is_not_finite_fails_the_job_naming_row_and_column() {
         let job = Job {
             kind: "test.overflow".into(),
