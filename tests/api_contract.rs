@@ -470,7 +470,11 @@ fn doc_links() -> Vec<(std::path::PathBuf, usize, String)> {
                 if c == '`' && !fenced {
                     in_code = !in_code;
                 }
-                plain.push(if fenced || in_code || c == '`' { ' ' } else { c });
+                plain.push(if fenced || in_code || c == '`' {
+                    ' '
+                } else {
+                    c
+                });
             }
         }
         let mut from = 0;
