@@ -438,3 +438,142 @@ async fn responses_match_the_contract() {
     )
     .await;
 }
+
+/// The user documentation's relative links, `(file, line, target)`: every markdown link
+/// `[text](target)` of README.md, deploy/OPERATIONS.md and docs/*.md, outside code spans and
+/// fenced code blocks, that is not a URL (`http:`, `https:`, `mailto:`); `#anchor` for a
+/// heading of the same page.
+fn doc_links() -> Vec<(std::path::PathBuf, usize, String)> {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = vec![root.join("README.md"), root.join("deploy/OPERATIONS.md")];
+    let mut docs: Vec<_> = std::fs::read_dir(root.join("docs"))
+        .expect("the docs/ folder")
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().and_then(|e| e.to_str()) == Some("md"))
+        .collect();
+    docs.sort();
+    files.extend(docs);
+    let mut out = Vec::new();
+    for file in files {
+        let text = std::fs::read_to_string(&file).unwrap();
+        // The text outside fenced code blocks and code spans (which may run over a line
+        // break), with everything else blanked and the line breaks kept.
+        let mut plain = String::with_capacity(text.len());
+        let (mut fenced, mut in_code) = (false, false);
+        for line in text.split_inclusive('\n') {
+            if line.trim_start().starts_with("```") {
+                fenced = !fenced;
+                plain.push('\n');
+                continue;
+            }
+            for c in line.chars() {
+                if c == '`' && !fenced {
+                    in_code = !in_code;
+                }
+                plain.push(if fenced || in_code || c == '`' {
+                    ' '
+                } else {
+                    c
+                });
+            }
+        }
+        let mut from = 0;
+        while let Some(k) = plain[from..].find("](") {
+            let start = from + k + 2;
+            let after = &plain[start..];
+            let end = after.find([')', '\n']).unwrap_or(after.len());
+            let target = after[..end].split_whitespace().next().unwrap_or("");
+            let target = target.trim_start_matches('<').trim_end_matches('>');
+            let external = ["http://", "https://", "mailto:"]
+                .iter()
+                .any(|s| target.starts_with(s));
+            if !target.is_empty() && !external {
+                let line = plain[..start].matches('\n').count() + 1;
+                out.push((file.clone(), line, target.to_string()));
+            }
+            from = start + end;
+        }
+    }
+    out
+}
+
+/// GitHub's anchors of a markdown file's headings (lowercase, punctuation dropped, spaces to
+/// hyphens, `-1`, `-2` for repeats).
+fn heading_anchors(text: &str) -> BTreeSet<String> {
+    let mut seen: BTreeSet<String> = BTreeSet::new();
+    let mut fenced = false;
+    for line in text.lines() {
+        if line.trim_start().starts_with("```") {
+            fenced = !fenced;
+            continue;
+        }
+        let Some(h) = line.strip_prefix('#') else {
+            continue;
+        };
+        if fenced || !(h.starts_with('#') || h.starts_with(' ')) {
+            continue;
+        }
+        let title = h.trim_start_matches('#').trim();
+        let slug: String = title
+            .to_lowercase()
+            .chars()
+            .filter_map(|c| match c {
+                ' ' => Some('-'),
+                c if c.is_alphanumeric() || c == '-' || c == '_' => Some(c),
+                _ => None,
+            })
+            .collect();
+        let mut anchor = slug.clone();
+        let mut n = 0;
+        while seen.contains(&anchor) {
+            n += 1;
+            anchor = format!("{slug}-{n}");
+        }
+        seen.insert(anchor);
+    }
+    seen
+}
+
+/// README.md, deploy/OPERATIONS.md and docs/*.md link only to files of this repository (a
+/// fresh clone explains itself: no link into `../shared` or to a file that is not there),
+/// and a link to a heading of a markdown file names a heading it has.
+#[test]
+fn documentation_links_resolve_inside_the_repository() {
+    let manifest = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = manifest.canonicalize().unwrap();
+    let links = doc_links();
+    assert!(
+        links
+            .iter()
+            .any(|(f, _, t)| f.parent() == Some(manifest) && t == "docs/jobs.md"),
+        "the README links the job reference"
+    );
+    let mut broken = Vec::new();
+    for (file, line, target) in &links {
+        let (path, fragment) = match target.split_once('#') {
+            Some((p, f)) => (p, Some(f)),
+            None => (target.as_str(), None),
+        };
+        let at = format!("{}:{line}: `{target}`", file.display());
+        let resolved = if path.is_empty() {
+            file.canonicalize()
+        } else {
+            file.parent().unwrap().join(path).canonicalize()
+        };
+        match resolved {
+            Err(e) => broken.push(format!("{at}: {e}")),
+            Ok(p) if !p.starts_with(&root) => {
+                broken.push(format!("{at}: outside the repository ({})", p.display()))
+            }
+            Ok(p) => {
+                if let Some(f) = fragment
+                    && p.extension().and_then(|e| e.to_str()) == Some("md")
+                    && !heading_anchors(&std::fs::read_to_string(&p).unwrap()).contains(f)
+                {
+                    broken.push(format!("{at}: no heading with the anchor `#{f}`"));
+                }
+            }
+        }
+    }
+    assert!(broken.is_empty(), "broken links:\n{}", broken.join("\n"));
+}
