@@ -29,8 +29,8 @@ pub enum JobError {
     },
     /// The kind is not one calibd knows.
     #[error(
-        "unknown job kind `{0}`; the kinds are: {}",
-        crate::jobs::KINDS.iter().map(|k| k.name).collect::<Vec<_>>().join(", ")
+        "unknown job kind `{0}`; the kinds are: {kinds}",
+        kinds = crate::jobs::KINDS.iter().map(|k| k.name).collect::<Vec<_>>().join(", ")
     )]
     UnknownKind(String),
     /// A model file is invalid.

@@ -82,10 +82,10 @@ impl Acceptance {
                 (
                     true,
                     format!(
-                        "{} improved from {:.4} {u} (starting model) to {:.4} {u}",
+                        "{} improved from {} {u} (starting model) to {} {u}",
                         e.what,
-                        e.before,
-                        e.after,
+                        sig4(e.before),
+                        sig4(e.after),
                         u = e.unit
                     ),
                 )
@@ -93,12 +93,12 @@ impl Acceptance {
             Some(e) => (
                 false,
                 format!(
-                    "validation did not improve enough: {} {:.4} {u} against {:.4} {u} for the starting model (a candidate must gain more than {:.0} % and {} {u})",
+                    "validation did not improve enough: {} {} {u} against {} {u} for the starting model (a candidate must gain more than {:.0} % and {} {u})",
                     e.what,
-                    e.after,
-                    e.before,
+                    sig4(e.after),
+                    sig4(e.before),
                     100.0 * self.min_relative_gain,
-                    self.min_gain,
+                    sig4(self.min_gain),
                     u = e.unit
                 ),
             ),
@@ -117,9 +117,48 @@ impl Acceptance {
     }
 }
 
+/// `v` with four significant digits, whatever its magnitude (a PCR error of 1.2e-6 m must
+/// not print as `0.0000`): plain decimals from 1e-3 to 1e6, scientific notation outside.
+fn sig4(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let magnitude = v.abs().log10().floor();
+    if (-3.0..6.0).contains(&magnitude) {
+        format!("{:.*}", (3.0 - magnitude).max(0.0) as usize, v)
+    } else {
+        format!("{v:.3e}")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn figures_keep_four_significant_digits() {
+        assert_eq!(sig4(1.5234e-6), "1.523e-6");
+        assert_eq!(sig4(0.0049), "0.004900");
+        assert_eq!(sig4(1.5234), "1.523");
+        assert_eq!(sig4(1234.4), "1234");
+        assert_eq!(sig4(0.0), "0");
+        let rule = Acceptance {
+            min_relative_gain: 0.1,
+            min_gain: 1e-7,
+            unit: "m",
+        };
+        let mut c = candidate(3.2e-6, 1.1e-6);
+        if let Some(e) = c.evidence.as_mut() {
+            e.unit = "m";
+        }
+        let d = rule.decide(&c);
+        assert!(d.accepted, "{d:?}");
+        assert!(
+            d.reason.contains("from 3.200e-6 m") && d.reason.contains("to 1.100e-6 m"),
+            "{}",
+            d.reason
+        );
+    }
 
     fn candidate(before: f64, after: f64) -> Candidate {
         Candidate {

@@ -50,14 +50,32 @@ pub struct RunningMock {
     pub addr: String,
     token: CancellationToken,
     tracker: TaskTracker,
+    /// The symlink made to the pty, removed when the mock stops or is dropped (a dangling
+    /// link would look like a configured serial port that vanished).
+    link: Option<PathBuf>,
 }
 
 impl RunningMock {
     /// Stops accepting, closes every connection and waits for the tasks.
-    pub async fn stop(self) {
+    pub async fn stop(mut self) {
+        self.remove_link();
         self.token.cancel();
         self.tracker.close();
         self.tracker.wait().await;
+    }
+
+    fn remove_link(&mut self) {
+        if let Some(p) = self.link.take()
+            && std::fs::symlink_metadata(&p).is_ok_and(|m| m.file_type().is_symlink())
+        {
+            let _ = std::fs::remove_file(&p);
+        }
+    }
+}
+
+impl Drop for RunningMock {
+    fn drop(&mut self) {
+        self.remove_link();
     }
 }
 
@@ -98,8 +116,10 @@ impl MockTasks {
         handler: Handler,
         link: Option<PathBuf>,
     ) -> Result<RunningMock, MockError> {
-        let addr = serve::serve_pty(handler, link, &self.tracker, &self.token)?;
-        Ok(self.running(addr))
+        let addr = serve::serve_pty(handler, link.clone(), &self.tracker, &self.token)?;
+        let mut running = self.running(addr);
+        running.link = link;
+        Ok(running)
     }
 
     fn running(self, addr: String) -> RunningMock {
@@ -107,6 +127,7 @@ impl MockTasks {
             addr,
             token: self.token,
             tracker: self.tracker,
+            link: None,
         }
     }
 }
@@ -128,4 +149,30 @@ pub fn start_pty_with(handler: Handler) -> Result<RunningMock, MockError> {
 /// the configured serial port (an existing file there is replaced).
 pub fn start_pty_at(handler: Handler, link: Option<PathBuf>) -> Result<RunningMock, MockError> {
     MockTasks::new().serve_pty(handler, link)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use super::*;
+
+    #[tokio::test]
+    async fn a_stopped_pty_mock_leaves_no_dangling_link() {
+        let dir = tempfile::tempdir().unwrap();
+        let link = dir.path().join("ttyUWAVE");
+        let handler: Handler = Arc::new(|_io, _conn| Box::pin(async {}));
+        let m = start_pty_at(handler.clone(), Some(link.clone())).unwrap();
+        assert_eq!(m.addr, link.display().to_string());
+        assert!(std::fs::symlink_metadata(&link).is_ok(), "the link is made");
+        m.stop().await;
+        assert!(
+            std::fs::symlink_metadata(&link).is_err(),
+            "the link is gone"
+        );
+        // Dropped without stop (an early return): gone too.
+        let m = start_pty_at(handler, Some(link.clone())).unwrap();
+        drop(m);
+        assert!(std::fs::symlink_metadata(&link).is_err());
+    }
 }

@@ -34,6 +34,57 @@ pub struct Conn {
 pub type Handler =
     Arc<dyn Fn(BoxIo, Conn) -> Pin<Box<dyn Future<Output = ()> + Send>> + Send + Sync>;
 
+/// A connection whose received bytes are logged at debug level (`RUST_LOG=debug` shows
+/// every request a mock serves, as escaped text cut at 200 bytes).
+struct Logged<T> {
+    inner: T,
+    peer: String,
+}
+
+impl<T: AsyncRead + Unpin> AsyncRead for Logged<T> {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        let before = buf.filled().len();
+        let r = Pin::new(&mut self.inner).poll_read(cx, buf);
+        let got = &buf.filled()[before..];
+        if !got.is_empty() && tracing::enabled!(tracing::Level::DEBUG) {
+            let shown: String = got
+                .iter()
+                .take(200)
+                .flat_map(|b| b.escape_ascii())
+                .map(char::from)
+                .collect();
+            tracing::debug!(peer = %self.peer, bytes = got.len(), request = %shown, "mock received");
+        }
+        r
+    }
+}
+
+impl<T: AsyncWrite + Unpin> AsyncWrite for Logged<T> {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        Pin::new(&mut self.inner).poll_write(cx, buf)
+    }
+    fn poll_flush(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_flush(cx)
+    }
+    fn poll_shutdown(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
 /// Accepts connections until `token` is cancelled; waits for the handlers to finish.
 pub(crate) async fn serve_tcp(listener: TcpListener, token: CancellationToken, handler: Handler) {
     let tracker = TaskTracker::new();
@@ -44,7 +95,9 @@ pub(crate) async fn serve_tcp(listener: TcpListener, token: CancellationToken, h
                     let _ = sock.set_nodelay(true);
                     let h = handler.clone();
                     let conn = Conn { peer: Some(peer), token: token.child_token() };
-                    tracker.spawn(h(Box::new(sock), conn));
+                    tracing::debug!(%peer, "mock connection");
+                    let io = Logged { inner: sock, peer: peer.to_string() };
+                    tracker.spawn(h(Box::new(io), conn));
                 }
                 Err(e) => {
                     tracing::warn!(error = %e, "accept failed");
@@ -99,7 +152,11 @@ pub(crate) fn serve_pty(
     tracker.spawn(async move {
         // Keep the slave open so the master does not see EIO between client opens.
         let _slave = slave;
-        handler(Box::new(master), conn).await;
+        let io = Logged {
+            inner: master,
+            peer: "pty".into(),
+        };
+        handler(Box::new(io), conn).await;
     });
     Ok(addr)
 }
