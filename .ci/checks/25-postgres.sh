@@ -18,5 +18,5 @@ export CALIBD_PG_BIN="$bin" CALIBD_REQUIRE_PG=1
 
 cargo test -p calibd --lib store:: -- --nocapture 2>&1 | tee /tmp/calibd-pg-store.log | grep -E "claim latency|test result|FAILED|panicked" || true
 grep -q "test result: ok" /tmp/calibd-pg-store.log
-cargo test -p calibd --test fleet -- --nocapture 2>&1 | tee /tmp/calibd-pg-fleet.log | grep -E "fleet throughput|jobs per daemon|killed|cancel on the other|campaign |test result|FAILED|panicked" || true
+cargo test -p calibd --test it fleet:: -- --nocapture 2>&1 | tee /tmp/calibd-pg-fleet.log | grep -E "fleet throughput|jobs per daemon|killed|cancel on the other|campaign |test result|FAILED|panicked" || true
 grep -q "test result: ok" /tmp/calibd-pg-fleet.log

@@ -1,7 +1,7 @@
 //! The Agile Justin acceptance run (issue 13, item 5): the data set's texts in, the
 //! cumulative table of Tenhumberg and Baeuml (Humanoids 2021) and a K-fold held-out figure
 //! out, with the published figures beside ours. The data stay outside the repository; the
-//! caller reads the files (`examples/justin_elastic.rs`, `tests/justin_elastic.rs`).
+//! caller reads the files (`examples/justin_elastic.rs`, `tests/it/justin_elastic.rs`).
 
 use nalgebra::Vector3;
 use serde::Serialize;

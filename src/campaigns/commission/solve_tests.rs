@@ -135,7 +135,7 @@ fn kabsch_recovers_a_known_base_and_ball_distances_carry_their_uncertainty() {
 /// What commissioning can recover when the arm's joint geometry is only nominal: the TCP
 /// and balls absorb the kinematic model error (about a millimetre on the IRB 120 twin),
 /// far above the centring noise; the recovery at the noise level needs the arm's true
-/// geometry (`tests/commission.rs`) or a calibration first.
+/// geometry (`tests/it/commission.rs`) or a calibration first.
 #[test]
 fn with_the_nominal_geometry_the_recovery_is_limited_by_the_model_error() {
     let twin = crate::twin::SerialTwin::irb120(7);

@@ -1,6 +1,7 @@
 //! Helpers shared by integration tests.
 #![allow(dead_code, unreachable_pub)]
 
+pub mod daemon;
 pub mod report;
 
 use std::path::PathBuf;

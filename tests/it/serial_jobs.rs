@@ -1,7 +1,7 @@
 //! `serial.*` jobs end to end on the example twin data: result fields of jobs.md, the
 //! calibrated model round trip, and refusal of bad inputs with field, row and value named.
 
-mod common;
+use crate::common;
 
 use calibd::jobs::serial::identify::parse_inputs;
 use calibd::jobs::{DirResolver, Inputs, Table};

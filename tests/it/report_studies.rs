@@ -3,7 +3,7 @@
 //! per-set validation errors recomputed here, and a campaign's report lists its journal
 //! entry by entry with the journal's numbers.
 
-mod common;
+use crate::common;
 
 use calibd::jobs::Completed;
 use calibd::report::html::number;
@@ -125,7 +125,7 @@ fn design_report_plots_the_detmax_o1_history() {
 fn humanoid_design(n: Option<usize>) -> Completed {
     let mut doc = json!({
         "kind": "humanoid.design",
-        "urdf": include_str!("data/robots/talos/talos_reduced.urdf"),
+        "urdf": include_str!("../data/robots/talos/talos_reduced.urdf"),
         "root_link": "torso_2_link",
         "joints": (1..=7).map(|k| format!("arm_left_{k}_joint")).collect::<Vec<_>>(),
         "clusters": [

@@ -4,7 +4,7 @@
 //! campaign, absurd inputs, unbounded names and headers, the bearer scheme's case, retried
 //! submissions, and plain-text error bodies.
 
-mod server;
+use crate::server;
 
 use std::time::Duration;
 

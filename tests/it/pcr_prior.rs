@@ -5,7 +5,7 @@
 //! recomputed from the reported parameters; the K-fold weight is the candidate with the
 //! smallest held-out error; bad prior options are refused by name.
 
-mod common;
+use crate::common;
 
 use common::{example, prepare_in_examples, run_in_examples};
 use serde_json::{Value, json};

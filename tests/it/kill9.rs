@@ -8,8 +8,7 @@ use std::time::Duration;
 use calibd::util::Rng;
 use serde_json::Value;
 
-#[path = "common/daemon.rs"]
-mod daemon;
+use crate::common::daemon;
 use daemon::{Daemon, get, journal};
 
 fn spawn(data: &std::path::Path) -> Daemon {

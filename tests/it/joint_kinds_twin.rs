@@ -5,7 +5,7 @@
 //! identification also runs on one named chain of a DH tree file; `serial.fk` reads a tree
 //! file's chain with its prismatic columns in mm.
 
-mod common;
+use crate::common;
 
 use nalgebra::Vector3;
 
@@ -16,9 +16,9 @@ use calibd::model::dh_tree::DhTreeFile;
 use calibd::model::{Chain, JointKind, ParamId};
 use calibd::util::{NoMonitor, Rng};
 
-const SLIDE_DH: &str = include_str!("data/robots/slide_arm.json");
-const SLIDE_URDF: &str = include_str!("data/robots/slide_gripper.urdf");
-const TREE: &str = include_str!("data/robots/two_arm_tree.json");
+const SLIDE_DH: &str = include_str!("../data/robots/slide_arm.json");
+const SLIDE_URDF: &str = include_str!("../data/robots/slide_gripper.urdf");
+const TREE: &str = include_str!("../data/robots/two_arm_tree.json");
 const NOISE_MM: f64 = 0.01;
 
 /// Random joint values inside the central part of the limits (rad, or mm for a slide).

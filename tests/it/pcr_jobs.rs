@@ -3,7 +3,7 @@
 //! library, the shipped calibrated model, and refusal of bad inputs with field, row and
 //! value named.
 
-mod common;
+use crate::common;
 
 use calibd::geometry::Pose2;
 use calibd::model::pcr::PcrFile;

@@ -5,7 +5,7 @@
 //! bars are the result's sensitivities. (Design, dispersion and campaign reports:
 //! `report_studies.rs`.)
 
-mod common;
+use crate::common;
 
 use calibd::jobs::Completed;
 use calibd::report::plots::AFTER;

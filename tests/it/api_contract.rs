@@ -2,7 +2,7 @@
 //! route is served (both ways), the served document is the file, and responses of every
 //! endpoint validate against the documented schemas (status codes included).
 
-mod server;
+use crate::server;
 
 use std::collections::BTreeSet;
 

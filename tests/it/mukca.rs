@@ -2,7 +2,7 @@
 //! TU Delft, MIT licence; see tests/data/mukca/PROVENANCE.md). Two sockets 50 mm apart,
 //! joint angles only. Calibrate on `front`, validate on the held-out `left` and `right`.
 
-mod common;
+use crate::common;
 
 use calibd::jobs::{DirResolver, prepare};
 use calibd::model::urdf::UrdfModel;

@@ -5,7 +5,7 @@
 //! PCR example is checked on release builds only (`calibd run`): its shooting model gives
 //! values 2.7e-7 apart between the dev and release profiles, with or without faer.
 
-mod common;
+use crate::common;
 
 use serde_json::Value;
 

@@ -3,7 +3,7 @@
 //! data (read from `../shared/data/real/...` when present; that file has no licence and is
 //! never copied into the repository).
 
-mod common;
+use crate::common;
 
 use calibd::identify::{Robust, RobustKind, SolveOptions, solve, solve_robust};
 use calibd::jobs::{DirResolver, prepare};

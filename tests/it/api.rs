@@ -2,7 +2,7 @@
 //! identification end to end with its artefacts, dataset references, and the sample
 //! configs of deploy/. (The OpenAPI contract is tests/api_contract.rs.)
 
-mod server;
+use crate::server;
 
 use std::time::Duration;
 

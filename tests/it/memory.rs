@@ -8,8 +8,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
 
-#[path = "common/daemon.rs"]
-mod daemon;
+use crate::common::daemon;
 use daemon::{Daemon, get};
 
 /// `VmHWM` (peak) and `VmRSS` (now) of process `pid`, MiB.

@@ -13,8 +13,7 @@ use calibd::store::testpg::Cluster;
 use futures_util::StreamExt;
 use serde_json::Value;
 
-#[path = "common/daemon.rs"]
-mod daemon;
+use crate::common::daemon;
 use daemon::{Daemon, journal};
 
 const TOKEN: &str = "fleet-operator-secret";

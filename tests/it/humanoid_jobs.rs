@@ -136,7 +136,7 @@ fn f1_example_calibrates_and_its_urdf_reloads() {
     use calibd::model::humanoid::{BaseMode, Elasticity, Humanoid, MarkerDef, State};
     use calibd::model::urdf::UrdfModel;
     let text = r["calibrated_urdf"].as_str().unwrap();
-    let base = include_str!("data/robots/talos/talos_reduced.urdf");
+    let base = include_str!("../data/robots/talos/talos_reduced.urdf");
     let joints: Vec<String> = ["torso_1_joint", "torso_2_joint"]
         .iter()
         .map(|s| s.to_string())
@@ -240,7 +240,7 @@ fn recording_example_is_preprocessed_and_calibrated() {
 fn design_job_returns_feasible_postures_and_history() {
     let doc = json!({
         "kind": "humanoid.design",
-        "urdf": include_str!("data/robots/talos/talos_reduced.urdf"),
+        "urdf": include_str!("../data/robots/talos/talos_reduced.urdf"),
         "root_link": "torso_2_link",
         "joints": (1..=7).map(|k| format!("arm_left_{k}_joint")).collect::<Vec<_>>(),
         "clusters": [
@@ -280,7 +280,7 @@ fn design_job_returns_feasible_postures_and_history() {
     use calibd::model::humanoid::{BaseMode, Elasticity, Humanoid};
     use calibd::twin::humanoid::clusters;
     let urdf =
-        calibd::model::urdf::UrdfModel::parse(include_str!("data/robots/talos/talos_reduced.urdf"))
+        calibd::model::urdf::UrdfModel::parse(include_str!("../data/robots/talos/talos_reduced.urdf"))
             .unwrap();
     let joints: Vec<String> = (1..=7).map(|k| format!("arm_left_{k}_joint")).collect();
     let markers = clusters(
@@ -319,7 +319,7 @@ fn bad_jobs_are_refused_with_the_field_row_and_value() {
     let base = || {
         json!({
             "kind": "humanoid.identify",
-            "urdf": include_str!("data/robots/talos/talos_reduced.urdf"),
+            "urdf": include_str!("../data/robots/talos/talos_reduced.urdf"),
             "samples": [
                 {"torso_1_joint": 0.1, "torso_2_joint": 0.1, "arm_left_1_joint": -0.5, "arm_left_2_joint": 0.5,
                  "arm_left_3_joint": 0.0, "arm_left_4_joint": -1.0, "arm_left_5_joint": 0.0,
