@@ -170,6 +170,36 @@ enum Command {
         #[command(flatten)]
         remote: Remote,
     },
+    /// Resume a paused or interrupted campaign from its journal (operator role).
+    Resume {
+        /// Job id.
+        id: i64,
+        /// Follow it until it ends and print the summary.
+        #[arg(long)]
+        watch: bool,
+        #[command(flatten)]
+        remote: Remote,
+    },
+    /// Run a job's document again as a new job (same inputs, new id).
+    Rerun {
+        /// Job id.
+        id: i64,
+        /// Follow the new job until it ends and print the summary.
+        #[arg(long)]
+        watch: bool,
+        #[command(flatten)]
+        remote: Remote,
+    },
+    /// Write a job's printable HTML report (self-contained: open, print, sign off).
+    Report {
+        /// Job id.
+        id: i64,
+        /// The HTML file to write.
+        #[arg(long, value_name = "FILE", default_value = "report.html")]
+        out: PathBuf,
+        #[command(flatten)]
+        remote: Remote,
+    },
     /// Check that a daemon answers `GET /v1/health` with 200 (no token needed).
     ///
     /// Prints one line, exits 0 when healthy and 1 otherwise. The container image's
@@ -758,6 +788,31 @@ fn main() -> Result<()> {
                 }
             }
             calibd::client::commands::result(&c, id, out.as_deref()).await
+        }),
+        Command::Resume {
+            id,
+            watch,
+            remote: r,
+        } => remote(&r, |c| async move {
+            calibd::client::commands::resume(&c, id).await?;
+            if watch {
+                calibd::client::commands::watch(&c, id).await?;
+            }
+            Ok(())
+        }),
+        Command::Rerun {
+            id,
+            watch,
+            remote: r,
+        } => remote(&r, |c| async move {
+            let new = calibd::client::commands::rerun(&c, id).await?;
+            if watch {
+                calibd::client::commands::watch(&c, new).await?;
+            }
+            Ok(())
+        }),
+        Command::Report { id, out, remote: r } => remote(&r, |c| async move {
+            calibd::client::commands::report(&c, id, &out).await
         }),
         Command::Health { server, timeout } => {
             let timeout = std::time::Duration::try_from_secs_f64(timeout)

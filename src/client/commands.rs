@@ -68,10 +68,26 @@ pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
     if state == "succeeded" {
         let r = c.get(&format!("/v1/jobs/{id}/result")).await?;
         print_summary(&r);
+        if let Some(line) = cell_decision(c, id).await? {
+            println!("{line}");
+        }
     } else if let Some(e) = job["error"].as_str() {
         println!("job {id} {state}: {e}");
     }
     Ok(job)
+}
+
+/// What the cell decided about the model a campaign proposed (`cell NAME: model accepted:
+/// why` from the job's log), if the job proposed one.
+pub async fn cell_decision(c: &Client, id: i64) -> Result<Option<String>, ClientError> {
+    let logs = c.get(&format!("/v1/jobs/{id}/logs")).await?;
+    Ok(logs["logs"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|l| l["message"].as_str())
+        .find(|m| m.starts_with("cell ") && m.contains(": model "))
+        .map(|m| format!("decision: {m}")))
 }
 
 /// The width in columns of the terminal stderr writes to, asked of the terminal itself
@@ -274,6 +290,35 @@ pub async fn cancel(c: &Client, id: i64) -> Result<(), ClientError> {
         state => println!("job {id}: {state}"),
     }
     Ok(())
+}
+
+/// Resume a paused or interrupted campaign from its journal (operator role); its id.
+pub async fn resume(c: &Client, id: i64) -> Result<i64, ClientError> {
+    let r = c
+        .send(c.req(reqwest::Method::POST, &format!("/v1/jobs/{id}/resume")))
+        .await?;
+    let v: Value = r
+        .json()
+        .await
+        .map_err(|e| ClientError::Protocol(e.to_string()))?;
+    println!("job {id}: {}", v["state"].as_str().unwrap_or("?"));
+    Ok(id)
+}
+
+/// Run a job's document again as a new job; the new job's id.
+pub async fn rerun(c: &Client, id: i64) -> Result<i64, ClientError> {
+    let r = c
+        .send(c.req(reqwest::Method::POST, &format!("/v1/jobs/{id}/rerun")))
+        .await?;
+    let v: Value = r
+        .json()
+        .await
+        .map_err(|e| ClientError::Protocol(e.to_string()))?;
+    let new = v["id"]
+        .as_i64()
+        .ok_or_else(|| ClientError::Protocol(format!("no job id in {v}")))?;
+    println!("job {new} submitted (a re-run of job {id})");
+    Ok(new)
 }
 
 /// Write a job's printable HTML report to `file`.

@@ -395,6 +395,16 @@ async fn campaigns_run_over_mock_processes_and_a_killed_device_pauses_and_resume
     );
     eprintln!("trical campaign over processes: {t:.1} s, validation {before} -> {after} mm");
     assert!(after < 0.010 && before > 0.3, "{before} -> {after}");
+    // `calibd submit --watch` ends with the cell's decision, read from the job's log.
+    let client = calibd::client::Client::new(&d.url, Some(d.token.clone()));
+    let decision = calibd::client::commands::cell_decision(&client, first)
+        .await
+        .unwrap()
+        .expect("the campaign's decision");
+    assert!(
+        decision.starts_with("decision: cell irb120: model accepted"),
+        "{decision}"
+    );
     let reference = d.journal(first).await;
     assert_eq!(reference.len(), 24);
 

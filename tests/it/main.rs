@@ -9,6 +9,7 @@ mod server;
 mod api;
 mod api_contract;
 mod campaign;
+mod cli;
 mod cell_models;
 mod commission;
 mod dispersion_values;
