@@ -379,3 +379,146 @@ async fn every_error_body_is_json() {
         assert!(e["error"]["message"].is_string(), "{m} {path}: {e}");
     }
 }
+
+/// Send one raw request head on a fresh connection; the status code of the answer.
+async fn raw_status(addr: &str, head: &str) -> u16 {
+    let mut c = tokio::net::TcpStream::connect(addr).await.unwrap();
+    c.write_all(head.as_bytes()).await.unwrap();
+    let mut buf = Vec::new();
+    let mut chunk = [0u8; 1024];
+    // The status line is in the first bytes; bounded by the read timeout.
+    while !buf.windows(2).any(|w| w == b"\r\n") {
+        match tokio::time::timeout(Duration::from_secs(20), c.read(&mut chunk)).await {
+            Ok(Ok(n)) if n > 0 => buf.extend_from_slice(&chunk[..n]),
+            other => panic!("no answer to {head:?}: {other:?}"),
+        }
+    }
+    let line = String::from_utf8_lossy(&buf);
+    line.split(' ').nth(1).and_then(|c| c.parse().ok()).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_host_headers_are_a_bad_request() {
+    for any in [false, true] {
+        let s = start(|c| {
+            if any {
+                c.allowed_hosts = vec!["*".into()];
+            }
+        })
+        .await;
+        let addr = s.url.trim_start_matches("http://").to_string();
+        let one = "GET /v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n";
+        assert_eq!(raw_status(&addr, one).await, 200, "allowed_hosts * = {any}");
+        // RFC 9112 section 3.2: not "the first one wins", in either order.
+        for (a, b) in [
+            ("127.0.0.1", "attacker.example"),
+            ("attacker.example", "127.0.0.1"),
+        ] {
+            let two = format!(
+                "GET /v1/health HTTP/1.1\r\nHost: {a}\r\nHost: {b}\r\nConnection: close\r\n\r\n"
+            );
+            assert_eq!(raw_status(&addr, &two).await, 400, "{a}, {b}; * = {any}");
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_csv_column_named_twice_is_refused_by_name() {
+    let s = start(|_| {}).await;
+    let r = s
+        .req(Method::POST, "/v1/datasets?name=dup.csv", Some(SUBMITTER))
+        .header("content-type", "text/csv")
+        .body("q1,q2,q3,q4,q1,q6\n0,0,0,0,0,0\n")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let mut fk = calibd::jobs::examples::twin_fk(1);
+    fk["joints"] = json!(id);
+    let r = s
+        .req(Method::POST, "/v1/jobs", Some(SUBMITTER))
+        .json(&fk)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    let e: Value = r.json().await.unwrap();
+    let m = e["error"]["message"].as_str().unwrap();
+    assert!(m.contains("joints") && m.contains("`q1` twice"), "{m}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn implausible_identification_options_are_refused_naming_the_option() {
+    let s = start(|_| {}).await;
+    for (option, value) in [
+        ("noise", 1e308),
+        ("effect_fraction", 1e308),
+        ("noise", 5000.0), // 5 m in the twin's mm
+        ("effect_fraction", 2.0),
+        ("rank_tolerance", 1.0),
+    ] {
+        let mut job = calibd::jobs::examples::twin_identify(2, 2);
+        job["options"] = json!({ option: value });
+        let r = s
+            .req(Method::POST, "/v1/jobs", Some(SUBMITTER))
+            .json(&job)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 422, "{option} = {value}");
+        let e: Value = r.json().await.unwrap();
+        let m = e["error"]["message"].as_str().unwrap();
+        assert!(
+            m.contains(&format!("options.{option}")) && m.contains("plausible range"),
+            "{m}"
+        );
+    }
+    // A plausible value is accepted (0.01 mm of noise, the default fraction).
+    let mut job = calibd::jobs::examples::twin_identify(2, 2);
+    job["options"] = json!({"noise": 0.01, "effect_fraction": 0.01});
+    let r = s
+        .req(Method::POST, "/v1/jobs", Some(SUBMITTER))
+        .json(&job)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn identical_content_under_a_second_name_says_which_name_it_kept() {
+    let s = start(|_| {}).await;
+    let up = |name: &str| {
+        s.req(
+            Method::POST,
+            &format!("/v1/datasets?name={name}"),
+            Some(SUBMITTER),
+        )
+        .header("content-type", "text/csv")
+        .body("q1\n1\n")
+        .send()
+    };
+    let first = up("m.csv").await.unwrap();
+    assert_eq!(first.status().as_u16(), 201);
+    let first: Value = first.json().await.unwrap();
+    // The same name again: as before, stored (or already there).
+    assert_eq!(up("m.csv").await.unwrap().status().as_u16(), 201);
+    let again = up("again.csv").await.unwrap();
+    assert_eq!(
+        again.status().as_u16(),
+        200,
+        "not answered as a new dataset"
+    );
+    let again: Value = again.json().await.unwrap();
+    assert_eq!(again["id"], first["id"]);
+    assert_eq!(again["name"], "m.csv");
+    assert_eq!(again["already_stored"], true);
+    let m = again["message"].as_str().unwrap();
+    assert!(m.contains("`m.csv`") && m.contains("`again.csv`"), "{m}");
+    let (_, list) = s.get("/v1/datasets").await;
+    assert_eq!(list["datasets"].as_array().unwrap().len(), 1);
+}

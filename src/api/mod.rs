@@ -133,6 +133,18 @@ async fn check_host(
     req: Request,
     next: Next,
 ) -> Response {
+    // RFC 9112 section 3.2: more than one Host field line is a 400, whatever is allowed.
+    let hosts = req
+        .headers()
+        .get_all(axum::http::header::HOST)
+        .iter()
+        .count();
+    if hosts > 1 {
+        return ApiError::BadRequest(format!(
+            "the request has {hosts} Host headers; HTTP/1.1 allows exactly one"
+        ))
+        .into_response();
+    }
     if s.allowed_hosts.iter().any(|h| h == "*") {
         return next.run(req).await;
     }
