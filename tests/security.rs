@@ -614,6 +614,37 @@ fn summary(ms: &mut [f64]) -> String {
     )
 }
 
+/// 20 `GET /v1/health` and 5 `POST /v1/jobs` as the operator, each asserted to succeed;
+/// their times in ms.
+async fn operator_requests(operator: &reqwest::Client, url: &str) -> (Vec<f64>, Vec<f64>) {
+    let (mut health, mut jobs) = (Vec::new(), Vec::new());
+    let job = calibd::jobs::examples::twin_fk(1);
+    for i in 0..20 {
+        let t0 = std::time::Instant::now();
+        let r = operator
+            .get(format!("{url}/v1/health"))
+            .bearer_auth(OPERATOR)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 200, "health {i}");
+        health.push(t0.elapsed().as_secs_f64() * 1e3);
+        if i % 4 == 0 {
+            let t0 = std::time::Instant::now();
+            let r = operator
+                .post(format!("{url}/v1/jobs"))
+                .bearer_auth(OPERATOR)
+                .json(&job)
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status().as_u16(), 201, "job {i}");
+            jobs.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    (health, jobs)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn hostile_sockets_and_viewer_streams_do_not_lock_the_operator_out() {
     raise_fd_limit(4096);
@@ -621,6 +652,15 @@ async fn hostile_sockets_and_viewer_streams_do_not_lock_the_operator_out() {
     // idle connections are kept for the whole test, so everything stays held.
     let s = start(|c| c.header_read_timeout_s = 300).await;
     let addr: std::net::SocketAddr = s.url.trim_start_matches("http://").parse().unwrap();
+    // The operator's client: its own address, a new connection for every request.
+    let operator = reqwest::Client::builder()
+        .local_address(std::net::IpAddr::from([127, 0, 0, 2]))
+        .pool_max_idle_per_host(0)
+        .build()
+        .unwrap();
+    let (mut health, mut jobs) = operator_requests(&operator, &s.url).await;
+    eprintln!("operator GET /v1/health before: {}", summary(&mut health));
+    eprintln!("operator POST /v1/jobs before: {}", summary(&mut jobs));
     // A client without a token: 600 idle sockets from 127.0.0.1, reopened when closed.
     let mut hostile: Vec<Option<tokio::net::TcpStream>> = Vec::new();
     for _ in 0..600 {
@@ -684,44 +724,16 @@ async fn hostile_sockets_and_viewer_streams_do_not_lock_the_operator_out() {
         "the general slots should all be held"
     );
     // ...and the operator, on a new connection each time, still gets through.
-    let operator = reqwest::Client::builder()
-        .local_address(std::net::IpAddr::from([127, 0, 0, 2]))
-        .pool_max_idle_per_host(0)
-        .build()
-        .unwrap();
-    let (mut health, mut jobs) = (Vec::new(), Vec::new());
-    for i in 0..20 {
-        let t0 = std::time::Instant::now();
-        let r = operator
-            .get(format!("{}/v1/health", s.url))
-            .bearer_auth(OPERATOR)
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status().as_u16(), 200, "health {i}");
-        health.push(t0.elapsed().as_secs_f64() * 1e3);
-        if i % 4 == 0 {
-            let t0 = std::time::Instant::now();
-            let r = operator
-                .post(format!("{}/v1/jobs", s.url))
-                .bearer_auth(OPERATOR)
-                .json(&calibd::jobs::examples::twin_fk(1))
-                .send()
-                .await
-                .unwrap();
-            assert_eq!(r.status().as_u16(), 201, "job {i}");
-            jobs.push(t0.elapsed().as_secs_f64() * 1e3);
-        }
-    }
+    let (mut health, mut jobs) = operator_requests(&operator, &s.url).await;
     let _ = stop.send(true);
     let reopened = reopen.await.unwrap();
     let (h, j) = (summary(&mut health), summary(&mut jobs));
     eprintln!("hostile sockets reopened: {reopened}");
-    eprintln!("operator GET /v1/health: {h}");
-    eprintln!("operator POST /v1/jobs: {j}");
+    eprintln!("operator GET /v1/health under attack: {h}");
+    eprintln!("operator POST /v1/jobs under attack: {j}");
     // A generous bound (the CI machine is shared); the figures are printed above.
     assert!(
-        health[health.len() / 2] < 1000.0 && jobs[jobs.len() / 2] < 1000.0,
+        health[health.len() / 2] < 1000.0 && jobs[jobs.len() / 2] < 2000.0,
         "health {h}; jobs {j}"
     );
     drop(streams);
