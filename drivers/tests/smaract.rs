@@ -366,3 +366,25 @@ async fn mcs2_errors_another_client_causes_meanwhile_are_not_pinned_on_ours() {
     assert!(drained > 0, "no foreign error was drained (sent {sent})");
     m.stop().await;
 }
+
+#[tokio::test]
+async fn mcs2_a_long_queue_of_foreign_errors_is_drained_and_not_blamed() {
+    let (m, h, q) = mcs2_with_queue(&[]).await;
+    h.set(":CHAN0:MMOD 0").await.unwrap();
+    // More than one drain reads: the rest stays queued, still before our next command.
+    for i in 0..300 {
+        q.push(-113, &format!("Undefined header (another client, {i})"));
+    }
+    h.set(":CHAN0:MMOD 0").await.unwrap();
+    match h.set(":CHAN0:BOGUS 1").await {
+        Err(DriverError::Device { code, message, .. }) => {
+            assert_eq!(code, -113);
+            assert!(message.contains(":CHAN0:BOGUS 1"), "{message}");
+            assert!(!message.contains("another client"), "{message}");
+        }
+        other => panic!("expected our own error, got {other:?}"),
+    }
+    assert!(q.pending().is_empty(), "{} left", q.pending().len());
+    assert_eq!(h.state().borrow().stale_errors_drained, 300);
+    m.stop().await;
+}

@@ -88,7 +88,7 @@ pub(crate) struct ErrorQueue {
 }
 
 /// Most queue entries read in one drain (a controller that never says 0 cannot hang us).
-const MAX_DRAIN: usize = 64;
+const MAX_DRAIN: usize = 256;
 
 pub(crate) struct Exchange {
     line: String,
@@ -381,15 +381,16 @@ impl Session {
     }
 
     /// Pops up to `n` entries (at most [`MAX_DRAIN`]), oldest first, several per line;
-    /// returns the errors (never code 0) and whether all `n` were there (false when the
-    /// queue answered "no error" early).
+    /// returns the errors (never code 0) and whether all `n` were read (false when the
+    /// queue answered "no error" early, or when `n` is over the bound).
     async fn pop<T: AsyncRead + AsyncWrite + Unpin>(
         &self,
         f: &mut Framed<T, LineCodec>,
         q: ErrorQueue,
         n: usize,
     ) -> Result<(Vec<(i64, String)>, bool), DriverError> {
-        let n = if n > MAX_DRAIN {
+        let capped = n > MAX_DRAIN;
+        let n = if capped {
             tracing::warn!(
                 device = self.device,
                 queued = n,
@@ -413,7 +414,7 @@ impl Session {
             }
             left -= k;
         }
-        Ok((errors, true))
+        Ok((errors, !capped))
     }
 }
 
