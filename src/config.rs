@@ -97,6 +97,18 @@ pub struct Config {
     /// Most open client connections; one more is closed at once (idle and half-sent
     /// connections cannot exhaust the daemon's memory).
     pub max_connections: usize,
+    /// Most open connections from one peer address (its fair share of
+    /// `max_connections`); one more is closed at once.
+    pub max_connections_per_address: usize,
+    /// Connections of `max_connections` kept for operators: once the others are taken, a
+    /// request without an operator token is answered 503 and its connection closed.
+    pub operator_reserved_connections: usize,
+    /// Most event streams (`GET /v1/events`, `/v1/jobs/{id}/events`) open at once per
+    /// token (per address without a token); one more is answered 429.
+    pub max_event_streams_per_token: usize,
+    /// Time a client may take none of the bytes the daemon sends it (an event stream
+    /// nobody reads), in seconds; then it is disconnected and its slot freed.
+    pub send_timeout_s: u64,
     /// Time a client has to send a request's headers, in seconds; also closes idle
     /// keep-alive connections.
     pub header_read_timeout_s: u64,
@@ -149,6 +161,10 @@ impl Default for Config {
             max_body_bytes_in_flight: 64 * 1024 * 1024,
             request_timeout_s: 30,
             max_connections: 512,
+            max_connections_per_address: 64,
+            operator_reserved_connections: 32,
+            max_event_streams_per_token: 16,
+            send_timeout_s: 60,
             header_read_timeout_s: 10,
             allowed_hosts: vec!["localhost".into(), "127.0.0.1".into(), "::1".into()],
             min_schedule_interval_s: 60,
@@ -179,6 +195,19 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ),
     ("CALIBD_REQUEST_TIMEOUT_S", "request_timeout_s: integer"),
     ("CALIBD_MAX_CONNECTIONS", "max_connections: integer"),
+    (
+        "CALIBD_MAX_CONNECTIONS_PER_ADDRESS",
+        "max_connections_per_address: integer",
+    ),
+    (
+        "CALIBD_OPERATOR_RESERVED_CONNECTIONS",
+        "operator_reserved_connections: integer",
+    ),
+    (
+        "CALIBD_MAX_EVENT_STREAMS_PER_TOKEN",
+        "max_event_streams_per_token: integer",
+    ),
+    ("CALIBD_SEND_TIMEOUT_S", "send_timeout_s: integer"),
     (
         "CALIBD_HEADER_READ_TIMEOUT_S",
         "header_read_timeout_s: integer",
@@ -324,6 +353,16 @@ impl Config {
                 }
                 "CALIBD_REQUEST_TIMEOUT_S" => self.request_timeout_s = parse(name, &v)?,
                 "CALIBD_MAX_CONNECTIONS" => self.max_connections = parse(name, &v)?,
+                "CALIBD_MAX_CONNECTIONS_PER_ADDRESS" => {
+                    self.max_connections_per_address = parse(name, &v)?
+                }
+                "CALIBD_OPERATOR_RESERVED_CONNECTIONS" => {
+                    self.operator_reserved_connections = parse(name, &v)?
+                }
+                "CALIBD_MAX_EVENT_STREAMS_PER_TOKEN" => {
+                    self.max_event_streams_per_token = parse(name, &v)?
+                }
+                "CALIBD_SEND_TIMEOUT_S" => self.send_timeout_s = parse(name, &v)?,
                 "CALIBD_HEADER_READ_TIMEOUT_S" => self.header_read_timeout_s = parse(name, &v)?,
                 "CALIBD_MIN_SCHEDULE_INTERVAL_S" => self.min_schedule_interval_s = parse(name, &v)?,
                 "CALIBD_ALLOWED_HOSTS" => self.allowed_hosts = list(&v),

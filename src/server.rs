@@ -137,6 +137,15 @@ pub async fn start(
     if !fleet || config.fleet_scheduler {
         tokio::spawn(scheduler.clone().run(service.clone(), shutdown.clone()));
     }
+    let limits = api::ServeLimits {
+        max_connections: config.max_connections.max(1),
+        max_connections_per_address: config.max_connections_per_address.max(1),
+        operator_reserve: config.operator_reserved_connections,
+        max_event_streams_per_token: config.max_event_streams_per_token.max(1),
+        header_read_timeout: Duration::from_secs(config.header_read_timeout_s.max(1)),
+        send_timeout: Duration::from_secs(config.send_timeout_s.max(1)),
+        ..Default::default()
+    };
     let state = AppState {
         service,
         scheduler,
@@ -144,11 +153,8 @@ pub async fn start(
         max_body_bytes: config.max_body_bytes,
         body_budget: api::budget::BodyBudget::new(config.max_body_bytes_in_flight),
         request_timeout: Duration::from_secs(config.request_timeout_s.max(1)),
-        limits: api::ServeLimits {
-            max_connections: config.max_connections.max(1),
-            header_read_timeout: Duration::from_secs(config.header_read_timeout_s.max(1)),
-            ..Default::default()
-        },
+        limits,
+        event_streams: api::event_stream_shares(&limits),
         allowed_hosts: config
             .allowed_hosts
             .iter()

@@ -119,10 +119,10 @@ async fn mcs2_positioner_fault_is_a_device_error() {
 async fn link_faults_give_typed_errors_then_reconnect() {
     for dev in [MockDevice::Mcs, MockDevice::Mcs2] {
         for fault in ["garbage@3", "drop@3", "truncate@3", "stall@3"] {
-            // The MCS2 driver reads the error queue count once more, on connect: the second
-            // position query is reply 4 there.
             let planned = if dev == MockDevice::Mcs2 {
-                fault.replace("@3", "@4")
+                // Reply 1 = the count on connect; each position read is a line of three
+                // replies (count, position, count): the second position is reply 6.
+                fault.replace("@3", "@6")
             } else {
                 fault.to_string()
             };
@@ -299,5 +299,92 @@ async fn mcs_identity_reports_system_id_channels_and_position_known() {
             .collect::<Vec<_>>(),
         [(0, false, 3), (2, true, 3)]
     );
+    m.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mcs2_errors_another_client_causes_meanwhile_are_not_pinned_on_ours() {
+    use tokio::io::AsyncWriteExt;
+    let (m, h, q) = mcs2_with_queue(&[]).await;
+    // The other client: one bad line every 10 ms on its own connection to the same port.
+    let (stop, mut stopped) = tokio::sync::watch::channel(false);
+    let addr = m.addr.clone();
+    let flood = tokio::spawn(async move {
+        let mut c = tokio::net::TcpStream::connect(&addr).await.unwrap();
+        let mut tick = tokio::time::interval(Duration::from_millis(10));
+        let mut sent = 0u64;
+        loop {
+            tokio::select! {
+                _ = stopped.changed() => return sent,
+                _ = tick.tick() => {}
+            }
+            if c.write_all(b":BOGUS:HEADER 1\n").await.is_err() {
+                return sent;
+            }
+            sent += 1;
+        }
+    });
+    // Until its errors reach the shared queue.
+    let mut seen = false;
+    for _ in 0..1000 {
+        if !q.pending().is_empty() {
+            seen = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    assert!(seen, "the other client's errors never reached the queue");
+    h.reference(1).await.unwrap();
+    // Moves (mode, move, state polls, position) and position reads while the errors land.
+    for i in 0..40i64 {
+        let target = (i % 8 - 4) * 250_000_000;
+        let at = h
+            .move_absolute(1, target)
+            .await
+            .unwrap_or_else(|e| panic!("move {i} to {target} pm: {e}"));
+        assert_eq!(at, target - 2000, "move {i}");
+        assert_eq!(h.position(1).await.unwrap(), target - 2000, "read {i}");
+    }
+    // A bad command of our own is still reported, as ours, with its own error only.
+    match h.set(":CHAN1:BOGUS 1").await {
+        Err(DriverError::Device { code, message, .. }) => {
+            assert_eq!(code, -113);
+            assert!(message.contains(":CHAN1:BOGUS 1"), "{message}");
+            assert!(!message.contains("also queued"), "{message}");
+        }
+        other => panic!("expected our own error, got {other:?}"),
+    }
+    match h.move_absolute(1, 99_000_000_000_000).await {
+        Err(DriverError::Device { code: -222, .. }) => {}
+        other => panic!("expected the range limit, got {other:?}"),
+    }
+    let _ = stop.send(true);
+    let sent = flood.await.unwrap();
+    let drained = h.state().borrow().stale_errors_drained;
+    eprintln!("other client: {sent} bad lines; drained as not ours: {drained}");
+    // The other client's errors really were in the queue around our commands.
+    assert!(drained > 0, "no foreign error was drained (sent {sent})");
+    m.stop().await;
+}
+
+#[tokio::test]
+async fn mcs2_a_long_queue_of_foreign_errors_is_drained_and_not_blamed() {
+    let (m, h, q) = mcs2_with_queue(&[]).await;
+    h.set(":CHAN0:MMOD 0").await.unwrap();
+    // More than one drain reads: the rest stays queued, still before our next command.
+    for i in 0..300 {
+        q.push(-113, &format!("Undefined header (another client, {i})"));
+    }
+    h.set(":CHAN0:MMOD 0").await.unwrap();
+    match h.set(":CHAN0:BOGUS 1").await {
+        Err(DriverError::Device { code, message, .. }) => {
+            assert_eq!(code, -113);
+            assert!(message.contains(":CHAN0:BOGUS 1"), "{message}");
+            assert!(!message.contains("another client"), "{message}");
+        }
+        other => panic!("expected our own error, got {other:?}"),
+    }
+    assert!(q.pending().is_empty(), "{} left", q.pending().len());
+    assert_eq!(h.state().borrow().stale_errors_drained, 300);
     m.stop().await;
 }

@@ -217,7 +217,7 @@ impl Caller {
 
 /// The token of an `Authorization: Bearer TOKEN` value; the scheme is case-insensitive
 /// (RFC 7235 section 2.1).
-fn bearer_token(value: &str) -> Option<&str> {
+pub(crate) fn bearer_token(value: &str) -> Option<&str> {
     let (scheme, token) = value.trim().split_once(' ')?;
     let token = token.trim();
     (scheme.eq_ignore_ascii_case("bearer") && !token.is_empty()).then_some(token)

@@ -44,8 +44,25 @@ async fn upload(
     let media_type = media_type(headers.get(header::CONTENT_TYPE))?;
     let name = q.name.unwrap_or_else(|| "dataset".into());
     check_name("name", &name)?;
-    let info = s.service.put_dataset(name, media_type, Vec::from(b)).await?;
-    Ok((StatusCode::CREATED, Json(info)).into_response())
+    let info = s
+        .service
+        .put_dataset(name.clone(), media_type, Vec::from(b))
+        .await?;
+    if info.name == name {
+        return Ok((StatusCode::CREATED, Json(info)).into_response());
+    }
+    // The id is the content's hash: the same bytes under a second name are the first
+    // dataset, and the new name is not recorded. Say so instead of answering as if stored.
+    let message = format!(
+        "the same content is already stored as `{}` (id {}); the name `{name}` was not \
+         recorded: refer to the dataset by its id",
+        info.name, info.id
+    );
+    let mut body = serde_json::to_value(&info)
+        .map_err(|e| ApiError::Internal(format!("dataset description: {e}")))?;
+    body["already_stored"] = Value::Bool(true);
+    body["message"] = Value::String(message);
+    Ok((StatusCode::OK, Json(body)).into_response())
 }
 
 async fn list(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {

@@ -37,6 +37,9 @@ pub enum ApiError {
     /// Try again later.
     #[error("{0}")]
     Unavailable(String),
+    /// The caller holds its share of something (event streams).
+    #[error("{0}")]
+    TooManyRequests(String),
     /// The route exists, the method does not.
     #[error("{0}")]
     MethodNotAllowed(String),
@@ -63,6 +66,7 @@ impl ApiError {
             ApiError::Conflict(_) => (StatusCode::CONFLICT, "conflict"),
             ApiError::TooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "too_large"),
             ApiError::Unavailable(_) => (StatusCode::SERVICE_UNAVAILABLE, "unavailable"),
+            ApiError::TooManyRequests(_) => (StatusCode::TOO_MANY_REQUESTS, "too_many_requests"),
             ApiError::MethodNotAllowed(_) => (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed"),
             ApiError::MisdirectedHost(_) => (StatusCode::MISDIRECTED_REQUEST, "misdirected"),
             ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),

@@ -31,7 +31,7 @@ use tower_http::timeout::TimeoutLayer;
 use tower_http::trace::TraceLayer;
 
 pub use auth::{Auth, Caller, Role};
-pub use conn::ServeLimits;
+pub use conn::{Peer, ServeLimits};
 pub use error::ApiError;
 
 use crate::schedule::Scheduler;
@@ -57,6 +57,8 @@ pub struct AppState {
     pub request_timeout: Duration,
     /// Connection limits of the server.
     pub limits: ServeLimits,
+    /// Event streams open per token (per address without a token).
+    pub(crate) event_streams: Arc<conn::Shares<String>>,
     /// Host names the API answers to (normalised: lowercase, no brackets; `*` = any).
     pub allowed_hosts: Arc<[String]>,
     /// Shortest interval between two occurrences of a schedule.
@@ -94,6 +96,7 @@ pub fn app(state: AppState) -> Router {
         .method_not_allowed_fallback(method_not_allowed)
         .layer(middleware::from_fn_with_state(state.clone(), budget::limit))
         .layer(middleware::from_fn_with_state(state.clone(), check_host))
+        .layer(middleware::from_fn_with_state(state.clone(), admit))
         .layer(middleware::from_fn(security_headers))
         .layer(DefaultBodyLimit::max(limit))
         .layer(TimeoutLayer::with_status_code(
@@ -129,6 +132,50 @@ pub fn host_name(authority: &str) -> String {
     host.trim_end_matches('.').to_ascii_lowercase()
 }
 
+/// On a connection holding one of the operators' reserved slots (the others are taken),
+/// only a request with an operator token is served; any other is answered 503 and the
+/// connection closed, so the slot is free again for an operator.
+async fn admit(
+    axum::extract::State(s): axum::extract::State<AppState>,
+    req: Request,
+    next: Next,
+) -> Response {
+    let Some(peer) = req.extensions().get::<Peer>().copied() else {
+        return next.run(req).await;
+    };
+    if !peer.reserved {
+        return next.run(req).await;
+    }
+    let operator = req
+        .headers()
+        .get(axum::http::header::AUTHORIZATION)
+        .and_then(|h| h.to_str().ok())
+        .and_then(auth::bearer_token)
+        .and_then(|t| s.auth.check(t))
+        .is_some_and(|(_, role)| role == Role::Operator);
+    if operator {
+        return next.run(req).await;
+    }
+    metrics::counter!("calibd_http_connections_refused_total", "reason" => "reserve").increment(1);
+    tracing::debug!(peer = %peer.addr, "request refused: only operators may use the reserved connections");
+    let mut r = ApiError::Unavailable(format!(
+        "the daemon is at its connection limit ({}); the remaining connections are kept \
+         for operators: try again later",
+        s.limits.max_connections
+    ))
+    .into_response();
+    let h = r.headers_mut();
+    h.insert(
+        axum::http::header::CONNECTION,
+        axum::http::HeaderValue::from_static("close"),
+    );
+    h.insert(
+        axum::http::header::RETRY_AFTER,
+        axum::http::HeaderValue::from_static("5"),
+    );
+    r
+}
+
 /// Refuse requests addressed to a host name this daemon is not configured to be: a page
 /// on another origin that rebinds its DNS name to the lab PC cannot read the API through a
 /// browser, because the browser still sends the page's name.
@@ -137,6 +184,18 @@ async fn check_host(
     req: Request,
     next: Next,
 ) -> Response {
+    // RFC 9112 section 3.2: more than one Host field line is a 400, whatever is allowed.
+    let hosts = req
+        .headers()
+        .get_all(axum::http::header::HOST)
+        .iter()
+        .count();
+    if hosts > 1 {
+        return ApiError::BadRequest(format!(
+            "the request has {hosts} Host headers; HTTP/1.1 allows exactly one"
+        ))
+        .into_response();
+    }
     if s.allowed_hosts.iter().any(|h| h == "*") {
         return next.run(req).await;
     }
@@ -208,6 +267,11 @@ async fn track(req: Request, next: Next) -> Response {
     metrics::histogram!("calibd_http_request_duration_seconds", "method" => method, "path" => path)
         .record(t0.elapsed().as_secs_f64());
     res
+}
+
+/// The per-token event stream counts for `limits`.
+pub(crate) fn event_stream_shares(limits: &ServeLimits) -> Arc<conn::Shares<String>> {
+    conn::Shares::new(limits.max_event_streams_per_token.max(1))
 }
 
 /// Serve the application on an already-bound listener, with the state's connection

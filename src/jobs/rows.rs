@@ -55,6 +55,19 @@ impl<R: Read> CsvRows<R> {
                 "CSV header has an empty column name",
             ));
         }
+        // A repeated name would make one of the two columns unreachable by name.
+        for (i, c) in columns.iter().enumerate() {
+            if let Some(j) = columns[..i].iter().position(|d| d == c) {
+                return Err(JobError::invalid(
+                    field,
+                    format!(
+                        "CSV header names column `{c}` twice (columns {} and {})",
+                        j + 1,
+                        i + 1
+                    ),
+                ));
+            }
+        }
         let gaps = columns.iter().map(|c| gaps(c)).collect();
         Ok(Self {
             field: field.to_string(),
@@ -225,6 +238,16 @@ mod tests {
             s.push('\n');
         }
         s
+    }
+
+    #[test]
+    fn a_column_named_twice_is_refused_by_name() {
+        let e = CsvRows::new("joints", &b"q1,q2,q1\n1,2,3\n"[..], &|_: &str| false)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("joints") && e.contains("`q1` twice"), "{e}");
+        assert!(e.contains("columns 1 and 3"), "{e}");
+        assert!(CsvRows::new("joints", &b"q1,q2\n1,2\n"[..], &|_: &str| false).is_ok());
     }
 
     #[test]

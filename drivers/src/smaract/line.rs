@@ -88,7 +88,7 @@ pub(crate) struct ErrorQueue {
 }
 
 /// Most queue entries read in one drain (a controller that never says 0 cannot hang us).
-const MAX_DRAIN: usize = 64;
+const MAX_DRAIN: usize = 256;
 
 pub(crate) struct Exchange {
     line: String,
@@ -114,9 +114,8 @@ pub(crate) struct LineClient {
 
 impl LineClient {
     /// Starts the actor; `hello` lines are sent (each awaiting one reply) after every connect.
-    /// With an error `queue`, it is drained after every connect and before a checked
-    /// command when an unchecked one may have left errors; a checked command gets the
-    /// errors queued after it.
+    /// With an error `queue`, it is drained after every connect, and a checked command gets
+    /// the errors it added to the queue, not those queued before it (see `Session::window`).
     pub(crate) fn start<C: Connect>(
         device: &'static str,
         connector: C,
@@ -134,15 +133,10 @@ impl LineClient {
                 timeout,
                 hello,
                 queue,
-                dirty: true,
                 stale: 0,
             };
             while let Some(ex) = rx.recv().await {
                 let r = s.run_one(&mut link, &ex).await;
-                if r.is_err() {
-                    // Whatever the command left in the queue is not known to be read.
-                    s.dirty = true;
-                }
                 let stale = s.stale;
                 stx.send_modify(|st| st.stale_errors_drained = stale);
                 if let Err(e) = &r {
@@ -176,8 +170,9 @@ impl LineClient {
         self.send(line, want_reply, false).await
     }
 
-    /// Sends `line` (and reads its reply if `want_reply`), then reads the error queue: an
-    /// error queued after this line is returned as a device error naming it.
+    /// Sends `line` (and reads its reply if `want_reply`) with the error queue's length read
+    /// before and after it: an error it queued is returned as a device error naming it.
+    /// `line` may be sent again (another client reading the queue): it must be idempotent.
     pub(crate) async fn checked(
         &self,
         line: String,
@@ -220,10 +215,26 @@ struct Session {
     timeout: Duration,
     hello: Vec<String>,
     queue: Option<ErrorQueue>,
-    /// The error queue may hold errors no checked command has read.
-    dirty: bool,
     /// Stale errors drained so far.
     stale: u64,
+}
+
+/// Most queue reads (`:SYST:ERR?`) sent on one line.
+const POPS_PER_LINE: usize = 16;
+
+/// Times a checked command is sent when the error queue changed under it in a way that
+/// makes its errors impossible to attribute (another client read the queue meanwhile).
+const ATTEMPTS: usize = 3;
+
+/// What one checked exchange found in the error queue.
+struct Window {
+    /// The command's reply, if it has one.
+    reply: Option<String>,
+    /// Errors queued by this command: those after the entries that were already there.
+    ours: Vec<(i64, String)>,
+    /// False when the queue changed in a way only another client's reads explain, so
+    /// positions in it do not say whose an error is.
+    attributable: bool,
 }
 
 impl Session {
@@ -234,40 +245,89 @@ impl Session {
     ) -> Result<Option<String>, DriverError> {
         let (f, fresh) = link.ensure().await?;
         if fresh {
-            self.dirty = true;
             for h in &self.hello {
                 round(self.device, f, h, true, self.timeout).await?;
             }
+            if let Some(q) = self.queue {
+                // Whatever is queued on connect was left by another client or before a
+                // reconnect.
+                let n = self.count(f, q).await?;
+                let (stale, _) = self.pop(f, q, n).await?;
+                self.foreign(&stale, "on connect", &ex.line);
+            }
         }
-        let Some(q) = self.queue.filter(|_| ex.checked || fresh) else {
-            self.dirty = true;
+        let Some(q) = self.queue.filter(|_| ex.checked) else {
             return round(self.device, f, &ex.line, ex.want_reply, self.timeout).await;
         };
-        if self.dirty {
-            let why = if fresh {
-                "on connect"
-            } else {
-                "before a command"
-            };
-            for (code, message) in self.drain(f, q).await? {
-                self.stale += 1;
-                tracing::warn!(
-                    device = self.device,
-                    code,
-                    message = %message,
-                    when = why,
-                    before = %ex.line,
-                    "drained an error this client did not cause from the controller's queue"
-                );
+        let mut last = None;
+        for attempt in 1..=ATTEMPTS {
+            let w = self.window(f, q, ex).await?;
+            if w.attributable {
+                return self.verdict(ex, w.reply, &w.ours);
             }
-            self.dirty = false;
+            tracing::warn!(
+                device = self.device,
+                command = %ex.line,
+                attempt,
+                candidates = w.ours.len(),
+                "the error queue changed under the command (another client reads it): sent again"
+            );
+            if w.ours.is_empty() {
+                // Nothing in the command's window: no error of its own was queued.
+                return Ok(w.reply);
+            }
+            last = Some(w);
         }
-        let reply = round(self.device, f, &ex.line, ex.want_reply, self.timeout).await?;
-        if !ex.checked {
-            self.dirty = true;
-            return Ok(reply);
+        let w = last.ok_or(DriverError::Closed {
+            device: self.device,
+        })?;
+        let mut r = self.verdict(ex, w.reply, &w.ours);
+        if let Err(DriverError::Device { message, .. }) = &mut r {
+            message.push_str(&format!(
+                " (after {ATTEMPTS} attempts; another client was reading the error queue, so \
+                 this error may be its)"
+            ));
         }
-        let errors = self.drain(f, q).await?;
+        r
+    }
+
+    /// Sends the command between two reads of the queue's length on one line (the
+    /// controller runs a line's commands in order: nothing of ours runs between them),
+    /// then reads the queue: the entries already there before the command are another
+    /// client's (drained and logged, never the command's); the ones it added are its own.
+    async fn window<T: AsyncRead + AsyncWrite + Unpin>(
+        &mut self,
+        f: &mut Framed<T, LineCodec>,
+        q: ErrorQueue,
+        ex: &Exchange,
+    ) -> Result<Window, DriverError> {
+        let line = format!("{};{};{}", q.count, ex.line, q.count);
+        let n = 2 + usize::from(ex.want_reply);
+        let mut replies = rounds(self.device, f, &line, n, self.timeout).await?;
+        let after = self.parse_count(q, &replies[n - 1])?;
+        let before = self.parse_count(q, &replies[0])?;
+        let reply = ex.want_reply.then(|| std::mem::take(&mut replies[1]));
+        let (popped, complete) = self.pop(f, q, after.max(before)).await?;
+        let split = before.min(popped.len());
+        self.foreign(&popped[..split], "before the command", &ex.line);
+        let ours = popped[split..].to_vec();
+        // The queue shrank during the line, or ran dry before all the entries counted were
+        // read: someone else read it, and positions no longer tell whose an entry is.
+        let attributable = after >= before && complete;
+        Ok(Window {
+            reply,
+            ours,
+            attributable,
+        })
+    }
+
+    /// The command's result: its reply, or a device error naming it with its errors.
+    fn verdict(
+        &self,
+        ex: &Exchange,
+        reply: Option<String>,
+        errors: &[(i64, String)],
+    ) -> Result<Option<String>, DriverError> {
         let Some((code, text)) = errors.first() else {
             return Ok(reply);
         };
@@ -277,7 +337,7 @@ impl Session {
                 .iter()
                 .map(|(c, t)| format!("{c} {t}"))
                 .collect();
-            message.push_str(&format!("; also queued: {}", more.join("; ")));
+            message.push_str(&format!("; also queued by it: {}", more.join("; ")));
         }
         tracing::debug!(device = self.device, code, command = %ex.line, "device error");
         Err(DriverError::Device {
@@ -287,34 +347,107 @@ impl Session {
         })
     }
 
-    /// Reads the queue until it reports code 0; returns the real errors (never code 0).
-    async fn drain<T: AsyncRead + AsyncWrite + Unpin>(
+    /// Logs and counts errors another client caused.
+    fn foreign(&mut self, errors: &[(i64, String)], when: &str, before: &str) {
+        for (code, message) in errors {
+            self.stale += 1;
+            tracing::warn!(
+                device = self.device,
+                code,
+                message = %message,
+                when,
+                before = %before,
+                "drained an error this client did not cause from the controller's queue"
+            );
+        }
+    }
+
+    fn parse_count(&self, q: ErrorQueue, n: &str) -> Result<usize, DriverError> {
+        let v: i64 = n.trim().parse().map_err(|_| DriverError::Protocol {
+            device: self.device,
+            detail: format!("{}: {n:?} is not an integer", q.count),
+        })?;
+        Ok(usize::try_from(v).unwrap_or(0))
+    }
+
+    /// The queue's length.
+    async fn count<T: AsyncRead + AsyncWrite + Unpin>(
         &self,
         f: &mut Framed<T, LineCodec>,
         q: ErrorQueue,
-    ) -> Result<Vec<(i64, String)>, DriverError> {
-        let device = self.device;
-        let n = round(device, f, q.count, true, self.timeout).await?;
-        let n = n.unwrap_or_default();
-        let n: i64 = n.trim().parse().map_err(|_| DriverError::Protocol {
-            device,
-            detail: format!("{}: {n:?} is not an integer", q.count),
-        })?;
-        let mut errors = Vec::new();
-        if n <= 0 {
-            return Ok(errors);
-        }
-        for _ in 0..MAX_DRAIN {
-            let line = round(device, f, q.next, true, self.timeout).await?;
-            let (code, text) = (q.parse)(line.as_deref().unwrap_or_default())?;
-            if code == 0 {
-                return Ok(errors);
-            }
-            errors.push((code, text));
-        }
-        tracing::warn!(device, "error queue not empty after {MAX_DRAIN} reads");
-        Ok(errors)
+    ) -> Result<usize, DriverError> {
+        let n = round(self.device, f, q.count, true, self.timeout).await?;
+        self.parse_count(q, n.as_deref().unwrap_or_default())
     }
+
+    /// Pops up to `n` entries (at most [`MAX_DRAIN`]), oldest first, several per line;
+    /// returns the errors (never code 0) and whether all `n` were read (false when the
+    /// queue answered "no error" early, or when `n` is over the bound).
+    async fn pop<T: AsyncRead + AsyncWrite + Unpin>(
+        &self,
+        f: &mut Framed<T, LineCodec>,
+        q: ErrorQueue,
+        n: usize,
+    ) -> Result<(Vec<(i64, String)>, bool), DriverError> {
+        let capped = n > MAX_DRAIN;
+        let n = if capped {
+            tracing::warn!(
+                device = self.device,
+                queued = n,
+                "error queue longer than {MAX_DRAIN}: the rest is read later"
+            );
+            MAX_DRAIN
+        } else {
+            n
+        };
+        let mut errors = Vec::new();
+        let mut left = n;
+        while left > 0 {
+            let k = left.min(POPS_PER_LINE);
+            let line = vec![q.next; k].join(";");
+            for r in rounds(self.device, f, &line, k, self.timeout).await? {
+                let (code, text) = (q.parse)(&r)?;
+                if code == 0 {
+                    return Ok((errors, false));
+                }
+                errors.push((code, text));
+            }
+            left -= k;
+        }
+        Ok((errors, !capped))
+    }
+}
+
+/// Sends one line and reads `n` reply lines, within `timeout` in all.
+async fn rounds<T: AsyncRead + AsyncWrite + Unpin>(
+    device: &'static str,
+    f: &mut Framed<T, LineCodec>,
+    line: &str,
+    n: usize,
+    timeout: Duration,
+) -> Result<Vec<String>, DriverError> {
+    let work = async {
+        f.read_buffer_mut().clear();
+        f.send(line.to_string())
+            .await
+            .map_err(|e| DriverError::from_codec(device, e))?;
+        let mut out = Vec::with_capacity(n);
+        while out.len() < n {
+            match f.next().await {
+                Some(Ok(l)) => out.push(l),
+                Some(Err(e)) => return Err(DriverError::from_codec(device, e)),
+                None => return Err(DriverError::Closed { device }),
+            }
+        }
+        Ok(out)
+    };
+    tokio::time::timeout(timeout, work)
+        .await
+        .unwrap_or(Err(DriverError::Timeout {
+            device,
+            what: format!("{n} replies to {line:?}"),
+            after_ms: timeout.as_millis() as u64,
+        }))
 }
 
 /// Sends one line and, if `want`, reads one reply line, within `timeout`.

@@ -2,10 +2,13 @@
 //! line; set commands and actions are silent and checked with `:SYST:ERR:COUN?` /
 //! `:SYST:ERR?`; positions in pm (devices.md §3b).
 //!
-//! Error attribution: the queue is drained (and what was in it logged) after every connect,
-//! and before a checked command whenever an unchecked query may have left errors, so the
-//! errors read right after a command are that command's. Code 0 ("No error") ends a drain
-//! and is never an error.
+//! Error attribution: the queue is shared by every client of the controller, so another
+//! client's errors land in it at any time. The queue is drained (and what was in it logged)
+//! after every connect; a checked command is sent between two `:SYST:ERR:COUN?` on one line,
+//! so the entries queued before it are provably another client's (drained, logged, never
+//! blamed), and those it added are its own. When another client reads the queue meanwhile
+//! (the count shrinks or runs dry), the command is sent again (every checked command of this
+//! driver is idempotent). Code 0 ("No error") is never an error.
 
 use super::identity::StageIdentity;
 use super::line::{ErrorQueue, LineClient, LineState};

@@ -121,7 +121,7 @@ pub fn parse_inputs(
             }
             None => None,
         };
-        check_options(&options)?;
+        check_options(&options, model.chain.units.metre())?;
         let inputs = IdentifyInputs {
             model,
             ids,
@@ -265,7 +265,7 @@ pub(crate) fn point_inputs(
     if let Some(v) = &validation {
         check_points("validation", &model, v, plate.len())?;
     }
-    check_options(&options)?;
+    check_options(&options, model.chain.units.metre())?;
     let inputs = IdentifyInputs {
         model,
         ids,
@@ -330,19 +330,47 @@ fn unused_columns(field: &str, t: &Table, joints: &[String], used: &[&str]) -> O
     Some(msg)
 }
 
-fn check_options(options: &IdentifyOptions) -> Result<(), JobError> {
-    for (name, v) in [
-        ("options.rank_tolerance", options.rank_tolerance),
-        ("options.noise", options.noise),
-        ("options.effect_fraction", options.effect_fraction),
+/// Largest accepted `options.noise`, metres: a noise above it is not a calibration.
+const MAX_NOISE_M: f64 = 1.0;
+
+/// Refuses options outside a plausible range (a value like 1e308 would let the
+/// identification "succeed" with no parameter identified), naming the option and the range.
+/// `metre` is metres per model length unit.
+fn check_options(options: &IdentifyOptions, metre: f64) -> Result<(), JobError> {
+    let max_noise = MAX_NOISE_M / metre;
+    let unit = if metre == 1.0 { "m" } else { "mm" };
+    for (name, v, hi, inclusive, what) in [
+        (
+            "options.rank_tolerance",
+            options.rank_tolerance,
+            1.0,
+            false,
+            "a relative tolerance: above 0 and below 1".to_string(),
+        ),
+        (
+            "options.noise",
+            options.noise,
+            max_noise,
+            true,
+            format!(
+                "a measurement noise in the model's unit: above 0 and at most {max_noise} {unit} (1 m)"
+            ),
+        ),
+        (
+            "options.effect_fraction",
+            options.effect_fraction,
+            1.0,
+            true,
+            "a fraction of the noise: above 0 and at most 1".to_string(),
+        ),
     ] {
-        if let Some(v) = v {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(JobError::invalid(
-                    name,
-                    format!("{v} must be a positive number"),
-                ));
-            }
+        let Some(v) = v else { continue };
+        let inside = v.is_finite() && v > 0.0 && if inclusive { v <= hi } else { v < hi };
+        if !inside {
+            return Err(JobError::invalid(
+                name,
+                format!("{v} is outside the plausible range: {what}"),
+            ));
         }
     }
     Ok(())

@@ -251,6 +251,9 @@ async fn session(io: BoxIo, conn: Conn, sim: Arc<Mutex<Sim>>, faults: Faults, d:
                 s.update(Instant::now());
                 match d {
                     Dialect::Mcs => vec![mcs_reply(&mut s, line.trim())],
+                    // A line's commands run under one lock: no other client's command
+                    // runs between them (the driver's error attribution relies on it), and
+                    // every client shares the one error queue.
                     Dialect::Mcs2 => line
                         .split(';')
                         .filter_map(|c| mcs2_reply(&mut s, c.trim()))
