@@ -1,12 +1,14 @@
 //! Robot models: pure, `Send + Sync`, no I/O beyond parsing text handed to them.
 
 pub mod chain;
+pub mod compensate;
 pub mod dh;
 pub mod dh_tree;
 pub mod elastic;
 pub mod humanoid;
 pub mod ik;
 pub mod joint;
+pub mod opw;
 pub mod params;
 pub mod pcr;
 pub mod srdf;
