@@ -278,7 +278,8 @@ impl Compensator {
     fn classify(&self, target: &Frame, q: [f64; 6], s: &mut Scratch) -> Answer {
         let f = self.tcp(&q, s);
         let residual_position = (f.p - target.p).norm();
-        let residual_angle = f.angle_to(target);
+        // Not `Frame::angle_to`: its acos has a floor of ~1e-8 rad.
+        let residual_angle = rotation_vector(&(target.r * f.r.transpose())).norm();
         let mut a = Answer {
             q,
             residual_position,

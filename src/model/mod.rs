@@ -14,6 +14,7 @@ pub mod pcr;
 pub mod srdf;
 pub mod trig;
 pub mod urdf;
+pub mod urdf_export;
 
 pub use chain::{Chain, Geometry, Joint, PointMass};
 pub use joint::{JointKind, Mimic};

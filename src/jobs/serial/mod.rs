@@ -1,8 +1,9 @@
 //! The serial-arm job kinds (`serial.fk`, `serial.identify`, `serial.design`,
-//! `serial.dispersion`) and what they share: loading a DH or URDF model, joint columns in
+//! `serial.dispersion`, `serial.compensate`) and what they share: loading a DH or URDF model, joint columns in
 //! the model's units with limit checks, ball plates and measurement tables. A DH tree file
 //! (`"kind": "tree"`) is used through one named chain, as the serial DH file of that path.
 
+pub mod compensate;
 pub mod design;
 pub mod dispersion;
 pub mod fk;
@@ -315,6 +316,23 @@ impl SerialModel {
                 Ok((json!(text), art))
             }
         }
+    }
+}
+
+impl SerialModel {
+    /// A DH model also as URDF (`calibrated_model.urdf`, see
+    /// [`crate::model::urdf_export`]) for ROS tools: `None` for a URDF model (its calibrated
+    /// file already is one) and for DH rows URDF cannot express (coupled rows).
+    pub fn urdf_artefact(&self, chain: &Chain) -> Option<super::Artefact> {
+        let Source::Dh(f) = &self.source else {
+            return None;
+        };
+        let text = crate::model::urdf_export::to_urdf(chain, &f.name).ok()?;
+        Some(super::Artefact {
+            name: "calibrated_model.urdf".into(),
+            media_type: "application/xml".into(),
+            content: text.into_bytes(),
+        })
     }
 }
 
