@@ -164,6 +164,17 @@ impl Compensator {
         for seed in &seeds {
             let a = self.refine(target, *seed, s);
             if a.status == Status::Reached || a.status == Status::Singular {
+                // Near a singularity the ideal arm's branch can lie far from the model's
+                // (the Newton moved a joint a long way): the Newton from the reference may
+                // then find a solution nearer to it.
+                let moved = a.q.iter().zip(seed).any(|(x, y)| (x - y).abs() > 0.05);
+                if moved {
+                    let b = self.refine(target, *reference, s);
+                    let ok = b.status == Status::Reached || b.status == Status::Singular;
+                    if ok && dist(&b.q) < dist(&a.q) {
+                        return b;
+                    }
+                }
                 return a;
             }
             if a.status == Status::OutOfJointLimits && first_converged.is_none() {

@@ -114,8 +114,8 @@ fn far_targets_are_out_of_reach_and_limits_are_reported_not_clamped() {
 fn a_wrist_singular_target_is_flagged() {
     let (twin, comp) = calibrated();
     let mut s = Scratch::default();
-    // theta5 = 0: q5 = 0 on the IRB 120 (offset 0).
-    let q = [0.2, 0.1, -0.2, 0.4, 0.0, 0.3];
+    // theta5 = 0: q5 = -theta_offset5 (the true offset of the twin).
+    let q = [0.2, 0.1, -0.2, 0.4, -twin.truth.joints[4].offset, 0.3];
     let tau = twin.truth.static_torques(&q);
     let target = twin.truth.tcp(&q, Some(&tau));
     let a = comp.solve(&target, &q, &mut s);
@@ -133,3 +133,4 @@ fn rotation_vector_matches_axis_angle() {
         assert!((back - r).norm() < 1e-8, "angle {angle}: {v:?}");
     }
 }
+
