@@ -98,7 +98,8 @@ impl Compensator {
     /// `wrist_tol` are left to the Newton refinement).
     pub fn new(chain: Chain, tol: Tolerances, wrist_tol: f64) -> Result<Self, NotOpw> {
         let opw = Opw::of(&chain, wrist_tol)?;
-        let compliant = chain.joints.iter().any(|j| j.compliance != 0.0) && !chain.masses.is_empty();
+        let compliant =
+            chain.joints.iter().any(|j| j.compliance != 0.0) && !chain.masses.is_empty();
         let mut limits = [None; 6];
         for (l, j) in limits.iter_mut().zip(&chain.joints) {
             *l = j.limits;
@@ -252,7 +253,7 @@ impl Compensator {
                 break;
             }
         }
-        self.classify(target, q, s)
+        self.classify(target, q, &tcp)
     }
 
     /// Weight of an angle (rad) against a length in the least squares: 100 mm per rad in the
@@ -285,9 +286,8 @@ impl Compensator {
         j
     }
 
-    /// The answer at `q`: residuals, limits, singularity.
-    fn classify(&self, target: &Frame, q: [f64; 6], s: &mut Scratch) -> Answer {
-        let f = self.tcp(&q, s);
+    /// The answer at `q`, where the model's TCP is `f`: residuals, limits, singularity.
+    fn classify(&self, target: &Frame, q: [f64; 6], f: &Frame) -> Answer {
         let residual_position = (f.p - target.p).norm();
         // Not `Frame::angle_to`: its acos has a floor of ~1e-8 rad.
         let residual_angle = rotation_vector(&(target.r * f.r.transpose())).norm();

@@ -5,7 +5,11 @@ use crate::util::Rng;
 /// Angle between two frames (rad), without the ~1e-8 rad floor of an acos.
 fn angle(a: &Frame, b: &Frame) -> f64 {
     let r = a.r.transpose() * b.r;
-    let v = nalgebra::Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]);
+    let v = nalgebra::Vector3::new(
+        r[(2, 1)] - r[(1, 2)],
+        r[(0, 2)] - r[(2, 0)],
+        r[(1, 0)] - r[(0, 1)],
+    );
     (v.norm() * 0.5).atan2((r.trace() - 1.0) * 0.5)
 }
 
@@ -28,7 +32,10 @@ fn calibrated() -> (SerialTwin, Compensator) {
 #[test]
 fn round_trip_reaches_every_target_on_the_branch_of_the_generating_joints() {
     let (twin, comp) = calibrated();
-    assert!(comp.compliant, "the twin's truth has compliances and masses");
+    assert!(
+        comp.compliant,
+        "the twin's truth has compliances and masses"
+    );
     let mut rng = Rng::new(11);
     let mut s = Scratch::default();
     let (mut worst_p, mut worst_a, mut n) = (0.0f64, 0.0f64, 0);
@@ -133,4 +140,3 @@ fn rotation_vector_matches_axis_angle() {
         assert!((back - r).norm() < 1e-8, "angle {angle}: {v:?}");
     }
 }
-

@@ -173,11 +173,7 @@ impl Opw {
     /// {W}), up to eight; empty when the target is out of the ideal arm's reach. At a wrist
     /// singularity theta4 is `q4_hint` (converted to theta) and one wrist solution is given.
     pub fn solve(&self, target: &Frame, q4_hint: f64) -> Vec<[f64; 6]> {
-        let f = self
-            .base
-            .inverse()
-            .mul(target)
-            .mul(&self.tool.inverse());
+        let f = self.base.inverse().mul(target).mul(&self.tool.inverse());
         let pc = f.p - f.r.column(2) * self.d6;
         let (px, py) = (pc.x, pc.y);
         let r2 = px * px + py * py - self.b * self.b;
@@ -196,8 +192,7 @@ impl Opw {
             }
             for phi in [dd.acos(), -dd.acos()] {
                 let t3 = phi - self.psi3;
-                let t2 = v.atan2(u)
-                    - (self.l3 * phi.sin()).atan2(self.a2 + self.l3 * phi.cos());
+                let t2 = v.atan2(u) - (self.l3 * phi.sin()).atan2(self.a2 + self.l3 * phi.cos());
                 // Frame 3 rotation, then Rx(alpha3).
                 let r03 = Frame::rot_z(t1).r
                     * rot_x_s(self.s1)
@@ -231,7 +226,11 @@ impl Opw {
         let c5 = (-z.z * self.s4 * self.s5).clamp(-1.0, 1.0);
         let s5abs = (1.0 - c5 * c5).max(0.0).sqrt();
         let mut out = Vec::with_capacity(2);
-        let signs: &[f64] = if s5abs < SIN_EPS { &[0.0] } else { &[1.0, -1.0] };
+        let signs: &[f64] = if s5abs < SIN_EPS {
+            &[0.0]
+        } else {
+            &[1.0, -1.0]
+        };
         for &sg in signs {
             let s5 = sg * s5abs;
             let t5 = s5.atan2(c5);

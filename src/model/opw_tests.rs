@@ -36,7 +36,9 @@ fn every_solution_reaches_the_target_and_one_is_the_generating_joints() {
         for s in &sols {
             let f = c.tcp(s, None);
             assert!((f.p - t.p).norm() < 1e-8, "{s:?}: {:?} vs {:?}", f.p, t.p);
-            assert!(crate::model::compensate::rotation_vector(&(f.r * t.r.transpose())).norm() < 1e-9);
+            assert!(
+                crate::model::compensate::rotation_vector(&(f.r * t.r.transpose())).norm() < 1e-9
+            );
             if (0..6).all(|k| angle_diff(s[k], q[k]) < 1e-7) {
                 found = true;
             }

@@ -24,7 +24,14 @@ pub fn to_urdf(chain: &Chain, name: &str) -> Result<String, ModelError> {
     let _ = writeln!(out, "<robot name=\"{}\">", xml_escape(name));
     link(&mut out, "world", None, m);
     link(&mut out, "base_link", None, m);
-    fixed(&mut out, "base", "world", "base_link", &chain.base_frame(), m);
+    fixed(
+        &mut out,
+        "base",
+        "world",
+        "base_link",
+        &chain.base_frame(),
+        m,
+    );
     let mut parent = "base_link".to_string();
     for (i, j) in chain.joints.iter().enumerate() {
         let Geometry::Mdh { alpha, a, beta, d } = j.geometry else {
@@ -68,7 +75,11 @@ pub fn to_urdf(chain: &Chain, name: &str) -> Result<String, ModelError> {
             let _ = writeln!(out, "    <axis xyz=\"0 0 1\"/>");
         }
         if let (Some([lo, hi]), true) = (j.limits, j.kind != JointKind::Fixed) {
-            let k = if j.kind == JointKind::Prismatic { m } else { 1.0 };
+            let k = if j.kind == JointKind::Prismatic {
+                m
+            } else {
+                1.0
+            };
             let _ = writeln!(
                 out,
                 "    <limit lower=\"{}\" upper=\"{}\" effort=\"{}\" velocity=\"0\"/>",
@@ -201,7 +212,13 @@ mod tests {
             let q = twin.random_q(&mut rng);
             let (t1, t2) = (chain.static_torques(&q), base.static_torques(&q));
             for k in 0..6 {
-                assert!((t1[k] - t2[k]).abs() < 1e-9, "tau{}: {} vs {}", k + 1, t1[k], t2[k]);
+                assert!(
+                    (t1[k] - t2[k]).abs() < 1e-9,
+                    "tau{}: {} vs {}",
+                    k + 1,
+                    t1[k],
+                    t2[k]
+                );
             }
         }
     }

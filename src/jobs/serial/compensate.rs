@@ -83,12 +83,23 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CompensateJob, JobErr
     let positive = |field: &str, v: Option<f64>, default: f64| match v {
         None => Ok(default),
         Some(v) if v.is_finite() && v > 0.0 => Ok(v),
-        Some(v) => Err(JobError::invalid(field, format!("{v} is not a positive number"))),
+        Some(v) => Err(JobError::invalid(
+            field,
+            format!("{v} is not a positive number"),
+        )),
     };
     let tol = Tolerances {
-        position: positive("options.tolerance_mm", spec.options.tolerance_mm, TOLERANCE_MM)? * mm,
-        angle: positive("options.tolerance_deg", spec.options.tolerance_deg, TOLERANCE_DEG)?
-            .to_radians(),
+        position: positive(
+            "options.tolerance_mm",
+            spec.options.tolerance_mm,
+            TOLERANCE_MM,
+        )? * mm,
+        angle: positive(
+            "options.tolerance_deg",
+            spec.options.tolerance_deg,
+            TOLERANCE_DEG,
+        )?
+        .to_radians(),
         singular_sin: SINGULAR_SIN,
         singular_shoulder: SINGULAR_SHOULDER_MM * mm,
     };

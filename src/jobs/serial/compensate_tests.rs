@@ -70,7 +70,12 @@ fn on_the_twin_compensated_joints_land_as_close_as_the_calibration_nominal_ones_
     // The identify result itself is the model: its calibrated_model is used.
     let (comp, n) = errors(identified.result.clone());
     let (nom, _) = errors(nominal_model);
-    assert!(comp.len() > n * 9 / 10 && nom.len() > n * 9 / 10, "{} {}", comp.len(), nom.len());
+    assert!(
+        comp.len() > n * 9 / 10 && nom.len() > n * 9 / 10,
+        "{} {}",
+        comp.len(),
+        nom.len()
+    );
     // The calibrated model's own error against the truth (validation error) on other joints.
     let cal = crate::model::dh::DhFile::from_value(identified.result["calibrated_model"].clone())
         .unwrap()
@@ -125,14 +130,27 @@ fn unreachable_rows_get_their_status_and_the_others_are_reached() {
         "targets": rows,
     }));
     let t = done.main_table.unwrap();
-    assert_eq!(t.columns[6..], ["residual_mm", "residual_deg", "status_code"]);
+    assert_eq!(
+        t.columns[6..],
+        ["residual_mm", "residual_deg", "status_code"]
+    );
     let codes: Vec<f64> = t.rows.iter().map(|r| r[8]).collect();
     assert_eq!(codes, [0.0, 0.0, 2.0, 0.0, 1.0, 0.0, 0.0]);
     let statuses = done.result["rows"].as_array().unwrap();
     assert_eq!(statuses[2]["status"], "out_of_reach");
-    assert!(statuses[2]["reason"].as_str().unwrap().contains("out of reach"));
+    assert!(
+        statuses[2]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("out of reach")
+    );
     assert_eq!(statuses[4]["status"], "out_of_joint_limits");
-    assert!(statuses[4]["reason"].as_str().unwrap().starts_with("q1 = 60"));
+    assert!(
+        statuses[4]["reason"]
+            .as_str()
+            .unwrap()
+            .starts_with("q1 = 60")
+    );
     assert_eq!(done.result["summary"]["reached"], 5);
     // Reached rows: the generating joints, within 1 um of the target.
     qs.insert(2, vec![]);
@@ -143,12 +161,23 @@ fn unreachable_rows_get_their_status_and_the_others_are_reached() {
         }
         assert!(r[6] < 1e-3, "row {}: {} mm", i + 1, r[6]);
         for k in 0..6 {
-            assert!((r[k].to_radians() - qs[i][k]).abs() < 1e-9, "row {} q{}", i + 1, k + 1);
+            assert!(
+                (r[k].to_radians() - qs[i][k]).abs() < 1e-9,
+                "row {} q{}",
+                i + 1,
+                k + 1
+            );
         }
     }
     // The CSV artefact names each status.
     let csv = String::from_utf8(done.artefacts[0].content.clone()).unwrap();
-    assert!(csv.lines().nth(3).unwrap().contains(",out_of_reach,\"out of reach"), "{csv}");
+    assert!(
+        csv.lines()
+            .nth(3)
+            .unwrap()
+            .contains(",out_of_reach,\"out of reach"),
+        "{csv}"
+    );
 }
 
 #[test]
