@@ -220,8 +220,7 @@ fn compensate(twin: &SerialTwin, qs: &[Vec<f64>], sink: &mut f64) -> Figure {
         singular_sin: 1e-3,
         singular_shoulder: 1.0,
     };
-    let solver =
-        Compensator::new(twin.truth.clone(), tol, 5.0).expect("the IRB 120 is an OPW arm");
+    let solver = Compensator::new(twin.truth.clone(), tol, 5.0).expect("the IRB 120 is an OPW arm");
     let targets: Vec<_> = qs
         .iter()
         .map(|q| {
