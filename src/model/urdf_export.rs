@@ -110,6 +110,24 @@ pub fn to_urdf(chain: &Chain, name: &str) -> Result<String, ModelError> {
     Ok(out)
 }
 
+/// Joint offsets of a calibrated URDF chain as ROS 2 parameters for a `ros2_control`
+/// hardware interface (`node` names the parameter namespace): `joint_offsets.<joint>` in rad
+/// (m for prismatic joints). The calibrated model is `theta = q + offset`, so the interface
+/// reports `state = encoder + offset` and commands `encoder = command - offset`.
+pub fn ros2_control_offsets(chain: &Chain, node: &str) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "# Joint offsets identified by calibd: state = encoder + offset, encoder = command - offset\n# (rad for revolute joints, m for prismatic joints)."
+    );
+    let _ = writeln!(out, "{node}:\n  ros__parameters:\n    joint_offsets:");
+    for &j in chain.actuated() {
+        let joint = &chain.joints[j];
+        let _ = writeln!(out, "      {}: {}", joint.name, joint.offset);
+    }
+    out
+}
+
 /// A link, with a point-mass inertial (its centre of mass as the inertial origin) if any.
 fn link(out: &mut String, name: &str, mass: Option<&super::PointMass>, m: f64) {
     match mass {
@@ -179,6 +197,21 @@ mod tests {
     use crate::model::urdf::UrdfModel;
     use crate::twin::SerialTwin;
     use crate::util::Rng;
+
+    #[test]
+    fn ros2_offsets_list_every_joint_with_its_offset() {
+        let text = include_str!("../../tests/data/robots/irb120.json");
+        let mut c = crate::model::dh::DhFile::parse(text)
+            .unwrap()
+            .to_chain()
+            .unwrap();
+        c.joints[2].offset = 0.0125;
+        let y = ros2_control_offsets(&c, "calibration");
+        let v: serde_json::Value = yaml_serde::from_str(&y).expect("valid YAML");
+        let o = &v["calibration"]["ros__parameters"]["joint_offsets"];
+        assert_eq!(o["j3"].as_f64(), Some(0.0125));
+        assert_eq!(o.as_object().map(|m| m.len()), Some(6));
+    }
 
     /// FK of the written URDF (parsed back, chain world -> tcp) equals the DH model's, for
     /// the nominal and the twin's true (calibrated-like: beta, offsets) IRB 120.

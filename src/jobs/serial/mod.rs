@@ -320,17 +320,29 @@ impl SerialModel {
 }
 
 impl SerialModel {
-    /// A DH model also as URDF (`calibrated_model.urdf`, see
-    /// [`crate::model::urdf_export`]) for ROS tools: `None` for a URDF model (its calibrated
-    /// file already is one) and for DH rows URDF cannot express (coupled rows).
+    /// The calibrated model for ROS tools, beside the file of its own kind: a DH model as
+    /// URDF (`calibrated_model.urdf`, see [`crate::model::urdf_export`]; `None` for rows URDF
+    /// cannot express), a URDF chain's joint offsets as `ros2_control` parameters
+    /// (`joint_offsets.yaml`).
     pub fn urdf_artefact(&self, chain: &Chain) -> Option<super::Artefact> {
-        let Source::Dh(f) = &self.source else {
-            return None;
+        let (name, text) = match &self.source {
+            Source::Dh(f) => (
+                "calibrated_model.urdf",
+                crate::model::urdf_export::to_urdf(chain, &f.name).ok()?,
+            ),
+            Source::Urdf { .. } => (
+                "joint_offsets.yaml",
+                crate::model::urdf_export::ros2_control_offsets(chain, "calibration"),
+            ),
         };
-        let text = crate::model::urdf_export::to_urdf(chain, &f.name).ok()?;
+        let media_type = if name.ends_with(".yaml") {
+            "application/yaml"
+        } else {
+            "application/xml"
+        };
         Some(super::Artefact {
-            name: "calibrated_model.urdf".into(),
-            media_type: "application/xml".into(),
+            name: name.into(),
+            media_type: media_type.into(),
             content: text.into_bytes(),
         })
     }
