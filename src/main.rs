@@ -657,6 +657,7 @@ fn main() -> Result<()> {
             let numerical = |a: &str| match a {
                 "serial" => Some(calibd::bench::serial::run()),
                 "serial.fk" => Some(calibd::bench::serial::fk_tables()),
+                "serial.compensate" => Some(calibd::bench::serial::compensate_figures()),
                 "humanoid" => Some(calibd::bench::humanoid::run()),
                 "pcr" => Some(calibd::bench::pcr::run()),
                 "identify" => Some(calibd::bench::identify::run()),
@@ -680,7 +681,7 @@ fn main() -> Result<()> {
                 other if numerical_area(other) => vec![other],
                 other => {
                     bail!(
-                        "unknown benchmark area `{other}` (known: serial, serial.fk, pcr, humanoid, identify, identify:N, kernels, all, drivers, api)"
+                        "unknown benchmark area `{other}` (known: serial, serial.fk, serial.compensate, pcr, humanoid, identify, identify:N, kernels, all, drivers, api)"
                     )
                 }
             };
@@ -842,7 +843,7 @@ fn main() -> Result<()> {
 fn numerical_area(a: &str) -> bool {
     matches!(
         a,
-        "serial" | "serial.fk" | "pcr" | "humanoid" | "identify" | "kernels"
+        "serial" | "serial.fk" | "serial.compensate" | "pcr" | "humanoid" | "identify" | "kernels"
     ) || a
         .strip_prefix("identify:")
         .is_some_and(|n| n.parse::<usize>().is_ok())

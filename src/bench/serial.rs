@@ -1,8 +1,8 @@
 //! `calibd bench serial`: `serial.fk` jobs from a CSV file to a CSV file (streamed at 50,000
 //! and 1,000,000 rows, and at 50,000 through the whole result as before streaming), FK +
 //! gravity torques, one 31-parameter identification from 360 measurements, DETMAX 75 of 360,
-//! the identifications of a dispersion study alone, and a 2,000-identification dispersion
-//! study, all on the IRB 120 twin.
+//! the identifications of a dispersion study alone, a 2,000-identification dispersion
+//! study, and the `serial.compensate` solver per target, all on the IRB 120 twin.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -210,6 +210,49 @@ fn dispersion_identifications(
     figs
 }
 
+/// `serial.compensate`'s solver on one core: the joints of targets made by the twin's true
+/// model (geometry, beta, compliance under gravity) at `qs`, the reference at home.
+fn compensate(twin: &SerialTwin, qs: &[Vec<f64>], sink: &mut f64) -> Figure {
+    use crate::model::compensate::{Compensator, Scratch, Tolerances};
+    let tol = Tolerances {
+        position: 1e-4,
+        angle: 1e-5f64.to_radians(),
+        singular_sin: 1e-3,
+        singular_shoulder: 1.0,
+    };
+    let solver = Compensator::new(twin.truth.clone(), tol, 5.0).expect("the IRB 120 is an OPW arm");
+    let targets: Vec<_> = qs
+        .iter()
+        .map(|q| {
+            let tau = twin.truth.static_torques(q);
+            twin.truth.tcp(q, Some(&tau))
+        })
+        .collect();
+    let mut s = Scratch::default();
+    time(
+        "serial.compensate solver per target (IRB 120, calibrated model with compliance, one core)",
+        11,
+        targets.len(),
+        Some(Duration::from_micros(10)),
+        || {
+            for t in &targets {
+                *sink += solver.solve(t, &[0.0; 6], &mut s).q[0];
+            }
+        },
+    )
+}
+
+/// The `serial.compensate` figure alone (`calibd bench serial.compensate`).
+pub fn compensate_figures() -> Vec<Figure> {
+    let twin = SerialTwin::irb120(1);
+    let mut rng = Rng::new(9);
+    let qs: Vec<Vec<f64>> = (0..10_000).map(|_| twin.random_q(&mut rng)).collect();
+    let mut sink = 0.0;
+    let fig = compensate(&twin, &qs, &mut sink);
+    std::hint::black_box(sink);
+    vec![fig]
+}
+
 /// Run the serial benchmarks.
 pub fn run() -> Vec<Figure> {
     let mut figs = fk_tables();
@@ -230,6 +273,7 @@ pub fn run() -> Vec<Figure> {
             }
         },
     ));
+    figs.push(compensate(&twin, &qs, &mut sink));
     let meas = twin.centring(120, 2);
     figs.push(time(
         "identification, 31 parameters, 360 measurements",

@@ -215,6 +215,11 @@ pub const KINDS: &[KindInfo] = &[
         serial::dispersion::prepare
     ),
     kind!(
+        "serial.compensate",
+        "joints that put the TCP of a calibrated serial model on target poses (closed form + Newton with compliance)",
+        serial::compensate::prepare
+    ),
+    kind!(
         "pcr.fk",
         "forward kinematics of a 3-PF continuum robot over a joints table",
         pcr::fk::prepare

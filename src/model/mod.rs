@@ -1,17 +1,20 @@
 //! Robot models: pure, `Send + Sync`, no I/O beyond parsing text handed to them.
 
 pub mod chain;
+pub mod compensate;
 pub mod dh;
 pub mod dh_tree;
 pub mod elastic;
 pub mod humanoid;
 pub mod ik;
 pub mod joint;
+pub mod opw;
 pub mod params;
 pub mod pcr;
 pub mod srdf;
 pub mod trig;
 pub mod urdf;
+pub mod urdf_export;
 
 pub use chain::{Chain, Geometry, Joint, PointMass};
 pub use joint::{JointKind, Mimic};

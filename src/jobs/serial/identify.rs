@@ -362,6 +362,7 @@ impl IdentifyJob {
             r.warnings = Some(inp.warnings.clone());
         }
         let mut artefacts = vec![model_art];
+        artefacts.extend(inp.model.urdf_artefact(&calibrated));
         // The first 3 rows per measurement are its x, y, z residuals (a prior adds rows).
         let n3 = 3 * problem.measurements().len();
         let rb: Vec<f64> = sol.residuals_before.iter().take(n3).copied().collect();
@@ -454,6 +455,7 @@ impl IdentifyJob {
         let before: Vec<f64> = sol.residuals_before.iter().copied().collect();
         let after: Vec<f64> = sol.residuals.iter().copied().collect();
         let mut artefacts = vec![model_art];
+        artefacts.extend(inp.model.urdf_artefact(&calibrated));
         artefacts.extend(residual_artefacts(&ResidualPlots {
             before: &before,
             after: &after,
@@ -554,6 +556,7 @@ mod tests {
             names,
             [
                 "calibrated_model.json",
+                "calibrated_model.urdf",
                 "residuals.csv",
                 "errors_per_configuration.svg",
                 "error_histogram.svg",

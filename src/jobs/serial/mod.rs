@@ -1,8 +1,9 @@
 //! The serial-arm job kinds (`serial.fk`, `serial.identify`, `serial.design`,
-//! `serial.dispersion`) and what they share: loading a DH or URDF model, joint columns in
+//! `serial.dispersion`, `serial.compensate`) and what they share: loading a DH or URDF model, joint columns in
 //! the model's units with limit checks, ball plates and measurement tables. A DH tree file
 //! (`"kind": "tree"`) is used through one named chain, as the serial DH file of that path.
 
+pub mod compensate;
 pub mod design;
 pub mod dispersion;
 pub mod fk;
@@ -315,6 +316,35 @@ impl SerialModel {
                 Ok((json!(text), art))
             }
         }
+    }
+}
+
+impl SerialModel {
+    /// The calibrated model for ROS tools, beside the file of its own kind: a DH model as
+    /// URDF (`calibrated_model.urdf`, see [`crate::model::urdf_export`]; `None` for rows URDF
+    /// cannot express), a URDF chain's joint offsets as `ros2_control` parameters
+    /// (`joint_offsets.yaml`).
+    pub fn urdf_artefact(&self, chain: &Chain) -> Option<super::Artefact> {
+        let (name, text) = match &self.source {
+            Source::Dh(f) => (
+                "calibrated_model.urdf",
+                crate::model::urdf_export::to_urdf(chain, &f.name).ok()?,
+            ),
+            Source::Urdf { .. } => (
+                "joint_offsets.yaml",
+                crate::model::urdf_export::ros2_control_offsets(chain, "calibration"),
+            ),
+        };
+        let media_type = if name.ends_with(".yaml") {
+            "application/yaml"
+        } else {
+            "application/xml"
+        };
+        Some(super::Artefact {
+            name: name.into(),
+            media_type: media_type.into(),
+            content: text.into_bytes(),
+        })
     }
 }
 
