@@ -22,7 +22,7 @@ use crate::report::Run;
 use crate::util::Monitor;
 
 /// `postures.nocp`: the `humanoid.design` fields that are not the cell's own.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct NocpSpec {
     #[serde(default)]
@@ -35,7 +35,7 @@ struct NocpSpec {
     options: DesignOptions,
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 struct Options {
     settle_s: f64,
@@ -60,16 +60,25 @@ impl Default for Options {
     }
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
     #[serde(default = "default_cell")]
     cell: String,
+    #[schemars(schema_with = "postures_schema")]
     postures: Value,
     #[serde(default)]
     options: Options,
+}
+
+/// Schema of `postures`: `{"nocp": {...}}` (designed on the cell's model) or a table.
+fn postures_schema(g: &mut schemars::SchemaGenerator) -> schemars::Schema {
+    schemars::json_schema!({"anyOf": [
+        {"type": "object", "required": ["nocp"], "properties": {"nocp": g.subschema_for::<NocpSpec>()}},
+        crate::jobs::schema::table(g),
+    ]})
 }
 
 fn default_cell() -> String {

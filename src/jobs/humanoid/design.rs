@@ -20,11 +20,12 @@ use crate::model::srdf::disabled_collisions;
 use crate::report::Run;
 use crate::util::{Monitor, Rng, SubMonitor};
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::urdf")]
     urdf: Value,
     root_link: String,
     joints: Vec<String>,
@@ -46,7 +47,7 @@ struct Spec {
 
 /// `clusters`: three markers on a triangle of `radius_m` around `centre` (link frame, m),
 /// named `<link>_1`, `<link>_2`, `<link>_3`.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct ClusterSpec {
     link: String,
@@ -61,7 +62,7 @@ fn default_radius() -> f64 {
 
 /// `constraints` of `humanoid.design` (end-effector box, collision spheres, SRDF,
 /// torque and collision checks).
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ConstraintSpec {
     #[serde(default)]
@@ -72,6 +73,7 @@ pub struct ConstraintSpec {
     #[serde(default)]
     spheres: std::collections::BTreeMap<String, Vec<[f64; 4]>>,
     #[serde(default)]
+    #[schemars(schema_with = "crate::jobs::schema::urdf_opt")]
     srdf: Option<Value>,
     #[serde(default)]
     torque: Option<bool>,
@@ -79,7 +81,7 @@ pub struct ConstraintSpec {
     collision: Option<bool>,
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct BoxSpec {
     link: String,
@@ -90,7 +92,7 @@ struct BoxSpec {
 }
 
 /// `options` of `humanoid.design`.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DesignOptions {
     #[serde(default)]
@@ -115,7 +117,7 @@ pub struct DesignOptions {
     compare: Option<CompareSpec>,
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct CompareSpec {
     #[serde(default)]
