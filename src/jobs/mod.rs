@@ -355,6 +355,7 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         .iter()
         .find(|k| k.name == kind)
         .ok_or_else(|| JobError::UnknownKind(kind.clone()))?;
+    schema::check_document(&kind, doc)?;
     let prepared = (info.prepare)(doc, &inputs)?;
     let mut inputs_sha256 = inputs.into_hashes();
     inputs_sha256.insert(

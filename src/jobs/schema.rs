@@ -142,6 +142,7 @@ fn kind_schema(
     schema: fn(&mut SchemaGenerator) -> Schema,
 ) -> Result<Value, SchemaError> {
     let mut s = schema(g).to_value();
+    drop_number_formats(&mut s);
     let obj = s
         .as_object_mut()
         .expect("a derived struct's schema is an object");
@@ -162,16 +163,51 @@ fn kind_schema(
     Ok(s)
 }
 
-/// The generated `components.schemas` entries of `openapi.yaml`: `JobDocument`, a `oneOf`
-/// over the kinds discriminated by `kind`; one `job.KIND` schema per registered kind; and
-/// `TimeZone`, the IANA names a schedule's `timezone` may take (those of `chrono-tz`).
-pub fn openapi_schemas() -> Result<Map<String, Value>, SchemaError> {
-    let mut g = SchemaSettings::draft2020_12()
+/// The generator of the kinds' schemas: JSON Schema 2020-12 (OpenAPI 3.1 and 3.2), every
+/// subschema inline.
+fn generator() -> SchemaGenerator {
+    SchemaSettings::draft2020_12()
         .with(|s| {
             s.inline_subschemas = true;
             s.meta_schema = None;
         })
-        .into_generator();
+        .into_generator()
+}
+
+/// Remove schemars' `format` of numbers (`double`, `uint`, `uint64`, ...): no OpenAPI tool
+/// checks Rust's integer widths, and `minimum: 0` already says unsigned. The widths below
+/// 64 bits become a `maximum`.
+fn drop_number_formats(v: &mut Value) {
+    match v {
+        Value::Object(m) => {
+            let max = match m.get("format").and_then(Value::as_str) {
+                Some("uint8") => Some(json!(u8::MAX)),
+                Some("uint16") => Some(json!(u16::MAX)),
+                Some("uint32") => Some(json!(u32::MAX)),
+                _ => None,
+            };
+            let numeric = m
+                .get("format")
+                .and_then(Value::as_str)
+                .is_some_and(|f| matches!(f, "double" | "float") || f.starts_with("uint"));
+            if numeric {
+                m.remove("format");
+            }
+            if let Some(max) = max {
+                m.entry("maximum").or_insert(max);
+            }
+            m.values_mut().for_each(drop_number_formats);
+        }
+        Value::Array(a) => a.iter_mut().for_each(drop_number_formats),
+        _ => {}
+    }
+}
+
+/// The generated `components.schemas` entries of `openapi.yaml`: `JobDocument`, a `oneOf`
+/// over the kinds discriminated by `kind`; one `job.KIND` schema per registered kind; and
+/// `TimeZone`, the IANA names a schedule's `timezone` may take (those of `chrono-tz`).
+pub fn openapi_schemas() -> Result<Map<String, Value>, SchemaError> {
+    let mut g = generator();
     let mut out = Map::new();
     let mut one_of = Vec::new();
     let mut mapping = Map::new();
@@ -202,6 +238,121 @@ pub fn openapi_schemas() -> Result<Map<String, Value>, SchemaError> {
         json!({"type": "string", "default": "UTC", "description": "an IANA time zone name, e.g. Europe/Berlin", "enum": zones}),
     );
     Ok(out)
+}
+
+/// Each registered kind's document schema, generated once per process.
+fn kind_schemas() -> &'static Map<String, Value> {
+    static SCHEMAS: std::sync::OnceLock<Map<String, Value>> = std::sync::OnceLock::new();
+    SCHEMAS.get_or_init(|| {
+        let mut g = generator();
+        KINDS
+            .iter()
+            .filter_map(|k| {
+                let s = kind_schema(&mut g, k.name, k.description, k.schema).ok()?;
+                Some((k.name.to_string(), s))
+            })
+            .collect()
+    })
+}
+
+/// Whether `schema` admits a JSON value of type `t` (`object`, `array`, ...).
+fn admits(schema: &Value, t: &str) -> bool {
+    let Some(m) = schema.as_object() else {
+        return schema != &Value::Bool(false);
+    };
+    let alternatives = ["anyOf", "oneOf"]
+        .iter()
+        .filter_map(|k| m.get(*k).and_then(Value::as_array))
+        .flatten()
+        .collect::<Vec<_>>();
+    match m.get("type") {
+        Some(Value::String(s)) => s == t,
+        Some(Value::Array(ts)) => ts.iter().any(|x| x == t),
+        _ if !alternatives.is_empty() => alternatives.iter().any(|a| admits(a, t)),
+        _ => true,
+    }
+}
+
+/// The path of an array in `doc` where `schema` only admits an object, if any. serde reads
+/// a struct from an array of its fields in order (`"options": [null, 2]`); the documents
+/// and `openapi.yaml` do not have that form, so [`check_document`] refuses it.
+fn array_for_object(schema: &Value, doc: &Value, path: &str) -> Option<String> {
+    let here = || {
+        if path.is_empty() {
+            "job".to_string()
+        } else {
+            path.to_string()
+        }
+    };
+    let m = schema.as_object()?;
+    let alternatives: Vec<&Value> = ["anyOf", "oneOf"]
+        .iter()
+        .filter_map(|k| m.get(*k).and_then(Value::as_array))
+        .flatten()
+        .collect();
+    match doc {
+        Value::Array(items) => {
+            if !admits(schema, "array") {
+                return admits(schema, "object").then(here);
+            }
+            if m.get("type").is_none() && !alternatives.is_empty() {
+                // The alternatives that take an array: the first under which all is well.
+                let mut first = None;
+                for a in alternatives.iter().filter(|a| admits(a, "array")) {
+                    match array_for_object(a, doc, path) {
+                        None => return None,
+                        Some(p) => first = first.or(Some(p)),
+                    }
+                }
+                return first;
+            }
+            let prefix = m.get("prefixItems").and_then(Value::as_array);
+            items.iter().enumerate().find_map(|(i, x)| {
+                let s = prefix.and_then(|p| p.get(i)).or_else(|| m.get("items"))?;
+                array_for_object(s, x, &format!("{path}[{i}]"))
+            })
+        }
+        Value::Object(fields) => {
+            if m.get("type").is_none() && !alternatives.is_empty() {
+                let mut first = None;
+                for a in alternatives.iter().filter(|a| admits(a, "object")) {
+                    match array_for_object(a, doc, path) {
+                        None => return None,
+                        Some(p) => first = first.or(Some(p)),
+                    }
+                }
+                return first;
+            }
+            let props = m.get("properties").and_then(Value::as_object);
+            fields.iter().find_map(|(k, x)| {
+                let s = props
+                    .and_then(|p| p.get(k))
+                    .or_else(|| m.get("additionalProperties"))?;
+                let at = if path.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{path}.{k}")
+                };
+                array_for_object(s, x, &at)
+            })
+        }
+        _ => None,
+    }
+}
+
+/// Refuse a document of `kind` where an object is given as an array (see
+/// [`array_for_object`]); serde's own errors cover the rest.
+pub fn check_document(kind: &str, doc: &Value) -> Result<(), super::JobError> {
+    let Some(schema) = kind_schemas().get(kind) else {
+        return Ok(());
+    };
+    match array_for_object(schema, doc, "") {
+        None => Ok(()),
+        Some(at) => Err(super::JobError::invalid(
+            at,
+            "expected an object, not an array",
+        )),
+    }
 }
 
 /// `text` (an `openapi.yaml`) with its generated region holding `schemas` (as YAML,
@@ -258,23 +409,46 @@ fn yaml_scalar(v: &Value) -> Option<String> {
     }
 }
 
+/// Widest line the generated YAML writes on one line (flow style) before it breaks it up.
+const WIDTH: usize = 100;
+
+/// `v` in YAML flow style on one line (`{type: "number"}`, `["a", "b"]`).
+fn yaml_flow(v: &Value) -> String {
+    match v {
+        Value::Object(m) if !m.is_empty() => {
+            let items: Vec<String> = m
+                .iter()
+                .map(|(k, x)| format!("{}: {}", yaml_key(k), yaml_flow(x)))
+                .collect();
+            format!("{{{}}}", items.join(", "))
+        }
+        Value::Array(a) if !a.is_empty() => {
+            let items: Vec<String> = a.iter().map(yaml_flow).collect();
+            format!("[{}]", items.join(", "))
+        }
+        other => yaml_scalar(other).unwrap_or_default(),
+    }
+}
+
 /// Block YAML of a mapping at `indent`; `inline_first`: the first key follows a `- `.
 fn yaml_map(out: &mut String, m: &Map<String, Value>, indent: usize, inline_first: bool) {
     for (i, (k, v)) in m.iter().enumerate() {
         if !(inline_first && i == 0) {
             out.push_str(&" ".repeat(indent));
         }
-        out.push_str(&yaml_key(k));
+        let key = yaml_key(k);
+        out.push_str(&key);
         out.push(':');
-        yaml_value(out, v, indent);
+        yaml_value(out, v, indent, indent + key.len() + 2);
     }
 }
 
-/// A value after `key:` at `indent` (the key's column).
-fn yaml_value(out: &mut String, v: &Value, indent: usize) {
-    if let Some(s) = yaml_scalar(v) {
+/// A value after `key:` at `indent` (the key's column); `column`: where the value starts.
+fn yaml_value(out: &mut String, v: &Value, indent: usize, column: usize) {
+    let flow = yaml_flow(v);
+    if column + flow.len() <= WIDTH || yaml_scalar(v).is_some() {
         out.push(' ');
-        out.push_str(&s);
+        out.push_str(&flow);
         out.push('\n');
         return;
     }
@@ -291,26 +465,23 @@ fn yaml_value(out: &mut String, v: &Value, indent: usize) {
             for x in a {
                 out.push_str(&" ".repeat(indent + 2));
                 out.push('-');
+                let flow = yaml_flow(x);
                 match x {
-                    Value::Object(m) if !m.is_empty() => {
+                    _ if indent + 4 + flow.len() <= WIDTH => {
+                        out.push(' ');
+                        out.push_str(&flow);
+                        out.push('\n');
+                    }
+                    Value::Object(m) => {
                         out.push(' ');
                         yaml_map(out, m, indent + 4, true);
                     }
-                    Value::Array(a) if !a.is_empty() => {
-                        // A sequence in a sequence: its items on the lines below.
-                        let mut inner = String::new();
-                        yaml_value(&mut inner, x, indent + 2);
-                        out.push_str(&inner);
-                    }
-                    _ => {
-                        out.push(' ');
-                        out.push_str(&yaml_scalar(x).unwrap_or_default());
-                        out.push('\n');
-                    }
+                    // A long sequence in a sequence: its items on the lines below.
+                    _ => yaml_value(out, x, indent + 2, WIDTH),
                 }
             }
         }
-        _ => unreachable!("scalars returned above"),
+        _ => unreachable!("scalars are written in flow style above"),
     }
 }
 
