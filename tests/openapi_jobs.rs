@@ -114,6 +114,8 @@ fn documents_the_server_refuses_for_their_shape_are_outside_the_schema() {
         // serde reads a struct from an array of its fields; the server refuses that form.
         json!({"kind": "cell.zero_check", "options": [0.1]}),
         json!({"kind": "cell.mocap_campaign", "postures": {"nocp": {"options": [null, null]}}}),
+        // A campaign designs its postures when it runs: its SRDF is inline or refused now.
+        json!({"kind": "cell.mocap_campaign", "postures": {"nocp": {"constraints": {"srdf": "AAA"}}}}),
     ];
     for (k, v) in [
         ("extra", json!(1)),

@@ -107,8 +107,8 @@ pub fn serial_model(_: &mut SchemaGenerator) -> Schema {
 /// Why the job documents' schemas could not be generated or written.
 #[derive(Debug, thiserror::Error)]
 pub enum SchemaError {
-    /// A kind's spec does not declare `kind` (every job document has one).
-    #[error("the spec of `{0}` has no `kind` property")]
+    /// A kind's spec is not an object schema declaring `kind` (every job document has one).
+    #[error("the spec of `{0}` is not an object with a `kind` property")]
     NoKindProperty(String),
     /// A type needed a `$ref` (recursive): the generated section has none.
     #[error("the job document schemas need definitions (a recursive type?): {0:?}")]
@@ -145,7 +145,7 @@ fn kind_schema(
     drop_number_formats(&mut s);
     let obj = s
         .as_object_mut()
-        .expect("a derived struct's schema is an object");
+        .ok_or_else(|| SchemaError::NoKindProperty(name.into()))?;
     let props = obj
         .get_mut("properties")
         .and_then(Value::as_object_mut)

@@ -75,8 +75,12 @@ pub(crate) struct Spec {
 
 /// Schema of `postures`: `{"nocp": {...}}` (designed on the cell's model) or a table.
 fn postures_schema(g: &mut schemars::SchemaGenerator) -> schemars::Schema {
+    let mut nocp = g.subschema_for::<NocpSpec>();
+    if let Some(srdf) = nocp.pointer_mut("/properties/constraints/properties/srdf") {
+        *srdf = crate::jobs::humanoid::design::inline_srdf_schema();
+    }
     schemars::json_schema!({"anyOf": [
-        {"type": "object", "required": ["nocp"], "properties": {"nocp": g.subschema_for::<NocpSpec>()}},
+        {"type": "object", "required": ["nocp"], "properties": {"nocp": nocp}},
         crate::jobs::schema::table(g),
     ]})
 }
@@ -104,14 +108,17 @@ pub struct MocapCampaignJob {
 pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<MocapCampaignJob, JobError> {
     let s: Spec = parse_spec(doc)?;
     let postures = match s.postures.get("nocp") {
-        Some(v) => Postures::Nocp(serde_path_to_error::deserialize::<_, NocpSpec>(v).map_err(
-            |e| {
+        Some(v) => {
+            let n = serde_path_to_error::deserialize::<_, NocpSpec>(v).map_err(|e| {
                 JobError::invalid(
                     format!("postures.nocp.{}", e.path()),
                     e.into_inner().to_string(),
                 )
-            },
-        )?),
+            })?;
+            n.constraints
+                .check_srdf_inline("postures.nocp.constraints.srdf")?;
+            Postures::Nocp(n)
+        }
         None => {
             let t = inputs.table("postures", &s.postures)?;
             if t.rows.is_empty() {

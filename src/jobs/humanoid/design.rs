@@ -198,6 +198,25 @@ impl ConstraintSpec {
     pub fn from_value(v: &Value) -> Result<ConstraintSpec, JobError> {
         parse_field("constraints", v)
     }
+
+    /// Check `srdf` as a campaign takes it: inline SRDF text (the campaign designs its
+    /// postures when it runs, where no reference is read), refused when submitted otherwise.
+    pub(crate) fn check_srdf_inline(&self, field: &str) -> Result<(), JobError> {
+        if let Some(v) = &self.srdf {
+            let text = Inputs::new(&crate::jobs::NoReferences).text(field, v)?;
+            disabled_collisions(&text)?;
+        }
+        Ok(())
+    }
+}
+
+/// Schema of a campaign's `constraints.srdf`: inline SRDF text only (see
+/// [`ConstraintSpec::check_srdf_inline`]).
+pub(crate) fn inline_srdf_schema() -> Value {
+    serde_json::json!({"anyOf": [
+        {"type": "string", "pattern": "^\\s*<", "description": "SRDF text inline"},
+        {"type": "null"},
+    ]})
 }
 
 impl DesignOptions {
