@@ -255,7 +255,7 @@ pub fn solve_map(
 
 /// A prior as a job states it: per-name standard deviations in the reported (file) units,
 /// and/or defaults per kind of parameter.
-#[derive(Debug, Clone, Default, serde::Deserialize)]
+#[derive(Debug, Clone, Default, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PriorSpec {
     /// Standard deviation per unknown name, in that unknown's reported unit.
@@ -267,7 +267,7 @@ pub struct PriorSpec {
 }
 
 /// Default prior standard deviations by kind of parameter.
-#[derive(Debug, Clone, Default, serde::Deserialize)]
+#[derive(Debug, Clone, Default, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DefaultStd {
     /// Lengths, mm (converted for models in metres).
@@ -348,6 +348,20 @@ pub enum PriorWeight {
     Fixed(f64),
     /// `"cv"`: chosen by K-fold among [`CV_WEIGHTS`].
     Named(String),
+}
+
+/// What [`PriorWeight::fixed`] accepts: a positive number or `"cv"`.
+impl schemars::JsonSchema for PriorWeight {
+    fn schema_name() -> std::borrow::Cow<'static, str> {
+        "PriorWeight".into()
+    }
+
+    fn json_schema(_: &mut schemars::SchemaGenerator) -> schemars::Schema {
+        schemars::json_schema!({
+            "description": "a positive weight, or \"cv\" (chosen by K-fold)",
+            "anyOf": [{"type": "number", "exclusiveMinimum": 0}, {"const": "cv"}],
+        })
+    }
 }
 
 impl PriorWeight {

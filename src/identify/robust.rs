@@ -21,7 +21,9 @@ pub struct Robust {
 }
 
 /// The loss function.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum RobustKind {
     /// Quadratic below the scale, linear above (tuning constant 1.345).

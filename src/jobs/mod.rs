@@ -14,6 +14,7 @@ pub mod input;
 pub mod map_options;
 pub mod pcr;
 pub mod rows;
+pub mod schema;
 pub mod serial;
 pub mod table;
 pub mod tree;
@@ -178,15 +179,24 @@ pub struct KindInfo {
     pub name: &'static str,
     /// One line for `calibd kinds` and `GET /v1/kinds`.
     pub description: &'static str,
+    /// JSON Schema of the kind's document (the spec its `prepare` parses), for
+    /// `openapi.yaml` ([`schema::openapi_schemas`]).
+    pub schema: fn(&mut schemars::SchemaGenerator) -> schemars::Schema,
     prepare: fn(&Value, &Inputs<'_>) -> Result<Arc<dyn Kind>, JobError>,
 }
 
-/// Wrap a kind's `prepare` for the registry.
+/// A registry entry: `kind!(name, description, prepare, Spec)` where `Spec` is the type
+/// `prepare` gives [`parse_spec`]. A new kind derives `schemars::JsonSchema` on its spec
+/// (and the option types in it; `serde_json::Value` inputs take a hand schema from
+/// [`schema`], e.g. `#[schemars(schema_with = "crate::jobs::schema::table")]`), adds its
+/// entry here, then runs `CALIBD_UPDATE_OPENAPI=1 cargo test --test it openapi_jobs::` to
+/// write its schema into `openapi.yaml`. A spec without `JsonSchema` does not compile.
 macro_rules! kind {
-    ($name:literal, $desc:literal, $prepare:path) => {
+    ($name:literal, $desc:literal, $prepare:path, $spec:ty) => {
         KindInfo {
             name: $name,
             description: $desc,
+            schema: <$spec as schemars::JsonSchema>::json_schema,
             prepare: |doc, inputs| Ok(Arc::new($prepare(doc, inputs)?) as Arc<dyn Kind>),
         }
     };
@@ -197,112 +207,134 @@ pub const KINDS: &[KindInfo] = &[
     kind!(
         "serial.fk",
         "forward kinematics of a serial model over a joints table",
-        serial::fk::prepare
+        serial::fk::prepare,
+        serial::fk::Spec
     ),
     kind!(
         "serial.identify",
         "elasto-geometric identification of a serial arm from ball-centring or Cartesian measurements",
-        serial::identify::prepare
+        serial::identify::prepare,
+        serial::identify::Spec
     ),
     kind!(
         "serial.design",
         "DETMAX selection of n configurations from a pool, with observability indices",
-        serial::design::prepare
+        serial::design::prepare,
+        serial::design::Spec
     ),
     kind!(
         "serial.dispersion",
         "dispersion of identification results over DETMAX-selected set sizes",
-        serial::dispersion::prepare
+        serial::dispersion::prepare,
+        serial::dispersion::Spec
     ),
     kind!(
         "serial.compensate",
         "joints that put the TCP of a calibrated serial model on target poses (closed form + Newton with compliance)",
-        serial::compensate::prepare
+        serial::compensate::prepare,
+        serial::compensate::Spec
     ),
     kind!(
         "pcr.fk",
         "forward kinematics of a 3-PF continuum robot over a joints table",
-        pcr::fk::prepare
+        pcr::fk::prepare,
+        pcr::fk::Spec
     ),
     kind!(
         "pcr.ik",
         "inverse kinematics of a 3-PF continuum robot over a poses table",
-        pcr::ik::prepare
+        pcr::ik::prepare,
+        pcr::ik::Spec
     ),
     kind!(
         "pcr.sensitivity",
         "sensitivity of the 3-PF platform pose to each parameter type (Table 2)",
-        pcr::sensitivity::prepare
+        pcr::sensitivity::prepare,
+        pcr::sensitivity::Spec
     ),
     kind!(
         "pcr.identify",
         "three-step identification of a 3-PF robot and its microscope extrinsics (Table 3)",
-        pcr::identify::prepare
+        pcr::identify::prepare,
+        pcr::identify::Spec
     ),
     kind!(
         "pcr.accuracy",
         "ISO 9283 pose accuracy of a 3-PF robot on a square, a circle or poses (Table 4)",
-        pcr::accuracy::prepare
+        pcr::accuracy::prepare,
+        pcr::accuracy::Spec
     ),
     kind!(
         "humanoid.identify",
         "whole-body elasto-geometric calibration of a humanoid from motion-capture markers",
-        humanoid::identify::prepare
+        humanoid::identify::prepare,
+        humanoid::identify::Spec
     ),
     kind!(
         "tree.identify",
         "elasto-geometric calibration of a modified-DH tree (torso + arms) from markers, lumped joint and lateral elasticity without torques",
-        tree::prepare
+        tree::prepare,
+        tree::Spec
     ),
     kind!(
         "humanoid.validate",
         "marker RMSE of non-calibrated, geometric and full models on a validation session",
-        humanoid::validate::prepare
+        humanoid::validate::prepare,
+        humanoid::validate::Spec
     ),
     kind!(
         "cell.centre",
         "the centring loop on one ball of a ball-centring cell, from a joint configuration",
-        cell::centre::prepare
+        cell::centre::prepare,
+        cell::centre::Spec
     ),
     kind!(
         "cell.trical_campaign",
         "TriCal campaign on a cell: centre each (given or DETMAX) configuration, identify, validate",
-        cell::trical::prepare
+        cell::trical::prepare,
+        cell::trical::Spec
     ),
     kind!(
         "cell.zero_check",
         "commissioning: the three indicators read 0.000 mm on the mated coupling (operator prompt, journalled readings)",
-        cell::zero::prepare_zero
+        cell::zero::prepare_zero,
+        cell::zero::ZeroSpec
     ),
     kind!(
         "cell.identify_tcp",
         "commissioning: the TCP from configurations jogged onto one ball and centred, proposed to the cell",
-        cell::commission::prepare_tcp
+        cell::commission::prepare_tcp,
+        cell::commission::TcpSpec
     ),
     kind!(
         "cell.locate_balls",
         "commissioning: each ball jogged onto and centred, its position in the robot frame and the base frame, proposed to the cell",
-        cell::commission::prepare_balls
+        cell::commission::prepare_balls,
+        cell::commission::BallsSpec
     ),
     kind!(
         "cell.jog",
         "move a ball-centring cell's robot to given joints within its envelope (a teach-pendant jog)",
-        cell::jog::prepare
+        cell::jog::prepare,
+        cell::jog::Spec
     ),
     kind!(
         "cell.mocap_campaign",
         "motion-capture campaign: play NOCP (or given) postures, record and pre-process markers, identify",
-        cell::mocap::prepare
+        cell::mocap::prepare,
+        cell::mocap::Spec
     ),
     kind!(
         "cell.pcr_campaign",
         "3-PF campaign: Poisson-disc joint sets on the stages, microscope poses, pcr.identify, optional pcr.accuracy",
-        cell::pcr::prepare
+        cell::pcr::prepare,
+        cell::pcr::Spec
     ),
     kind!(
         "humanoid.design",
         "optimal calibration postures (NOCP / COCP) for a marker layout, with trajectory",
-        humanoid::design::prepare
+        humanoid::design::prepare,
+        humanoid::design::Spec
     ),
 ];
 
@@ -346,6 +378,7 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
         .iter()
         .find(|k| k.name == kind)
         .ok_or_else(|| JobError::UnknownKind(kind.clone()))?;
+    schema::check_document(&kind, doc)?;
     let prepared = (info.prepare)(doc, &inputs)?;
     let mut inputs_sha256 = inputs.into_hashes();
     inputs_sha256.insert(

@@ -25,6 +25,7 @@ use crate::util::{Monitor, Summary};
 
 #[path = "tree_spec.rs"]
 mod spec;
+pub(crate) use spec::Spec;
 pub use spec::prepare;
 
 /// A validated `tree.identify` job.

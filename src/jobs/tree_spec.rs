@@ -3,12 +3,13 @@
 
 use super::*;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
     tree: TreeSpec,
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     samples: Value,
     variables: Vec<String>,
     markers: Vec<MarkerSpec>,
@@ -18,7 +19,7 @@ struct Spec {
     options: Options,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct TreeSpec {
     /// Only `modified_dh` (Craig + Hayati beta) is accepted: the convention is stated.
@@ -27,7 +28,7 @@ struct TreeSpec {
 }
 
 /// A row: `mdh` (a revolute joint) or `fixed` (a mount, a flange).
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct RowSpec {
     name: String,
@@ -45,7 +46,7 @@ struct RowSpec {
     coupled: Option<Vec<(String, f64)>>,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct MdhSpec {
     alpha_deg: f64,
@@ -56,7 +57,7 @@ struct MdhSpec {
     d_m: f64,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct FixedSpec {
     xyz_m: [f64; 3],
@@ -65,7 +66,7 @@ struct FixedSpec {
     abc_deg: [f64; 3],
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct MarkerSpec {
     name: String,
@@ -75,7 +76,7 @@ struct MarkerSpec {
 }
 
 /// Starting root pose in the measurement frame.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct BaseSpec {
     xyz_m: [f64; 3],
@@ -84,7 +85,7 @@ struct BaseSpec {
 }
 
 /// `options`.
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct Options {
     #[serde(default)]
@@ -110,7 +111,7 @@ struct Options {
 }
 
 /// Rows with lumped elasticity; `"*"` means every revolute row.
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct ElasticSpec {
     #[serde(default)]
@@ -123,7 +124,7 @@ struct ElasticSpec {
     lumping: LumpingSpec,
 }
 
-#[derive(Debug, Default, Clone, Copy, Deserialize)]
+#[derive(Debug, Default, Clone, Copy, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 enum LumpingSpec {
     Subtree,

@@ -27,6 +27,7 @@ mod mocap_campaign;
 mod mock_joints;
 mod mock_microscope;
 mod mukca;
+mod openapi_jobs;
 mod pcr_campaign;
 mod pcr_jobs;
 mod pcr_model;

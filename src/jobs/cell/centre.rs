@@ -10,9 +10,9 @@ use crate::jobs::{Cx, JobError, Kind, Output, RunFuture, Table, parse_spec};
 use crate::procedures::{CentringError, centre};
 use crate::util::Monitor;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
     #[serde(default = "default_cell")]

@@ -34,7 +34,7 @@ pub(super) fn check_retry(r: &RetrySpec) -> Result<(), JobError> {
 }
 
 /// Options of `cell.identify_tcp`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct TcpOptions {
     /// Centring loop bounds.
@@ -58,9 +58,9 @@ impl Default for TcpOptions {
     }
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct TcpSpec {
+pub(crate) struct TcpSpec {
     #[allow(dead_code)]
     kind: String,
     #[serde(default = "default_cell")]
@@ -122,7 +122,7 @@ pub fn prepare_tcp(doc: &Value, _: &Inputs<'_>) -> Result<IdentifyTcpJob, JobErr
 }
 
 /// Options of `cell.locate_balls`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct BallsOptions {
     /// Centring loop bounds.
@@ -147,9 +147,9 @@ impl Default for BallsOptions {
     }
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct BallsSpec {
+pub(crate) struct BallsSpec {
     #[allow(dead_code)]
     kind: String,
     #[serde(default = "default_cell")]

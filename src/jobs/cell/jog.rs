@@ -12,9 +12,9 @@ use crate::campaigns::commission::results::Jogged;
 use crate::jobs::{Cx, Inputs, JobError, Kind, Output, RunFuture, parse_spec};
 use crate::procedures::centring::{CentringError, approach};
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
     #[serde(default = "default_cell")]

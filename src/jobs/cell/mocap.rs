@@ -22,7 +22,7 @@ use crate::report::Run;
 use crate::util::Monitor;
 
 /// `postures.nocp`: the `humanoid.design` fields that are not the cell's own.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct NocpSpec {
     #[serde(default)]
@@ -35,7 +35,7 @@ struct NocpSpec {
     options: DesignOptions,
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 struct Options {
     settle_s: f64,
@@ -60,16 +60,29 @@ impl Default for Options {
     }
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
     #[serde(default = "default_cell")]
     cell: String,
+    #[schemars(schema_with = "postures_schema")]
     postures: Value,
     #[serde(default)]
     options: Options,
+}
+
+/// Schema of `postures`: `{"nocp": {...}}` (designed on the cell's model) or a table.
+fn postures_schema(g: &mut schemars::SchemaGenerator) -> schemars::Schema {
+    let mut nocp = g.subschema_for::<NocpSpec>();
+    if let Some(srdf) = nocp.pointer_mut("/properties/constraints/properties/srdf") {
+        *srdf = crate::jobs::humanoid::design::inline_srdf_schema();
+    }
+    schemars::json_schema!({"anyOf": [
+        {"type": "object", "required": ["nocp"], "properties": {"nocp": nocp}},
+        crate::jobs::schema::table(g),
+    ]})
 }
 
 fn default_cell() -> String {
@@ -95,14 +108,17 @@ pub struct MocapCampaignJob {
 pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<MocapCampaignJob, JobError> {
     let s: Spec = parse_spec(doc)?;
     let postures = match s.postures.get("nocp") {
-        Some(v) => Postures::Nocp(serde_path_to_error::deserialize::<_, NocpSpec>(v).map_err(
-            |e| {
+        Some(v) => {
+            let n = serde_path_to_error::deserialize::<_, NocpSpec>(v).map_err(|e| {
                 JobError::invalid(
                     format!("postures.nocp.{}", e.path()),
                     e.into_inner().to_string(),
                 )
-            },
-        )?),
+            })?;
+            n.constraints
+                .check_srdf_inline("postures.nocp.constraints.srdf")?;
+            Postures::Nocp(n)
+        }
         None => {
             let t = inputs.table("postures", &s.postures)?;
             if t.rows.is_empty() {

@@ -20,7 +20,7 @@ use crate::lab::TricalCell;
 use crate::procedures::CentringOptions;
 
 /// Bounds of the centring loop as a job gives them (units in the names).
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct CentringSpec {
     /// Stop when |r| is below this (mm).
@@ -113,7 +113,7 @@ pub fn trical_devices(name: &str) -> Vec<String> {
 
 /// Retry policy of a campaign as a job gives it: attempts per configuration and the first
 /// back-off delay (ms, doubled after each failure).
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct RetrySpec {
     /// Attempts per configuration before the campaign pauses.

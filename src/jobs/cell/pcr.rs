@@ -23,7 +23,7 @@ use crate::model::pcr::PcrFile;
 use crate::report::Run;
 use crate::util::Monitor;
 
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub(crate) struct Options {
     /// Wait after the stages settle, before the image (ms).
@@ -33,9 +33,10 @@ pub(crate) struct Options {
 }
 
 /// `accuracy` as given: the `pcr.accuracy` trajectory and repetitions.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct AccuracySpec {
+    #[schemars(schema_with = "crate::jobs::pcr::accuracy::trajectory_schema")]
     trajectory: Value,
     #[serde(default = "default_repetitions")]
     repetitions: usize,
@@ -53,14 +54,15 @@ fn default_repetitions() -> usize {
     5
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
     #[serde(default = "default_cell")]
     cell: String,
     #[serde(default)]
+    #[schemars(schema_with = "crate::jobs::schema::json_file_opt")]
     model: Option<Value>,
     poses: usize,
     #[serde(default)]

@@ -23,7 +23,7 @@ use crate::model::dh::DhFile;
 use crate::report::Run;
 use crate::util::Monitor;
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct DesignSpec {
     /// Candidate configurations per ball.
@@ -39,7 +39,7 @@ fn pool_default() -> usize {
     60
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct ValidationSpec {
     per_ball: usize,
@@ -51,7 +51,7 @@ fn validation_seed() -> u64 {
     1_000_003
 }
 
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub(crate) struct Options {
     pub(crate) centring: CentringSpec,
@@ -59,16 +59,18 @@ pub(crate) struct Options {
     identify: IdentifyOptions,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
     #[serde(default = "default_cell")]
     cell: String,
     #[serde(default)]
+    #[schemars(schema_with = "crate::jobs::schema::json_file_opt")]
     model: Option<Value>,
     #[serde(default)]
+    #[schemars(schema_with = "crate::jobs::schema::table_opt")]
     configurations: Option<Value>,
     #[serde(default)]
     design: Option<DesignSpec>,

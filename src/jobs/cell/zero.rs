@@ -12,7 +12,7 @@ use super::{RetrySpec, default_cell, trical_devices};
 use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, parse_spec};
 
 /// Options of `cell.zero_check`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ZeroOptions {
     /// Largest |reading| accepted as zero (mm).
@@ -36,9 +36,9 @@ impl Default for ZeroOptions {
     }
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct ZeroSpec {
+pub(crate) struct ZeroSpec {
     #[allow(dead_code)]
     kind: String,
     #[serde(default = "default_cell")]

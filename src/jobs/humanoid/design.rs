@@ -20,11 +20,12 @@ use crate::model::srdf::disabled_collisions;
 use crate::report::Run;
 use crate::util::{Monitor, Rng, SubMonitor};
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::urdf")]
     urdf: Value,
     root_link: String,
     joints: Vec<String>,
@@ -46,7 +47,7 @@ struct Spec {
 
 /// `clusters`: three markers on a triangle of `radius_m` around `centre` (link frame, m),
 /// named `<link>_1`, `<link>_2`, `<link>_3`.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct ClusterSpec {
     link: String,
@@ -61,7 +62,7 @@ fn default_radius() -> f64 {
 
 /// `constraints` of `humanoid.design` (end-effector box, collision spheres, SRDF,
 /// torque and collision checks).
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ConstraintSpec {
     #[serde(default)]
@@ -72,6 +73,7 @@ pub struct ConstraintSpec {
     #[serde(default)]
     spheres: std::collections::BTreeMap<String, Vec<[f64; 4]>>,
     #[serde(default)]
+    #[schemars(schema_with = "crate::jobs::schema::urdf_opt")]
     srdf: Option<Value>,
     #[serde(default)]
     torque: Option<bool>,
@@ -79,7 +81,7 @@ pub struct ConstraintSpec {
     collision: Option<bool>,
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct BoxSpec {
     link: String,
@@ -90,7 +92,7 @@ struct BoxSpec {
 }
 
 /// `options` of `humanoid.design`.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DesignOptions {
     #[serde(default)]
@@ -115,7 +117,7 @@ pub struct DesignOptions {
     compare: Option<CompareSpec>,
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct CompareSpec {
     #[serde(default)]
@@ -196,6 +198,25 @@ impl ConstraintSpec {
     pub fn from_value(v: &Value) -> Result<ConstraintSpec, JobError> {
         parse_field("constraints", v)
     }
+
+    /// Check `srdf` as a campaign takes it: inline SRDF text (the campaign designs its
+    /// postures when it runs, where no reference is read), refused when submitted otherwise.
+    pub(crate) fn check_srdf_inline(&self, field: &str) -> Result<(), JobError> {
+        if let Some(v) = &self.srdf {
+            let text = Inputs::new(&crate::jobs::NoReferences).text(field, v)?;
+            disabled_collisions(&text)?;
+        }
+        Ok(())
+    }
+}
+
+/// Schema of a campaign's `constraints.srdf`: inline SRDF text only (see
+/// [`ConstraintSpec::check_srdf_inline`]).
+pub(crate) fn inline_srdf_schema() -> Value {
+    serde_json::json!({"anyOf": [
+        {"type": "string", "pattern": "^\\s*<", "description": "SRDF text inline"},
+        {"type": "null"},
+    ]})
 }
 
 impl DesignOptions {

@@ -27,12 +27,14 @@ use crate::util::{Monitor, Rng, SubMonitor};
 
 pub use super::identify_result::*;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::urdf")]
     urdf: Value,
+    #[schemars(schema_with = "crate::jobs::schema::table_with_gaps")]
     samples: Value,
     #[serde(default)]
     column_map: ColumnMap,

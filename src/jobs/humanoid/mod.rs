@@ -25,7 +25,7 @@ use crate::model::humanoid::{BaseMode, Elasticity, HParam, Humanoid, MarkerDef};
 use crate::model::urdf::UrdfModel;
 
 /// One entry of `markers`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MarkerSpec {
     /// Marker name (columns `<name>_x`, `_y`, `_z`).
@@ -38,7 +38,7 @@ pub struct MarkerSpec {
 }
 
 /// `base`: how the root link's pose in the mocap frame is obtained.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(tag = "mode", rename_all = "snake_case", deny_unknown_fields)]
 pub enum BaseSpec {
     /// Six constant unknowns (a struct variant so that unknown fields are refused).
@@ -62,7 +62,7 @@ impl Default for BaseSpec {
 }
 
 /// `options.elastic`.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ElasticSpec {
     /// Joints whose compliance is identified from measured torques (`tau_<joint>`).
@@ -77,7 +77,7 @@ pub struct ElasticSpec {
 }
 
 /// `options.robust`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RobustSpec {
     /// `huber` or `cauchy`.
@@ -88,7 +88,7 @@ pub struct RobustSpec {
 }
 
 /// `options.preprocess`: the samples are a raw recording to filter and cut into postures.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PreprocessSpec {
     /// Butterworth order (default 5).
@@ -133,7 +133,7 @@ impl PreprocessSpec {
 }
 
 /// `options` of `humanoid.identify` and `humanoid.validate`.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FitSpec {
     /// Elasticity.
@@ -174,7 +174,7 @@ pub struct FitSpec {
 }
 
 /// `options.cross_validation`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CrossValidationSpec {
     /// Number of folds (each sample is held out once).

@@ -21,12 +21,14 @@ fn default_true() -> bool {
     true
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::urdf")]
     urdf: Value,
+    #[schemars(schema_with = "crate::jobs::schema::table_with_gaps")]
     samples: Value,
     #[serde(default)]
     column_map: ColumnMap,
@@ -35,6 +37,7 @@ struct Spec {
     markers: Vec<MarkerSpec>,
     #[serde(default)]
     base: BaseSpec,
+    #[schemars(schema_with = "crate::jobs::schema::json_file")]
     calibrated: Value,
     #[serde(default = "default_true")]
     refit_frames: bool,

@@ -21,16 +21,20 @@ use crate::report::Run;
 use crate::twin::PcrTwin;
 use crate::util::{Monitor, Rng};
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::json_file")]
     model: Value,
+    #[schemars(schema_with = "trajectory_schema")]
     trajectory: Value,
     #[serde(default = "default_repetitions")]
+    #[schemars(range(min = 1))]
     repetitions: usize,
     #[serde(default)]
+    #[schemars(schema_with = "crate::jobs::schema::table_opt")]
     reached: Option<Value>,
     #[serde(default)]
     twin: Option<TwinSpec>,
@@ -44,8 +48,9 @@ fn default_repetitions() -> usize {
 }
 
 /// `{"square": side}` or `{"circle": diameter}` (m), with the number of poses and centre.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
+#[schemars(extend("oneOf" = [{"required": ["square"]}, {"required": ["circle"]}]))]
 struct TrajectorySpec {
     #[serde(default)]
     square: Option<f64>,
@@ -67,9 +72,10 @@ struct TrajectorySpec {
 
 /// A digital twin as the source of reached poses: the true robot is the nominal `model`
 /// perturbed by its uncertainties with `seed`; the microscope adds its repeatability noise.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct TwinSpec {
+    #[schemars(schema_with = "crate::jobs::schema::json_file")]
     model: Value,
     seed: u64,
     #[serde(default)]
@@ -90,6 +96,14 @@ pub struct AccuracyJob {
     commanded: Vec<Pose2>,
     repetitions: usize,
     source: Source,
+}
+
+/// Schema of a `trajectory` field: `{square | circle, ...}` or a poses table.
+pub(crate) fn trajectory_schema(g: &mut schemars::SchemaGenerator) -> schemars::Schema {
+    schemars::json_schema!({"anyOf": [
+        g.subschema_for::<TrajectorySpec>(),
+        crate::jobs::schema::table(g),
+    ]})
 }
 
 /// Parse a `trajectory` field (a square, a circle or a poses table): its name and the

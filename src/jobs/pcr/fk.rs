@@ -12,18 +12,20 @@ use crate::model::pcr::{Equilibrium, Pcr};
 use crate::report::Run;
 use crate::util::Monitor;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::json_file")]
     model: Value,
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     joints: Value,
     #[serde(default)]
     options: FkOptions,
 }
 
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct FkOptions {
     /// External load on the platform.

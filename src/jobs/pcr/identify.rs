@@ -22,14 +22,17 @@ use crate::model::pcr::PcrFile;
 use crate::report::{ErrorSet, Run};
 use crate::util::{Monitor, SubMonitor, Summary};
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::json_file")]
     model: Value,
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     measurements: Value,
     #[serde(default)]
+    #[schemars(schema_with = "crate::jobs::schema::table_opt")]
     validation: Option<Value>,
     #[serde(default)]
     options: IdentifyOptions,

@@ -15,7 +15,7 @@ use crate::measure::pcr::{UNKNOWNS, unknown_name};
 use crate::model::pcr::PcrFile;
 
 /// `options` of `pcr.identify`.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct IdentifyOptions {
     /// The steps: each a list of unknown names (`Ax_1`, `sx`), parameter types (`l`,
@@ -50,7 +50,7 @@ pub struct IdentifyOptions {
 }
 
 /// `options.prior` of `pcr.identify`.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PcrPriorSpec {
     /// Prior std per unknown name (`l_1`, `gamma_2`, `sx`, ...), SI units (m, rad, Pa).

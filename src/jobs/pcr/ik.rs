@@ -13,18 +13,20 @@ use crate::model::pcr::{Equilibrium, Pcr};
 use crate::report::Run;
 use crate::util::Monitor;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::json_file")]
     model: Value,
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     poses: Value,
     #[serde(default)]
     options: IkOptions,
 }
 
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct IkOptions {
     /// External load on the platform.

@@ -28,7 +28,7 @@ pub struct PcrModel {
 
 /// `"load": {"force": [fx, fy], "moment": mz}` (N, N*m, components in {W}, applied at the
 /// origin of {P}).
-#[derive(Debug, Clone, Copy, Default, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct LoadSpec {
     /// Force (N).

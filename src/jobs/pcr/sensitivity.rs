@@ -16,19 +16,21 @@ use crate::report::plots::{self, Series};
 use crate::report::{Run, svg_artefact};
 use crate::util::Monitor;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::json_file")]
     model: Value,
     #[serde(default)]
+    #[schemars(schema_with = "crate::jobs::schema::table_opt")]
     joints: Option<Value>,
     #[serde(default)]
     options: SensitivityOptions,
 }
 
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct SensitivityOptions {
     /// Fraction of each joint range spanned by the default 3 x 3 x 3 grid (default 0.4).

@@ -18,15 +18,23 @@ use crate::model::{PointMass, Quantity};
 use crate::report::Run;
 use crate::util::Monitor;
 
-#[derive(Debug, Deserialize)]
+/// A `serial.compensate` job document.
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    /// A DH model or DH tree (with `chain.name`), or a `serial.identify` result whose
+    /// `calibrated_model` is used.
+    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
     model: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
+    /// Target poses `x, y, z, a, b, c` of {T} in {W} (as `serial.fk` writes them), with
+    /// optional reference joints `q1..q6`.
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     targets: Value,
+    /// Replaces the model's payload (changes the static deflection).
     #[serde(default)]
     payload: Option<Payload>,
     #[serde(default)]
@@ -34,7 +42,7 @@ struct Spec {
 }
 
 /// `options` of a `serial.compensate` job.
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct Options {
     /// Reference joints (model angle unit) for rows without their own.

@@ -16,14 +16,16 @@ use crate::measure::{BallPlate, PointMeasurement, PointProblem};
 use crate::report::{Run, studies, svg_artefact};
 use crate::util::Monitor;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
     model: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     pool: Value,
     n: usize,
     #[serde(default)]
@@ -33,7 +35,7 @@ struct Spec {
 }
 
 /// `options` of `serial.design`.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DesignOptions {
     /// Seed of DETMAX's random start.

@@ -21,17 +21,20 @@ use crate::report::{DispersionBox, dispersion_plots};
 use crate::util::stats::{Quartiles, mean};
 use crate::util::{Monitor, Summary};
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
     model: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     measurements: Value,
     #[serde(default)]
     ball_plate: Option<PlateSpec>,
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     validation: Value,
     sizes: Vec<usize>,
     repetitions: usize,

@@ -23,14 +23,16 @@ use crate::model::Quantity;
 use crate::report::Run;
 use crate::util::Monitor;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
     model: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     joints: Value,
     #[serde(default)]
     parameters: BTreeMap<String, f64>,

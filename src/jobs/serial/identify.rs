@@ -29,18 +29,21 @@ use crate::util::{Monitor, Summary};
 pub use super::identify_inputs::*;
 pub use super::identify_result::*;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Spec {
+pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
+    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
     model: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
+    #[schemars(schema_with = "crate::jobs::schema::table")]
     measurements: Value,
     #[serde(default)]
     ball_plate: Option<PlateSpec>,
     #[serde(default)]
+    #[schemars(schema_with = "crate::jobs::schema::table_opt")]
     validation: Option<Value>,
     #[serde(default)]
     options: IdentifyOptions,

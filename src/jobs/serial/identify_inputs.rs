@@ -14,7 +14,7 @@ use crate::model::ParamId;
 use crate::util::Monitor;
 
 /// `options` of `serial.identify` (and of `serial.dispersion`).
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct IdentifyOptions {
     /// Parameters to identify (default: the model's list).

@@ -24,7 +24,7 @@ use crate::model::urdf::UrdfModel;
 use crate::model::{Chain, ParamId, Quantity};
 
 /// `"chain": {"root": .., "tip": ..}` for URDF models, `{"name": ..}` for DH tree files.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ChainSpec {
     /// Root link (the robot frame {0}); URDF only.
@@ -349,8 +349,13 @@ impl SerialModel {
 }
 
 /// The `ball_plate` field: `{d12, d13, d23}`, `{positions}` or `{balls, distances}`.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
+#[schemars(extend("oneOf" = [
+    {"required": ["d12", "d13", "d23"]},
+    {"required": ["positions"]},
+    {"required": ["balls", "distances"]}
+]))]
 pub struct PlateSpec {
     d12: Option<f64>,
     d13: Option<f64>,

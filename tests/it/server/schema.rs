@@ -1,6 +1,7 @@
 //! The OpenAPI contract: `openapi.yaml` parsed into JSON, and a checker for the subset of
 //! JSON Schema it uses (type incl. nullable unions, required, properties,
-//! additionalProperties, items, enum, minimum/maximum, $ref).
+//! additionalProperties, items, enum, const, anyOf, oneOf, minimum/maximum,
+//! exclusiveMinimum, minLength, pattern, minItems/maxItems, $ref).
 
 use serde_json::Value;
 
@@ -53,6 +54,65 @@ pub fn check(root: &Value, s: &Value, v: &Value, at: &str) -> Vec<String> {
     }
     if !errs.is_empty() {
         return errs;
+    }
+    if let Some(c) = s.get("const")
+        && c != v
+    {
+        errs.push(format!("{at}: {v} is not {c}"));
+    }
+    if let Some(alts) = s.get("anyOf").and_then(Value::as_array)
+        && !alts.iter().any(|a| check(root, a, v, at).is_empty())
+    {
+        errs.push(format!("{at}: {v} matches none of anyOf"));
+    }
+    if let Some(alts) = s.get("oneOf").and_then(Value::as_array) {
+        let fails: Vec<Vec<String>> = alts.iter().map(|a| check(root, a, v, at)).collect();
+        match fails.iter().filter(|f| f.is_empty()).count() {
+            1 => {}
+            0 => {
+                // The alternative whose discriminator matches explains best why.
+                let best = fails
+                    .iter()
+                    .min_by_key(|f| f.len())
+                    .cloned()
+                    .unwrap_or_default();
+                errs.push(format!("{at}: matches none of oneOf ({})", best.join("; ")));
+            }
+            n => errs.push(format!("{at}: matches {n} alternatives of oneOf")),
+        }
+    }
+    if let (Some(min), Some(x)) = (
+        s.get("exclusiveMinimum").and_then(Value::as_f64),
+        v.as_f64(),
+    ) && x <= min
+    {
+        errs.push(format!("{at}: {x} <= exclusiveMinimum {min}"));
+    }
+    if let Some(x) = v.as_str() {
+        if let Some(min) = s.get("minLength").and_then(Value::as_u64)
+            && (x.chars().count() as u64) < min
+        {
+            errs.push(format!("{at}: {x:?} shorter than {min}"));
+        }
+        if let Some(p) = s.get("pattern").and_then(Value::as_str)
+            && !regex::Regex::new(p)
+                .unwrap_or_else(|e| panic!("pattern {p}: {e}"))
+                .is_match(x)
+        {
+            errs.push(format!("{at}: {x:?} does not match {p}"));
+        }
+    }
+    if let Some(a) = v.as_array() {
+        if let Some(min) = s.get("minItems").and_then(Value::as_u64)
+            && (a.len() as u64) < min
+        {
+            errs.push(format!("{at}: fewer than {min} items"));
+        }
+        if let Some(max) = s.get("maxItems").and_then(Value::as_u64)
+            && (a.len() as u64) > max
+        {
+            errs.push(format!("{at}: more than {max} items"));
+        }
     }
     if let Some(e) = s.get("enum").and_then(Value::as_array)
         && !e.contains(v)
