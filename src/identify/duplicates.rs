@@ -256,7 +256,7 @@ mod tests {
             distinct: 12,
             group: (0..240).map(|i| i % 12).collect(),
         };
-        let ssr = 20.0 * 5.0; // the 12 rows alone: SSR 5, dof 36 - 31 = 5, sigma 1
+        let ssr: f64 = 20.0 * 5.0; // the 12 rows alone: SSR 5, dof 36 - 31 = 5, sigma 1
         let sigma = (ssr / (720.0 - 31.0)).sqrt();
         let e = d.effective(720, 31, ssr, sigma);
         assert_eq!(e.dof, 5);

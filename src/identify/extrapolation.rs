@@ -135,7 +135,8 @@ mod tests {
         let out = out_of_range(&axes, &t, &v);
         assert_eq!(out.len(), 1, "{out:?}");
         assert_eq!(out[0].joint, "q6");
-        assert_eq!(out[0].outside, 1);
+        // -42 deg is 2 deg past -44, beyond the margin (1 deg + 1 % of the 76 deg span).
+        assert_eq!(out[0].outside, 2);
         assert!((out[0].validation[1] - 69.0).abs() < 1e-9);
         assert!((out[0].training[1] + 44.0).abs() < 1e-9);
         assert!(
