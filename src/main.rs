@@ -50,6 +50,12 @@ enum StoreCommand {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Run a job file in-process, without a daemon, and print or write its result.
+    ///
+    /// An identification (serial.identify, tree.identify, humanoid.identify, pcr.identify)
+    /// ends with a verdict, printed on stderr with its reasons, and the exit code says it:
+    /// 0 accepted, 3 review (usable after a person read the reasons), 4 rejected (nothing
+    /// usable was made: no calibrated_model* is written, rejected_model* instead). Jobs that
+    /// are not identifications exit 0. Errors (invalid job, failed run) exit 1.
     Run {
         /// The job file (JSON); relative paths inside it are relative to its folder.
         job: PathBuf,
@@ -484,7 +490,8 @@ impl calibd::util::Monitor for StderrMonitor {
     }
 }
 
-fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<()> {
+/// Run a job file; the exit code of its verdict (0 for jobs without one).
+fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<i32> {
     let text =
         std::fs::read_to_string(job).with_context(|| format!("reading {}", job.display()))?;
     let doc: serde_json::Value = serde_json::from_str(&text)
@@ -508,7 +515,7 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
     {
         // The main table row by row: no result JSON, no table in memory.
         calibd::offline::write_main_csv(&prepared, p, &monitor)?;
-        return Ok(());
+        return Ok(0);
     }
     let done = if prepared.devices().is_empty() {
         prepared.run(&monitor)?
@@ -561,7 +568,28 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<(
                 .with_context(|| format!("writing artefact {}", a.name))?;
         }
     }
-    Ok(())
+    Ok(report_verdict(&done.result))
+}
+
+/// Print an identification's verdict and reasons on stderr; its exit code (0 without one).
+fn report_verdict(result: &serde_json::Value) -> i32 {
+    use calibd::identify::Verdict;
+    let Some(v) = Verdict::of_result(result) else {
+        return 0;
+    };
+    eprintln!("verdict: {}", v.as_str());
+    for r in result["reasons"].as_array().into_iter().flatten() {
+        eprintln!(
+            "  {} ({}): {}",
+            r["code"].as_str().unwrap_or_default(),
+            r["severity"].as_str().unwrap_or_default(),
+            r["message"].as_str().unwrap_or_default()
+        );
+    }
+    if v == Verdict::Rejected {
+        eprintln!("  no calibrated model was written (rejected_model* holds it for inspection)");
+    }
+    v.exit_code()
 }
 
 fn write_twin(which: &str, out: &Path, seed: u64) -> Result<()> {
@@ -652,7 +680,10 @@ fn main() -> Result<()> {
             job,
             out,
             artefacts,
-        } => run_job(&job, out.as_deref(), artefacts.as_deref()),
+        } => match run_job(&job, out.as_deref(), artefacts.as_deref())? {
+            0 => Ok(()),
+            code => std::process::exit(code),
+        },
         Command::Bench { area, json } => {
             let numerical = |a: &str| match a {
                 "serial" => Some(calibd::bench::serial::run()),

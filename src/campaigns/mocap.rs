@@ -218,6 +218,7 @@ pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, Jo
             unit: "mm",
         }),
         validation: serde_json::to_value(&means).unwrap_or_default(),
+        assessment: Some(fit.assessment.clone()),
     };
     let result = MocapCampaign {
         calibration: identified.result,

@@ -207,6 +207,7 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
             unit: "m",
         }),
         validation: serde_json::to_value(&identified.result.validation).unwrap_or_default(),
+        assessment: Some(identified.result.assessment.clone()),
     };
     let result = PcrCampaign {
         calibration: identified.result,

@@ -225,6 +225,7 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
             unit: "mm",
         }),
         validation: serde_json::to_value(&run.result.validation).unwrap_or_default(),
+        assessment: Some(run.result.assessment.clone()),
     };
     let result = TricalCampaign {
         calibration: run.result,

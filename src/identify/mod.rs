@@ -4,11 +4,14 @@
 //! deviations and conditioning ([`uncertainty`]), the rank -> LM -> covariance pipeline
 //! with its report ([`solve`]), MAP with a Gaussian prior and a K-fold weight ([`prior`]),
 //! gauge freedoms held at their nominal combination ([`gauge`]) and robust losses by IRLS
-//! ([`robust`]). No I/O.
+//! ([`robust`]), and the verdict on a result with its reasons ([`verdict`]: duplicated rows
+//! in [`duplicates`], validation beyond the training range in [`extrapolation`]). No I/O.
 
 mod bounds;
 pub mod dense;
 mod dots;
+pub mod duplicates;
+pub mod extrapolation;
 pub mod gauge;
 mod lean;
 pub mod lm;
@@ -21,6 +24,7 @@ pub mod solution;
 pub mod solve;
 pub mod trust;
 pub mod uncertainty;
+pub mod verdict;
 
 pub use gauge::{Gauge, Gauged, null_directions};
 pub use lm::{
@@ -33,6 +37,7 @@ pub use robust::{Robust, RobustKind, RobustReport, solve_robust};
 pub use solve::{ParamReport, Solution, SolveOptions, Unknown, Unobservable, solve};
 pub use trust::{Degeneracy, NearDependent};
 pub use uncertainty::{Uncertainty, uncertainty};
+pub use verdict::{Assessment, Facts, Reason, Verdict, assess};
 
 /// Errors of the least-squares layer.
 #[derive(Debug, thiserror::Error)]

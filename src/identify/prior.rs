@@ -405,6 +405,27 @@ pub fn folds(count: usize, k: usize, seed: u64) -> Vec<Vec<usize>> {
         .collect()
 }
 
+/// K folds of items that come in groups (`group[i]`: the group of item `i`, numbered
+/// `0..groups`): the groups are dealt into folds as [`folds`] deals items, so every item of
+/// a group (the copies of one configuration) lands in the same fold. With every item its
+/// own group these are exactly the folds of [`folds`].
+pub fn grouped_folds(group: &[usize], k: usize, seed: u64) -> Vec<Vec<usize>> {
+    let groups = group.iter().map(|g| g + 1).max().unwrap_or(0);
+    let mut members: Vec<Vec<usize>> = vec![Vec::new(); groups];
+    for (i, &g) in group.iter().enumerate() {
+        members[g].push(i);
+    }
+    folds(groups, k, seed)
+        .into_iter()
+        .map(|f| {
+            f.into_iter()
+                .flat_map(|g| members[g].iter().copied())
+                .collect()
+        })
+        .filter(|f: &Vec<usize>| !f.is_empty())
+        .collect()
+}
+
 /// Choose the weight among `weights` by K-fold cross-validation over `count` items (the
 /// training set only): `score(weight, train, test)` fits on `train` and returns the sum of
 /// squared held-out residuals and their count. The smallest held-out RMS wins (the first
@@ -414,9 +435,22 @@ pub fn choose_weight(
     count: usize,
     k: usize,
     seed: u64,
+    score: impl FnMut(f64, &[usize], &[usize]) -> Result<(f64, usize), IdentifyError>,
+) -> Result<(f64, Vec<FoldError>), IdentifyError> {
+    let group: Vec<usize> = (0..count).collect();
+    choose_weight_grouped(weights, &group, k, seed, score)
+}
+
+/// [`choose_weight`] over items in groups (`group[i]` as in [`grouped_folds`]): the copies
+/// of one configuration are never split between training and held-out folds.
+pub fn choose_weight_grouped(
+    weights: &[f64],
+    group: &[usize],
+    k: usize,
+    seed: u64,
     mut score: impl FnMut(f64, &[usize], &[usize]) -> Result<(f64, usize), IdentifyError>,
 ) -> Result<(f64, Vec<FoldError>), IdentifyError> {
-    let parts = folds(count, k, seed);
+    let parts = grouped_folds(group, k, seed);
     let mut errors = Vec::with_capacity(weights.len());
     for &w in weights {
         let (mut sum, mut cnt) = (0.0, 0usize);
@@ -603,5 +637,20 @@ mod tests {
         assert_eq!(all, (0..23).collect::<Vec<_>>());
         assert_eq!(f, folds(23, 5, 7));
         assert_ne!(f, folds(23, 5, 8));
+        // Every item its own group: the same folds.
+        let own: Vec<usize> = (0..23).collect();
+        assert_eq!(grouped_folds(&own, 5, 7), f);
+        // Copies of a configuration share a fold.
+        let group: Vec<usize> = (0..40).map(|i| i % 8).collect();
+        let g = grouped_folds(&group, 5, 7);
+        assert_eq!(g.iter().map(Vec::len).sum::<usize>(), 40);
+        for fold in &g {
+            for other in g.iter().filter(|o| *o != fold) {
+                assert!(
+                    fold.iter()
+                        .all(|i| other.iter().all(|j| group[*i] != group[*j]))
+                );
+            }
+        }
     }
 }

@@ -442,6 +442,8 @@ impl Job {
                 value,
             });
         }
+        let mut out = out;
+        withhold_rejected(&mut out);
         let finished = chrono::Utc::now();
         let result = envelope::wrap(
             &self.kind,
@@ -508,6 +510,35 @@ impl Job {
             artefacts: Vec::new(),
             candidate: None,
         })
+    }
+}
+
+/// A rejected identification (result field `verdict` = `rejected`) makes no calibrated
+/// model: its `calibrated_*` artefacts and result fields are renamed `rejected_*`
+/// (`rejected_model.json`), kept for inspection but never taken for a calibration.
+pub fn withhold_rejected(out: &mut Output) {
+    if out.fields.get("verdict").and_then(Value::as_str) != Some("rejected") {
+        return;
+    }
+    let renamed = |name: &str| {
+        name.strip_prefix("calibrated_")
+            .map(|r| format!("rejected_{r}"))
+    };
+    for a in &mut out.artefacts {
+        if let Some(n) = renamed(&a.name) {
+            a.name = n;
+        }
+    }
+    let keys: Vec<String> = out
+        .fields
+        .keys()
+        .filter(|k| renamed(k).is_some())
+        .cloned()
+        .collect();
+    for k in keys {
+        if let (Some(v), Some(n)) = (out.fields.remove(&k), renamed(&k)) {
+            out.fields.insert(n, v);
+        }
     }
 }
 

@@ -12,7 +12,9 @@ use serde_json::Value;
 
 use crate::geometry::Frame;
 use crate::identify::ParamReport;
+use crate::identify::duplicates::duplicate_configurations;
 use crate::identify::prior::{PriorReport, PriorSpec, PriorWeight};
+use crate::identify::verdict::{self, Assessment, Facts};
 use crate::jobs::map_options::{MapWeight, check_map_options};
 use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::measure::tree_markers::{STEPS, Step, TreeObservation, TreeProblem, cumulative, k_fold};
@@ -57,6 +59,15 @@ pub struct HeldOut {
 /// The result of `tree.identify`.
 #[derive(Debug, Clone, Serialize)]
 pub struct TreeCalibration {
+    /// `verdict` (`accepted`, `review`, `rejected`) and its `reasons`.
+    #[serde(flatten)]
+    pub assessment: Assessment,
+    /// Residual degrees of freedom of the last fit: distinct marker equations minus
+    /// identified unknowns.
+    pub dof: usize,
+    /// Residual standard deviation of the last fit (mm), counted over distinct
+    /// configurations (null with zero degrees of freedom).
+    pub residual_std_mm: Option<f64>,
     /// Cumulative steps: frames; + offsets; + geometry; + joint; + lateral compliance.
     pub steps: Vec<Step>,
     /// The last fit's parameters (lengths m, angles rad, lumped coefficients rad at full
@@ -84,6 +95,43 @@ pub struct TreeCalibration {
 const NOTE: &str = "gravity along -z of the tree root; lumping `subtree`: coefficients kz_g*, kx_g*, ky_g* (rad at full gravity load) multiply the unit gravity direction in the joint frame (joint deflection about z, lateral about x and y); lumping `bodies`: compliances c_z, c_x, c_y (rad/(N*m)) times the gravity torque of link weights w (N) and weight moments w_m* (N*m), only their products determined";
 
 impl TreeIdentifyJob {
+    /// Verdict, `dof`, and the residual std (m) with the factor on standard deviations
+    /// (`Some` only when configurations repeat) of the last fit `sol`, counting distinct
+    /// configurations.
+    fn judge(
+        &self,
+        sol: &crate::identify::Solution,
+    ) -> (Assessment, usize, (Option<f64>, Option<f64>)) {
+        let equations: usize = 3 * self
+            .obs
+            .iter()
+            .map(|o| o.points.iter().flatten().count())
+            .sum::<usize>();
+        let free = sol.free.len();
+        let dup = duplicate_configurations(self.obs.iter().map(|o| o.sample.q.as_slice()));
+        let mut dof = verdict::dof(equations, free);
+        let mut sigma = (Some(sol.uncertainty.sigma).filter(|s| s.is_finite()), None);
+        if dup.repeated() > 0 {
+            let ssr: f64 = sol.residuals.iter().take(equations).map(|v| v * v).sum();
+            let e = dup.effective(equations, free, ssr, sol.uncertainty.sigma);
+            dof = e.dof;
+            sigma = (e.sigma, Some(e.std_factor.unwrap_or(f64::NAN)));
+        }
+        if dof == 0 {
+            sigma.0 = None;
+        }
+        let facts = Facts {
+            status: sol.status().to_string(),
+            degenerate: sol.degenerate.as_ref().map(|d| d.reasons.join("; ")),
+            equations,
+            unknowns: free,
+            dof,
+            duplicates: Some(dup),
+            ..Default::default()
+        };
+        (verdict::assess(&facts), dof, sigma)
+    }
+
     /// Run the cumulative fits and the optional K-fold.
     pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<TreeCalibration>, JobError> {
         let fail = |e: crate::identify::IdentifyError| match e {
@@ -137,11 +185,21 @@ impl TreeIdentifyJob {
             None => None,
         };
         let sol = &c.last.solution;
+        let (assessment, dof, sigma) = self.judge(sol);
+        let mut parameters = sol.params.clone();
+        if let Some(f) = sigma.1 {
+            for p in &mut parameters {
+                p.std = p.std.filter(|_| f.is_finite()).map(|s| s * f);
+            }
+        }
         Ok(Run {
             result: TreeCalibration {
+                assessment,
+                dof,
+                residual_std_mm: sigma.0.map(|s| s * 1e3),
                 error_after_mean_mm: c.steps.last().map_or(f64::NAN, |s| s.error_mm.mean),
                 steps: c.steps.clone(),
-                parameters: sol.params.clone(),
+                parameters,
                 unidentifiable: sol.unidentifiable.clone(),
                 status: sol.status().into(),
                 condition_number: sol.condition_number,

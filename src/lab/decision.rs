@@ -1,11 +1,14 @@
 //! Model decisions: a campaign proposes its calibrated model as a [`Candidate`] with the
-//! evidence of a validation (an error before and after); the cell's [`Acceptance`] rule
-//! makes it the current model or records it as rejected, with the reason. The service
+//! evidence of a validation (an error before and after) and the identification's verdict;
+//! the cell's [`Acceptance`] rule makes it the current model or records it as rejected, with
+//! the reason. A model whose identification was rejected never becomes current, however its
+//! validation went; one under review may, and the decision repeats the reasons. The service
 //! writes the decision in the same transaction as the job's final state.
 
 use serde_json::Value;
 
 use super::CellModel;
+use crate::identify::verdict::{Assessment, Verdict};
 
 /// Validation evidence: a mean error of the starting and of the calibrated model.
 #[derive(Debug, Clone, PartialEq)]
@@ -31,6 +34,9 @@ pub struct Candidate {
     pub evidence: Option<Evidence>,
     /// The validation document kept in the cell's history.
     pub validation: Value,
+    /// The identification's verdict and reasons (`None` for steps that are not an
+    /// identification, e.g. commissioning).
+    pub assessment: Option<Assessment>,
 }
 
 /// When a candidate replaces a cell's model: it must gain more than `min_relative_gain`
@@ -64,7 +70,27 @@ pub struct Decision {
 impl Acceptance {
     /// Decide on `c`.
     pub fn decide(&self, c: &Candidate) -> Decision {
-        let (accepted, reason) = match &c.evidence {
+        let reasons = |a: &Assessment| {
+            a.reasons
+                .iter()
+                .map(|r| format!("{}: {}", r.code, r.message))
+                .collect::<Vec<_>>()
+                .join("; ")
+        };
+        if let Some(a) = c
+            .assessment
+            .as_ref()
+            .filter(|a| a.verdict == Verdict::Rejected)
+        {
+            return Decision {
+                cell: c.cell.clone(),
+                accepted: false,
+                reason: format!("the calibration was rejected: {}", reasons(a)),
+                validation: c.validation.clone(),
+                model: c.model.to_json(),
+            };
+        }
+        let (accepted, mut reason) = match &c.evidence {
             Some(e) if e.unit != self.unit => (
                 false,
                 format!(
@@ -107,6 +133,13 @@ impl Acceptance {
                 "the campaign had no validation pass: nothing shows the model is better".into(),
             ),
         };
+        if let Some(a) = c
+            .assessment
+            .as_ref()
+            .filter(|a| a.verdict == Verdict::Review)
+        {
+            reason.push_str(&format!(" (verdict review: {})", reasons(a)));
+        }
         Decision {
             cell: c.cell.clone(),
             accepted,
@@ -171,6 +204,7 @@ mod tests {
                 unit: "mm",
             }),
             validation: Value::Null,
+            assessment: None,
         }
     }
 
@@ -195,5 +229,33 @@ mod tests {
             e.unit = "m";
         }
         assert!(!rule.decide(&c).accepted);
+    }
+
+    #[test]
+    fn a_rejected_calibration_never_becomes_current_and_review_says_why() {
+        use crate::identify::verdict::Reason;
+        let rule = Acceptance {
+            min_relative_gain: 0.1,
+            min_gain: 0.002,
+            unit: "mm",
+        };
+        let reason = |severity| Reason {
+            code: "zero_dof",
+            message: "15 equations for 15 identified unknowns".into(),
+            severity,
+        };
+        let mut c = candidate(0.100, 0.050);
+        c.assessment = Some(Assessment::of(vec![reason(Verdict::Rejected)]));
+        let d = rule.decide(&c);
+        assert!(!d.accepted, "{d:?}");
+        assert!(
+            d.reason.contains("rejected: zero_dof: 15 equations"),
+            "{d:?}"
+        );
+        c.assessment = Some(Assessment::of(vec![reason(Verdict::Review)]));
+        let d = rule.decide(&c);
+        assert!(d.accepted && d.reason.contains("verdict review"), "{d:?}");
+        c.assessment = Some(Assessment::of(Vec::new()));
+        assert!(rule.decide(&c).accepted);
     }
 }

@@ -7,12 +7,13 @@ use nalgebra::{DMatrix, Vector3};
 use serde::Serialize;
 
 use super::tree_prior::TreePrior;
+use crate::identify::duplicates::{duplicate_configurations, shuffled_groups};
 use crate::identify::prior::PriorReport;
 use crate::identify::{
     IdentifyError, Pivoting, Prior, Problem, Solution, SolveOptions, Unknown, solve, solve_map,
 };
 use crate::model::elastic::{ElasticTree, Groups, TParam, TreeSample};
-use crate::util::{Monitor, Rng, Summary};
+use crate::util::{Monitor, Summary};
 
 /// One sample: joint values (with gravity features) and each marker's measured position.
 #[derive(Debug, Clone, PartialEq)]
@@ -423,17 +424,15 @@ pub fn k_fold(
     prior: &TreePrior,
     monitor: &dyn Monitor,
 ) -> Result<Vec<f64>, IdentifyError> {
-    let mut idx: Vec<usize> = (0..obs.len()).collect();
-    Rng::new(seed).shuffle(&mut idx);
+    // Copies of one configuration stay in one fold.
+    let dup = duplicate_configurations(obs.iter().map(|o| o.sample.q.as_slice()));
+    let groups = shuffled_groups(&dup.group, seed);
     let mut held_out = Vec::new();
     for f in 0..k {
         let (mut train, mut test) = (Vec::new(), Vec::new());
-        for (n, &i) in idx.iter().enumerate() {
-            if n % k == f {
-                test.push(obs[i].clone());
-            } else {
-                train.push(obs[i].clone());
-            }
+        for (n, members) in groups.iter().enumerate() {
+            let side = if n % k == f { &mut test } else { &mut train };
+            side.extend(members.iter().map(|&i| obs[i].clone()));
         }
         let c = cumulative(model, &train, last, max_iterations, prior, monitor)?;
         held_out.extend(errors_mm(&c.last.model, &with_features(&c.start, &test)));

@@ -8,7 +8,8 @@
 //! the root pose and markers (nuisance unknowns) nor to lumped coefficients and link weights
 //! (named entries reach those).
 
-use crate::identify::prior::{CV_FOLDS, CV_WEIGHTS, FoldError, PriorSpec, choose_weight};
+use crate::identify::duplicates::duplicate_configurations;
+use crate::identify::prior::{CV_FOLDS, CV_WEIGHTS, FoldError, PriorSpec, choose_weight_grouped};
 use crate::identify::{IdentifyError, Unknown};
 use crate::model::elastic::{ElasticTree, TParam};
 use crate::util::Monitor;
@@ -92,7 +93,9 @@ pub fn choose_tree_weight(
 ) -> Result<(f64, Vec<FoldError>), IdentifyError> {
     let runs = (CV_WEIGHTS.len() * CV_FOLDS) as f64;
     let mut done = 0usize;
-    choose_weight(&CV_WEIGHTS, obs.len(), CV_FOLDS, seed, |w, train, test| {
+    // Copies of one configuration stay in one fold.
+    let group = duplicate_configurations(obs.iter().map(|o| o.sample.q.as_slice())).group;
+    choose_weight_grouped(&CV_WEIGHTS, &group, CV_FOLDS, seed, |w, train, test| {
         if monitor.is_cancelled() {
             return Err(IdentifyError::Cancelled);
         }

@@ -163,6 +163,8 @@ async function showJob(id) {
     const a = await api(`/v1/jobs/${id}/artefacts`);
     const head = headline(r);
     if (head) parts.splice(2, 0, head);
+    const verdict = verdictBox(r);
+    if (verdict) parts.splice(2, 0, verdict);
     const plots = el("div", { class: "plots" });
     parts.push(plots);
     inlinePlots(id, a.artefacts, plots);

@@ -38,6 +38,18 @@ function headline(r) {
     ps ? el("p", {}, `${ident} of ${ps.length} parameters identified (${ps.length - ident} held at nominal)`) : "");
 }
 
+/** An identification's verdict and its reasons, the first thing in its view (null for
+ * kinds without one): accepted, review (read the reasons) or rejected (nothing usable). */
+function verdictBox(r) {
+  if (typeof r.verdict !== "string") return null;
+  const words = { accepted: "accepted: use this calibration", review: "review: usable only after a person read the reasons", rejected: "rejected: nothing usable was made (no calibrated model)" };
+  const reasons = Array.isArray(r.reasons) ? r.reasons : [];
+  return el("div", { class: `verdict ${r.verdict}`, id: "verdict", "data-verdict": r.verdict },
+    el("strong", {}, `Verdict — ${words[r.verdict] || r.verdict}`),
+    reasons.length ? el("ul", {}, ...reasons.map((x) => el("li", { "data-code": x.code }, el("code", {}, x.code), ` (${x.severity}): ${x.message}`))) : "",
+    typeof r.dof === "number" ? el("p", { class: "hint" }, `residual degrees of freedom: ${r.dof}`) : "");
+}
+
 /** Status of one parameter: identified, weakly observable, at a bound, or held and why. */
 function paramStatus(r, p) {
   const names = (k) => (r[k] || []).map((x) => (typeof x === "string" ? x : x.name));

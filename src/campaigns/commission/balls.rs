@@ -167,6 +167,7 @@ pub async fn campaign(job: Arc<LocateBallsJob>, cx: Cx) -> Result<Produced, JobE
             unit: "mm",
         }),
         validation: serde_json::to_value(&result).unwrap_or_default(),
+        assessment: None,
     };
     engine::conclude(&result, Vec::new(), table, None, candidate)
 }

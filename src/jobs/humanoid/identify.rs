@@ -14,7 +14,8 @@ use super::plots::{Observation, humanoid_plots};
 use super::samples::{SampleSet, load_samples, samples_from_table};
 use super::{BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, load_model, load_model_text};
 use crate::identify::IdentifyError;
-use crate::identify::prior::{CV_FOLDS, CV_WEIGHTS, choose_weight};
+use crate::identify::duplicates::{duplicate_configurations, shuffled_groups};
+use crate::identify::prior::{CV_FOLDS, CV_WEIGHTS, choose_weight_grouped};
 use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::marker_fit::{
     FitOptions, Groups, MarkerFit, fit, fit_frames, structural_count,
@@ -23,7 +24,7 @@ use crate::measure::markers::{MarkerProblem, MarkerSample, marker_rmse};
 use crate::model::JointField;
 use crate::model::humanoid::{HParam, Humanoid};
 use crate::report::Run;
-use crate::util::{Monitor, Rng, SubMonitor};
+use crate::util::{Monitor, SubMonitor};
 
 pub use super::identify_result::*;
 
@@ -237,23 +238,26 @@ fn cross_validate(
     folds: usize,
     monitor: &dyn Monitor,
 ) -> Result<CrossValidation, JobError> {
-    let n = job.set.samples.len();
-    let mut order: Vec<usize> = (0..n).collect();
-    Rng::new(job.options.seed).shuffle(&mut order);
+    // Copies of one configuration stay in one fold.
+    let samples = &job.set.samples;
+    let dup = duplicate_configurations(samples.iter().map(|s| s.state.q.as_slice()));
+    let order = shuffled_groups(&dup.group, job.options.seed);
     let (mut sq_n, mut sq_c, mut count) = (0.0, 0.0, 0usize);
     let mut per_fold = Vec::new();
     for f in 0..folds {
         if monitor.is_cancelled() {
             return Err(JobError::Cancelled);
         }
-        let test_idx: Vec<usize> = (0..n)
-            .filter(|k| k % folds == f)
-            .map(|k| order[k])
-            .collect();
-        let train: Vec<MarkerSample> = (0..n)
-            .filter(|k| k % folds != f)
-            .map(|k| job.set.samples[order[k]].clone())
-            .collect();
+        let side = |test: bool| -> Vec<usize> {
+            order
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| (k % folds == f) == test)
+                .flat_map(|(_, m)| m.iter().copied())
+                .collect()
+        };
+        let test_idx = side(true);
+        let train: Vec<MarkerSample> = side(false).iter().map(|&i| samples[i].clone()).collect();
         let test: Vec<MarkerSample> = test_idx
             .iter()
             .map(|&i| job.set.samples[i].clone())
@@ -304,9 +308,11 @@ impl IdentifyJob {
         let samples = &self.set.samples;
         let mut done = 0usize;
         let total = CV_WEIGHTS.len() * CV_FOLDS;
-        let (w, errors) = choose_weight(
+        // Copies of one configuration stay in one fold.
+        let group = duplicate_configurations(samples.iter().map(|s| s.state.q.as_slice())).group;
+        let (w, errors) = choose_weight_grouped(
             &CV_WEIGHTS,
-            samples.len(),
+            &group,
             CV_FOLDS,
             self.options.seed,
             |w, train, test| {
@@ -414,7 +420,9 @@ impl IdentifyJob {
                 }
             }
         }
-        let result = HumanoidCalibration {
+        let mut result = HumanoidCalibration {
+            assessment: crate::identify::verdict::Assessment::of(Vec::new()),
+            dof: sol.uncertainty.dof,
             parameters: sol.params.clone(),
             unidentifiable: sol.unidentifiable.clone(),
             base_parameter_count: sol.free.len(),
@@ -442,7 +450,7 @@ impl IdentifyJob {
                 cost_unit: "m^2",
                 rank_tolerance: self.fit.rank_tolerance,
             },
-            residual_std_mm: sol.uncertainty.sigma * 1e3,
+            residual_std_mm: None,
             prior,
             robust: sol.robust.as_ref().map(|r| RobustSummary {
                 loss: r.kind,
@@ -459,6 +467,8 @@ impl IdentifyJob {
             calibrated_model: text.clone(),
             calibrated_urdf_note: "placement errors and offsets are folded into each joint's <origin>; compliances, the base frame and the marker positions are in `parameters`",
         };
+        let cv = result.cross_validation.clone();
+        super::verdict::judge(samples, full, &fit_opts, cv.as_ref(), &mut result);
         let mut artefacts = vec![
             Artefact {
                 name: "calibrated_model.urdf".into(),
@@ -505,17 +515,20 @@ mod tests {
         "condition_number",
         "convergence",
         "dependencies",
+        "dof",
         "frames_only",
         "geometric_only",
         "identifiability",
         "markers",
         "parameters",
         "prior",
+        "reasons",
         "residual_std_mm",
         "rmse_after_mm",
         "rmse_before_mm",
         "samples",
         "unidentifiable",
+        "verdict",
         "weakly_observable",
     ];
 

@@ -3,6 +3,8 @@
 //! summaries, the calibrated URDF).
 
 use serde::Serialize;
+
+use crate::identify::verdict::Assessment;
 use serde_json::Value;
 
 use crate::identify::prior::PriorReport;
@@ -133,6 +135,11 @@ pub struct CrossValidation {
 /// The result of `humanoid.identify`: serialises to the job's result fields.
 #[derive(Debug, Clone, Serialize)]
 pub struct HumanoidCalibration {
+    /// `verdict` (`accepted`, `review`, `rejected`) and its `reasons`.
+    #[serde(flatten)]
+    pub assessment: Assessment,
+    /// Residual degrees of freedom: distinct marker equations minus identified unknowns.
+    pub dof: usize,
     /// Every unknown of the full fit.
     pub parameters: Vec<ParamReport>,
     /// Unknowns held.
@@ -157,8 +164,9 @@ pub struct HumanoidCalibration {
     pub weakly_observable: Vec<String>,
     /// Convergence.
     pub convergence: HumanoidConvergence,
-    /// Residual standard deviation (mm).
-    pub residual_std_mm: f64,
+    /// Residual standard deviation (mm), counted over distinct postures (null with zero
+    /// degrees of freedom).
+    pub residual_std_mm: Option<f64>,
     /// Which mode ran: `least_squares`, `map` (fixed prior weight) or `map_cv` (weight by
     /// K-fold on the training samples, with each candidate's held-out RMS in m).
     pub prior: PriorReport,

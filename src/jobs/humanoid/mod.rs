@@ -10,6 +10,7 @@ mod identify_result;
 mod plots;
 pub mod samples;
 pub mod validate;
+pub mod verdict;
 
 use std::collections::BTreeMap;
 

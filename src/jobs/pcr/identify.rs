@@ -14,6 +14,7 @@ use super::{PcrModel, load_model};
 use crate::identify::ParamReport;
 use crate::identify::prior::PriorReport;
 use crate::identify::solve::Dependency;
+use crate::identify::verdict::Assessment;
 use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::pcr::prior::choose_pcr_weight;
 use crate::measure::pcr::steps::{CalibrationOptions, calibrated_file};
@@ -115,8 +116,8 @@ pub struct PcrParameter {
 /// `residual_std` of `pcr.identify`.
 #[derive(Debug, Clone, Serialize)]
 pub struct PcrResidualStd {
-    /// Value (m).
-    pub value: f64,
+    /// Value (m), counted over distinct configurations (null with zero degrees of freedom).
+    pub value: Option<f64>,
     /// `m`.
     pub unit: &'static str,
     /// Degrees of freedom.
@@ -148,6 +149,12 @@ pub struct PcrValidation {
 /// The result of `pcr.identify`: serialises to the job's result fields.
 #[derive(Debug, Clone, Serialize)]
 pub struct PcrCalibration {
+    /// `verdict` (`accepted`, `review`, `rejected`) and its `reasons`.
+    #[serde(flatten)]
+    pub assessment: Assessment,
+    /// Residual degrees of freedom of the last step: distinct equations minus identified
+    /// unknowns.
+    pub dof: usize,
     /// Every unknown with its bounds.
     pub parameters: Vec<PcrParameter>,
     /// Unknowns held at nominal.
@@ -346,7 +353,9 @@ impl IdentifyJob {
             &sensitivity,
             &format!("nominal model {}", self.model.file.name),
         ));
-        let result = PcrCalibration {
+        let mut result = PcrCalibration {
+            assessment: Assessment::of(Vec::new()),
+            dof: cal.uncertainty.dof,
             parameters,
             unidentifiable: cal.unidentifiable.clone(),
             dependencies: cal.dependencies.clone(),
@@ -358,7 +367,7 @@ impl IdentifyJob {
             steps: cal.steps,
             model_error: cal.table3,
             residual_std: PcrResidualStd {
-                value: cal.uncertainty.sigma,
+                value: Some(cal.uncertainty.sigma).filter(|s| s.is_finite()),
                 unit: "m",
                 dof: cal.uncertainty.dof,
                 angle_weight: self.model.file.repeatability.position
@@ -377,6 +386,12 @@ impl IdentifyJob {
             sensitivity,
             prior: cal.prior,
         };
+        super::verdict::judge(
+            &self.measurements,
+            self.validation.as_deref(),
+            &u,
+            &mut result,
+        );
         Ok(Run {
             result,
             main_table: None,
@@ -404,15 +419,18 @@ mod tests {
         "condition_number",
         "convergence",
         "dependencies",
+        "dof",
         "gauge",
         "model_error",
         "parameters",
         "prior",
+        "reasons",
         "residual_std",
         "sensitivity",
         "steps",
         "unidentifiable",
         "validation",
+        "verdict",
     ];
 
     #[test]

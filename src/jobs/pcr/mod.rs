@@ -8,6 +8,7 @@ pub mod identify;
 pub mod identify_options;
 pub mod ik;
 pub mod sensitivity;
+pub mod verdict;
 
 use serde::Deserialize;
 use serde_json::Value;

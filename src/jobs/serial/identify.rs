@@ -18,6 +18,7 @@ use serde_json::{Value, json};
 use super::plots::{ResidualPlots, axis_rms, residual_artefacts};
 use super::{ChainSpec, PlateSpec, SerialModel};
 use crate::identify::Solution;
+use crate::identify::verdict::Assessment;
 use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::measure::distance::distance_errors;
 use crate::measure::{BallPlate, PointMeasurement, PointProblem, Target};
@@ -186,6 +187,8 @@ fn solution_result(
     calibrated_model: SerialModelFile,
 ) -> SerialCalibration {
     SerialCalibration {
+        assessment: Assessment::of(Vec::new()),
+        dof: sol.uncertainty.dof,
         measurement_type: None,
         parameters: sol.params.clone(),
         unidentifiable: sol.unidentifiable.clone(),
@@ -215,7 +218,7 @@ fn solution_result(
         },
         condition_number: sol.uncertainty.condition_number,
         residual_std: ResidualStd {
-            value: sol.uncertainty.sigma,
+            value: Some(sol.uncertainty.sigma).filter(|s| s.is_finite()),
             unit: unit.to_string(),
             dof: sol.uncertainty.dof,
         },
@@ -364,6 +367,15 @@ impl IdentifyJob {
         if !inp.warnings.is_empty() {
             r.warnings = Some(inp.warnings.clone());
         }
+        let weight = r.prior.as_ref().and_then(|p| p.weight);
+        super::verdict::judge(
+            inp,
+            &sol,
+            &problem.unknowns(),
+            &problem.nuisance(),
+            weight,
+            &mut r,
+        );
         let mut artefacts = vec![model_art];
         artefacts.extend(inp.model.urdf_artefact(&calibrated));
         // The first 3 rows per measurement are its x, y, z residuals (a prior adds rows).
@@ -455,6 +467,15 @@ impl IdentifyJob {
         if !inp.warnings.is_empty() {
             r.warnings = Some(inp.warnings.clone());
         }
+        let weight = r.prior.as_ref().and_then(|p| p.weight);
+        super::verdict::judge(
+            inp,
+            &sol,
+            &problem.unknowns(),
+            &problem.nuisance(),
+            weight,
+            &mut r,
+        );
         let before: Vec<f64> = sol.residuals_before.iter().copied().collect();
         let after: Vec<f64> = sol.residuals.iter().copied().collect();
         let mut artefacts = vec![model_art];
@@ -496,16 +517,19 @@ mod tests {
         "condition_number",
         "convergence",
         "dependencies",
+        "dof",
         "gauge_freedom",
         "observability",
         "parameters",
         "prior",
         "rank",
+        "reasons",
         "residual_std",
         "residuals",
         "unidentifiable",
         "unobservable",
         "validation",
+        "verdict",
         "weakly_observable",
     ];
 

@@ -4,6 +4,7 @@
 use serde::Serialize;
 
 use crate::identify::solve::Dependency;
+use crate::identify::verdict::Assessment;
 use crate::identify::{
     Degeneracy, NearDependent, ParamReport, PriorReport, StopReason, Unobservable,
 };
@@ -80,11 +81,12 @@ pub struct Rank {
 /// `residual_std`: the fitted residual standard deviation.
 #[derive(Debug, Clone, Serialize)]
 pub struct ResidualStd {
-    /// Value.
-    pub value: f64,
+    /// Value, counted over distinct configurations (null with zero degrees of freedom:
+    /// an exact fit says nothing about the noise).
+    pub value: Option<f64>,
     /// Length unit.
     pub unit: String,
-    /// Degrees of freedom.
+    /// Degrees of freedom (distinct equations minus identified unknowns).
     pub dof: usize,
 }
 
@@ -183,6 +185,11 @@ pub struct LengthOffset {
 /// The result of `serial.identify`: serialises to the job's result fields.
 #[derive(Debug, Clone, Serialize)]
 pub struct SerialCalibration {
+    /// `verdict` (`accepted`, `review`, `rejected`) and its `reasons`.
+    #[serde(flatten)]
+    pub assessment: Assessment,
+    /// Residual degrees of freedom: distinct equations minus identified unknowns.
+    pub dof: usize,
     /// `distance` for `L_mm` measurements; absent for points.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub measurement_type: Option<&'static str>,

@@ -13,6 +13,7 @@ mod identify_result;
 pub mod joints;
 mod plots;
 pub mod prior;
+pub mod verdict;
 
 use serde::Deserialize;
 use serde_json::{Value, json};

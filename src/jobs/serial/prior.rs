@@ -4,7 +4,7 @@
 
 use super::identify::IdentifyInputs;
 pub use crate::identify::prior::{CV_FOLDS, PriorWeight};
-use crate::identify::prior::{CV_WEIGHTS, Prior, PriorReport, choose_weight, solve_map};
+use crate::identify::prior::{CV_WEIGHTS, Prior, PriorReport, choose_weight_grouped, solve_map};
 use crate::identify::{IdentifyError, Problem, Solution, SolveOptions, Unknown, solve};
 use crate::jobs::JobError;
 use crate::measure::distance::distance_errors;
@@ -154,6 +154,18 @@ fn map_fit<P: SerialFit>(
     Ok(solve_map(p, &unknowns, &x0, &prior, &options, monitor)?)
 }
 
+/// The configuration groups of the rows `idx` (`group` of all rows), renumbered `0..` in
+/// order of first appearance among `idx`.
+fn dense_groups(group: &[usize], idx: &[usize]) -> Vec<usize> {
+    let mut id = std::collections::HashMap::new();
+    idx.iter()
+        .map(|&i| {
+            let n = id.len();
+            *id.entry(group[i]).or_insert(n)
+        })
+        .collect()
+}
+
 /// Identify from the measurements `subset` (all when `None`): least squares without
 /// `options.prior`, MAP with it. The noise dividing the data is `options.noise`, else the
 /// residual sigma of the least-squares fit.
@@ -211,19 +223,23 @@ pub fn identify_with<P: SerialFit>(
     let (weight, errors) = match &inp.options.prior_weight {
         Some(PriorWeight::Named(_)) => {
             let seed = inp.options.seed.unwrap_or(1);
-            let (w, e) = choose_weight(&CV_WEIGHTS, all.len(), CV_FOLDS, seed, |w, tr, te| {
-                if monitor.is_cancelled() {
-                    return Err(IdentifyError::Cancelled);
-                }
-                let tr: Vec<usize> = tr.iter().map(|&i| all[i]).collect();
-                let te: Vec<usize> = te.iter().map(|&i| all[i]).collect();
-                let fit = P::build(inp, &tr)
-                    .and_then(|q| map_fit(inp, &q, noise, w, false, &NoMonitor).map(|f| (q, f)));
-                match fit {
-                    Ok((q, (sol, _))) => Ok(q.held_out(inp, &sol.x, &te)),
-                    Err(e) => Err(IdentifyError::Model(e.to_string())),
-                }
-            })?;
+            // Copies of one configuration stay in one fold.
+            let group = dense_groups(&super::verdict::duplicates(inp).group, &all);
+            let (w, e) =
+                choose_weight_grouped(&CV_WEIGHTS, &group, CV_FOLDS, seed, |w, tr, te| {
+                    if monitor.is_cancelled() {
+                        return Err(IdentifyError::Cancelled);
+                    }
+                    let tr: Vec<usize> = tr.iter().map(|&i| all[i]).collect();
+                    let te: Vec<usize> = te.iter().map(|&i| all[i]).collect();
+                    let fit = P::build(inp, &tr).and_then(|q| {
+                        map_fit(inp, &q, noise, w, false, &NoMonitor).map(|f| (q, f))
+                    });
+                    match fit {
+                        Ok((q, (sol, _))) => Ok(q.held_out(inp, &sol.x, &te)),
+                        Err(e) => Err(IdentifyError::Model(e.to_string())),
+                    }
+                })?;
             (w, Some(e))
         }
         Some(PriorWeight::Fixed(w)) => (*w, None),

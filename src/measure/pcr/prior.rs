@@ -10,7 +10,8 @@
 //! a single prediction, while letting a weak prior pick a point on a curved gauge orbit is
 //! what makes Levenberg-Marquardt crawl.
 
-use crate::identify::prior::{CV_FOLDS, CV_WEIGHTS, FoldError, Prior, choose_weight};
+use crate::identify::duplicates::{Duplicates, Tolerance, find_duplicates};
+use crate::identify::prior::{CV_FOLDS, CV_WEIGHTS, FoldError, Prior, choose_weight_grouped};
 use crate::identify::{Gauge, IdentifyError, Problem};
 use crate::model::pcr::{Pcr, PcrFile};
 use crate::util::Monitor;
@@ -59,6 +60,19 @@ impl PcrPrior {
     }
 }
 
+/// Stage positions closer than this (m, on every stage) are one configuration: the
+/// repeatability of a piezo stage is of the order of a micrometre.
+pub const STAGE_DUPLICATE_TOLERANCE_M: f64 = 1e-6;
+
+/// The duplicated configurations (stage positions within [`STAGE_DUPLICATE_TOLERANCE_M`])
+/// among `measurements`.
+pub fn stage_duplicates(measurements: &[PcrMeasurement]) -> Duplicates {
+    let rows: Vec<(&[f64], usize)> = measurements.iter().map(|m| (m.q.as_slice(), 0)).collect();
+    let mut d = find_duplicates(&rows, STAGE_DUPLICATE_TOLERANCE_M);
+    d.tolerance = Tolerance::Length(STAGE_DUPLICATE_TOLERANCE_M * 1e3, "mm");
+    d
+}
+
 /// Choose the prior weight among [`CV_WEIGHTS`] by [`CV_FOLDS`]-fold cross-validation on
 /// the calibration poses only: each candidate runs the whole identification on the other
 /// folds and scores the weighted pose residuals of the held-out fold. Returns the chosen
@@ -79,41 +93,37 @@ pub fn choose_pcr_weight(
     let angle_weight = file.repeatability.position / file.repeatability.orientation;
     let runs = (CV_WEIGHTS.len() * CV_FOLDS) as f64;
     let mut done = 0usize;
-    choose_weight(
-        &CV_WEIGHTS,
-        calibration.len(),
-        CV_FOLDS,
-        seed,
-        |w, train, test| {
-            if monitor.is_cancelled() {
-                return Err(IdentifyError::Cancelled);
-            }
-            monitor.progress(done as f64 / runs, "choosing the prior weight by K-fold");
-            done += 1;
-            let fold_opts = CalibrationOptions {
-                prior: Some(PcrPrior {
-                    weight: w,
-                    ..prior.clone()
-                }),
-                ..opts.clone()
-            };
-            let pick = |idx: &[usize]| -> Vec<PcrMeasurement> {
-                idx.iter().map(|&i| calibration[i]).collect()
-            };
-            let fit = identify_steps(
-                base,
-                file,
-                &pick(train),
-                None,
-                &fold_opts,
-                &crate::util::NoMonitor,
-            )?;
-            let held = PcrProblem::new(base.clone(), pick(test), angle_weight);
-            let mut r = vec![0.0; held.residual_count()];
-            held.residuals(&fit.x, &mut r)?;
-            Ok((r.iter().map(|v| v * v).sum(), r.len()))
-        },
-    )
+    // Copies of one configuration stay in one fold.
+    let group = stage_duplicates(calibration).group;
+    choose_weight_grouped(&CV_WEIGHTS, &group, CV_FOLDS, seed, |w, train, test| {
+        if monitor.is_cancelled() {
+            return Err(IdentifyError::Cancelled);
+        }
+        monitor.progress(done as f64 / runs, "choosing the prior weight by K-fold");
+        done += 1;
+        let fold_opts = CalibrationOptions {
+            prior: Some(PcrPrior {
+                weight: w,
+                ..prior.clone()
+            }),
+            ..opts.clone()
+        };
+        let pick = |idx: &[usize]| -> Vec<PcrMeasurement> {
+            idx.iter().map(|&i| calibration[i]).collect()
+        };
+        let fit = identify_steps(
+            base,
+            file,
+            &pick(train),
+            None,
+            &fold_opts,
+            &crate::util::NoMonitor,
+        )?;
+        let held = PcrProblem::new(base.clone(), pick(test), angle_weight);
+        let mut r = vec![0.0; held.residual_count()];
+        held.residuals(&fit.x, &mut r)?;
+        Ok((r.iter().map(|v| v * v).sum(), r.len()))
+    })
 }
 
 /// The gauge rows of a MAP step. Along a direction `n` the data cannot see, the MAP

@@ -1,5 +1,6 @@
-//! The report's sections that judge the result: validation (held-out errors, Table 3,
-//! cross-validation), warnings, and the sign-off.
+//! The report's sections that judge the result: the verdict of an identification with its
+//! reasons (first in the report), validation (held-out errors, Table 3, cross-validation),
+//! warnings, and the sign-off.
 
 use std::fmt::Write;
 
@@ -104,6 +105,54 @@ pub(super) fn validation(r: &Value) -> String {
 }
 
 /// Warnings: the result's own, convergence, held and weakly observable parameters.
+/// The verdict (`accepted`, `review`, `rejected`) and its reasons; empty for results
+/// without one (kinds that are not identifications).
+pub(super) fn verdict(r: &Value) -> String {
+    let Some(v) = r.get("verdict").and_then(Value::as_str) else {
+        return String::new();
+    };
+    let meaning = match v {
+        "accepted" => "use this calibration",
+        "review" => "usable only after a person has read the reasons below",
+        "rejected" => {
+            "nothing usable was made: the model is kept as rejected_model, never as a calibration"
+        }
+        _ => "",
+    };
+    let mut h = format!(
+        r#"<section id="verdict"><h2>Verdict: {}</h2><p><strong>{}</strong>: {}</p>"#,
+        escape(v),
+        escape(v),
+        escape(meaning)
+    );
+    let reasons = r
+        .get("reasons")
+        .and_then(Value::as_array)
+        .cloned()
+        .unwrap_or_default();
+    if !reasons.is_empty() {
+        h.push_str("<table><tr><th>reason</th><th>gives</th><th>what was found</th></tr>");
+        for x in &reasons {
+            let _ = write!(
+                h,
+                "<tr><td><code>{}</code></td><td>{}</td><td>{}</td></tr>",
+                text(x.get("code")),
+                text(x.get("severity")),
+                text(x.get("message"))
+            );
+        }
+        h.push_str("</table>");
+    }
+    if let Some(d) = r.get("dof").and_then(Value::as_u64) {
+        let _ = write!(
+            h,
+            r#"<p class="meta">Residual degrees of freedom: {d}.</p>"#
+        );
+    }
+    h.push_str("</section>");
+    h
+}
+
 pub(super) fn warnings(r: &Value) -> String {
     let mut w: Vec<String> = r
         .get("warnings")

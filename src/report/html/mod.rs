@@ -138,6 +138,7 @@ pub fn render(input: &ReportInput<'_>) -> String {
         escape(input.generator_version),
         text(result.get("calibd_version")),
     );
+    h.push_str(&assessment::verdict(result));
     h.push_str(&sections::headline(result));
     h.push_str(&job_section(input));
     h.push_str(&sections::datasets(job, result));
@@ -199,7 +200,11 @@ fn sha256_of(v: &Value) -> String {
 }
 
 fn model_section(result: &Value) -> String {
-    let Some(m) = result.get("calibrated_model") else {
+    let rejected = result.get("calibrated_model").is_none();
+    let Some(m) = result
+        .get("calibrated_model")
+        .or_else(|| result.get("rejected_model"))
+    else {
         return String::new();
     };
     let form = match m {
@@ -211,7 +216,11 @@ fn model_section(result: &Value) -> String {
         _ => "model",
     };
     let mut h = String::from("<section><h2>Model</h2><table>");
-    row(&mut h, "calibrated model", form);
+    if rejected {
+        row(&mut h, "rejected model (not a calibration)", form);
+    } else {
+        row(&mut h, "calibrated model", form);
+    }
     row(
         &mut h,
         "SHA-256 of the calibrated model",
