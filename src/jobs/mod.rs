@@ -225,6 +225,11 @@ pub const KINDS: &[KindInfo] = &[
         pcr::accuracy::prepare
     ),
     kind!(
+        "pcr.pattern_pose",
+        "platform pose (x, y, theta) from microscope images of a periodic or encoded pattern, by the phase method",
+        pcr::pattern_pose::prepare
+    ),
+    kind!(
         "humanoid.identify",
         "whole-body elasto-geometric calibration of a humanoid from motion-capture markers",
         humanoid::identify::prepare
