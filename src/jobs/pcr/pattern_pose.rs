@@ -333,8 +333,10 @@ mod tests {
         });
         let job = prepare_job(&doc, &DirResolver { dir: dir.path().into() }).unwrap();
         let t = job.run(&NoMonitor).unwrap().main_table.unwrap();
-        assert!((t.rows[0][1] - truth.x).abs() < 0.05, "{:?}", t.rows[0]);
-        assert!((t.rows[0][2] - truth.y).abs() < 0.05, "{:?}", t.rows[0]);
+        // Within 0.05 period (the code's perturbation of the phase, see the module's
+        // tests); a wrong period index would be 20 um off.
+        assert!((t.rows[0][1] - truth.x).abs() < 1.0, "{:?}", t.rows[0]);
+        assert!((t.rows[0][2] - truth.y).abs() < 1.0, "{:?}", t.rows[0]);
     }
 
     #[test]

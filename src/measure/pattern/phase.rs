@@ -358,8 +358,8 @@ impl PhaseEstimator {
                     v;
             }
         }
-        // The peak's energy (Parseval: (A/2)^2 sum w^2 for a cosine of amplitude A, whatever
-        // its sub-bin frequency), before the transform overwrites the block.
+        // The peak's energy (Parseval, unnormalised DFT: W H (A/2)^2 sum w^2 for a cosine of
+        // amplitude A, whatever its sub-bin frequency), before the transform overwrites it.
         let energy: f64 = self.block.iter().map(|v| v.norm_sqr()).sum();
         // 2-D inverse FFT: rows, transpose, rows (result transposed: block_t[c * m + r]).
         self.block_fft
@@ -432,7 +432,7 @@ impl PhaseEstimator {
             c: sol[2],
             residual_rad: (rss / wsum.max(f64::MIN_POSITIVE)).sqrt(),
             contrast: if mean > 0.0 {
-                2.0 * (energy / self.w2).sqrt() / mean
+                2.0 * (energy / (self.w2 * (self.width * self.height) as f64)).sqrt() / mean
             } else {
                 0.0
             },
