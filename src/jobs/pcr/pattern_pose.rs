@@ -290,7 +290,8 @@ mod tests {
     #[test]
     fn a_job_tracks_a_sequence_of_png_files_in_um() {
         let dir = tempfile::tempdir().unwrap();
-        let truths = [(3.1, -4.2, 0.1), (15.6, 1.0, 0.1002), (29.0, 7.5, 0.1004)];
+        // Steps under half a period (20 um) in the pattern's axes: the track follows them.
+        let truths = [(3.1, -4.2, 0.1), (9.6, -1.0, 0.1002), (15.0, 3.5, 0.1004)];
         let mut names = Vec::new();
         for (k, &(x, y, t)) in truths.iter().enumerate() {
             let name = format!("f{k}.png");
@@ -363,14 +364,21 @@ mod tests {
         let t = job.run(&NoMonitor).unwrap().main_table.unwrap();
         let text = std::fs::read_to_string(dir.path().join("truth.csv")).unwrap();
         let truth = Table::from_csv("truth", &text).unwrap();
-        for k in 1..3 {
-            for c in 1..3 {
-                let (step, want) = (
-                    t.rows[k][c] - t.rows[0][c],
-                    truth.rows[k][c] - truth.rows[0][c],
-                );
-                assert!((step - want).abs() < 0.01, "{k} {c}: {step} vs {want}");
+        // A periodic pattern's track follows the lattice point nearest the centre in the
+        // first frame, (X, Y) in the pattern: find it, then where each frame puts it.
+        let (r0, e0) = (&truth.rows[0], &t.rows[0]);
+        let (s, c) = r0[3].sin_cos();
+        let (dx, dy) = (e0[1] - r0[1], e0[2] - r0[2]);
+        let lattice = |v: f64| 10.0 * (v / 10.0).round();
+        let (xl, yl) = (lattice(c * dx + s * dy), lattice(-s * dx + c * dy));
+        for k in 0..3 {
+            let (r, e) = (&truth.rows[k], &t.rows[k]);
+            let (s, c) = r[3].sin_cos();
+            let want = [r[1] + c * xl - s * yl, r[2] + s * xl + c * yl];
+            for (got, want) in [(e[1], want[0]), (e[2], want[1])] {
+                assert!((got - want).abs() < 0.01, "frame {k}: {got} vs {want}");
             }
+            assert!((e[3] - r[3]).abs() < 1e-4, "frame {k}: theta {} vs {}", e[3], r[3]);
         }
     }
 

@@ -1,6 +1,7 @@
 //! A sequence of images of one periodic pattern: the first pose is the origin nearest the
 //! image centre with theta in (-45, 45] deg; each later pose is the lattice point and the
-//! quarter-turn representative of theta nearest the previous pose, so the track is
+//! quarter-turn representative of theta nearest the previous pose (the same lattice point of
+//! the pattern, followed from image to image), so the track is
 //! continuous as long as the pattern moves less than half a period and turns less than
 //! 45 deg between images.
 
