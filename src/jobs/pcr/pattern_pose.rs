@@ -55,10 +55,16 @@ pub struct PatternPoseJob {
 pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<PatternPoseJob, JobError> {
     let spec: Spec = parse_spec(doc)?;
     if !(spec.pattern.period_um > 0.0 && spec.pattern.period_um.is_finite()) {
-        return Err(JobError::invalid("pattern.period_um", "must be a positive number"));
+        return Err(JobError::invalid(
+            "pattern.period_um",
+            "must be a positive number",
+        ));
     }
     if !(spec.camera.pixel_um > 0.0 && spec.camera.pixel_um.is_finite()) {
-        return Err(JobError::invalid("camera.pixel_um", "must be a positive number"));
+        return Err(JobError::invalid(
+            "camera.pixel_um",
+            "must be a positive number",
+        ));
     }
     if spec.images.is_empty() {
         return Err(JobError::invalid("images", "at least one image is needed"));
@@ -295,7 +301,13 @@ mod tests {
         let mut names = Vec::new();
         for (k, &(x, y, t)) in truths.iter().enumerate() {
             let name = format!("f{k}.png");
-            write(dir.path(), &name, PatternKind::Periodic, PatternPose { x, y, theta_rad: t }, k as u64);
+            write(
+                dir.path(),
+                &name,
+                PatternKind::Periodic,
+                PatternPose { x, y, theta_rad: t },
+                k as u64,
+            );
             names.push(name);
         }
         let doc = serde_json::json!({
@@ -304,7 +316,13 @@ mod tests {
             "pattern": {"kind": "periodic", "period_um": 20.0},
             "camera": {"pixel_um": 2.0},
         });
-        let job = prepare_job(&doc, &DirResolver { dir: dir.path().into() }).unwrap();
+        let job = prepare_job(
+            &doc,
+            &DirResolver {
+                dir: dir.path().into(),
+            },
+        )
+        .unwrap();
         assert!(job.inputs_sha256.contains_key("images[2]"));
         let done = job.run(&NoMonitor).unwrap();
         let t = done.main_table.unwrap();
@@ -314,7 +332,10 @@ mod tests {
             for (c, truth) in [(1, 0), (2, 1)] {
                 let step = t.rows[k][c] - t.rows[0][c];
                 let want = [truths[k].0 - truths[0].0, truths[k].1 - truths[0].1][truth];
-                assert!((step - want).abs() < 0.01, "row {k} col {c}: {step} vs {want}");
+                assert!(
+                    (step - want).abs() < 0.01,
+                    "row {k} col {c}: {step} vs {want}"
+                );
             }
             assert!((t.rows[k][3] - truths[k].2).abs() < 1e-4);
         }
@@ -324,7 +345,11 @@ mod tests {
     #[test]
     fn an_encoded_pattern_gives_absolute_positions() {
         let dir = tempfile::tempdir().unwrap();
-        let truth = PatternPose { x: 5432.1, y: -987.6, theta_rad: -0.05 };
+        let truth = PatternPose {
+            x: 5432.1,
+            y: -987.6,
+            theta_rad: -0.05,
+        };
         write(dir.path(), "a.png", PatternKind::Encoded, truth, 7);
         let doc = serde_json::json!({
             "kind": "pcr.pattern_pose",
@@ -332,7 +357,13 @@ mod tests {
             "pattern": {"kind": "encoded", "period_um": 20.0},
             "camera": {"pixel_um": 2.0},
         });
-        let job = prepare_job(&doc, &DirResolver { dir: dir.path().into() }).unwrap();
+        let job = prepare_job(
+            &doc,
+            &DirResolver {
+                dir: dir.path().into(),
+            },
+        )
+        .unwrap();
         let t = job.run(&NoMonitor).unwrap().main_table.unwrap();
         // Within 0.05 period (the code's perturbation of the phase, see the module's
         // tests); a wrong period index would be 20 um off.
@@ -360,7 +391,13 @@ mod tests {
         let doc: Value =
             serde_json::from_slice(&std::fs::read(dir.path().join("pattern_pose.json")).unwrap())
                 .unwrap();
-        let job = prepare_job(&doc, &DirResolver { dir: dir.path().into() }).unwrap();
+        let job = prepare_job(
+            &doc,
+            &DirResolver {
+                dir: dir.path().into(),
+            },
+        )
+        .unwrap();
         let t = job.run(&NoMonitor).unwrap().main_table.unwrap();
         let text = std::fs::read_to_string(dir.path().join("truth.csv")).unwrap();
         let truth = Table::from_csv("truth", &text).unwrap();
@@ -378,7 +415,12 @@ mod tests {
             for (got, want) in [(e[1], want[0]), (e[2], want[1])] {
                 assert!((got - want).abs() < 0.01, "frame {k}: {got} vs {want}");
             }
-            assert!((e[3] - r[3]).abs() < 1e-4, "frame {k}: theta {} vs {}", e[3], r[3]);
+            assert!(
+                (e[3] - r[3]).abs() < 1e-4,
+                "frame {k}: theta {} vs {}",
+                e[3],
+                r[3]
+            );
         }
     }
 
@@ -394,17 +436,34 @@ mod tests {
                 "camera": {"pixel_um": 2.0},
             })
         };
-        let r = DirResolver { dir: dir.path().into() };
+        let r = DirResolver {
+            dir: dir.path().into(),
+        };
         let e = prepare_job(&doc(serde_json::json!(["bad.png"])), &r).unwrap_err();
         let m = e.to_string();
-        assert!(m.contains("bad.png") && m.contains("neither a PNG nor a TIFF"), "{m}");
+        assert!(
+            m.contains("bad.png") && m.contains("neither a PNG nor a TIFF"),
+            "{m}"
+        );
         let e = prepare_job(&doc(serde_json::json!(["missing.png"])), &r).unwrap_err();
         assert!(e.to_string().contains("missing.png"), "{e}");
         // A flat grey image: decodes, but holds no pattern.
-        let flat = GrayImage { width: 320, height: 300, full_scale: 255, pixels: vec![128; 96000] };
-        std::fs::write(dir.path().join("flat.png"), codec::encode_png(&flat).unwrap()).unwrap();
+        let flat = GrayImage {
+            width: 320,
+            height: 300,
+            full_scale: 255,
+            pixels: vec![128; 96000],
+        };
+        std::fs::write(
+            dir.path().join("flat.png"),
+            codec::encode_png(&flat).unwrap(),
+        )
+        .unwrap();
         let job = prepare_job(&doc(serde_json::json!(["flat.png"])), &r).unwrap();
         let m = job.run(&NoMonitor).unwrap_err().to_string();
-        assert!(m.contains("flat.png") && m.contains("no periodic pattern"), "{m}");
+        assert!(
+            m.contains("flat.png") && m.contains("no periodic pattern"),
+            "{m}"
+        );
     }
 }

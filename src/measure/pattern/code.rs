@@ -34,7 +34,9 @@ pub fn window_index(seq: &[bool]) -> Vec<u16> {
 
 /// The window of `seq` (cyclic) starting at `start`, as an integer.
 fn window_at(seq: &[bool], start: usize) -> usize {
-    (0..DEGREE).fold(0, |acc, b| acc | ((seq[(start + b) % seq.len()] as usize) << b))
+    (0..DEGREE).fold(0, |acc, b| {
+        acc | ((seq[(start + b) % seq.len()] as usize) << b)
+    })
 }
 
 /// Whether dot (i, j) of the encoded pattern is present.

@@ -20,7 +20,9 @@ pub fn decode(bytes: &[u8]) -> Result<GrayImage, PatternError> {
 
 fn decode_png(bytes: &[u8]) -> Result<GrayImage, PatternError> {
     let bad = |e: png::DecodingError| PatternError::Decode(format!("invalid PNG: {e}"));
-    let mut reader = png::Decoder::new(Cursor::new(bytes)).read_info().map_err(bad)?;
+    let mut reader = png::Decoder::new(Cursor::new(bytes))
+        .read_info()
+        .map_err(bad)?;
     let (color, depth) = reader.output_color_type();
     if color != png::ColorType::Grayscale {
         return Err(PatternError::Decode(format!(

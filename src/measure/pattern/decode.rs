@@ -56,8 +56,10 @@ pub fn decode_absolute(
         )));
     }
     let threshold = two_class_threshold(dots.iter().map(|d| d.2).collect());
-    let present: Vec<(i64, i64, bool)> =
-        dots.iter().map(|&(m, n, v)| (m, n, v > threshold)).collect();
+    let present: Vec<(i64, i64, bool)> = dots
+        .iter()
+        .map(|&(m, n, v)| (m, n, v > threshold))
+        .collect();
     // Parity hypotheses of (i0, j0), the centre dot's indices.
     let mut scored: Vec<(usize, usize, usize)> = (0..4usize)
         .map(|h| {
@@ -112,7 +114,11 @@ fn parity_score(dots: &[(i64, i64, bool)], pi: usize, pj: usize) -> usize {
         if on { e.0 += 1 } else { e.1 += 1 }
     }
     misses
-        + xcols.values().chain(yrows.values()).map(|&(a, b)| a.min(b)).sum::<usize>()
+        + xcols
+            .values()
+            .chain(yrows.values())
+            .map(|&(a, b)| a.min(b))
+            .sum::<usize>()
 }
 
 /// The index (in [-L, L)) of the centre dot along one axis: the code bits by majority
@@ -194,7 +200,9 @@ fn bilinear(img: &GrayImage, x: f64, y: f64) -> Option<f64> {
 fn two_class_threshold(v: Vec<f64>) -> f64 {
     let (lo, hi) = v
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
     let mut t = (lo + hi) / 2.0;
     for _ in 0..20 {
         let (mut s0, mut n0, mut s1, mut n1) = (0.0, 0usize, 0.0, 0usize);

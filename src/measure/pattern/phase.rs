@@ -206,7 +206,9 @@ impl PhaseEstimator {
             )));
         }
         if img.pixels.len() != img.width * img.height {
-            return Err(PatternError::Setup("pixel count does not match the size".into()));
+            return Err(PatternError::Setup(
+                "pixel count does not match the size".into(),
+            ));
         }
         let mean = self.spectrum(img);
         let (p1, p2) = self.peaks()?;
@@ -224,7 +226,11 @@ impl PhaseEstimator {
         let (mut sum, mut wsum) = (0.0f64, 0.0f64);
         for r in 0..h {
             let row = &img.pixels[r * w..(r + 1) * w];
-            let s: f32 = row.iter().zip(&self.wx).map(|(&p, &wx)| p as f32 * wx).sum();
+            let s: f32 = row
+                .iter()
+                .zip(&self.wx)
+                .map(|(&p, &wx)| p as f32 * wx)
+                .sum();
             sum += s as f64 * self.wy[r] as f64;
         }
         for &a in &self.wy {
@@ -255,7 +261,10 @@ impl PhaseEstimator {
 
     /// Frequency (cycles/px) of bin (kx, ky) with ky signed.
     fn freq(&self, kx: i64, ky: i64) -> (f64, f64) {
-        (kx as f64 / self.width as f64, ky as f64 / self.height as f64)
+        (
+            kx as f64 / self.width as f64,
+            ky as f64 / self.height as f64,
+        )
     }
 
     fn signed_ky(&self, ky: usize) -> i64 {
@@ -269,7 +278,11 @@ impl PhaseEstimator {
     /// Spectrum at (kx, ky), either sign of kx (Hermitian symmetry).
     fn at(&self, kx: i64, ky: i64) -> Option<Complex<f64>> {
         let h = self.height as i64;
-        let (kx, ky, conj) = if kx >= 0 { (kx, ky, false) } else { (-kx, -ky, true) };
+        let (kx, ky, conj) = if kx >= 0 {
+            (kx, ky, false)
+        } else {
+            (-kx, -ky, true)
+        };
         if kx as usize >= self.ncols {
             return None;
         }
@@ -302,14 +315,18 @@ impl PhaseEstimator {
         }
         let n = self.annulus.len();
         if n < 16 {
-            return Err(PatternError::NoPattern("the frequency annulus is empty".into()));
+            return Err(PatternError::NoPattern(
+                "the frequency annulus is empty".into(),
+            ));
         }
         let median = *self
             .annulus
             .select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b))
             .1;
         let Some((p1, pow1)) = best else {
-            return Err(PatternError::NoPattern("the frequency annulus is empty".into()));
+            return Err(PatternError::NoPattern(
+                "the frequency annulus is empty".into(),
+            ));
         };
         let ratio = |p: f32| p / median.max(f32::MIN_POSITIVE);
         if !(ratio(pow1) >= MIN_PEAK_TO_MEDIAN) {

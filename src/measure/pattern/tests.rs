@@ -36,7 +36,11 @@ fn the_code_is_a_maximum_length_sequence_with_unique_windows() {
     assert_eq!(s.len(), code::LEN);
     let idx = code::window_index(&s);
     let found = idx.iter().filter(|&&i| i != u16::MAX).count();
-    assert_eq!(found, code::LEN, "every non-zero 12-bit window occurs exactly once");
+    assert_eq!(
+        found,
+        code::LEN,
+        "every non-zero 12-bit window occurs exactly once"
+    );
     assert_eq!(idx[0], u16::MAX);
     assert_eq!(s.iter().filter(|&&b| b).count(), 2048);
 }
@@ -54,10 +58,16 @@ fn a_noiseless_pose_is_recovered_with_theta_in_the_quarter_turn_and_the_nearest_
         let img = image(PatternKind::Periodic, 256, truth, 0.0, 1);
         let fit = est.fit(&img).unwrap();
         let p = fit.pose(10.0);
-        assert!((p.theta_rad - theta_expect).abs() < 1e-5, "{p:?} vs {truth:?}");
+        assert!(
+            (p.theta_rad - theta_expect).abs() < 1e-5,
+            "{p:?} vs {truth:?}"
+        );
         let e = lattice_error(p, truth, 10.0);
         assert!(e[0].abs() < 1e-3 && e[1].abs() < 1e-3, "{e:?}");
-        assert!(p.x.hypot(p.y) <= 10.0 / 2f64.sqrt() + 1e-9, "nearest origin: {p:?}");
+        assert!(
+            p.x.hypot(p.y) <= 10.0 / 2f64.sqrt() + 1e-9,
+            "nearest origin: {p:?}"
+        );
         assert!((fit.period_px() - 10.0).abs() < 1e-4);
         assert!((fit.contrast() - 0.5).abs() < 0.02, "{}", fit.contrast());
     }
@@ -72,7 +82,9 @@ fn images_without_a_square_grid_are_refused_with_a_clear_error() {
         full_scale: u16::MAX,
         pixels: {
             let mut r = crate::util::Rng::new(3);
-            (0..256 * 256).map(|_| (30000.0 + 3000.0 * r.normal()) as u16).collect()
+            (0..256 * 256)
+                .map(|_| (30000.0 + 3000.0 * r.normal()) as u16)
+                .collect()
         },
     };
     let e = est.fit(&noise).unwrap_err();
@@ -120,7 +132,10 @@ fn steps_and_angle_meet_the_accuracy_target_on_noisy_1024_images() {
         est_poses.push(p);
     }
     let rms = (sq / n as f64).sqrt();
-    eprintln!("1024 px, 1 % noise: step RMS {rms:.2e} px, max |theta error| {:.3} urad", max_theta * 1e6);
+    eprintln!(
+        "1024 px, 1 % noise: step RMS {rms:.2e} px, max |theta error| {:.3} urad",
+        max_theta * 1e6
+    );
     assert!(rms < 1e-3, "step RMS {rms} px");
     assert!(max_theta < 2e-6, "theta error {max_theta} rad");
 }
@@ -135,14 +150,20 @@ fn bias_against_subpixel_shift_and_rotation_is_small() {
         for k in 0..10 {
             let s = k as f64 / 10.0;
             let truth = pose(s, 0.7 * s, a);
-            let fit = est.fit(&image(PatternKind::Periodic, 512, truth, 0.0, 1)).unwrap();
+            let fit = est
+                .fit(&image(PatternKind::Periodic, 512, truth, 0.0, 1))
+                .unwrap();
             let p = fit.pose(10.0);
             let e = lattice_error(p, truth, 10.0);
             max_pos = max_pos.max(e[0].hypot(e[1]));
-            max_theta = max_theta.max(wrap_half(p.theta_rad - truth.theta_rad, std::f64::consts::FRAC_PI_4).abs());
+            max_theta = max_theta
+                .max(wrap_half(p.theta_rad - truth.theta_rad, std::f64::consts::FRAC_PI_4).abs());
         }
     }
-    eprintln!("bias (512 px, noiseless): position {max_pos:.2e} px, theta {:.3} urad", max_theta * 1e6);
+    eprintln!(
+        "bias (512 px, noiseless): position {max_pos:.2e} px, theta {:.3} urad",
+        max_theta * 1e6
+    );
     assert!(max_pos < 2e-4, "{max_pos}");
     assert!(max_theta < 1e-6, "{max_theta}");
 }
@@ -157,7 +178,9 @@ fn position_scatter_is_within_a_small_factor_of_the_cramer_rao_bound() {
     let truth = pose(0.3, 0.1, 0.02);
     let xs: Vec<f64> = (0..12)
         .map(|k| {
-            let fit = est.fit(&image(PatternKind::Periodic, size, truth, 0.01, 500 + k)).unwrap();
+            let fit = est
+                .fit(&image(PatternKind::Periodic, size, truth, 0.01, 500 + k))
+                .unwrap();
             lattice_error(fit.pose(10.0), truth, 10.0)[0]
         })
         .collect();
@@ -167,7 +190,10 @@ fn position_scatter_is_within_a_small_factor_of_the_cramer_rao_bound() {
     let z = std::f64::consts::PI / 10.0;
     let a = 0.25 * z.sin() / z;
     let crb = 10.0 / std::f64::consts::TAU * (2.0 / (size * size) as f64).sqrt() * 0.01 / a;
-    eprintln!("position sd {sd:.2e} px, Cramer-Rao {crb:.2e} px, ratio {:.2}", sd / crb);
+    eprintln!(
+        "position sd {sd:.2e} px, Cramer-Rao {crb:.2e} px, ratio {:.2}",
+        sd / crb
+    );
     assert!(sd < 3.0 * crb, "sd {sd} vs bound {crb}");
 }
 
@@ -178,14 +204,22 @@ fn a_track_is_continuous_over_many_periods_and_across_45_degrees() {
     for k in 0..12 {
         let k = k as f64;
         let truth = pose(-20.0 + 3.7 * k, 2.9 * k, 0.70 + 0.02 * k);
-        let p = track.push(est.fit(&image(PatternKind::Periodic, 256, truth, 0.0, 1)).unwrap().pose(10.0), 10.0);
+        let p = track.push(
+            est.fit(&image(PatternKind::Periodic, 256, truth, 0.0, 1))
+                .unwrap()
+                .pose(10.0),
+            10.0,
+        );
         if k == 0.0 {
             continue;
         }
         // The track moves with the truth: same offset as at the start.
         let e = lattice_error(p, truth, 10.0);
         assert!(e[0].abs() < 1e-3 && e[1].abs() < 1e-3, "{k}: {e:?}");
-        assert!((p.theta_rad - truth.theta_rad).abs() < 1e-5, "{k}: {p:?} vs {truth:?}");
+        assert!(
+            (p.theta_rad - truth.theta_rad).abs() < 1e-5,
+            "{k}: {p:?} vs {truth:?}"
+        );
     }
 }
 
@@ -201,7 +235,10 @@ fn the_encoded_pattern_gives_the_absolute_position() {
         let fit = est.fit(&img).unwrap();
         let p = decode_absolute(&img, &fit, 10.0).unwrap();
         let (ex, ey) = (p.x - truth.x, p.y - truth.y);
-        eprintln!("encoded at {truth:?}: error ({ex:.2e}, {ey:.2e}) um, theta {:.2e} rad", p.theta_rad - truth.theta_rad);
+        eprintln!(
+            "encoded at {truth:?}: error ({ex:.2e}, {ey:.2e}) um, theta {:.2e} rad",
+            p.theta_rad - truth.theta_rad
+        );
         // The missing dots perturb the phase planes (a fixed pattern, not noise): measured
         // 0.03 period; a wrong index would be off by at least a period (10 um).
         assert!(ex.hypot(ey) < 0.5, "{p:?} vs {truth:?}");
@@ -240,9 +277,11 @@ fn png_and_tiff_round_trip_8_and_16_bit_and_bad_files_are_named() {
             let mut enc = tiff::encoder::TiffEncoder::new(&mut tif).unwrap();
             if depth == 8 {
                 let px: Vec<u8> = img.pixels.iter().map(|&p| p as u8).collect();
-                enc.write_image::<tiff::encoder::colortype::Gray8>(40, 30, &px).unwrap();
+                enc.write_image::<tiff::encoder::colortype::Gray8>(40, 30, &px)
+                    .unwrap();
             } else {
-                enc.write_image::<tiff::encoder::colortype::Gray16>(40, 30, &img.pixels).unwrap();
+                enc.write_image::<tiff::encoder::colortype::Gray16>(40, 30, &img.pixels)
+                    .unwrap();
             }
         }
         assert_eq!(codec::decode(tif.get_ref()).unwrap(), img);
