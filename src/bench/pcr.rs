@@ -167,19 +167,13 @@ fn pattern_pose(sink: &mut f64) -> Figure {
         })
         .collect();
     let mut est = PhaseEstimator::new(1024, 1024, 10.0).expect("a valid estimator");
-    let mut fig = time(
-        "pattern_pose 1024x1024",
-        7,
-        frames.len(),
-        None,
-        || {
-            let mut track = Track::new();
-            for f in &frames {
-                let fit = est.fit(f).expect("a rendered frame has its pattern");
-                *sink += track.push(fit.pose(10.0), 10.0).x;
-            }
-        },
-    );
+    let mut fig = time("pattern_pose 1024x1024", 7, frames.len(), None, || {
+        let mut track = Track::new();
+        for f in &frames {
+            let fit = est.fit(f).expect("a rendered frame has its pattern");
+            *sink += track.push(fit.pose(10.0), 10.0).x;
+        }
+    });
     fig.cpu_target = Some(Duration::from_millis(10));
     fig.name = format!(
         "pattern_pose 1024x1024: {:.0} images/s (one core)",
