@@ -148,7 +148,7 @@ fn axis_index(
     let l = code::LEN as i64;
     let mut shifts: BTreeMap<i64, usize> = BTreeMap::new();
     let mut windows = 0;
-    for (&k, _) in &bits {
+    for &k in bits.keys() {
         let mut w = 0usize;
         let mut whole = true;
         for b in 0..DEGREE as i64 {
