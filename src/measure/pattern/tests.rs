@@ -240,8 +240,9 @@ fn the_encoded_pattern_gives_the_absolute_position() {
             p.theta_rad - truth.theta_rad
         );
         // The missing dots perturb the phase planes (a fixed pattern, not noise): measured
-        // 0.03 period; a wrong index would be off by at least a period (10 um).
-        assert!(ex.hypot(ey) < 0.5, "{p:?} vs {truth:?}");
+        // 0.03 and 0.13 period at the first two poses; this checks the decoded index (a
+        // wrong one is at least a period, 10 um, off), not sub-period accuracy.
+        assert!(ex.hypot(ey) < 3.0, "{p:?} vs {truth:?}");
         assert!((p.theta_rad - truth.theta_rad).abs() < 1e-4);
     }
 }
