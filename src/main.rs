@@ -235,7 +235,8 @@ enum Command {
     /// examples and experiments.
     Twin {
         /// Which twin: `serial` (IRB 120 ball-centring cell), `pcr` (3-PF robot under its
-        /// microscope).
+        /// microscope), `pattern` (microscope frames of the platform's pattern, PNG, with
+        /// their true poses and a `pcr.pattern_pose` job).
         which: String,
         /// Output folder.
         #[arg(long)]
@@ -243,7 +244,37 @@ enum Command {
         /// Seed of the true parameters and of the data.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        #[command(flatten)]
+        pattern: PatternArgs,
     },
+}
+
+/// Options of `calibd twin pattern`.
+#[derive(Debug, clap::Args)]
+#[command(next_help_heading = "twin pattern")]
+struct PatternArgs {
+    /// `periodic` (cosine grid, position modulo the period) or `encoded` (dots with missing
+    /// ones coding the period's index: absolute position).
+    #[arg(long, default_value = "periodic")]
+    kind: String,
+    /// Number of frames.
+    #[arg(long, default_value_t = 10)]
+    count: usize,
+    /// Side of the square frames (px).
+    #[arg(long, default_value_t = 1024)]
+    size_px: usize,
+    /// Period of the pattern (um).
+    #[arg(long, default_value_t = 10.0)]
+    period_um: f64,
+    /// Pixel size in the object plane (um).
+    #[arg(long, default_value_t = 1.0)]
+    pixel_um: f64,
+    /// 8 or 16 bits per pixel.
+    #[arg(long, default_value_t = 16)]
+    bits: u8,
+    /// Gaussian noise, standard deviation as a fraction of full scale.
+    #[arg(long, default_value_t = 0.01)]
+    noise: f64,
 }
 
 /// Where the daemon is and how to authenticate.
@@ -592,7 +623,36 @@ fn report_verdict(result: &serde_json::Value) -> i32 {
     v.exit_code()
 }
 
-fn write_twin(which: &str, out: &Path, seed: u64) -> Result<()> {
+fn write_twin(which: &str, out: &Path, seed: u64, pattern: &PatternArgs) -> Result<()> {
+    if which == "pattern" {
+        use calibd::jobs::pcr::pattern_pose::{PatternTwin, twin_files};
+        use calibd::measure::pattern::PatternKind;
+        let kind = match pattern.kind.as_str() {
+            "periodic" => PatternKind::Periodic,
+            "encoded" => PatternKind::Encoded,
+            k => bail!("unknown pattern kind `{k}` (known: periodic, encoded)"),
+        };
+        let files = twin_files(&PatternTwin {
+            kind,
+            count: pattern.count,
+            size_px: pattern.size_px,
+            period_um: pattern.period_um,
+            pixel_um: pattern.pixel_um,
+            bit_depth: pattern.bits,
+            noise_frac: pattern.noise,
+            seed,
+        })?;
+        std::fs::create_dir_all(out)?;
+        for (name, bytes) in &files {
+            std::fs::write(out.join(name), bytes).with_context(|| format!("writing {name}"))?;
+        }
+        eprintln!(
+            "wrote {} frames (frame_000.png ...), truth.csv and pattern_pose.json to {}",
+            pattern.count,
+            out.display()
+        );
+        return Ok(());
+    }
     if which == "pcr" {
         std::fs::create_dir_all(out)?;
         for (name, text) in calibd::jobs::pcr::twin_files(seed)? {
@@ -605,7 +665,7 @@ fn write_twin(which: &str, out: &Path, seed: u64) -> Result<()> {
         return Ok(());
     }
     if which != "serial" {
-        bail!("unknown twin `{which}` (known: serial, pcr)");
+        bail!("unknown twin `{which}` (known: serial, pcr, pattern)");
     }
     let twin = calibd::twin::SerialTwin::irb120(seed);
     std::fs::create_dir_all(out)?;
@@ -741,7 +801,12 @@ fn main() -> Result<()> {
             };
             Ok(rt.block_on(calibd_drivers::mock::run(args, shutdown))?)
         }
-        Command::Twin { which, out, seed } => write_twin(&which, &out, seed),
+        Command::Twin {
+            which,
+            out,
+            seed,
+            pattern,
+        } => write_twin(&which, &out, seed, &pattern),
         Command::Kinds => {
             for k in calibd::jobs::KINDS {
                 println!("{:<20} {}", k.name, k.description);

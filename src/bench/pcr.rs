@@ -1,7 +1,8 @@
 //! `calibd bench pcr`: the 3-PF shooting model and its identification on the twin: forward
 //! kinematics per configuration warm-started along a joint path and cold from home, inverse
 //! kinematics per pose (warm along a path and cold), the pose Jacobian with respect to the
-//! 28 parameters, and the full three-step identification on 99 poses.
+//! 28 parameters, the full three-step identification on 99 poses, and the microscope's
+//! pattern pose from a 1024 x 1024 image (`pattern_pose`, target 100 images/s on one core).
 
 use std::time::Duration;
 
@@ -133,6 +134,50 @@ pub fn run() -> Vec<Figure> {
             sink += c.x[0];
         }));
     }
+    figs.push(pattern_pose(&mut sink));
     std::hint::black_box(sink);
     figs
+}
+
+/// `pcr.pattern_pose`'s phase method on rendered 1024 x 1024 16-bit frames (periodic
+/// pattern, 10 px period, 1 % noise), one thread; the name carries the rate.
+fn pattern_pose(sink: &mut f64) -> Figure {
+    use crate::measure::pattern::{
+        PatternKind, PatternPose, PhaseEstimator, RenderSpec, Track, render,
+    };
+    let frames: Vec<_> = (0..8)
+        .map(|k| {
+            let k = k as f64;
+            render(&RenderSpec {
+                kind: PatternKind::Periodic,
+                pose: PatternPose {
+                    x: 0.3 + 1.7 * k,
+                    y: -0.2 + 0.9 * k,
+                    theta_rad: 0.05 + 1e-4 * k,
+                },
+                period_um: 10.0,
+                pixel_um: 1.0,
+                width: 1024,
+                height: 1024,
+                bit_depth: 16,
+                noise_frac: 0.01,
+                seed: k as u64,
+            })
+            .expect("a valid render spec")
+        })
+        .collect();
+    let mut est = PhaseEstimator::new(1024, 1024, 10.0).expect("a valid estimator");
+    let mut fig = time("pattern_pose 1024x1024", 7, frames.len(), None, || {
+        let mut track = Track::new();
+        for f in &frames {
+            let fit = est.fit(f).expect("a rendered frame has its pattern");
+            *sink += track.push(fit.pose(10.0), 10.0).x;
+        }
+    });
+    fig.cpu_target = Some(Duration::from_millis(10));
+    fig.name = format!(
+        "pattern_pose 1024x1024: {:.0} images/s (one core)",
+        1.0 / fig.cpu.unwrap_or(fig.per_op).as_secs_f64()
+    );
+    fig
 }

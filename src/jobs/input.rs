@@ -124,6 +124,16 @@ impl<'a> Inputs<'a> {
         String::from_utf8(bytes).map_err(|_| JobError::invalid(field, "is not UTF-8 text"))
     }
 
+    /// The bytes of a binary input given as a reference (an image file or dataset id).
+    pub fn bytes(&self, field: &str, v: &Value) -> Result<Vec<u8>, JobError> {
+        let s = v
+            .as_str()
+            .ok_or_else(|| JobError::invalid(field, "expected a file name or dataset id"))?;
+        let bytes = self.resolver.read(field, s)?;
+        self.record(field, &bytes);
+        Ok(bytes)
+    }
+
     /// A JSON document: inline object, or a reference to a JSON file.
     pub fn json(&self, field: &str, v: &Value) -> Result<Value, JobError> {
         match v {

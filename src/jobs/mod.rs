@@ -265,6 +265,12 @@ pub const KINDS: &[KindInfo] = &[
         pcr::accuracy::Spec
     ),
     kind!(
+        "pcr.pattern_pose",
+        "platform pose (x, y, theta) from microscope images of a periodic or encoded pattern, by the phase method",
+        pcr::pattern_pose::prepare,
+        pcr::pattern_pose::Spec
+    ),
+    kind!(
         "humanoid.identify",
         "whole-body elasto-geometric calibration of a humanoid from motion-capture markers",
         humanoid::identify::prepare,

@@ -8,6 +8,7 @@ pub mod justin;
 pub mod marker_fit;
 pub mod markers;
 pub mod mocap;
+pub mod pattern;
 pub mod pcr;
 pub mod point;
 pub mod tree_markers;

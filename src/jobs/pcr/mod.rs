@@ -1,5 +1,5 @@
 //! The 3-PF robot's job kinds (`pcr.fk`, `pcr.ik`, `pcr.sensitivity`, `pcr.identify`,
-//! `pcr.accuracy`) and what they share: the model file, joint and pose tables in SI units
+//! `pcr.accuracy`, `pcr.pattern_pose`) and what they share: the model file, joint and pose tables in SI units
 //! with limit checks, measurement tables, an optional external load.
 
 pub mod accuracy;
@@ -7,6 +7,7 @@ pub mod fk;
 pub mod identify;
 pub mod identify_options;
 pub mod ik;
+pub mod pattern_pose;
 pub mod sensitivity;
 pub mod verdict;
 
