@@ -17,8 +17,8 @@ mod records;
 mod results;
 mod runs;
 mod schedules;
-mod spool;
 mod shared;
+mod spool;
 pub mod testpg;
 
 use std::path::{Path, PathBuf};

@@ -39,7 +39,10 @@ fn submit_rerun_and_report_from_the_command_line() {
     let o = calibd(&d, data.path(), &["submit", &job, "--watch"]);
     let out = text(&o);
     assert!(o.status.success(), "{out}");
-    assert!(out.contains("job 1 submitted") && out.contains("3 poses"), "{out}");
+    assert!(
+        out.contains("job 1 submitted") && out.contains("3 poses"),
+        "{out}"
+    );
 
     let o = calibd(&d, data.path(), &["rerun", "1", "--watch"]);
     let out = text(&o);
@@ -57,7 +60,10 @@ fn submit_rerun_and_report_from_the_command_line() {
     );
     assert!(o.status.success(), "{}", text(&o));
     let page = std::fs::read_to_string(&html).unwrap();
-    assert!(page.contains("<html") && page.contains("serial.fk"), "{page:.300}");
+    assert!(
+        page.contains("<html") && page.contains("serial.fk"),
+        "{page:.300}"
+    );
 
     // A wrong token: the message says where a valid one comes from.
     let o = Command::new(BIN)

@@ -279,9 +279,10 @@ fn design_job_returns_feasible_postures_and_history() {
     use calibd::design::humanoid::{ConstraintOptions, HumanoidPostures};
     use calibd::model::humanoid::{BaseMode, Elasticity, Humanoid};
     use calibd::twin::humanoid::clusters;
-    let urdf =
-        calibd::model::urdf::UrdfModel::parse(include_str!("../data/robots/talos/talos_reduced.urdf"))
-            .unwrap();
+    let urdf = calibd::model::urdf::UrdfModel::parse(include_str!(
+        "../data/robots/talos/talos_reduced.urdf"
+    ))
+    .unwrap();
     let joints: Vec<String> = (1..=7).map(|k| format!("arm_left_{k}_joint")).collect();
     let markers = clusters(
         &[
