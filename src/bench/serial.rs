@@ -9,11 +9,11 @@ use std::time::Duration;
 
 use super::{Figure, time};
 use crate::design::{DetmaxOptions, detmax};
-use crate::jobs::rows::CsvSink;
 use crate::jobs::serial::design::DesignPool;
 use crate::jobs::serial::identify::IdentifyInputs;
 use crate::jobs::{DirResolver, JobError, Resolver};
 use crate::jobs::{NoReferences, prepare};
+use crate::run::rows::CsvSink;
 use crate::twin::SerialTwin;
 use crate::util::{NoMonitor, Rng};
 
@@ -91,7 +91,7 @@ pub fn run_fk_job(job: &Path, out: &Path, whole: bool) -> Result<usize, JobError
     };
     if !whole {
         let prepared = prepare(&doc, &dir)?;
-        return crate::offline::write_main_csv(&prepared, out, &NoMonitor);
+        return crate::jobs::offline::write_main_csv(&prepared, out, &NoMonitor);
     }
     let done = prepare(&doc, &WholeFiles(dir))?.run(&NoMonitor)?;
     let t = done

@@ -12,8 +12,8 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
-use crate::jobs::JobError;
 use crate::procedures::{EntryStatus, Journal, JournalEntry};
+use crate::run::JobError;
 use crate::util::Monitor;
 
 /// Retry policy for device faults.
@@ -260,13 +260,13 @@ pub async fn run<S: Step>(
 /// model it proposes for its cell.
 pub fn conclude<R: Serialize>(
     result: &R,
-    artefacts: Vec<crate::jobs::Artefact>,
-    measurements: crate::jobs::Table,
-    more: Option<(&str, crate::jobs::Table)>,
+    artefacts: Vec<crate::run::Artefact>,
+    measurements: crate::run::Table,
+    more: Option<(&str, crate::run::Table)>,
     candidate: crate::lab::Candidate,
-) -> Result<crate::jobs::Produced, JobError> {
-    use crate::jobs::Artefact;
-    let mut output = crate::jobs::Output::typed(result)?;
+) -> Result<crate::run::Produced, JobError> {
+    use crate::run::Artefact;
+    let mut output = crate::run::Output::typed(result)?;
     output.artefacts = artefacts;
     output
         .artefacts
@@ -275,7 +275,7 @@ pub fn conclude<R: Serialize>(
         output.artefacts.push(Artefact::csv(name, &t));
     }
     output.main_table = Some(measurements);
-    Ok(crate::jobs::Produced {
+    Ok(crate::run::Produced {
         output,
         candidate: Some(candidate),
     })

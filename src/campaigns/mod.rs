@@ -3,10 +3,13 @@
 //! and ETA); each campaign supplies its plan and a "measure one" [`engine::Step`], then
 //! calls the numerical kinds through typed functions on the blocking pool.
 
+pub mod centre;
 pub mod commission;
 pub mod engine;
+pub mod jog;
 pub mod mocap;
 pub mod operator;
 pub mod pcr;
 pub mod results;
+pub mod spec;
 pub mod trical;

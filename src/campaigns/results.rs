@@ -4,11 +4,11 @@
 
 use serde::Serialize;
 
-use crate::jobs::Table;
 use crate::jobs::humanoid::identify::HumanoidCalibration;
 use crate::jobs::pcr::accuracy::PcrAccuracy;
 use crate::jobs::pcr::identify::PcrCalibration;
 use crate::jobs::serial::identify::SerialCalibration;
+use crate::run::Table;
 
 /// Figures of a TriCal campaign's measuring.
 #[derive(Debug, Clone, Serialize)]

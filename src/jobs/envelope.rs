@@ -6,7 +6,7 @@ use chrono::{DateTime, SecondsFormat, Utc};
 use serde_json::{Map, Value, json};
 
 /// The calibd version that produces results.
-pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+pub use crate::run::VERSION;
 
 /// Envelope fields first, then the kind's fields.
 pub fn wrap(

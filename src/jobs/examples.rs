@@ -144,7 +144,7 @@ mod tests {
     fn every_example_is_a_valid_job() {
         for (name, _) in EXAMPLES {
             let doc = example(name).unwrap();
-            let job = crate::jobs::prepare(&doc, &crate::jobs::NoReferences)
+            let job = crate::jobs::prepare(&doc, &crate::run::NoReferences)
                 .unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(Some(job.kind.as_str()), doc["kind"].as_str());
             // Only the campaigns drive devices.

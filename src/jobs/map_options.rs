@@ -3,7 +3,7 @@
 //! `"cv"`, the noise a positive number of metres. Errors name the option.
 
 use crate::identify::prior::PriorWeight;
-use crate::jobs::JobError;
+use crate::run::JobError;
 
 /// What checked MAP options ask for.
 #[derive(Debug, Clone, Copy, PartialEq)]

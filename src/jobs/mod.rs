@@ -4,173 +4,27 @@
 //! kind's fields in the result envelope. The same path serves `calibd run`, the daemon and
 //! schedules.
 
-pub mod cell;
-pub mod context;
 pub mod envelope;
-pub mod error;
 pub mod examples;
 pub mod humanoid;
-pub mod input;
 pub mod map_options;
+pub mod offline;
 pub mod pcr;
-pub mod rows;
 pub mod schema;
 pub mod serial;
-pub mod table;
 pub mod tree;
 
 use std::collections::BTreeMap;
-use std::future::Future;
-use std::pin::Pin;
 use std::sync::Arc;
 
-use serde_json::{Map, Value};
+use serde_json::Value;
 
-pub use context::Cx;
-pub use error::JobError;
-pub use input::{DirResolver, Inputs, NoReferences, Resolver};
-pub use table::Table;
-
+use crate::campaigns;
+pub use crate::run::{
+    Artefact, Cx, DirResolver, Inputs, JobError, Kind, NoReferences, Output, Produced, Resolver,
+    RunFuture, Table, computed, parse_spec,
+};
 use crate::util::Monitor;
-
-/// A file produced by a job besides its result JSON (also what the store keeps and serves).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Artefact {
-    /// File name, e.g. `calibrated_model.json`.
-    pub name: String,
-    /// Media type, e.g. `application/json`, `text/csv`, `image/svg+xml`.
-    pub media_type: String,
-    /// Content.
-    pub content: Vec<u8>,
-}
-
-impl Artefact {
-    /// A table as a CSV artefact.
-    pub fn csv(name: &str, t: &Table) -> Self {
-        Self {
-            name: name.into(),
-            media_type: "text/csv".into(),
-            content: t.to_csv().into_bytes(),
-        }
-    }
-}
-
-/// What a kind returns: its result fields, its main table and artefacts.
-#[derive(Debug, Clone, Default)]
-pub struct Output {
-    /// Kind-specific result fields (merged into the envelope).
-    pub fields: Map<String, Value>,
-    /// The table `calibd run --out FILE.csv` writes.
-    pub main_table: Option<Table>,
-    /// Extra files (CSV tables, calibrated models, plots).
-    pub artefacts: Vec<Artefact>,
-}
-
-/// What a run produced: the kind's output and, for a campaign, the model it proposes for
-/// its cell (the service decides on it in the same transaction that stores the result).
-#[derive(Debug, Clone)]
-pub struct Produced {
-    /// The output.
-    pub output: Output,
-    /// The proposed model.
-    pub candidate: Option<crate::lab::Candidate>,
-}
-
-impl From<Output> for Produced {
-    fn from(output: Output) -> Self {
-        Self {
-            output,
-            candidate: None,
-        }
-    }
-}
-
-impl Output {
-    /// An output whose result fields are `result` serialised (a kind's typed result).
-    pub fn typed<T: serde::Serialize>(result: &T) -> Result<Self, JobError> {
-        match serde_json::to_value(result) {
-            Ok(Value::Object(fields)) => Ok(Self {
-                fields,
-                ..Default::default()
-            }),
-            Ok(other) => Err(JobError::Failed(format!(
-                "internal error: a result serialised to {other} instead of an object"
-            ))),
-            Err(e) => Err(JobError::Failed(format!(
-                "internal error: a result could not be serialised: {e}"
-            ))),
-        }
-    }
-}
-
-/// The future a kind's run returns.
-pub type RunFuture = Pin<Box<dyn Future<Output = Result<Produced, JobError>> + Send>>;
-
-/// A validated job of one kind, ready to run: every kind, numerical or device-driven,
-/// implements this one trait. Numerical work goes to the blocking pool through
-/// [`Cx::compute`]; campaigns are async and await their devices.
-pub trait Kind: Send + Sync + std::fmt::Debug + 'static {
-    /// Names of the devices the job drives while it runs (none for numerical kinds). The
-    /// daemon's queue never runs two jobs that share a device, and only operators may
-    /// submit a job that drives one.
-    fn devices(&self) -> Vec<String> {
-        Vec::new()
-    }
-
-    /// Whether an interrupted or paused run can continue from its journal (campaigns).
-    fn resumable(&self) -> bool {
-        false
-    }
-
-    /// Run the job in `cx`.
-    fn run(self: Arc<Self>, cx: Cx) -> RunFuture;
-
-    /// Whether [`Kind::write_main_csv`] can write the main table without running the job
-    /// through [`Kind::run`] (no result JSON, no table held in memory).
-    fn streams_main_csv(&self) -> bool {
-        false
-    }
-
-    /// Write the main table as CSV to `out` row by row, the same bytes as the main table of
-    /// a run; the number of rows. Only kinds whose [`Kind::streams_main_csv`] is true.
-    fn write_main_csv(
-        &self,
-        _out: &mut dyn std::io::Write,
-        _monitor: &dyn Monitor,
-    ) -> Result<usize, JobError> {
-        Err(JobError::Failed(
-            "internal error: this kind does not stream its main table".into(),
-        ))
-    }
-
-    /// Whether the daemon should stream this job's main table to a file instead of running
-    /// it through [`Kind::run`]: its input is a large file read row by row, so the table
-    /// would not fit in memory or in a JSON result. Only kinds that stream their table.
-    fn large_main_table(&self) -> bool {
-        false
-    }
-
-    /// The result fields of a streamed run that wrote `rows` rows: everything but the rows,
-    /// which are only in the main table.
-    fn streamed_fields(&self, _rows: usize) -> Result<Map<String, Value>, JobError> {
-        Err(JobError::Failed(
-            "internal error: this kind does not stream its main table".into(),
-        ))
-    }
-}
-
-/// Run a numerical kind: `f` on the blocking pool with the context's monitor; its typed
-/// result becomes the job's output.
-pub fn computed<K: Kind, T: serde::Serialize + Send + 'static>(
-    kind: Arc<K>,
-    cx: Cx,
-    f: fn(&K, &dyn Monitor) -> Result<crate::report::Run<T>, JobError>,
-) -> RunFuture {
-    Box::pin(async move {
-        let run = cx.compute(move |m| f(&kind, m)).await?;
-        run.into_output().map(Produced::from)
-    })
-}
 
 /// One entry of the kind registry: name, description and how to validate a document.
 #[derive(Debug)]
@@ -188,7 +42,7 @@ pub struct KindInfo {
 /// A registry entry: `kind!(name, description, prepare, Spec)` where `Spec` is the type
 /// `prepare` gives [`parse_spec`]. A new kind derives `schemars::JsonSchema` on its spec
 /// (and the option types in it; `serde_json::Value` inputs take a hand schema from
-/// [`schema`], e.g. `#[schemars(schema_with = "crate::jobs::schema::table")]`), adds its
+/// [`schema`], e.g. `#[schemars(schema_with = "crate::run::schema::table")]`), adds its
 /// entry here, then runs `CALIBD_UPDATE_OPENAPI=1 cargo test --test it openapi_jobs::` to
 /// write its schema into `openapi.yaml`. A spec without `JsonSchema` does not compile.
 macro_rules! kind {
@@ -291,50 +145,50 @@ pub const KINDS: &[KindInfo] = &[
     kind!(
         "cell.centre",
         "the centring loop on one ball of a ball-centring cell, from a joint configuration",
-        cell::centre::prepare,
-        cell::centre::Spec
+        campaigns::centre::prepare,
+        campaigns::centre::Spec
     ),
     kind!(
         "cell.trical_campaign",
         "TriCal campaign on a cell: centre each (given or DETMAX) configuration, identify, validate",
-        cell::trical::prepare,
-        cell::trical::Spec
+        campaigns::trical::plan::prepare,
+        campaigns::trical::plan::Spec
     ),
     kind!(
         "cell.zero_check",
         "commissioning: the three indicators read 0.000 mm on the mated coupling (operator prompt, journalled readings)",
-        cell::zero::prepare_zero,
-        cell::zero::ZeroSpec
+        campaigns::commission::zero_plan::prepare_zero,
+        campaigns::commission::zero_plan::ZeroSpec
     ),
     kind!(
         "cell.identify_tcp",
         "commissioning: the TCP from configurations jogged onto one ball and centred, proposed to the cell",
-        cell::commission::prepare_tcp,
-        cell::commission::TcpSpec
+        campaigns::commission::plan::prepare_tcp,
+        campaigns::commission::plan::TcpSpec
     ),
     kind!(
         "cell.locate_balls",
         "commissioning: each ball jogged onto and centred, its position in the robot frame and the base frame, proposed to the cell",
-        cell::commission::prepare_balls,
-        cell::commission::BallsSpec
+        campaigns::commission::plan::prepare_balls,
+        campaigns::commission::plan::BallsSpec
     ),
     kind!(
         "cell.jog",
         "move a ball-centring cell's robot to given joints within its envelope (a teach-pendant jog)",
-        cell::jog::prepare,
-        cell::jog::Spec
+        campaigns::jog::prepare,
+        campaigns::jog::Spec
     ),
     kind!(
         "cell.mocap_campaign",
         "motion-capture campaign: play NOCP (or given) postures, record and pre-process markers, identify",
-        cell::mocap::prepare,
-        cell::mocap::Spec
+        campaigns::mocap::plan::prepare,
+        campaigns::mocap::plan::Spec
     ),
     kind!(
         "cell.pcr_campaign",
         "3-PF campaign: Poisson-disc joint sets on the stages, microscope poses, pcr.identify, optional pcr.accuracy",
-        cell::pcr::prepare,
-        cell::pcr::Spec
+        campaigns::pcr::plan::prepare,
+        campaigns::pcr::plan::Spec
     ),
     kind!(
         "humanoid.design",
@@ -383,13 +237,16 @@ pub fn prepare(doc: &Value, resolver: &dyn Resolver) -> Result<Job, JobError> {
     let info = KINDS
         .iter()
         .find(|k| k.name == kind)
-        .ok_or_else(|| JobError::UnknownKind(kind.clone()))?;
+        .ok_or_else(|| JobError::UnknownKind {
+            kind: kind.clone(),
+            known: KINDS.iter().map(|k| k.name).collect::<Vec<_>>().join(", "),
+        })?;
     schema::check_document(&kind, doc)?;
     let prepared = (info.prepare)(doc, &inputs)?;
     let mut inputs_sha256 = inputs.into_hashes();
     inputs_sha256.insert(
         "job".into(),
-        input::sha256_hex(&serde_json::to_vec(doc).unwrap_or_default()),
+        crate::run::input::sha256_hex(&serde_json::to_vec(doc).unwrap_or_default()),
     );
     Ok(Job {
         kind,
@@ -410,7 +267,7 @@ impl Job {
     }
 
     /// Whether the job can write its main table as CSV row by row
-    /// ([`crate::offline::write_main_csv`]), without building the table or the result.
+    /// ([`crate::jobs::offline::write_main_csv`]), without building the table or the result.
     pub fn streams_main_csv(&self) -> bool {
         self.prepared.streams_main_csv()
     }
@@ -423,12 +280,6 @@ impl Job {
         monitor: &dyn Monitor,
     ) -> Result<usize, JobError> {
         self.prepared.write_main_csv(out, monitor)
-    }
-
-    /// Run the job from synchronous code (`calibd run`, tests, benches) on a private
-    /// runtime, with an empty lab and a journal in memory (see [`crate::offline`]).
-    pub fn run(&self, monitor: &dyn Monitor) -> Result<Completed, JobError> {
-        crate::offline::run(self, Arc::new(crate::lab::Lab::empty()), monitor)
     }
 
     /// Run the job in `cx` and wrap its output in the result envelope.
@@ -548,17 +399,6 @@ pub fn withhold_rejected(out: &mut Output) {
     }
 }
 
-/// Deserialize a job document into a kind's typed spec, naming the offending field.
-pub fn parse_spec<T: serde::de::DeserializeOwned>(doc: &Value) -> Result<T, JobError> {
-    serde_path_to_error::deserialize(doc).map_err(|e| {
-        let path = e.path().to_string();
-        JobError::invalid(
-            if path == "." { "job".to_string() } else { path },
-            e.into_inner().to_string(),
-        )
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -569,11 +409,11 @@ mod tests {
     struct Overflowing;
 
     impl Overflowing {
-        fn table(&self, _: &dyn Monitor) -> Result<crate::report::Run<BTreeMap<(), ()>>, JobError> {
+        fn table(&self, _: &dyn Monitor) -> Result<crate::run::Run<BTreeMap<(), ()>>, JobError> {
             let mut t = Table::new(&["x", "y"]);
             t.push(vec![1.0, 2.0]);
             t.push(vec![1e308 * 10.0, f64::NAN]);
-            Ok(crate::report::Run {
+            Ok(crate::run::Run {
                 result: BTreeMap::new(),
                 main_table: Some(t),
                 artefacts: Vec::new(),

@@ -123,7 +123,7 @@ impl DeviceLink {
                 timeout.as_secs_f64()
             ))),
         };
-        let checked_at = crate::store::format_time(chrono::Utc::now());
+        let checked_at = crate::util::format_time(chrono::Utc::now());
         let s = match r {
             Ok(identity) => DeviceStatus::Ok {
                 identity,

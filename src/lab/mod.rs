@@ -23,12 +23,32 @@ pub use connect::{
 pub use decision::{Acceptance, Candidate, Decision, Evidence};
 pub use devices::{DeviceLink, DeviceReport, DeviceStatus, Identity};
 
-use crate::jobs::JobError;
+fn no_cell_message(name: &str, what: &str, have: &[String]) -> String {
+    if have.is_empty() {
+        format!("this daemon drives no lab: there is no {what} `{name}`")
+    } else {
+        format!(
+            "no {what} `{name}` in this lab (it has: {})",
+            have.join(", ")
+        )
+    }
+}
 
-/// Why a lab could not be built.
+/// Why a lab could not be built, or cannot give what a job asked for (converted to a job
+/// error at the job boundary, [`crate::run::JobError`]).
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum LabError {
+    /// No cell of that name and type.
+    #[error("{}", no_cell_message(name, what, have))]
+    NoCell {
+        /// The cell the job named.
+        name: String,
+        /// The type of cell the job needs, e.g. "ball-centring cell".
+        what: &'static str,
+        /// The cells this lab has.
+        have: Vec<String>,
+    },
     /// A simulated device did not start.
     #[error("simulated {device}: {message}")]
     Mock {
@@ -141,23 +161,16 @@ impl Lab {
         self.cells.get(name)
     }
 
-    fn missing(&self, name: &str, what: &str) -> JobError {
-        let have: Vec<&str> = self.cells.keys().map(String::as_str).collect();
-        JobError::invalid(
-            "cell",
-            if have.is_empty() {
-                format!("this daemon drives no lab: there is no {what} `{name}`")
-            } else {
-                format!(
-                    "no {what} `{name}` in this lab (it has: {})",
-                    have.join(", ")
-                )
-            },
-        )
+    fn missing(&self, name: &str, what: &'static str) -> LabError {
+        LabError::NoCell {
+            name: name.into(),
+            what,
+            have: self.cells.keys().cloned().collect(),
+        }
     }
 
     /// The ball-centring cell `name`.
-    pub fn trical(&self, name: &str) -> Result<&TricalCell, JobError> {
+    pub fn trical(&self, name: &str) -> Result<&TricalCell, LabError> {
         match self.cells.get(name) {
             Some(Cell::BallCentring(c)) => Ok(c),
             _ => Err(self.missing(name, "ball-centring cell")),
@@ -165,7 +178,7 @@ impl Lab {
     }
 
     /// The 3-PF cell `name`.
-    pub fn pcr(&self, name: &str) -> Result<&PcrCell, JobError> {
+    pub fn pcr(&self, name: &str) -> Result<&PcrCell, LabError> {
         match self.cells.get(name) {
             Some(Cell::Pcr(c)) => Ok(c),
             _ => Err(self.missing(name, "3-PF cell")),
@@ -173,7 +186,7 @@ impl Lab {
     }
 
     /// The motion-capture cell `name`.
-    pub fn mocap(&self, name: &str) -> Result<&MocapCell, JobError> {
+    pub fn mocap(&self, name: &str) -> Result<&MocapCell, LabError> {
         match self.cells.get(name) {
             Some(Cell::Mocap(c)) => Ok(c),
             _ => Err(self.missing(name, "motion-capture cell")),

@@ -10,43 +10,9 @@ pub mod studies;
 pub mod svg;
 
 use serde::Serialize;
-use serde_json::Value;
 
-use crate::jobs::{Artefact, JobError, Output, Table};
+use crate::run::{Artefact, Table};
 pub use plots::ErrorSet;
-
-/// A kind's typed result with its main table and artefacts (plots included): what the
-/// campaigns and the service read instead of the JSON fields.
-#[derive(Debug, Clone)]
-pub struct Run<T> {
-    /// The typed result; its serialisation is the job's result fields.
-    pub result: T,
-    /// The table `calibd run --out FILE.csv` writes.
-    pub main_table: Option<Table>,
-    /// Artefacts (files, CSV tables, SVG plots).
-    pub artefacts: Vec<Artefact>,
-}
-
-impl<T: Serialize> Run<T> {
-    /// The job output: the result serialised as the fields map, the table and artefacts.
-    pub fn into_output(self) -> Result<Output, JobError> {
-        let fields = match serde_json::to_value(&self.result)
-            .map_err(|e| JobError::Failed(format!("serialising the result: {e}")))?
-        {
-            Value::Object(m) => m,
-            other => {
-                return Err(JobError::Failed(format!(
-                    "the result serialised to {other}, not an object"
-                )));
-            }
-        };
-        Ok(Output {
-            fields,
-            main_table: self.main_table,
-            artefacts: self.artefacts,
-        })
-    }
-}
 
 /// Serialise a table as JSON rows (`{column: value}` objects, non-finite as null): a
 /// `serialize_with` helper for typed results that carry a table.

@@ -57,7 +57,7 @@ impl Service {
                 request.extend_from_slice(format!("\npriority={priority}").as_bytes());
                 IdempotencyKey {
                     key,
-                    request_sha256: crate::jobs::input::sha256_hex(&request),
+                    request_sha256: crate::run::input::sha256_hex(&request),
                 }
             });
             let new = NewJob {

@@ -32,7 +32,7 @@ impl Store {
         if let Some(pg) = self.pg() {
             return pg.put_dataset(name, media_type, content);
         }
-        let id = crate::jobs::input::sha256_hex(content);
+        let id = crate::run::input::sha256_hex(content);
         self.write(|c| {
             c.execute(
                 "INSERT OR IGNORE INTO datasets (id, name, media_type, size, created_at, content) \

@@ -131,9 +131,7 @@ const READERS: usize = 3;
 
 /// The one timestamp format of the store (RFC 3339, UTC, milliseconds): strings in this
 /// format sort like the instants they name.
-pub fn format_time(t: chrono::DateTime<chrono::Utc>) -> String {
-    t.to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
-}
+pub use crate::util::format_time;
 
 fn now() -> String {
     format_time(chrono::Utc::now())

@@ -214,7 +214,7 @@ fn datasets_are_content_addressed(f: &Fixture) {
     let b = s.put_dataset("again.csv", "text/csv", b"q1\n1\n").unwrap();
     assert_eq!(a, b, "the same content is one dataset");
     // Known SHA-256 of "q1\n1\n" (sha256sum).
-    assert_eq!(a.id, crate::jobs::input::sha256_hex(b"q1\n1\n"));
+    assert_eq!(a.id, crate::run::input::sha256_hex(b"q1\n1\n"));
     assert_eq!(s.dataset(&a.id).unwrap().unwrap(), b"q1\n1\n");
     assert_eq!(s.datasets().unwrap().len(), 1);
 }

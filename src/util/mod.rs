@@ -9,6 +9,12 @@ pub use monitor::{Monitor, NoMonitor, SubMonitor};
 pub use rng::Rng;
 pub use stats::Summary;
 
+/// A time as calibd writes it everywhere (RFC 3339, UTC, milliseconds), e.g.
+/// `2026-11-28T03:14:15.926Z`.
+pub fn format_time(t: chrono::DateTime<chrono::Utc>) -> String {
+    t.to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
+}
+
 /// Give memory freed after a large job or upload back to the operating system. glibc's
 /// allocator keeps freed pages in its arenas (a daemon that once parsed a 15 MB table would
 /// hold them for good); `malloc_trim` returns them. No-op elsewhere.

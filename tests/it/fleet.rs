@@ -23,7 +23,7 @@ const TOKEN: &str = "fleet-operator-secret";
 fn spawn_with(name: &str, store: &str, data: &std::path::Path, lab: &str) -> Daemon {
     let tokens = format!(
         "op:operator:{}",
-        calibd::jobs::input::sha256_hex(TOKEN.as_bytes())
+        calibd::run::input::sha256_hex(TOKEN.as_bytes())
     );
     let env = [
         ("CALIBD_STORE", store),

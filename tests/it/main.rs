@@ -22,6 +22,7 @@ mod identify_reference;
 mod joint_kinds_twin;
 mod justin_elastic;
 mod kill9;
+mod layers;
 mod memory;
 mod mocap_campaign;
 mod mock_joints;

@@ -64,7 +64,7 @@ fn streamed_poses_csv_equals_the_whole_result_to_the_byte() {
     let bytes = std::fs::read(dir.path().join("joints.csv")).unwrap();
     assert_eq!(
         over_file.result["inputs_sha256"]["joints"],
-        json!(calibd::jobs::input::sha256_hex(&bytes))
+        json!(calibd::run::input::sha256_hex(&bytes))
     );
     assert_eq!(
         over_file.result["inputs_sha256"]["joints"],

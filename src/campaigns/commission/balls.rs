@@ -8,15 +8,15 @@ use std::sync::Arc;
 
 use nalgebra::Vector3;
 
+use super::plan::{LocateBallsJob, campaign_kind};
 use super::results::{BallDistance, BallLocation, BaseFrame, LocatedBall};
 use super::solve::{ball_position, distance, fit_base, residuals, rms};
 use super::{Centred, GuidedCentring, chain_mm, flange};
 use crate::campaigns::engine;
-use crate::jobs::cell::commission::LocateBallsJob;
-use crate::jobs::{Cx, JobError, Produced, Table};
 use crate::lab::{Candidate, CellModel, Evidence};
 use crate::measure::BallPlate;
 use crate::model::dh::{DhFile, Xyzabc};
+use crate::run::{Cx, JobError, Produced, Table};
 
 /// The TCP's standard deviation `cell.identify_tcp` wrote into the model, if any.
 fn model_tcp_std(file: &DhFile) -> Option<[f64; 3]> {
@@ -171,3 +171,5 @@ pub async fn campaign(job: Arc<LocateBallsJob>, cx: Cx) -> Result<Produced, JobE
     };
     engine::conclude(&result, Vec::new(), table, None, candidate)
 }
+
+campaign_kind!(LocateBallsJob, campaign);

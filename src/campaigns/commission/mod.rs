@@ -6,10 +6,12 @@
 //! confirmation, and it survives a daemon restart.
 
 pub mod balls;
+pub mod plan;
 pub mod results;
 pub mod solve;
 pub mod tcp;
 pub mod zero;
+pub mod zero_plan;
 
 use serde::{Deserialize, Serialize};
 
@@ -126,9 +128,9 @@ impl Step for GuidedCentring<'_> {
 
 /// The current model's chain, refusing a model not in millimetres (commissioning reports
 /// in mm and writes the tool and base in the file's units).
-pub fn chain_mm(file: &DhFile) -> Result<Chain, crate::jobs::JobError> {
+pub fn chain_mm(file: &DhFile) -> Result<Chain, crate::run::JobError> {
     if file.units.length != "mm" {
-        return Err(crate::jobs::JobError::Failed(format!(
+        return Err(crate::run::JobError::Failed(format!(
             "commissioning needs a model with lengths in mm (the cell's model is in {})",
             file.units.length
         )));

@@ -8,14 +8,14 @@ use std::sync::Arc;
 
 use nalgebra::Vector3;
 
+use super::plan::{IdentifyTcpJob, campaign_kind};
 use super::results::{TcpIdentification, TcpPoint};
 use super::solve::{solve_tcp, spread_rms};
 use super::{Centred, GuidedCentring, chain_mm, flange};
 use crate::campaigns::engine;
-use crate::jobs::cell::commission::IdentifyTcpJob;
-use crate::jobs::{Cx, JobError, Produced, Table};
 use crate::lab::{Candidate, CellModel, Evidence};
 use crate::model::dh::DhFile;
+use crate::run::{Cx, JobError, Produced, Table};
 
 /// Key of the TCP identification in a model file's `calibration` block.
 pub const PROVENANCE: &str = "tcp_identification";
@@ -140,3 +140,5 @@ pub async fn campaign(job: Arc<IdentifyTcpJob>, cx: Cx) -> Result<Produced, JobE
     };
     engine::conclude(&result, Vec::new(), table, None, candidate)
 }
+
+campaign_kind!(IdentifyTcpJob, campaign);

@@ -9,12 +9,13 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+use super::plan::campaign_kind;
 use super::results::{IndicatorOff, ZeroCheck};
+use super::zero_plan::ZeroCheckJob;
 use crate::campaigns::engine::{self, Step, StepError};
 use crate::campaigns::operator;
-use crate::jobs::cell::zero::ZeroCheckJob;
-use crate::jobs::{Cx, JobError, Output, Produced, Table};
 use crate::procedures::{Indicators, Journal};
+use crate::run::{Cx, JobError, Output, Produced, Table};
 use crate::util::Monitor;
 
 /// The operator's prompt before the readings.
@@ -142,6 +143,8 @@ pub async fn campaign(job: Arc<ZeroCheckJob>, cx: Cx) -> Result<Produced, JobErr
     out.main_table = Some(t);
     Ok(out.into())
 }
+
+campaign_kind!(ZeroCheckJob, campaign);
 
 #[cfg(test)]
 mod tests {

@@ -14,10 +14,10 @@ use crate::design::humanoid::{Comparison, ConstraintOptions, HumanoidPostures, c
 use crate::design::ocp::{NocpOptions, OptimOptions, cocp, nocp};
 use crate::design::playback::{order_postures, sample_trajectory, travel};
 use crate::design::postures::PostureSet;
-use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::marker_fit::Groups;
 use crate::model::srdf::disabled_collisions;
-use crate::report::Run;
+use crate::run::Run;
+use crate::run::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::util::{Monitor, Rng, SubMonitor};
 
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
@@ -25,7 +25,7 @@ use crate::util::{Monitor, Rng, SubMonitor};
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::urdf")]
+    #[schemars(schema_with = "crate::run::schema::urdf")]
     urdf: Value,
     root_link: String,
     joints: Vec<String>,
@@ -73,7 +73,7 @@ pub struct ConstraintSpec {
     #[serde(default)]
     spheres: std::collections::BTreeMap<String, Vec<[f64; 4]>>,
     #[serde(default)]
-    #[schemars(schema_with = "crate::jobs::schema::urdf_opt")]
+    #[schemars(schema_with = "crate::run::schema::urdf_opt")]
     srdf: Option<Value>,
     #[serde(default)]
     torque: Option<bool>,
@@ -203,7 +203,7 @@ impl ConstraintSpec {
     /// postures when it runs, where no reference is read), refused when submitted otherwise.
     pub(crate) fn check_srdf_inline(&self, field: &str) -> Result<(), JobError> {
         if let Some(v) = &self.srdf {
-            let text = Inputs::new(&crate::jobs::NoReferences).text(field, v)?;
+            let text = Inputs::new(&crate::run::NoReferences).text(field, v)?;
             disabled_collisions(&text)?;
         }
         Ok(())

@@ -16,14 +16,14 @@ use super::{BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, load_model, l
 use crate::identify::IdentifyError;
 use crate::identify::duplicates::{duplicate_configurations, shuffled_groups};
 use crate::identify::prior::{CV_FOLDS, CV_WEIGHTS, choose_weight_grouped};
-use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::marker_fit::{
     FitOptions, Groups, MarkerFit, fit, fit_frames, structural_count,
 };
 use crate::measure::markers::{MarkerProblem, MarkerSample, marker_rmse};
 use crate::model::JointField;
 use crate::model::humanoid::{HParam, Humanoid};
-use crate::report::Run;
+use crate::run::Run;
+use crate::run::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::util::{Monitor, SubMonitor};
 
 pub use super::identify_result::*;
@@ -33,9 +33,9 @@ pub use super::identify_result::*;
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::urdf")]
+    #[schemars(schema_with = "crate::run::schema::urdf")]
     urdf: Value,
-    #[schemars(schema_with = "crate::jobs::schema::table_with_gaps")]
+    #[schemars(schema_with = "crate::run::schema::table_with_gaps")]
     samples: Value,
     #[serde(default)]
     column_map: ColumnMap,
@@ -499,7 +499,7 @@ impl Kind for IdentifyJob {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::jobs::DirResolver;
+    use crate::run::DirResolver;
     use crate::util::monitor::NoMonitor;
     use serde_json::json;
 

@@ -17,13 +17,13 @@ use std::collections::BTreeMap;
 use serde::Deserialize;
 use serde_json::{Value, json};
 
-use super::{Inputs, JobError};
 use crate::identify::prior::{PriorSpec, PriorWeight};
 use crate::identify::{ParamReport, Robust, RobustKind};
 use crate::measure::marker_fit::{FitOptions, Groups, MapOptions};
 use crate::measure::mocap::MocapOptions;
 use crate::model::humanoid::{BaseMode, Elasticity, HParam, Humanoid, MarkerDef};
 use crate::model::urdf::UrdfModel;
+use crate::run::{Inputs, JobError};
 
 /// One entry of `markers`.
 #[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]

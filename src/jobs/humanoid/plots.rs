@@ -4,11 +4,11 @@
 //! cross-validation RMSE per fold; for a design, the O1 history of NOCP or COCP.
 
 use super::design::HumanoidDesign;
-use super::identify::HumanoidCalibration;
-use crate::jobs::Artefact;
+use super::identify_result::HumanoidCalibration;
 use crate::report::plots::{self, Series};
 use crate::report::studies::{self, History};
 use crate::report::{ErrorSet, svg_artefact};
+use crate::run::Artefact;
 
 /// One marker observation's error before and after (mm), with its sample row.
 #[derive(Debug, Clone, Copy)]

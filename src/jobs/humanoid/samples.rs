@@ -6,10 +6,10 @@ use nalgebra::Vector3;
 use serde_json::{Value, json};
 
 use super::{ColumnMap, LoadedModel, PreprocessSpec};
-use crate::jobs::{Inputs, JobError, Table};
 use crate::measure::markers::{MarkerSample, fit_cluster};
 use crate::measure::mocap::{MocapReport, preprocess};
 use crate::model::humanoid::State;
+use crate::run::{Inputs, JobError, Table};
 
 /// Support-leg Jacobian condition number above which a sample's base wrench is not trusted.
 pub const MAX_SUPPORT_CONDITION: f64 = 1e3;

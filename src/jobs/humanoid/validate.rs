@@ -11,10 +11,10 @@ use serde_json::Value;
 
 use super::samples::{SampleSet, load_samples};
 use super::{BaseSpec, ColumnMap, FitSpec, LoadedModel, MarkerSpec, apply_parameters, load_model};
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::measure::marker_fit::{FitOptions, fit_frames};
 use crate::measure::markers::marker_rmse;
 use crate::model::humanoid::{HParam, Humanoid};
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::util::{Monitor, SubMonitor};
 
 fn default_true() -> bool {
@@ -26,9 +26,9 @@ fn default_true() -> bool {
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::urdf")]
+    #[schemars(schema_with = "crate::run::schema::urdf")]
     urdf: Value,
-    #[schemars(schema_with = "crate::jobs::schema::table_with_gaps")]
+    #[schemars(schema_with = "crate::run::schema::table_with_gaps")]
     samples: Value,
     #[serde(default)]
     column_map: ColumnMap,
@@ -37,7 +37,7 @@ pub(crate) struct Spec {
     markers: Vec<MarkerSpec>,
     #[serde(default)]
     base: BaseSpec,
-    #[schemars(schema_with = "crate::jobs::schema::json_file")]
+    #[schemars(schema_with = "crate::run::schema::json_file")]
     calibrated: Value,
     #[serde(default = "default_true")]
     refit_frames: bool,
@@ -188,7 +188,7 @@ impl ValidateJob {
     pub fn validate(
         &self,
         monitor: &dyn Monitor,
-    ) -> Result<crate::report::Run<HumanoidValidation>, JobError> {
+    ) -> Result<crate::run::Run<HumanoidValidation>, JobError> {
         let samples = &self.set.samples;
         let mut overall = [0.0; 3];
         let mut per: Vec<Vec<Option<f64>>> = Vec::new();
@@ -218,7 +218,7 @@ impl ValidateJob {
                 rmse_fcm_mm: mm(per[2][m]),
             })
             .collect();
-        Ok(crate::report::Run {
+        Ok(crate::run::Run {
             result: HumanoidValidation {
                 rmse_ncm_mm: overall[0] * 1e3,
                 rmse_gcm_mm: overall[1] * 1e3,

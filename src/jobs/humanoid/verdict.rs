@@ -3,7 +3,7 @@
 //! model, moved and prior-dominated joint parameters; standard deviations and the residual
 //! std recounted over distinct postures.
 
-use super::identify::{CrossValidation, HumanoidCalibration};
+use super::identify_result::{CrossValidation, HumanoidCalibration};
 use crate::identify::duplicates::duplicate_configurations;
 use crate::identify::verdict::{self, Facts, HeldOut};
 use crate::measure::marker_fit::{FitOptions, MarkerFit};

@@ -13,11 +13,11 @@ use serde_json::{Map, Value};
 use super::{PcrModel, load_model, poses};
 use crate::design::trajectory::{circle, square};
 use crate::geometry::Pose2;
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::pcr::accuracy::{AccuracySummary, pose_accuracy, summarise};
 use crate::measure::pcr::{PcrMeasurement, measured_pose};
 use crate::model::pcr::PcrFile;
-use crate::report::Run;
+use crate::run::Run;
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::twin::PcrTwin;
 use crate::util::{Monitor, Rng};
 
@@ -26,7 +26,7 @@ use crate::util::{Monitor, Rng};
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::json_file")]
+    #[schemars(schema_with = "crate::run::schema::json_file")]
     model: Value,
     #[schemars(schema_with = "trajectory_schema")]
     trajectory: Value,
@@ -34,7 +34,7 @@ pub(crate) struct Spec {
     #[schemars(range(min = 1))]
     repetitions: usize,
     #[serde(default)]
-    #[schemars(schema_with = "crate::jobs::schema::table_opt")]
+    #[schemars(schema_with = "crate::run::schema::table_opt")]
     reached: Option<Value>,
     #[serde(default)]
     twin: Option<TwinSpec>,
@@ -75,7 +75,7 @@ struct TrajectorySpec {
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 struct TwinSpec {
-    #[schemars(schema_with = "crate::jobs::schema::json_file")]
+    #[schemars(schema_with = "crate::run::schema::json_file")]
     model: Value,
     seed: u64,
     #[serde(default)]
@@ -102,7 +102,7 @@ pub struct AccuracyJob {
 pub(crate) fn trajectory_schema(g: &mut schemars::SchemaGenerator) -> schemars::Schema {
     schemars::json_schema!({"anyOf": [
         g.subschema_for::<TrajectorySpec>(),
-        crate::jobs::schema::table(g),
+        crate::run::schema::table(g),
     ]})
 }
 
@@ -116,7 +116,7 @@ pub fn trajectory(inputs: &Inputs<'_>, v: &Value) -> Result<(String, Vec<Pose2>)
         return Ok(("poses".into(), poses(field, &t)?));
     }
     let s: TrajectorySpec =
-        crate::jobs::parse_spec(v).map_err(|e| JobError::invalid(field, e.to_string()))?;
+        crate::run::parse_spec(v).map_err(|e| JobError::invalid(field, e.to_string()))?;
     let c = s.centre.unwrap_or([0.0, 0.0]);
     let centre = Pose2::new(c[0], c[1], s.theta.unwrap_or(0.0));
     if ![centre.x, centre.y, centre.theta]

@@ -7,9 +7,9 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::{LoadSpec, PcrModel, SI, SiUnits, load_model, pose_table};
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
-use crate::report::Run;
+use crate::run::Run;
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
@@ -17,9 +17,9 @@ use crate::util::Monitor;
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::json_file")]
+    #[schemars(schema_with = "crate::run::schema::json_file")]
     model: Value,
-    #[schemars(schema_with = "crate::jobs::schema::table")]
+    #[schemars(schema_with = "crate::run::schema::table")]
     joints: Value,
     #[serde(default)]
     options: FkOptions,

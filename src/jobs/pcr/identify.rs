@@ -15,12 +15,13 @@ use crate::identify::ParamReport;
 use crate::identify::prior::PriorReport;
 use crate::identify::solve::Dependency;
 use crate::identify::verdict::Assessment;
-use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::pcr::prior::choose_pcr_weight;
 use crate::measure::pcr::steps::{CalibrationOptions, calibrated_file};
 use crate::measure::pcr::{PcrMeasurement, StepReport, Table3, identify_steps};
 use crate::model::pcr::PcrFile;
-use crate::report::{ErrorSet, Run};
+use crate::report::ErrorSet;
+use crate::run::Run;
+use crate::run::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::util::{Monitor, SubMonitor, Summary};
 
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
@@ -28,12 +29,12 @@ use crate::util::{Monitor, SubMonitor, Summary};
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::json_file")]
+    #[schemars(schema_with = "crate::run::schema::json_file")]
     model: Value,
-    #[schemars(schema_with = "crate::jobs::schema::table")]
+    #[schemars(schema_with = "crate::run::schema::table")]
     measurements: Value,
     #[serde(default)]
-    #[schemars(schema_with = "crate::jobs::schema::table_opt")]
+    #[schemars(schema_with = "crate::run::schema::table_opt")]
     validation: Option<Value>,
     #[serde(default)]
     options: IdentifyOptions,
@@ -287,7 +288,7 @@ impl IdentifyJob {
         let mut file = calibrated_file(&self.model.file, &cal.x);
         file.calibration = Some(json!({
             "method": "pcr.identify",
-            "calibd_version": crate::jobs::envelope::VERSION,
+            "calibd_version": crate::run::VERSION,
             "measurements": self.measurements.len(),
             "steps": cal.steps.iter().map(|s| s.name.clone()).collect::<Vec<_>>(),
             "unidentifiable_held_at_nominal": cal.unidentifiable,
@@ -409,7 +410,7 @@ impl Kind for IdentifyJob {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::jobs::DirResolver;
+    use crate::run::DirResolver;
     use crate::util::monitor::NoMonitor;
 
     /// The result fields of `examples/pcr_identify.json` (with validation) as the

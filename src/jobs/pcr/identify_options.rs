@@ -7,12 +7,12 @@ use serde::Deserialize;
 use serde_json::Value;
 
 use crate::identify::prior::PriorWeight;
-use crate::jobs::JobError;
 use crate::jobs::map_options::{MapWeight, check_map_options};
 use crate::measure::pcr::prior::PcrPrior;
 use crate::measure::pcr::steps::{CalibrationOptions, Step, default_steps};
 use crate::measure::pcr::{UNKNOWNS, unknown_name};
 use crate::model::pcr::PcrFile;
+use crate::run::JobError;
 
 /// `options` of `pcr.identify`.
 #[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]

@@ -8,9 +8,9 @@ use serde_json::Value;
 
 use super::{LoadSpec, PcrModel, SI, SiUnits, load_model, poses};
 use crate::geometry::Pose2;
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::model::pcr::{Equilibrium, Pcr};
-use crate::report::Run;
+use crate::run::Run;
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
@@ -18,9 +18,9 @@ use crate::util::Monitor;
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::json_file")]
+    #[schemars(schema_with = "crate::run::schema::json_file")]
     model: Value,
-    #[schemars(schema_with = "crate::jobs::schema::table")]
+    #[schemars(schema_with = "crate::run::schema::table")]
     poses: Value,
     #[serde(default)]
     options: IkOptions,

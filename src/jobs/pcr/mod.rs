@@ -14,10 +14,10 @@ pub mod verdict;
 use serde::Deserialize;
 use serde_json::Value;
 
-use super::{Inputs, JobError, Table};
 use crate::geometry::Pose2;
 use crate::measure::pcr::PcrMeasurement;
 use crate::model::pcr::{Load, Pcr, PcrFile};
+use crate::run::{Inputs, JobError, Table};
 
 /// A loaded 3-PF model: its file and the solvable robot.
 #[derive(Debug, Clone)]

@@ -9,11 +9,11 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::pattern::{
     GrayImage, PatternKind, PhaseEstimator, Track, codec, decode_absolute,
 };
-use crate::report::Run;
+use crate::run::Run;
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::util::Monitor;
 
 /// A `pcr.pattern_pose` job document.
@@ -283,8 +283,9 @@ pub fn twin_files(t: &PatternTwin) -> Result<Vec<(String, Vec<u8>)>, JobError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::jobs::{DirResolver, prepare as prepare_job};
+    use crate::jobs::prepare as prepare_job;
     use crate::measure::pattern::{PatternPose, RenderSpec, render};
+    use crate::run::DirResolver;
     use crate::util::monitor::NoMonitor;
 
     fn write(dir: &std::path::Path, name: &str, kind: PatternKind, pose: PatternPose, seed: u64) {

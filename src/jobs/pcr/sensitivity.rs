@@ -8,12 +8,13 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::{PcrModel, load_model};
-use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::model::pcr::sensitivity::{
     SensitivityRow, central_configurations, default_steps, sensitivity,
 };
 use crate::report::plots::{self, Series};
-use crate::report::{Run, svg_artefact};
+use crate::report::svg_artefact;
+use crate::run::Run;
+use crate::run::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
@@ -21,10 +22,10 @@ use crate::util::Monitor;
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::json_file")]
+    #[schemars(schema_with = "crate::run::schema::json_file")]
     model: Value,
     #[serde(default)]
-    #[schemars(schema_with = "crate::jobs::schema::table_opt")]
+    #[schemars(schema_with = "crate::run::schema::table_opt")]
     joints: Option<Value>,
     #[serde(default)]
     options: SensitivityOptions,

@@ -10,10 +10,11 @@ use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, point_input
 use super::{ChainSpec, PlateSpec, SerialModel};
 use crate::design::{DetmaxOptions, Indices, Pool, detmax, indices};
 use crate::identify::{Problem, rank_revealing};
-use crate::jobs::Artefact;
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::measure::{BallPlate, PointMeasurement, PointProblem};
-use crate::report::{Run, studies, svg_artefact};
+use crate::report::{studies, svg_artefact};
+use crate::run::Artefact;
+use crate::run::Run;
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
@@ -21,11 +22,11 @@ use crate::util::Monitor;
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
+    #[schemars(schema_with = "crate::run::schema::serial_model")]
     model: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
-    #[schemars(schema_with = "crate::jobs::schema::table")]
+    #[schemars(schema_with = "crate::run::schema::table")]
     pool: Value,
     n: usize,
     #[serde(default)]

@@ -16,8 +16,8 @@ use super::design::DesignPool;
 use super::identify::{IdentifyInputs, IdentifyOptions, parse_inputs, position_errors};
 use super::{ChainSpec, PlateSpec};
 use crate::design::{DetmaxOptions, detmax};
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::report::{DispersionBox, dispersion_plots};
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::util::stats::{Quartiles, mean};
 use crate::util::{Monitor, Summary};
 
@@ -26,15 +26,15 @@ use crate::util::{Monitor, Summary};
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
+    #[schemars(schema_with = "crate::run::schema::serial_model")]
     model: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
-    #[schemars(schema_with = "crate::jobs::schema::table")]
+    #[schemars(schema_with = "crate::run::schema::table")]
     measurements: Value,
     #[serde(default)]
     ball_plate: Option<PlateSpec>,
-    #[schemars(schema_with = "crate::jobs::schema::table")]
+    #[schemars(schema_with = "crate::run::schema::table")]
     validation: Value,
     sizes: Vec<usize>,
     repetitions: usize,
@@ -321,7 +321,7 @@ impl DispersionJob {
     pub fn study(
         &self,
         monitor: &dyn Monitor,
-    ) -> Result<crate::report::Run<DispersionResult>, JobError> {
+    ) -> Result<crate::run::Run<DispersionResult>, JobError> {
         let inp = &self.inputs;
         let (runs, failures) = study(inp, &self.sizes, self.repetitions, self.seed, monitor)?;
         let unit = inp.model.length_unit();
@@ -407,7 +407,7 @@ impl DispersionJob {
             seed: self.seed,
         };
         let artefacts = dispersion_plots(&result.boxes(), unit, result.runs.len());
-        Ok(crate::report::Run {
+        Ok(crate::run::Run {
             result,
             main_table: Some(table),
             artefacts,

@@ -17,10 +17,10 @@ use serde_json::Value;
 
 use super::joints::JointColumns;
 use super::{ChainSpec, SerialModel, load_model};
-use crate::jobs::rows::{CsvRows, CsvSink, HashingReader};
-use crate::jobs::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::model::Quantity;
-use crate::report::Run;
+use crate::run::Run;
+use crate::run::rows::{CsvRows, CsvSink, HashingReader};
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, Table, computed, parse_spec};
 use crate::util::Monitor;
 
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
@@ -28,11 +28,11 @@ use crate::util::Monitor;
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
+    #[schemars(schema_with = "crate::run::schema::serial_model")]
     model: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
-    #[schemars(schema_with = "crate::jobs::schema::table")]
+    #[schemars(schema_with = "crate::run::schema::table")]
     joints: Value,
     #[serde(default)]
     parameters: BTreeMap<String, f64>,

@@ -19,12 +19,12 @@ use super::plots::{ResidualPlots, axis_rms, residual_artefacts};
 use super::{ChainSpec, PlateSpec, SerialModel};
 use crate::identify::Solution;
 use crate::identify::verdict::Assessment;
-use crate::jobs::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::measure::distance::distance_errors;
 use crate::measure::{BallPlate, PointMeasurement, PointProblem, Target};
 use crate::model::Chain;
 use crate::model::dh::DhFile;
-use crate::report::Run;
+use crate::run::Run;
+use crate::run::{Artefact, Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::util::{Monitor, Summary};
 
 pub use super::identify_inputs::*;
@@ -35,16 +35,16 @@ pub use super::identify_result::*;
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
+    #[schemars(schema_with = "crate::run::schema::serial_model")]
     model: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
-    #[schemars(schema_with = "crate::jobs::schema::table")]
+    #[schemars(schema_with = "crate::run::schema::table")]
     measurements: Value,
     #[serde(default)]
     ball_plate: Option<PlateSpec>,
     #[serde(default)]
-    #[schemars(schema_with = "crate::jobs::schema::table_opt")]
+    #[schemars(schema_with = "crate::run::schema::table_opt")]
     validation: Option<Value>,
     #[serde(default)]
     options: IdentifyOptions,
@@ -308,7 +308,7 @@ impl IdentifyJob {
                 .collect()
         };
         let (before, after) = (norms(&sol.residuals_before), norms(&sol.residuals));
-        let provenance = json!({"method": "serial.identify", "calibd_version": crate::jobs::envelope::VERSION, "measurements": problem.measurements().len()});
+        let provenance = json!({"method": "serial.identify", "calibd_version": crate::run::VERSION, "measurements": problem.measurements().len()});
         let (model_file, model_art) = calibrated_file(&inp.model, &calibrated, provenance)?;
         let mut r = solution_result(
             &sol,
@@ -414,7 +414,7 @@ impl IdentifyJob {
         let o = problem.chain_unknowns();
         let std_of = |k: usize| sol.params.get(o + k).and_then(|p| p.std);
         let abs = |r: &nalgebra::DVector<f64>| -> Vec<f64> { r.iter().map(|v| v.abs()).collect() };
-        let provenance = json!({"method": "serial.identify", "measurement_type": "distance", "calibd_version": crate::jobs::envelope::VERSION, "measurements": problem.measurements().len()});
+        let provenance = json!({"method": "serial.identify", "measurement_type": "distance", "calibd_version": crate::run::VERSION, "measurements": problem.measurements().len()});
         let (model_file, model_art) = calibrated_file(&inp.model, &calibrated, provenance)?;
         let mut r = solution_result(
             &sol,
@@ -505,7 +505,7 @@ impl Kind for IdentifyJob {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::jobs::{DirResolver, Inputs};
+    use crate::run::{DirResolver, Inputs};
     use crate::util::monitor::NoMonitor;
 
     /// The result fields of `examples/serial_identify.json` (ball plate, Cartesian

@@ -6,11 +6,11 @@ use serde_json::Value;
 
 use super::{ChainSpec, PlateSpec, SerialModel, load_model};
 use crate::identify::{Pivoting, PriorReport, Solution, SolveOptions};
-use crate::jobs::{Inputs, JobError, Table};
 use crate::measure::{
     BallPlate, DistanceMeasurement, DistanceProblem, PointMeasurement, PointProblem, Target,
 };
 use crate::model::ParamId;
+use crate::run::{Inputs, JobError, Table};
 use crate::util::Monitor;
 
 /// `options` of `serial.identify` (and of `serial.dispersion`).
@@ -280,6 +280,35 @@ pub(crate) fn point_inputs(
     };
     super::prior::validate(&inputs)?;
     Ok(inputs)
+}
+
+impl IdentifyInputs {
+    /// The calibration rows' joints and targets (ball number + 1, or 0 for a point of its
+    /// own).
+    pub fn rows(&self) -> Vec<(&[f64], usize)> {
+        if self.distances.is_empty() {
+            self.meas
+                .iter()
+                .map(|m| {
+                    let key = match m.target {
+                        crate::measure::Target::Ball(b) => b + 1,
+                        crate::measure::Target::Point(_) => 0,
+                    };
+                    (m.q.as_slice(), key)
+                })
+                .collect()
+        } else {
+            self.distances.iter().map(|d| (d.q.as_slice(), 0)).collect()
+        }
+    }
+
+    /// The duplicated configurations among the calibration rows.
+    pub fn duplicates(&self) -> crate::identify::duplicates::Duplicates {
+        crate::identify::duplicates::find_duplicates(
+            &self.rows(),
+            crate::identify::duplicates::DUPLICATE_TOLERANCE_DEG.to_radians(),
+        )
+    }
 }
 
 impl IdentifyOptions {

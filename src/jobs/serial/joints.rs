@@ -3,7 +3,7 @@
 //! ([`SerialModel::joints`]) and streamed ones (`serial.fk` over a CSV file).
 
 use super::SerialModel;
-use crate::jobs::JobError;
+use crate::run::JobError;
 
 /// The joint columns of one table for one model.
 #[derive(Debug, Clone)]

@@ -18,11 +18,11 @@ pub mod verdict;
 use serde::Deserialize;
 use serde_json::{Value, json};
 
-use super::{Inputs, JobError, Table};
 use crate::measure::{BallPlate, PointMeasurement, Target};
 use crate::model::dh::DhFile;
 use crate::model::urdf::UrdfModel;
 use crate::model::{Chain, ParamId, Quantity};
+use crate::run::{Inputs, JobError, Table};
 
 /// `"chain": {"root": .., "tip": ..}` for URDF models, `{"name": ..}` for DH tree files.
 #[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
@@ -291,7 +291,7 @@ impl SerialModel {
         &self,
         chain: &Chain,
         provenance: Value,
-    ) -> Result<(Value, super::Artefact), JobError> {
+    ) -> Result<(Value, crate::run::Artefact), JobError> {
         match &self.source {
             Source::Dh(f) => {
                 let mut out = f.with_chain(chain);
@@ -300,7 +300,7 @@ impl SerialModel {
                 let bytes = serde_json::to_vec_pretty(&v).unwrap_or_default();
                 Ok((
                     v,
-                    super::Artefact {
+                    crate::run::Artefact {
                         name: "calibrated_model.json".into(),
                         media_type: "application/json".into(),
                         content: bytes,
@@ -309,7 +309,7 @@ impl SerialModel {
             }
             Source::Urdf { model, .. } => {
                 let text = model.write_calibrated(chain)?;
-                let art = super::Artefact {
+                let art = crate::run::Artefact {
                     name: "calibrated_model.urdf".into(),
                     media_type: "application/xml".into(),
                     content: text.clone().into_bytes(),
@@ -325,7 +325,7 @@ impl SerialModel {
     /// URDF (`calibrated_model.urdf`, see [`crate::model::urdf_export`]; `None` for rows URDF
     /// cannot express), a URDF chain's joint offsets as `ros2_control` parameters
     /// (`joint_offsets.yaml`).
-    pub fn urdf_artefact(&self, chain: &Chain) -> Option<super::Artefact> {
+    pub fn urdf_artefact(&self, chain: &Chain) -> Option<crate::run::Artefact> {
         let (name, text) = match &self.source {
             Source::Dh(f) => (
                 "calibrated_model.urdf",
@@ -341,7 +341,7 @@ impl SerialModel {
         } else {
             "application/xml"
         };
-        Some(super::Artefact {
+        Some(crate::run::Artefact {
             name: name.into(),
             media_type: media_type.into(),
             content: text.into_bytes(),

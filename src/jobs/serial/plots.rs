@@ -2,8 +2,8 @@
 //! the plots of [`crate::report`] (per configuration, histogram, distribution, per axis,
 //! held-out validation).
 
-use crate::jobs::{Artefact, Table};
 use crate::report::{ErrorSet, calibration_plots, plots, svg_artefact};
+use crate::run::{Artefact, Table};
 
 /// What a serial identification hands to its plots.
 #[derive(Debug, Default)]

@@ -2,13 +2,13 @@
 //! Gaussian prior around the starting model, the weight fixed or chosen by K-fold
 //! cross-validation on the training measurements (see [`crate::identify::prior`]), for point and distance measurements alike.
 
-use super::identify::IdentifyInputs;
+use super::identify_inputs::IdentifyInputs;
 pub use crate::identify::prior::{CV_FOLDS, PriorWeight};
 use crate::identify::prior::{CV_WEIGHTS, Prior, PriorReport, choose_weight_grouped, solve_map};
 use crate::identify::{IdentifyError, Problem, Solution, SolveOptions, Unknown, solve};
-use crate::jobs::JobError;
 use crate::measure::distance::distance_errors;
 use crate::measure::{DistanceProblem, PointProblem, Target};
+use crate::run::JobError;
 use crate::util::{Monitor, NoMonitor, SubMonitor};
 
 /// What the MAP path needs of a serial identification problem: points / ball centres
@@ -224,7 +224,7 @@ pub fn identify_with<P: SerialFit>(
         Some(PriorWeight::Named(_)) => {
             let seed = inp.options.seed.unwrap_or(1);
             // Copies of one configuration stay in one fold.
-            let group = dense_groups(&super::verdict::duplicates(inp).group, &all);
+            let group = dense_groups(&inp.duplicates().group, &all);
             let (w, e) =
                 choose_weight_grouped(&CV_WEIGHTS, &group, CV_FOLDS, seed, |w, tr, te| {
                     if monitor.is_cancelled() {

@@ -356,5 +356,4 @@ fn ancestors(rows: &[TreeRow], b: usize) -> Vec<usize> {
 }
 
 #[cfg(test)]
-#[path = "tests.rs"]
 mod tests;

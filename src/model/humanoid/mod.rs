@@ -395,5 +395,4 @@ impl Humanoid {
 }
 
 #[cfg(test)]
-#[path = "tests.rs"]
 mod tests;

@@ -21,7 +21,6 @@
 //! and the Taylor-series method of `taylor` (the fast default, [`Integrator`]).
 
 pub(crate) use super::Integrator;
-use super::taylor;
 
 /// Number of state components: x, y, c = cos(phi), s = sin(phi), phi, m.
 pub(crate) const DIM: usize = 6;
@@ -146,33 +145,10 @@ pub(crate) fn seed_start(seed: Seed, y0: &State) -> State {
     v
 }
 
-/// Integrates `R` rods (same step count and method) in lockstep from `y0`; returns the
-/// distal states.
-pub(crate) fn integrate<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [State; R] {
-    match rods.first().map(|r| r.integrator) {
-        Some(Integrator::Taylor) => taylor::integrate(rods, y0),
-        _ => rk4(rods, y0),
-    }
-}
-
-/// Integrates `R` rods in lockstep together with the variational equations of the `K`
-/// seeds; returns the distal states and, per rod, the derivative of its distal state with
-/// respect to each seed (exact derivatives of the discrete map of either method).
-pub(crate) fn integrate_var<const R: usize, const K: usize>(
-    rods: &[Rod; R],
-    y0: &[State; R],
-    seeds: [Seed; K],
-) -> ([State; R], [[State; K]; R]) {
-    match rods.first().map(|r| r.integrator) {
-        Some(Integrator::Taylor) => taylor::integrate_var(rods, y0, seeds),
-        _ => rk4_var(rods, y0, seeds),
-    }
-}
-
 /// RK4 integration of `R` rods in lockstep from `y0`; returns the distal states.
 /// Lockstep integration of independent rods keeps the processor's pipelines full: a single
 /// RK4 chain is bound by the latency of its dependent operations.
-fn rk4<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [State; R] {
+pub(crate) fn rk4<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [State; R] {
     let steps = rods.iter().map(|r| r.steps).max().unwrap_or(0);
     let h: [f64; R] = std::array::from_fn(|r| rods[r].length / steps as f64);
     let mut y = *y0;
@@ -199,7 +175,7 @@ fn rk4<const R: usize>(rods: &[Rod; R], y0: &[State; R]) -> [State; R] {
 /// The variational equations are integrated with the same RK4 stages as the state, so the
 /// derivatives are exact derivatives of the discrete map (not an approximation of it): Newton
 /// then converges quadratically to the discrete solution.
-fn rk4_var<const R: usize, const K: usize>(
+pub(crate) fn rk4_var<const R: usize, const K: usize>(
     rods: &[Rod; R],
     y0: &[State; R],
     seeds: [Seed; K],
@@ -266,7 +242,7 @@ mod tests {
             integrator: Integrator::Rk4,
         };
         let m = 0.8;
-        let [y] = integrate(&[r], &[start_state(0.1, 0.2, 0.3, m)]);
+        let [y] = crate::model::pcr::shooting::integrate(&[r], &[start_state(0.1, 0.2, 0.3, m)]);
         let k = 2.0 * m;
         let (p0, p1) = (0.3_f64, 0.3 + k);
         let xe = 0.1 + (p1.sin() - p0.sin()) / k;
@@ -282,7 +258,7 @@ mod tests {
     fn variational_columns_match_finite_differences() {
         let y0 = start_state(0.0, 0.0, 0.4, 0.5);
         let seeds = [Seed::Nx, Seed::Ny, Seed::M0, Seed::Phi0, Seed::Flex];
-        let (_, [v]) = integrate_var(&[rod(30)], &[y0], seeds);
+        let (_, [v]) = crate::model::pcr::shooting::integrate_var(&[rod(30)], &[y0], seeds);
         let h = 1e-6;
         for (j, seed) in seeds.iter().enumerate() {
             let eval = |e: f64| {
@@ -295,7 +271,7 @@ mod tests {
                     Seed::Phi0 => phi += e,
                     Seed::Flex => r.flex += e,
                 }
-                integrate(&[r], &[start_state(0.0, 0.0, phi, m)])[0]
+                crate::model::pcr::shooting::integrate(&[r], &[start_state(0.0, 0.0, phi, m)])[0]
             };
             let (p, q) = (eval(h), eval(-h));
             for i in 0..DIM {

@@ -10,6 +10,32 @@ use super::params::{E_INDEX, PcrParams, ROBOT_PARAMS};
 use super::rod::{self, M, PHI, Rod, Seed, State, X, Y};
 use super::setup::{Mode, Setup};
 
+/// Integrates `R` rods (same step count and method) in lockstep from `y0`; returns the
+/// distal states.
+pub(crate) fn integrate<const R: usize>(
+    rods: &[rod::Rod; R],
+    y0: &[rod::State; R],
+) -> [rod::State; R] {
+    match rods.first().map(|r| r.integrator) {
+        Some(super::Integrator::Taylor) => super::taylor::integrate(rods, y0),
+        _ => rod::rk4(rods, y0),
+    }
+}
+
+/// Integrates `R` rods in lockstep together with the variational equations of the `K`
+/// seeds; returns the distal states and, per rod, the derivative of its distal state with
+/// respect to each seed (exact derivatives of the discrete map of either method).
+pub(crate) fn integrate_var<const R: usize, const K: usize>(
+    rods: &[rod::Rod; R],
+    y0: &[rod::State; R],
+    seeds: [rod::Seed; K],
+) -> ([rod::State; R], [[rod::State; K]; R]) {
+    match rods.first().map(|r| r.integrator) {
+        Some(super::Integrator::Taylor) => super::taylor::integrate_var(rods, y0, seeds),
+        _ => rod::rk4_var(rods, y0, seeds),
+    }
+}
+
 /// Number of unknowns and residuals.
 pub(crate) const N: usize = 12;
 /// A vector of unknowns or residuals.
@@ -109,7 +135,7 @@ pub(crate) fn residual_tips(setup: &Setup, mode: &Mode, z: &Vec12) -> (Vec12, Ti
     let (q, pose) = split(z, mode);
     let mut r = [0.0; N];
     let e = limb_evals(setup, z, &q, &pose);
-    let tips = rod::integrate(&e.each_ref().map(|e| e.rod), &e.each_ref().map(|e| e.y0));
+    let tips = integrate(&e.each_ref().map(|e| e.rod), &e.each_ref().map(|e| e.y0));
     for i in 0..3 {
         limb_residual(setup, i, &e[i], &tips[i], &pose, &mut r);
     }
@@ -164,7 +190,7 @@ pub(crate) fn residual_jacobian(setup: &Setup, mode: &Mode, z: &Vec12) -> (Vec12
     let mut r = [0.0; N];
     let mut jac = [[0.0; N]; N];
     let e = limb_evals(setup, z, &q, &pose);
-    let (tips, v) = rod::integrate_var(
+    let (tips, v) = integrate_var(
         &e.each_ref().map(|e| e.rod),
         &e.each_ref().map(|e| e.y0),
         [Seed::Nx, Seed::Ny, Seed::M0],
@@ -194,7 +220,7 @@ pub(crate) fn jacobians(
     let d1 = p.limbs[0].d;
     let seeds = [Seed::Nx, Seed::Ny, Seed::M0, Seed::Phi0, Seed::Flex];
     let es = limb_evals(setup, z, &q, &pose);
-    let (tips, vs) = rod::integrate_var(
+    let (tips, vs) = integrate_var(
         &es.each_ref().map(|e| e.rod),
         &es.each_ref().map(|e| e.y0),
         seeds,

@@ -387,7 +387,7 @@ pub(super) fn integrate_var_body<const R: usize, const K: usize>(
 mod tests {
     use super::*;
     use crate::model::pcr::Integrator;
-    use crate::model::pcr::rod::{self, start_state};
+    use crate::model::pcr::rod::start_state;
 
     fn rod(n: [f64; 2], m: f64, steps: usize, integrator: Integrator) -> (Rod, State) {
         let r = Rod {
@@ -411,7 +411,7 @@ mod tests {
             let (r, y0) = rod(n, m, 16, Integrator::Taylor);
             let (rr, _) = rod(n, m, 2048, Integrator::Rk4);
             let a = integrate(&[r], &[y0])[0];
-            let b = rod::integrate(&[rr], &[y0])[0];
+            let b = crate::model::pcr::shooting::integrate(&[rr], &[y0])[0];
             for i in 0..DIM {
                 worst = worst.max((a[i] - b[i]).abs());
             }

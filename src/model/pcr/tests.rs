@@ -66,7 +66,7 @@ fn reference_integration_error_is_far_under_a_nanometre() {
                     steps: n,
                     integrator: Integrator::Rk4,
                 };
-                rod::integrate(&[r], &[y0])[0]
+                super::shooting::integrate(&[r], &[y0])[0]
             };
             let s = REFERENCE_STEPS / 4;
             let (t1, t2, t4) = (tip(s), tip(2 * s), tip(4 * s));

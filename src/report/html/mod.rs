@@ -22,7 +22,7 @@ use serde_json::Value;
 use sha2::{Digest, Sha256};
 
 use super::svg::escape;
-use crate::jobs::Artefact;
+use crate::run::Artefact;
 
 /// What a report is made of: the stored job, its result and artefacts, and the cell's
 /// model history (when the job calibrated a cell).

@@ -178,7 +178,7 @@ impl Pg {
         media_type: &str,
         content: &[u8],
     ) -> Result<DatasetInfo, StoreError> {
-        let id = crate::jobs::input::sha256_hex(content);
+        let id = crate::run::input::sha256_hex(content);
         self.conn()?.execute(
             "INSERT INTO datasets (id, name, media_type, size, created_at, content) \
              VALUES ($1, $2, $3, $4, $5, $6) ON CONFLICT (id) DO NOTHING",

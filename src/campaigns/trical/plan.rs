@@ -1,0 +1,361 @@
+//! `cell.trical_campaign`: configurations per ball (given, or a DETMAX selection from a pool
+//! reaching the balls on the current model), each centred and journalled before the next
+//! move; then `serial.identify` on what was recorded and, optionally, a validation pass:
+//! held-out configurations centred the same way, whose ball centres the calibrated model
+//! must hit. Resumable: what the journal holds is never measured again.
+
+use std::sync::Arc;
+
+use serde::Deserialize;
+use serde_json::Value;
+
+use crate::campaigns::spec::{CentringSpec, RetrySpec, default_cell, trical_devices};
+use crate::campaigns::trical::{Planned, Recorded};
+use crate::design::balls::ball_pool;
+use crate::jobs::serial::SerialModel;
+use crate::jobs::serial::design::{DesignOptions, select};
+use crate::jobs::serial::identify::{IdentifyJob, IdentifyOptions, SerialCalibration};
+use crate::measure::BallPlate;
+use crate::measure::point::{PointMeasurement, Target};
+use crate::model::Chain;
+use crate::model::dh::DhFile;
+use crate::run::Run;
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, parse_spec};
+use crate::util::Monitor;
+
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+struct DesignSpec {
+    /// Candidate configurations per ball.
+    #[serde(default = "pool_default")]
+    pool_per_ball: usize,
+    /// Configurations selected per ball (n = per_ball x balls in total).
+    per_ball: usize,
+    #[serde(default)]
+    seed: u64,
+}
+
+fn pool_default() -> usize {
+    60
+}
+
+#[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+struct ValidationSpec {
+    per_ball: usize,
+    #[serde(default = "validation_seed")]
+    seed: u64,
+}
+
+fn validation_seed() -> u64 {
+    1_000_003
+}
+
+#[derive(Debug, Clone, Default, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub(crate) struct Options {
+    pub(crate) centring: CentringSpec,
+    pub(crate) retry: RetrySpec,
+    identify: IdentifyOptions,
+}
+
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct Spec {
+    #[allow(dead_code)]
+    kind: String,
+    #[serde(default = "default_cell")]
+    cell: String,
+    #[serde(default)]
+    #[schemars(schema_with = "crate::run::schema::json_file_opt")]
+    model: Option<Value>,
+    #[serde(default)]
+    #[schemars(schema_with = "crate::run::schema::table_opt")]
+    configurations: Option<Value>,
+    #[serde(default)]
+    design: Option<DesignSpec>,
+    #[serde(default)]
+    validation: Option<ValidationSpec>,
+    #[serde(default)]
+    options: Options,
+}
+
+/// A validated `cell.trical_campaign` job.
+#[derive(Debug)]
+pub struct CampaignJob {
+    pub(crate) cell: String,
+    pub(crate) model: Option<DhFile>,
+    /// Given configurations: joints (deg) and 0-based ball.
+    configurations: Option<Vec<(Vec<f64>, usize)>>,
+    design: Option<DesignSpec>,
+    validation: Option<ValidationSpec>,
+    pub(crate) options: Options,
+}
+
+/// Validate a `cell.trical_campaign` job.
+pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CampaignJob, JobError> {
+    let s: Spec = parse_spec(doc)?;
+    let model = match &s.model {
+        Some(v) => {
+            let j = inputs.json("model", v)?;
+            let text = serde_json::to_string(&j).unwrap_or_default();
+            let f = DhFile::parse(&text)?;
+            f.to_chain()?;
+            Some(f)
+        }
+        None => None,
+    };
+    let configurations = match &s.configurations {
+        Some(v) => {
+            let t = inputs.table("configurations", v)?;
+            let cols: Vec<String> = (1..=6).map(|k| format!("q{k}")).collect();
+            let mut all = cols.clone();
+            all.push("ball".into());
+            let idx = t.cols("configurations", &all)?;
+            let mut out = Vec::new();
+            for (i, r) in t.rows.iter().enumerate() {
+                let b = r[idx[6]];
+                if !(b.fract() == 0.0 && (1.0..=3.0).contains(&b)) {
+                    return Err(JobError::row(
+                        "configurations",
+                        i + 1,
+                        format!("ball = {b}: expected 1, 2 or 3"),
+                    ));
+                }
+                out.push((idx[..6].iter().map(|&c| r[c]).collect(), b as usize - 1));
+            }
+            if out.is_empty() {
+                return Err(JobError::invalid("configurations", "no configuration"));
+            }
+            Some(out)
+        }
+        None => None,
+    };
+    match (&configurations, &s.design) {
+        (Some(_), Some(_)) => {
+            return Err(JobError::invalid(
+                "design",
+                "give `configurations` or `design`, not both",
+            ));
+        }
+        (None, None) => {
+            return Err(JobError::invalid(
+                "configurations",
+                "give `configurations` (q1..q6 in deg, ball) or `design` ({\"per_ball\": n})",
+            ));
+        }
+        (None, Some(d)) if d.per_ball == 0 || d.pool_per_ball < d.per_ball => {
+            return Err(JobError::invalid(
+                "design",
+                format!(
+                    "per_ball = {} must be at least 1 and at most pool_per_ball = {}",
+                    d.per_ball, d.pool_per_ball
+                ),
+            ));
+        }
+        _ => {}
+    }
+    if let Some(v) = &s.validation
+        && v.per_ball == 0
+    {
+        return Err(JobError::invalid(
+            "validation.per_ball",
+            "must be at least 1",
+        ));
+    }
+    s.options.centring.validate("options.centring")?;
+    if s.options.retry.attempts == 0 {
+        return Err(JobError::invalid(
+            "options.retry.attempts",
+            "must be at least 1",
+        ));
+    }
+    Ok(CampaignJob {
+        cell: s.cell,
+        model,
+        configurations,
+        design: s.design,
+        validation: s.validation,
+        options: s.options,
+    })
+}
+
+/// The chain's joint limits (rad).
+fn limits(chain: &Chain) -> Vec<[f64; 2]> {
+    chain
+        .actuated()
+        .iter()
+        .map(|&j| {
+            chain.joints[j]
+                .limits
+                .unwrap_or([-std::f64::consts::PI, std::f64::consts::PI])
+        })
+        .collect()
+}
+
+/// Configurations reaching each ball centre on `chain`, drawn from the middle 70 % of each
+/// joint range and kept away from the wrist singularity (|q5| > 10 deg).
+fn pool(chain: &Chain, plate: &BallPlate, per_ball: usize, seed: u64) -> Vec<Planned> {
+    let lim = limits(chain);
+    let centres: Vec<_> = plate.centres.iter().flatten().copied().collect();
+    ball_pool(
+        chain,
+        &centres,
+        per_ball,
+        seed,
+        |rng| {
+            lim.iter()
+                .map(|l| {
+                    let (c, h) = ((l[0] + l[1]) / 2.0, 0.35 * (l[1] - l[0]));
+                    rng.range(c - h, c + h)
+                })
+                .collect()
+        },
+        |q| q.get(4).is_some_and(|v| v.abs() > 10f64.to_radians()),
+    )
+    .into_iter()
+    .map(|(q, ball)| Planned { q, ball })
+    .collect()
+}
+
+/// Order configurations to keep joint travel short (greedy nearest neighbour in the largest
+/// joint change, from the first), deterministic.
+fn short_tour(mut rest: Vec<Planned>) -> Vec<Planned> {
+    let mut out = Vec::with_capacity(rest.len());
+    if rest.is_empty() {
+        return out;
+    }
+    out.push(rest.remove(0));
+    while !rest.is_empty() {
+        let last = &out[out.len() - 1].q;
+        let d = |p: &Planned| {
+            p.q.iter()
+                .zip(last)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+        };
+        let (k, _) = rest
+            .iter()
+            .enumerate()
+            .min_by(|a, b| d(a.1).total_cmp(&d(b.1)))
+            .unwrap_or((0, &out[0]));
+        out.push(rest.remove(k));
+    }
+    out
+}
+
+impl CampaignJob {
+    /// The measurement plan (given configurations, or DETMAX on a pool) and the held-out
+    /// validation configurations, each ordered for short joint travel.
+    pub(crate) fn plan(
+        &self,
+        file: &DhFile,
+        ballbar: [f64; 3],
+        monitor: &dyn Monitor,
+    ) -> Result<(Vec<Planned>, Vec<Planned>), JobError> {
+        let plate = &BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2])?;
+        let chain = file.to_chain()?;
+        let vplan = match &self.validation {
+            Some(v) => short_tour(pool(&chain, plate, v.per_ball, v.seed)),
+            None => Vec::new(),
+        };
+        if let Some(c) = &self.configurations {
+            let mut out = Vec::new();
+            for (i, (q, ball)) in c.iter().enumerate() {
+                let q: Vec<f64> = q.iter().map(|v| v.to_radians()).collect();
+                if let Some((j, v, l)) = chain.limit_violation(&q) {
+                    return Err(JobError::row(
+                        "configurations",
+                        i + 1,
+                        format!(
+                            "q{} = {:.3} deg is outside the joint limits [{:.3}, {:.3}] deg",
+                            j + 1,
+                            v.to_degrees(),
+                            l[0].to_degrees(),
+                            l[1].to_degrees()
+                        ),
+                    ));
+                }
+                out.push(Planned { q, ball: *ball });
+            }
+            return Ok((out, vplan));
+        }
+        let Some(d) = &self.design else {
+            return Err(JobError::invalid("design", "missing"));
+        };
+        let candidates = pool(&chain, plate, d.pool_per_ball, d.seed);
+        let n = d.per_ball * plate.len();
+        if candidates.len() < n {
+            return Err(JobError::Failed(format!(
+                "only {} configurations of the pool reach the balls on the model; {n} are needed",
+                candidates.len()
+            )));
+        }
+        let pool = candidates
+            .iter()
+            .map(|p| ball_point(&p.q, p.ball))
+            .collect();
+        let options = DesignOptions {
+            seed: d.seed,
+            ..DesignOptions::default()
+        };
+        let model = SerialModel::from_dh(file.clone())?;
+        let selected = select(model, pool, Some(plate.clone()), n, &options, monitor)?;
+        Ok((
+            short_tour(
+                selected
+                    .into_iter()
+                    .filter_map(|i| candidates.get(i).cloned())
+                    .collect(),
+            ),
+            vplan,
+        ))
+    }
+
+    /// `serial.identify` on the centred configurations, validated on the held-out ones.
+    pub(crate) fn identify(
+        &self,
+        file: &DhFile,
+        ballbar: [f64; 3],
+        rec: &[Recorded],
+        vrec: &[Recorded],
+        monitor: &dyn Monitor,
+    ) -> Result<Run<SerialCalibration>, JobError> {
+        let plate = BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2])?;
+        let meas = rec.iter().map(|r| ball_point(&r.q, r.ball)).collect();
+        let validation: Vec<PointMeasurement> = vrec
+            .iter()
+            .filter_map(|r| {
+                Some(PointMeasurement {
+                    q: r.q.clone(),
+                    target: Target::Point(plate.centres.get(r.ball).copied().flatten()?),
+                })
+            })
+            .collect();
+        let validation = (!validation.is_empty()).then_some(validation);
+        let options = self.options.identify.clone();
+        IdentifyJob::from_dh(file.clone(), meas, ballbar, validation, options)?.calibrate(monitor)
+    }
+}
+
+/// A measurement of the centre of ball `ball` (0-based) at joints `q` (rad).
+fn ball_point(q: &[f64], ball: usize) -> PointMeasurement {
+    PointMeasurement {
+        q: q.to_vec(),
+        target: Target::Ball(ball),
+    }
+}
+
+impl Kind for CampaignJob {
+    fn resumable(&self) -> bool {
+        true
+    }
+
+    fn devices(&self) -> Vec<String> {
+        trical_devices(&self.cell)
+    }
+
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        Box::pin(crate::campaigns::trical::campaign(self, cx))
+    }
+}

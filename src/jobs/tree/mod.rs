@@ -1,0 +1,233 @@
+//! `tree.identify`: elasto-geometric calibration of a tree of modified-DH rows (a humanoid
+//! upper body: torso and arms) from marker positions, with elasticity identified *without
+//! torques or masses*: lumped joint and lateral compliance (issue 13, item 5). Runs the
+//! cumulative steps (frames; + offsets; + full geometry; + joint compliance; + lateral
+//! compliance), reports the last fit's parameters and, optionally, a K-fold held-out error.
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use crate::geometry::Frame;
+use crate::identify::ParamReport;
+use crate::identify::duplicates::duplicate_configurations;
+use crate::identify::prior::{PriorReport, PriorSpec, PriorWeight};
+use crate::identify::verdict::{self, Assessment, Facts};
+use crate::jobs::map_options::{MapWeight, check_map_options};
+use crate::measure::tree_markers::{STEPS, Step, TreeObservation, TreeProblem, cumulative, k_fold};
+use crate::measure::tree_prior::{TreePrior, check_names, choose_tree_weight};
+use crate::model::elastic::{
+    Drive, ElasticOptions, ElasticTree, Lumping, RowKind, TreeMarker, TreeRow,
+};
+use crate::run::Run;
+use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
+use crate::util::{Monitor, Summary};
+
+mod spec;
+pub(crate) use spec::Spec;
+pub use spec::prepare;
+
+/// A validated `tree.identify` job.
+#[derive(Debug)]
+pub struct TreeIdentifyJob {
+    model: ElasticTree,
+    obs: Vec<TreeObservation>,
+    last: usize,
+    folds: Option<usize>,
+    seed: u64,
+    max_iterations: usize,
+    prior: TreePrior,
+    /// Choose the prior's weight by K-fold before the fits.
+    cv_weight: bool,
+    warnings: Vec<String>,
+}
+
+/// Held-out figure of the last model.
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldOut {
+    /// K.
+    pub folds: usize,
+    /// Seed of the split.
+    pub seed: u64,
+    /// Marker position errors on the held-out folds (mm).
+    pub error_mm: Summary,
+}
+
+/// The result of `tree.identify`.
+#[derive(Debug, Clone, Serialize)]
+pub struct TreeCalibration {
+    /// `verdict` (`accepted`, `review`, `rejected`) and its `reasons`.
+    #[serde(flatten)]
+    pub assessment: Assessment,
+    /// Residual degrees of freedom of the last fit: distinct marker equations minus
+    /// identified unknowns.
+    pub dof: usize,
+    /// Residual standard deviation of the last fit (mm), counted over distinct
+    /// configurations (null with zero degrees of freedom).
+    pub residual_std_mm: Option<f64>,
+    /// Cumulative steps: frames; + offsets; + geometry; + joint; + lateral compliance.
+    pub steps: Vec<Step>,
+    /// The last fit's parameters (lengths m, angles rad, lumped coefficients rad at full
+    /// gravity load).
+    pub parameters: Vec<ParamReport>,
+    /// Parameters held at their start value in the last fit.
+    pub unidentifiable: Vec<String>,
+    /// `converged`, `degenerate` or `not_converged` (last fit).
+    pub status: String,
+    /// Condition number of the physically scaled Jacobian (last fit).
+    pub condition_number: f64,
+    /// Mean marker error of the last model (mm).
+    pub error_after_mean_mm: f64,
+    /// K-fold held-out errors of the last model, when asked for.
+    pub held_out: Option<HeldOut>,
+    /// What the lumped coefficients mean.
+    pub elasticity_note: &'static str,
+    /// Unused table columns.
+    pub warnings: Vec<String>,
+    /// Which mode ran for the user's prior (`least_squares`: none; `map`; `map_cv`), its
+    /// weight and noise (m), and the last fit's objective terms (noise units).
+    pub prior: PriorReport,
+}
+
+const NOTE: &str = "gravity along -z of the tree root; lumping `subtree`: coefficients kz_g*, kx_g*, ky_g* (rad at full gravity load) multiply the unit gravity direction in the joint frame (joint deflection about z, lateral about x and y); lumping `bodies`: compliances c_z, c_x, c_y (rad/(N*m)) times the gravity torque of link weights w (N) and weight moments w_m* (N*m), only their products determined";
+
+impl TreeIdentifyJob {
+    /// Verdict, `dof`, and the residual std (m) with the factor on standard deviations
+    /// (`Some` only when configurations repeat) of the last fit `sol`, counting distinct
+    /// configurations.
+    fn judge(
+        &self,
+        sol: &crate::identify::Solution,
+    ) -> (Assessment, usize, (Option<f64>, Option<f64>)) {
+        let equations: usize = 3 * self
+            .obs
+            .iter()
+            .map(|o| o.points.iter().flatten().count())
+            .sum::<usize>();
+        let free = sol.free.len();
+        let dup = duplicate_configurations(self.obs.iter().map(|o| o.sample.q.as_slice()));
+        let mut dof = verdict::dof(equations, free);
+        let mut sigma = (Some(sol.uncertainty.sigma).filter(|s| s.is_finite()), None);
+        if dup.repeated() > 0 {
+            let ssr: f64 = sol.residuals.iter().take(equations).map(|v| v * v).sum();
+            let e = dup.effective(equations, free, ssr, sol.uncertainty.sigma);
+            dof = e.dof;
+            sigma = (e.sigma, Some(e.std_factor.unwrap_or(f64::NAN)));
+        }
+        if dof == 0 {
+            sigma.0 = None;
+        }
+        let facts = Facts {
+            status: sol.status().to_string(),
+            degenerate: sol.degenerate.as_ref().map(|d| d.reasons.join("; ")),
+            equations,
+            unknowns: free,
+            dof,
+            duplicates: Some(dup),
+            ..Default::default()
+        };
+        (verdict::assess(&facts), dof, sigma)
+    }
+
+    /// Run the cumulative fits and the optional K-fold.
+    pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<TreeCalibration>, JobError> {
+        let fail = |e: crate::identify::IdentifyError| match e {
+            crate::identify::IdentifyError::Cancelled => JobError::Cancelled,
+            e => JobError::Failed(e.to_string()),
+        };
+        let mut prior = self.prior.clone();
+        let mut k_fold_errors = None;
+        if self.cv_weight {
+            let (w, errors) = choose_tree_weight(
+                &self.model,
+                &self.obs,
+                self.last,
+                self.max_iterations,
+                &prior,
+                self.seed,
+                monitor,
+            )
+            .map_err(fail)?;
+            prior.weight = w;
+            k_fold_errors = Some(errors);
+        }
+        let c = cumulative(
+            &self.model,
+            &self.obs,
+            self.last,
+            self.max_iterations,
+            &prior,
+            monitor,
+        )
+        .map_err(fail)?;
+        let held_out = match self.folds {
+            Some(k) => {
+                let e = k_fold(
+                    &self.model,
+                    &self.obs,
+                    self.last,
+                    k,
+                    self.seed,
+                    self.max_iterations,
+                    &prior,
+                    monitor,
+                )
+                .map_err(fail)?;
+                Some(HeldOut {
+                    folds: k,
+                    seed: self.seed,
+                    error_mm: Summary::of(&e, "mm"),
+                })
+            }
+            None => None,
+        };
+        let sol = &c.last.solution;
+        let (assessment, dof, sigma) = self.judge(sol);
+        let mut parameters = sol.params.clone();
+        if let Some(f) = sigma.1 {
+            for p in &mut parameters {
+                p.std = p.std.filter(|_| f.is_finite()).map(|s| s * f);
+            }
+        }
+        Ok(Run {
+            result: TreeCalibration {
+                assessment,
+                dof,
+                residual_std_mm: sigma.0.map(|s| s * 1e3),
+                error_after_mean_mm: c.steps.last().map_or(f64::NAN, |s| s.error_mm.mean),
+                steps: c.steps.clone(),
+                parameters,
+                unidentifiable: sol.unidentifiable.clone(),
+                status: sol.status().into(),
+                condition_number: sol.condition_number,
+                held_out,
+                elasticity_note: NOTE,
+                warnings: self.warnings.clone(),
+                prior: match c.last.prior.clone() {
+                    Some(mut r) => {
+                        r.weight = Some(prior.weight);
+                        if let Some(e) = k_fold_errors {
+                            r.mode = "map_cv";
+                            r.k_fold_errors = Some(e);
+                        }
+                        r
+                    }
+                    None => PriorReport::least_squares(),
+                },
+            },
+            main_table: None,
+            artefacts: Vec::new(),
+        })
+    }
+}
+
+impl Kind for TreeIdentifyJob {
+    fn run(self: Arc<Self>, cx: Cx) -> RunFuture {
+        computed(self, cx, Self::calibrate)
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,299 @@
+//! Tables row by row: a CSV reader that yields one checked row at a time from any byte
+//! stream, and a CSV writer that formats one row at a time into any sink. [`Table`] reads
+//! and writes through these, so a streamed table and a whole one agree to the byte; jobs
+//! whose tables can be large (`serial.fk` over a file) use them directly, with memory flat
+//! in the number of rows.
+//!
+//! [`Table`]: super::Table
+
+use std::io::{Read, Write};
+
+use sha2::{Digest, Sha256};
+
+use crate::run::JobError;
+
+/// CSV rows read one at a time, each checked as [`super::Table::from_csv`] checks it: as
+/// wide as the header, every cell a finite number (or a gap where admitted); errors name
+/// the input, the row (from 1, the header not counted), the column and the value.
+pub struct CsvRows<R: Read> {
+    field: String,
+    reader: csv::Reader<R>,
+    columns: Vec<String>,
+    gaps: Vec<bool>,
+    record: csv::StringRecord,
+    row: usize,
+}
+
+impl<R: Read> std::fmt::Debug for CsvRows<R> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CsvRows")
+            .field("field", &self.field)
+            .field("columns", &self.columns)
+            .field("row", &self.row)
+            .finish()
+    }
+}
+
+impl<R: Read> CsvRows<R> {
+    /// Read the header of the CSV text `input` (named `field` in errors); in the columns
+    /// `gaps` admits, an empty or `NaN` cell is a missing value (NaN).
+    pub fn new(field: &str, input: R, gaps: &dyn Fn(&str) -> bool) -> Result<Self, JobError> {
+        let mut reader = csv::ReaderBuilder::new()
+            .has_headers(true)
+            .trim(csv::Trim::All)
+            .flexible(true)
+            .from_reader(input);
+        let columns: Vec<String> = reader
+            .headers()
+            .map_err(|e| JobError::invalid(field, format!("CSV header: {e}")))?
+            .iter()
+            .map(str::to_string)
+            .collect();
+        if columns.iter().any(String::is_empty) {
+            return Err(JobError::invalid(
+                field,
+                "CSV header has an empty column name",
+            ));
+        }
+        // A repeated name would make one of the two columns unreachable by name.
+        for (i, c) in columns.iter().enumerate() {
+            if let Some(j) = columns[..i].iter().position(|d| d == c) {
+                return Err(JobError::invalid(
+                    field,
+                    format!(
+                        "CSV header names column `{c}` twice (columns {} and {})",
+                        j + 1,
+                        i + 1
+                    ),
+                ));
+            }
+        }
+        let gaps = columns.iter().map(|c| gaps(c)).collect();
+        Ok(Self {
+            field: field.to_string(),
+            reader,
+            columns,
+            gaps,
+            record: csv::StringRecord::new(),
+            row: 0,
+        })
+    }
+
+    /// Column names, in order.
+    pub fn columns(&self) -> &[String] {
+        &self.columns
+    }
+
+    /// The byte stream, positioned at the end of what was read.
+    pub fn into_inner(self) -> R {
+        self.reader.into_inner()
+    }
+
+    /// Read the next row into `values` (cleared first); its number (from 1), or `None` at
+    /// the end of the input.
+    pub fn next_into(&mut self, values: &mut Vec<f64>) -> Result<Option<usize>, JobError> {
+        let field = self.field.as_str();
+        let row = self.row + 1;
+        let more = self
+            .reader
+            .read_record(&mut self.record)
+            .map_err(|e| JobError::row(field, row, format!("CSV: {e}")))?;
+        if !more {
+            return Ok(None);
+        }
+        self.row = row;
+        if self.record.len() != self.columns.len() {
+            return Err(JobError::row(
+                field,
+                row,
+                format!(
+                    "{} values for {} columns",
+                    self.record.len(),
+                    self.columns.len()
+                ),
+            ));
+        }
+        values.clear();
+        for (c, cell) in self.record.iter().enumerate() {
+            if self.gaps[c] && (cell.is_empty() || cell.eq_ignore_ascii_case("nan")) {
+                values.push(f64::NAN);
+                continue;
+            }
+            let v: f64 = cell.parse().map_err(|_| {
+                JobError::row(
+                    field,
+                    row,
+                    format!("column `{}`: `{cell}` is not a number", self.columns[c]),
+                )
+            })?;
+            if !v.is_finite() {
+                return Err(JobError::row(
+                    field,
+                    row,
+                    format!(
+                        "column `{}`: {cell} is not a finite number",
+                        self.columns[c]
+                    ),
+                ));
+            }
+            values.push(v);
+        }
+        Ok(Some(row))
+    }
+}
+
+/// CSV written one row at a time: a header row, then each number as Rust's shortest
+/// round-trip decimal (`{}`), comma-separated, one `\n`-terminated line per row.
+#[derive(Debug)]
+pub struct CsvSink<W: Write> {
+    out: W,
+    rows: usize,
+}
+
+impl<W: Write> CsvSink<W> {
+    /// Start a table with `columns` on `out` (writes the header row).
+    pub fn new<S: AsRef<str>>(mut out: W, columns: &[S]) -> std::io::Result<Self> {
+        for (k, c) in columns.iter().enumerate() {
+            if k > 0 {
+                out.write_all(b",")?;
+            }
+            out.write_all(c.as_ref().as_bytes())?;
+        }
+        out.write_all(b"\n")?;
+        Ok(Self { out, rows: 0 })
+    }
+
+    /// Append one row.
+    pub fn row(&mut self, values: &[f64]) -> std::io::Result<()> {
+        for (k, v) in values.iter().enumerate() {
+            if k > 0 {
+                self.out.write_all(b",")?;
+            }
+            write!(self.out, "{v}")?;
+        }
+        self.out.write_all(b"\n")?;
+        self.rows += 1;
+        Ok(())
+    }
+
+    /// Rows written so far.
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// The sink, flushed.
+    pub fn finish(mut self) -> std::io::Result<W> {
+        self.out.flush()?;
+        Ok(self.out)
+    }
+}
+
+/// A reader that hashes (SHA-256) every byte read through it, so a streamed input gets the
+/// same hash in the result envelope as one read whole.
+#[derive(Debug)]
+pub struct HashingReader<R: Read> {
+    inner: R,
+    hasher: Sha256,
+}
+
+impl<R: Read> HashingReader<R> {
+    /// Hash what is read from `inner`.
+    pub fn new(inner: R) -> Self {
+        Self {
+            inner,
+            hasher: Sha256::new(),
+        }
+    }
+
+    /// Hex SHA-256 of every byte read so far.
+    pub fn hex(&self) -> String {
+        self.hasher
+            .clone()
+            .finalize()
+            .iter()
+            .map(|x| format!("{x:02x}"))
+            .collect()
+    }
+}
+
+impl<R: Read> Read for HashingReader<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.hasher.update(&buf[..n]);
+        Ok(n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `Table::to_csv` as it was before tables were streamed: the reference output.
+    fn joined(columns: &[&str], rows: &[Vec<f64>]) -> String {
+        let mut s = columns.join(",");
+        s.push('\n');
+        for r in rows {
+            let cells: Vec<String> = r.iter().map(|v| format!("{v}")).collect();
+            s.push_str(&cells.join(","));
+            s.push('\n');
+        }
+        s
+    }
+
+    #[test]
+    fn a_column_named_twice_is_refused_by_name() {
+        let e = CsvRows::new("joints", &b"q1,q2,q1\n1,2,3\n"[..], &|_: &str| false)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("joints") && e.contains("`q1` twice"), "{e}");
+        assert!(e.contains("columns 1 and 3"), "{e}");
+        assert!(CsvRows::new("joints", &b"q1,q2\n1,2\n"[..], &|_: &str| false).is_ok());
+    }
+
+    #[test]
+    fn streamed_csv_equals_the_joined_strings_to_the_byte() {
+        let rows = [
+            vec![0.1 + 0.2, -0.0, 1e-300, 123456789.125],
+            vec![f64::MAX, f64::MIN_POSITIVE, -3.5, 1.0 / 3.0],
+        ];
+        let rows = &rows[..];
+        let cols = ["x", "y", "z", "a"];
+        let mut sink = CsvSink::new(Vec::new(), &cols).unwrap();
+        for r in rows {
+            sink.row(r).unwrap();
+        }
+        assert_eq!(sink.rows(), 2);
+        let bytes = sink.finish().unwrap();
+        assert_eq!(String::from_utf8(bytes).unwrap(), joined(&cols, rows));
+    }
+
+    #[test]
+    fn rows_come_one_at_a_time_and_errors_name_row_column_and_value() {
+        let text = "q1, q2\n1.5,2\n-3,4e-3\n7,x\n";
+        let mut r = CsvRows::new("joints", text.as_bytes(), &|_: &str| false).unwrap();
+        assert_eq!(r.columns(), ["q1", "q2"]);
+        let mut v = Vec::new();
+        assert_eq!(r.next_into(&mut v).unwrap(), Some(1));
+        assert_eq!(v, [1.5, 2.0]);
+        assert_eq!(r.next_into(&mut v).unwrap(), Some(2));
+        assert_eq!(v, [-3.0, 4e-3]);
+        let e = r.next_into(&mut v).unwrap_err().to_string();
+        assert!(
+            e.contains("joints") && e.contains("row 3") && e.contains("`q2`: `x`"),
+            "{e}"
+        );
+        let mut r = CsvRows::new("joints", "q1\n1\n".as_bytes(), &|_: &str| false).unwrap();
+        assert_eq!(r.next_into(&mut v).unwrap(), Some(1));
+        assert_eq!(r.next_into(&mut v).unwrap(), None);
+    }
+
+    #[test]
+    fn hashing_reader_hashes_what_passes_through() {
+        let text = b"q1,q2\n1,2\n";
+        let mut h = HashingReader::new(&text[..]);
+        let mut sink = Vec::new();
+        h.read_to_end(&mut sink).unwrap();
+        assert_eq!(sink, text);
+        assert_eq!(h.hex(), crate::run::input::sha256_hex(text));
+    }
+}
