@@ -4,6 +4,7 @@
 //! dataset and replaced by the dataset's id (over HTTP inputs are inline or dataset ids).
 
 pub mod commands;
+pub mod job_file;
 pub mod sse;
 
 use std::path::{Path, PathBuf};
@@ -256,7 +257,8 @@ impl Client {
             .ok_or_else(|| ClientError::Protocol(format!("no id in {v}")))
     }
 
-    /// Read a job file, upload the files it names, and return the document to submit.
+    /// Read a job file, upload the files it names (at any depth, see
+    /// [`job_file::file_references`]), and return the document to submit.
     pub async fn load_job_file(&self, path: &Path) -> Result<Value, ClientError> {
         let file_err = |p: &Path, m: String| ClientError::File {
             path: p.to_path_buf(),
@@ -266,31 +268,7 @@ impl Client {
         let mut doc: Value = serde_json::from_str(&text)
             .map_err(|e| file_err(path, format!("not valid JSON: {e}")))?;
         let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        let mut missing = Vec::new();
-        if let Value::Object(m) = &mut doc {
-            for (k, v) in m.iter_mut() {
-                let Value::String(s) = v else { continue };
-                if k == "kind" || s.trim_start().starts_with('<') {
-                    continue;
-                }
-                let p = dir.join(&*s);
-                if !p.is_file() {
-                    if looks_like_file(s) {
-                        missing.push(format!("`{k}`: {s} ({})", p.display()));
-                    }
-                    continue;
-                }
-                let content = std::fs::read(&p).map_err(|e| file_err(&p, e.to_string()))?;
-                let media = match p.extension().and_then(|e| e.to_str()) {
-                    Some("csv") => "text/csv",
-                    Some("json") => "application/json",
-                    Some("urdf") | Some("xml") => "application/xml",
-                    _ => "application/octet-stream",
-                };
-                let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("input");
-                *v = Value::String(self.upload(name, media, content).await?);
-            }
-        }
+        let (found, missing) = job_file::file_references(&doc, &dir);
         if !missing.is_empty() {
             return Err(file_err(
                 path,
@@ -299,6 +277,24 @@ impl Client {
                     missing.join(", ")
                 ),
             ));
+        }
+        // One upload per file, however often the document names it.
+        let mut ids: std::collections::HashMap<PathBuf, String> = Default::default();
+        for r in found {
+            let id = match ids.get(&r.path) {
+                Some(id) => id.clone(),
+                None => {
+                    let p = &r.path;
+                    let content = std::fs::read(p).map_err(|e| file_err(p, e.to_string()))?;
+                    let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("input");
+                    let id = self.upload(name, job_file::media_type(p), content).await?;
+                    ids.insert(r.path.clone(), id.clone());
+                    id
+                }
+            };
+            if let Some(v) = doc.pointer_mut(&r.pointer) {
+                *v = Value::String(id);
+            }
         }
         Ok(doc)
     }
@@ -341,10 +337,7 @@ pub fn looks_like_file(s: &str) -> bool {
         .map(str::to_ascii_lowercase);
     s.contains('/')
         || s.contains('\\')
-        || matches!(
-            ext.as_deref(),
-            Some("csv" | "json" | "urdf" | "xml" | "srdf" | "toml" | "txt" | "tsv")
-        )
+        || ext.is_some_and(|e| job_file::FILE_EXTENSIONS.contains(&e.as_str()))
 }
 
 /// A text progress bar line: `[#####.....]  50.0 % stage`.

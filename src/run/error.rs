@@ -77,7 +77,7 @@ pub enum JobError {
     },
     /// A device-driven kind run without a lab.
     #[error(
-        "`{kind}` drives devices: run it in the daemon (`calibd serve` + `calibd submit`) or with `calibd run --lab sim`"
+        "`{kind}` drives devices: run it in the daemon (`calibd serve` + `calibd submit`), or with `calibd run JOB`, which drives the simulated lab"
     )]
     NeedsLab {
         /// The kind.

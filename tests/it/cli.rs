@@ -1,7 +1,9 @@
 //! The operator's commands against a real daemon, each the real `calibd` binary in another
 //! process: `submit --watch` prints the summary, `rerun --watch` runs the same document
-//! as a new job, `report` writes the printable report, and a wrong token says where
-//! tokens come from.
+//! as a new job, `report` writes the printable report, a wrong token says where tokens
+//! come from, `submit` uploads the files a job names (a URDF model, files named deeper in
+//! the document) so the daemon computes what `calibd run` computes over the files, and
+//! `calibd run` drives a device kind on the simulated lab.
 
 use std::process::{Command, Output};
 
@@ -76,4 +78,182 @@ fn submit_rerun_and_report_from_the_command_line() {
         out.contains("refused the token") && out.contains("operator.token"),
         "{out}"
     );
+}
+
+/// The `calibd result ID` JSON of a finished job.
+fn result_json(d: &Daemon, data: &std::path::Path, id: &str) -> serde_json::Value {
+    let o = calibd(d, data, &["result", id]);
+    assert!(o.status.success(), "{}", text(&o));
+    serde_json::from_slice(&o.stdout).expect("result JSON")
+}
+
+/// The same job run in-process over its files (`calibd run`'s path): the expectation.
+fn run_offline(job: &std::path::Path) -> serde_json::Value {
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(job).unwrap()).unwrap();
+    let dir = job.parent().unwrap().to_path_buf();
+    let prepared = calibd::jobs::prepare(&doc, &calibd::jobs::DirResolver { dir }).unwrap();
+    prepared.run(&calibd::util::NoMonitor).unwrap().result
+}
+
+/// Every number of `a` within `tol` of the same place in `b`, every other value equal.
+fn assert_close(a: &serde_json::Value, b: &serde_json::Value, tol: f64, at: &str) {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => {
+            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+            assert!((x - y).abs() <= tol, "{at}: {x} against {y}");
+        }
+        (Value::Array(x), Value::Array(y)) => {
+            assert_eq!(x.len(), y.len(), "{at}: lengths");
+            for (i, (p, q)) in x.iter().zip(y).enumerate() {
+                assert_close(p, q, tol, &format!("{at}[{i}]"));
+            }
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            assert_eq!(
+                x.keys().collect::<Vec<_>>(),
+                y.keys().collect::<Vec<_>>(),
+                "{at}: keys"
+            );
+            for (k, p) in x {
+                assert_close(p, &y[k], tol, &format!("{at}.{k}"));
+            }
+        }
+        _ => assert_eq!(a, b, "{at}"),
+    }
+}
+
+#[test]
+fn submit_uploads_a_urdf_model_that_the_daemon_reads_as_urdf() {
+    let data = tempfile::tempdir().unwrap();
+    let d = Daemon::start(data.path(), &[("CALIBD_LAB", "none")], true);
+    let mukca = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/mukca");
+    std::fs::copy(
+        mukca.join("panda_nominal.urdf"),
+        data.path().join("panda.urdf"),
+    )
+    .unwrap();
+    // Three measured configurations of the Panda (rad), inline.
+    let csv = std::fs::read_to_string(mukca.join("panda_6_front.csv")).unwrap();
+    let rows: Vec<serde_json::Value> = csv
+        .lines()
+        .skip(1)
+        .take(3)
+        .map(|l| {
+            let q: Vec<f64> = l.split(',').take(7).map(|v| v.parse().unwrap()).collect();
+            serde_json::Value::Object(
+                (0..7)
+                    .map(|k| (format!("q{}", k + 1), serde_json::json!(q[k])))
+                    .collect(),
+            )
+        })
+        .collect();
+    let job = data.path().join("panda_fk.json");
+    let doc = serde_json::json!({
+        "kind": "serial.fk",
+        "model": "panda.urdf",
+        "chain": {"root": "panda_link0", "tip": "ball_link"},
+        "joints": rows,
+    });
+    std::fs::write(&job, doc.to_string()).unwrap();
+
+    let o = calibd(
+        &d,
+        data.path(),
+        &["submit", &job.display().to_string(), "--watch"],
+    );
+    let out = text(&o);
+    assert!(o.status.success(), "{out}");
+    assert!(
+        out.contains("job 1 submitted")
+            && out.contains("job 1: succeeded")
+            && out.contains("3 poses"),
+        "{out}"
+    );
+    // The daemon read the uploaded dataset as the URDF the file is: the poses of the
+    // in-process run over the file itself.
+    let served = result_json(&d, data.path(), "1");
+    let offline = run_offline(&job);
+    assert_eq!(served["poses"].as_array().map(Vec::len), Some(3));
+    assert_close(&served["poses"], &offline["poses"], 1e-9, "poses");
+}
+
+#[test]
+fn submit_uploads_the_files_named_deeper_in_the_job() {
+    let data = tempfile::tempdir().unwrap();
+    let d = Daemon::start(data.path(), &[("CALIBD_LAB", "none")], true);
+    let twin = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/data/pcr_twin");
+    std::fs::create_dir_all(data.path().join("models")).unwrap();
+    for f in ["pcr3pf.json", "pcr3pf_calibrated.json"] {
+        std::fs::copy(twin.join(f), data.path().join("models").join(f)).unwrap();
+    }
+    // `twin.model` is a file named inside the `twin` object.
+    let job = data.path().join("accuracy.json");
+    let doc = serde_json::json!({
+        "kind": "pcr.accuracy",
+        "model": "models/pcr3pf_calibrated.json",
+        "trajectory": {"square": 0.002, "points_per_side": 3},
+        "repetitions": 3,
+        "twin": {"model": "models/pcr3pf.json", "seed": 3}
+    });
+    std::fs::write(&job, doc.to_string()).unwrap();
+    let o = calibd(
+        &d,
+        data.path(),
+        &["submit", &job.display().to_string(), "--watch"],
+    );
+    let out = text(&o);
+    assert!(o.status.success(), "{out}");
+    assert!(out.contains("job 1: succeeded"), "{out}");
+    let served = result_json(&d, data.path(), "1");
+    let offline = run_offline(&job);
+    assert_close(&served["per_pose"], &offline["per_pose"], 1e-9, "per_pose");
+    assert_close(&served["summary"], &offline["summary"], 1e-9, "summary");
+
+    // A nested name of a file that is not there: refused before anything is uploaded,
+    // naming the field.
+    let bad = data.path().join("bad.json");
+    let mut doc = doc;
+    doc["twin"]["model"] = serde_json::json!("models/nowhere.json");
+    std::fs::write(&bad, doc.to_string()).unwrap();
+    let o = calibd(&d, data.path(), &["submit", &bad.display().to_string()]);
+    let out = text(&o);
+    assert!(!o.status.success(), "{out}");
+    assert!(
+        out.contains("names files that do not exist")
+            && out.contains("`twin.model`: models/nowhere.json"),
+        "{out}"
+    );
+}
+
+#[test]
+fn run_drives_a_device_kind_on_the_simulated_lab() {
+    // What the `NeedsLab` error tells the user to do: `calibd run JOB` (no flag).
+    let job = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/cell_jog.json");
+    let o = Command::new(BIN)
+        .arg("run")
+        .arg(&job)
+        .env_remove("CALIBD_CONFIG")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("starting the simulated lab"), "{err}");
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("result JSON");
+    let q: Vec<f64> = r["q_deg"]
+        .as_array()
+        .expect("q_deg")
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let commanded = [10.0, 20.0, -10.0, 30.0, 45.0, 0.0];
+    assert_eq!(q.len(), 6, "{r}");
+    for (k, (got, want)) in q.iter().zip(commanded).enumerate() {
+        assert!(
+            (got - want).abs() < 0.01,
+            "joint {}: {got} deg, commanded {want}",
+            k + 1
+        );
+    }
 }

@@ -64,19 +64,49 @@ pub struct SerialModel {
     pub source: Source,
 }
 
-/// Load `model` (DH JSON object or file, or URDF file/text with `chain`).
+/// A serial model input read once: URDF text or a JSON document.
+#[derive(Debug)]
+pub enum ModelInput {
+    /// URDF text.
+    Urdf(String),
+    /// A DH file, DH tree file or result document.
+    Json(Value),
+}
+
+/// Whether `model` names URDF by itself: inline XML or a `.urdf` file name.
+pub(crate) fn named_urdf(model: &Value) -> bool {
+    matches!(model, Value::String(s)
+        if s.trim_start().starts_with('<') || s.to_ascii_lowercase().ends_with(".urdf"))
+}
+
+/// Read `model`: inline JSON, inline URDF, or a reference (file or dataset id) whose name
+/// ends in `.urdf` or whose text starts with `<` (an uploaded dataset keeps no file name),
+/// else a JSON document.
+pub fn read_model(inputs: &Inputs<'_>, model: &Value) -> Result<ModelInput, JobError> {
+    let Value::String(s) = model else {
+        return Ok(ModelInput::Json(inputs.json("model", model)?));
+    };
+    let text = inputs.text("model", model)?;
+    if named_urdf(model)
+        || text
+            .trim_start_matches('\u{feff}')
+            .trim_start()
+            .starts_with('<')
+    {
+        return Ok(ModelInput::Urdf(text));
+    }
+    serde_json::from_str(&text)
+        .map(ModelInput::Json)
+        .map_err(|e| JobError::invalid("model", format!("`{s}` is not valid JSON: {e}")))
+}
+
+/// Load `model` (DH JSON object or file, or URDF file/text/dataset with `chain`).
 pub fn load_model(
     inputs: &Inputs<'_>,
     model: &Value,
     chain: Option<&ChainSpec>,
 ) -> Result<SerialModel, JobError> {
-    let is_urdf = match model {
-        Value::String(s) => {
-            s.trim_start().starts_with('<') || s.to_ascii_lowercase().ends_with(".urdf")
-        }
-        _ => false,
-    };
-    if is_urdf {
+    let urdf_chain = || {
         let spec = chain.ok_or_else(|| {
             JobError::invalid(
                 "chain",
@@ -89,45 +119,53 @@ pub fn load_model(
                 "a URDF model needs \"chain\": {\"root\": .., \"tip\": ..} (no name)",
             ));
         }
-        let text = inputs.text("model", model)?;
-        let urdf = UrdfModel::parse(&text)?;
-        let c = urdf.chain(&spec.root, &spec.tip)?;
-        Ok(SerialModel {
-            chain: c,
-            source: Source::Urdf {
-                model: urdf,
-                root: spec.root.clone(),
-                tip: spec.tip.clone(),
-            },
-        })
-    } else {
-        let value = inputs.json("model", model)?;
-        if value.get("kind").and_then(Value::as_str) == Some("tree") {
-            // A DH tree file: the named chain, as the serial DH file of that path.
-            let name = chain.and_then(|c| c.name.as_deref()).ok_or_else(|| {
-                JobError::invalid("chain", "a DH tree model needs \"chain\": {\"name\": ..}")
-            })?;
-            let label = model.as_str().unwrap_or("model");
-            let text = value.to_string();
-            let tree = crate::model::dh_tree::DhTreeFile::parse(&text, label)?;
-            let file = tree.serial_file(name, label)?;
+        Ok(spec)
+    };
+    if named_urdf(model) {
+        // The chain is checked before the file is read, as the name already says URDF.
+        urdf_chain()?;
+    }
+    let value = match read_model(inputs, model)? {
+        ModelInput::Urdf(text) => {
+            let spec = urdf_chain()?;
+            let urdf = UrdfModel::parse(&text)?;
+            let c = urdf.chain(&spec.root, &spec.tip)?;
             return Ok(SerialModel {
-                chain: file.to_chain()?,
-                source: Source::Dh(file),
+                chain: c,
+                source: Source::Urdf {
+                    model: urdf,
+                    root: spec.root.clone(),
+                    tip: spec.tip.clone(),
+                },
             });
         }
-        if chain.is_some() {
-            return Err(JobError::invalid(
-                "chain",
-                "only URDF models and DH tree files take a chain",
-            ));
-        }
-        let file = DhFile::from_value(value)?;
-        Ok(SerialModel {
+        ModelInput::Json(v) => v,
+    };
+    if value.get("kind").and_then(Value::as_str) == Some("tree") {
+        // A DH tree file: the named chain, as the serial DH file of that path.
+        let name = chain.and_then(|c| c.name.as_deref()).ok_or_else(|| {
+            JobError::invalid("chain", "a DH tree model needs \"chain\": {\"name\": ..}")
+        })?;
+        let label = model.as_str().unwrap_or("model");
+        let text = value.to_string();
+        let tree = crate::model::dh_tree::DhTreeFile::parse(&text, label)?;
+        let file = tree.serial_file(name, label)?;
+        return Ok(SerialModel {
             chain: file.to_chain()?,
             source: Source::Dh(file),
-        })
+        });
     }
+    if chain.is_some() {
+        return Err(JobError::invalid(
+            "chain",
+            "only URDF models and DH tree files take a chain",
+        ));
+    }
+    let file = DhFile::from_value(value)?;
+    Ok(SerialModel {
+        chain: file.to_chain()?,
+        source: Source::Dh(file),
+    })
 }
 
 impl SerialModel {

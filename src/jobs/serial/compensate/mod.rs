@@ -9,7 +9,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use super::{ChainSpec, SerialModel, load_model};
+use super::{ChainSpec, ModelInput, SerialModel, load_model, named_urdf, read_model};
 use crate::geometry::Frame;
 use crate::model::compensate::{Compensator, Scratch, Status, Tolerances};
 use crate::model::dh::Payload;
@@ -134,11 +134,13 @@ fn resolve_model(
     model: &Value,
     chain: Option<&ChainSpec>,
 ) -> Result<SerialModel, JobError> {
-    let json_ref = matches!(model, Value::String(s)
-        if !(s.trim_start().starts_with('<') || s.to_ascii_lowercase().ends_with(".urdf")));
     let doc = match model {
         Value::Object(_) => Some(model.clone()),
-        _ if json_ref => Some(inputs.json("model", model)?),
+        Value::String(_) if !named_urdf(model) => match read_model(inputs, model)? {
+            ModelInput::Json(d) => Some(d),
+            // URDF (also an uploaded dataset, known by its text): read as such below.
+            ModelInput::Urdf(_) => None,
+        },
         _ => None,
     };
     match doc.as_ref().and_then(|d| d.get("calibrated_model")) {

@@ -1,0 +1,88 @@
+//! `calibd bench AREA`: run an area's benchmarks and print (and optionally save) the figures.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+
+use super::runtime;
+
+/// Options of `calibd bench`.
+#[derive(Debug, clap::Args)]
+pub(crate) struct BenchArgs {
+    /// Area: `serial`, `pcr`, `humanoid`, `identify` (identification from 90 to 100,000
+    /// measurements), `all` (those four), `serial.fk` (only the `serial.fk` table
+    /// figures of `serial`), `identify:N` (one size), `kernels` (nalgebra against faer
+    /// and the crossovers), `drivers` or `api` (the daemon under many concurrent
+    /// clients).
+    area: String,
+    /// Also write every figure (median, min, max, peak memory) of `serial`, `pcr`,
+    /// `humanoid`, `identify` or `all` to this JSON file, to compare a run with an earlier one.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// The figures of a numerical area; `None` for an unknown one.
+fn numerical(a: &str) -> Option<Vec<calibd::bench::Figure>> {
+    match a {
+        "serial" => Some(calibd::bench::serial::run()),
+        "serial.fk" => Some(calibd::bench::serial::fk_tables()),
+        "serial.compensate" => Some(calibd::bench::serial::compensate_figures()),
+        "humanoid" => Some(calibd::bench::humanoid::run()),
+        "pcr" => Some(calibd::bench::pcr::run()),
+        "identify" => Some(calibd::bench::identify::run()),
+        "kernels" => Some(calibd::bench::kernels::run()),
+        other => other
+            .strip_prefix("identify:")
+            .and_then(|n| n.parse::<usize>().ok())
+            .map(|n| calibd::bench::identify::sweep(&[n])),
+    }
+}
+
+/// `calibd bench`: print each area's figures; write them as JSON with `--json`.
+pub(crate) fn bench(a: BenchArgs) -> Result<()> {
+    let BenchArgs { area, json } = a;
+    let areas: Vec<&str> = match area.as_str() {
+        "all" => vec!["serial", "pcr", "humanoid", "identify"],
+        "api" => {
+            let report = runtime()?.block_on(calibd::bench::api::run(Default::default()))?;
+            println!("{report}");
+            return Ok(());
+        }
+        "drivers" => {
+            return Ok(calibd_drivers::bench::run_and_print(&mut std::io::stdout())?);
+        }
+        other if numerical_area(other) => vec![other],
+        other => {
+            bail!(
+                "unknown benchmark area `{other}` (known: serial, serial.fk, serial.compensate, pcr, humanoid, identify, identify:N, kernels, all, drivers, api)"
+            )
+        }
+    };
+    let mut report = Vec::new();
+    for a in areas {
+        let figures = numerical(a).unwrap_or_default();
+        println!("== {a}");
+        calibd::bench::print(&mut std::io::stdout(), &figures)?;
+        report.push(calibd::bench::Area {
+            area: a.to_string(),
+            figures,
+        });
+    }
+    if let Some(path) = json {
+        let text = serde_json::to_string_pretty(&calibd::bench::Report::new(report))?;
+        std::fs::write(&path, text + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!("figures written to {}", path.display());
+    }
+    Ok(())
+}
+
+/// The benchmark areas whose figures `--json` can write.
+fn numerical_area(a: &str) -> bool {
+    matches!(
+        a,
+        "serial" | "serial.fk" | "serial.compensate" | "pcr" | "humanoid" | "identify" | "kernels"
+    ) || a
+        .strip_prefix("identify:")
+        .is_some_and(|n| n.parse::<usize>().is_ok())
+}
