@@ -231,17 +231,9 @@ impl Service {
         let _ = self.shared.events.send(e);
     }
 
-    /// One job, with the live progress of a running job. Read in place when the store can
-    /// without waiting (a free SQLite reader: no hand-off to the blocking pool and back),
-    /// else on the blocking pool.
+    /// One job, with the live progress of a running job.
     pub async fn job(&self, id: i64) -> Result<JobRecord, ServiceError> {
-        let rec = match self.shared.store.job_now(id) {
-            Some(rec) => rec?,
-            None => {
-                let store = self.shared.store.clone();
-                blocking(move || Ok(store.job(id)?)).await?
-            }
-        };
+        let rec = storage::job(&self.shared.store, id).await?;
         let mut rec = rec.ok_or(ServiceError::NotFound(id))?;
         self.overlay(&mut rec);
         Ok(rec)

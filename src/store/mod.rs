@@ -1,10 +1,11 @@
-//! Storage: one SQLite file (bundled SQLite, WAL mode, `synchronous = FULL`) holding jobs,
-//! their input datasets (content-hashed), progress history, results and artefacts, logs and
-//! schedules. Writes go through one connection; reads use a small pool of connections that
-//! WAL lets run beside the writer. Every call is blocking: async code reaches the store
-//! through the service's storage module (`service::storage`), which runs calls on the
-//! blocking pool. A result is written in the same transaction that makes its job final,
-//! so a crash either keeps the whole result or leaves the job `running`, which
+//! Storage: jobs, their input datasets (content-hashed), progress history, results and
+//! artefacts, logs, schedules and campaign state, behind one [`Store`] handle whose calls
+//! go to a backend (`backend.rs`: one trait per area): an embedded SQLite file
+//! (`sqlite/`, the default) or a PostgreSQL database several daemons share (`pg/`). Every
+//! call is blocking: async code reaches the store through the service's storage module
+//! (`service::storage`), which runs calls on the blocking pool (a status read may run in
+//! place: [`Store::job_now`]). A result is written in the same transaction that makes its
+//! job final, so a crash either keeps the whole result or leaves the job `running`, which
 //! [`Store::recover`] turns into `interrupted` on the next start.
 
 mod backend;
