@@ -47,9 +47,22 @@ pub enum ApiBenchError {
     /// A request failed.
     #[error("bench api: {0}")]
     Client(#[from] ClientError),
+    /// A status read through the service failed.
+    #[error("bench api: status read: {0}")]
+    Service(String),
     /// Socket setup.
     #[error("bench api: {0}")]
     Io(#[from] std::io::Error),
+}
+
+/// CPU time of the process since `start`, per operation, in microseconds.
+fn cpu_per(start: Option<Duration>, ops: u64) -> String {
+    match (start, super::cpu_time()) {
+        (Some(a), Some(b)) if ops > 0 => {
+            format!("{:.1} us", (b - a).as_secs_f64() * 1e6 / ops as f64)
+        }
+        _ => "n/a".into(),
+    }
 }
 
 fn percentile(sorted: &[Duration], p: f64) -> Duration {
@@ -92,6 +105,7 @@ pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
     let stop = CancellationToken::new();
     let (state, workers, _) =
         crate::server::start(&config, crate::schedule::Clock::system(), stop.clone()).await?;
+    let service = state.service.clone();
     let t = stop.clone();
     let server = tokio::spawn(crate::api::run(listener, state, async move {
         t.cancelled().await
@@ -106,11 +120,28 @@ pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
         std::thread::available_parallelism().map_or(0, |n| n.get())
     )];
 
+    // Phase 0: the status read's service and store path alone (no HTTP), one at a time.
+    let reads = 20_000u32;
+    let (cpu0, t0) = (super::cpu_time(), Instant::now());
+    for _ in 0..reads {
+        service
+            .job(first)
+            .await
+            .map_err(|e| ApiBenchError::Service(e.to_string()))?;
+    }
+    let wall = t0.elapsed();
+    report.push(format!(
+        "phase 0: {reads} status reads through the service (no HTTP): {:.1} us wall, {} CPU per read",
+        wall.as_secs_f64() * 1e6 / f64::from(reads),
+        cpu_per(cpu0, u64::from(reads)),
+    ));
+
     // Phase 1: open loop, fixed rate of status reads.
     let n = o.rate as u64 * o.seconds;
     let period = Duration::from_secs_f64(1.0 / o.rate.max(1) as f64);
     let lat = Arc::new(Mutex::new(Vec::with_capacity(n as usize)));
     let errors = Arc::new(Mutex::new(0usize));
+    let cpu0 = super::cpu_time();
     let t0 = Instant::now();
     let mut tasks = Vec::new();
     let mut tick = tokio::time::interval(period);
@@ -140,6 +171,10 @@ pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
         l,
         e,
         wall,
+    ));
+    report.push(format!(
+        "  CPU per status read (whole process: HTTP client and server): {}",
+        cpu_per(cpu0, n)
     ));
 
     // Phase 2: closed loop, mixed submissions and reads.

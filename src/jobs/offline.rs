@@ -139,7 +139,7 @@ pub fn write_main_csv(job: &Job, path: &Path, monitor: &dyn Monitor) -> Result<u
 
 impl Job {
     /// Run the job from synchronous code (`calibd run`, tests, benches) on a private
-    /// runtime, with an empty lab and a journal in memory (see [`crate::offline`]).
+    /// runtime, with an empty lab and a journal in memory (see [`crate::jobs::offline`]).
     pub fn run(&self, monitor: &dyn Monitor) -> Result<Completed, JobError> {
         run(self, Arc::new(Lab::empty()), monitor)
     }

@@ -233,8 +233,7 @@ impl Service {
 
     /// One job, with the live progress of a running job.
     pub async fn job(&self, id: i64) -> Result<JobRecord, ServiceError> {
-        let store = self.shared.store.clone();
-        let rec = blocking(move || Ok(store.job(id)?)).await?;
+        let rec = storage::job(&self.shared.store, id).await?;
         let mut rec = rec.ok_or(ServiceError::NotFound(id))?;
         self.overlay(&mut rec);
         Ok(rec)

@@ -1,6 +1,7 @@
 //! The one door to storage. Every store call is blocking (SQLite, or the synchronous
 //! `postgres` client), so it runs on tokio's blocking pool — and this module is the only
-//! place that sends store work there. The HTTP API and the scheduler read and write the
+//! place that sends store work there (a job status read runs in place when the store can
+//! answer it without waiting: [`job`]). The HTTP API and the scheduler read and write the
 //! store only through the typed async methods below; the service's own modules (workers,
 //! fleet, cells) use [`call`] and [`blocking`]. A campaign's journal is read and written
 //! from inside the campaign's async task through a synchronous trait: [`RunJournal`] moves
@@ -12,7 +13,7 @@ use super::{Service, ServiceError};
 use crate::jobs::Artefact;
 use crate::procedures::{Journal, JournalEntry};
 use crate::store::{
-    ArtefactInfo, CellModel, DatasetInfo, Location, LogLine, NewSchedule, ProgressPoint,
+    ArtefactInfo, CellModel, DatasetInfo, JobRecord, Location, LogLine, NewSchedule, ProgressPoint,
     ScheduleRecord, ScheduleRun, Store, StoreError, StoreJournal,
 };
 
@@ -25,6 +26,15 @@ pub(super) async fn call<T: Send + 'static>(
     tokio::task::spawn_blocking(move || f(&st))
         .await
         .map_err(|e| StoreError::Internal(e.to_string()))?
+}
+
+/// Job `id`, read in place when the store can without waiting (a free SQLite reader: a
+/// status read then costs no hand-off to the blocking pool and back), else there.
+pub(super) async fn job(store: &Store, id: i64) -> Result<Option<JobRecord>, StoreError> {
+    match store.job_now(id) {
+        Some(rec) => rec,
+        None => call(store, move |s| s.job(id)).await,
+    }
 }
 
 /// Run blocking work that reads the store (job preparation resolves datasets) on the

@@ -4,6 +4,8 @@
 
 use postgres::types::{ToSql, Type};
 
+use super::pg::Pg;
+use super::sqlite::Sqlite;
 use super::{Store, StoreError};
 
 /// The tables, parents before children; each copied in its stored order.
@@ -54,11 +56,14 @@ impl Store {
     /// Copy everything in this (SQLite) store into `to` (PostgreSQL), which must hold no
     /// job yet. Returns the rows copied per table.
     pub fn copy_to(&self, to: &Store) -> Result<Copied, StoreError> {
-        let Some(pg) = to.pg() else {
+        let Some(pg) = to.backend.as_any().downcast_ref::<Pg>() else {
             return Err(StoreError::Unsupported("copy goes to a PostgreSQL store"));
         };
-        let src = self.sqlite()?;
-        let sq = super::lock(&src.writer);
+        let Some(src) = self.backend.as_any().downcast_ref::<Sqlite>() else {
+            return Err(StoreError::Unsupported("copy comes from a SQLite store"));
+        };
+        // The writer, held: nothing is written to the source while it is copied.
+        let sq = src.writer();
         let mut c = pg.conn()?;
         let mut tx = c.transaction()?;
         let jobs: i64 = tx.query_one("SELECT COUNT(*) FROM jobs", &[])?.try_get(0)?;

@@ -1,9 +1,6 @@
-//! Schema migrations: an ordered list of SQL steps and `PRAGMA user_version`, applied in
-//! one transaction at start-up (a database newer than this binary is refused).
-
-use rusqlite::Connection;
-
-use super::StoreError;
+//! Schema migrations: an ordered list of SQL steps, applied in one transaction at start-up
+//! by each backend (SQLite as written, PostgreSQL translated; a database newer than this
+//! binary is refused).
 
 /// The schema steps, oldest first. Never edit a released step: append a new one.
 const STEPS: &[&str] = &[
@@ -123,6 +120,8 @@ const STEPS: &[&str] = &[
     // of a job that runs on another daemon of a fleet is a flag that daemon reads.
     "ALTER TABLE jobs ADD COLUMN attempt INTEGER NOT NULL DEFAULT 0;
     ALTER TABLE jobs ADD COLUMN cancel_requested INTEGER NOT NULL DEFAULT 0;",
+    // 5: when a paused or interrupted job was last resumed (`started_at` keeps its first start).
+    "ALTER TABLE jobs ADD COLUMN resumed_at TEXT;",
 ];
 
 /// The schema steps (shared with the PostgreSQL backend, which translates them).
@@ -132,21 +131,3 @@ pub(crate) fn steps() -> &'static [&'static str] {
 
 /// The schema version this binary writes.
 pub const SCHEMA_VERSION: i64 = STEPS.len() as i64;
-
-/// Bring the schema to [`SCHEMA_VERSION`]; returns the version found before.
-pub(crate) fn migrate(conn: &mut Connection) -> Result<i64, StoreError> {
-    let tx = conn.transaction()?;
-    let found: i64 = tx.query_row("PRAGMA user_version", [], |r| r.get(0))?;
-    if found > SCHEMA_VERSION {
-        return Err(StoreError::SchemaTooNew {
-            found,
-            known: SCHEMA_VERSION,
-        });
-    }
-    for step in &STEPS[found as usize..] {
-        tx.execute_batch(step)?;
-    }
-    tx.pragma_update(None, "user_version", SCHEMA_VERSION)?;
-    tx.commit()?;
-    Ok(found)
-}

@@ -79,8 +79,10 @@ pub struct JobRecord {
     pub inputs_sha256: Value,
     /// When it was accepted (RFC 3339, UTC).
     pub submitted_at: String,
-    /// When it started.
+    /// When it first started (a resumed job keeps its first start).
     pub started_at: Option<String>,
+    /// When it was last resumed after a pause or an interruption (none if never).
+    pub resumed_at: Option<String>,
     /// When it reached a final state.
     pub finished_at: Option<String>,
     /// Progress in [0, 1].

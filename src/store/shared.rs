@@ -5,19 +5,42 @@
 
 use std::time::Duration;
 
-pub use super::pg::{CancelRequest, Claimed};
-use super::{Store, StoreError};
+use serde_json::Value;
+
+use super::{Run, Store, StoreError};
+
+/// A job a daemon claimed: it is `running` and leased to that daemon.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Claimed {
+    /// Job id.
+    pub id: i64,
+    /// Priority.
+    pub priority: i64,
+    /// The job document.
+    pub doc: Value,
+    /// Devices it holds while it runs.
+    pub devices: Vec<String>,
+    /// The run's token: its writes count only while the job is still this attempt.
+    pub run: Run,
+}
+
+/// What an operator's cancel did to a job in the shared store.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CancelRequest {
+    /// It was queued or paused: it is `cancelled` now.
+    Ended,
+    /// It runs on a daemon (named in the store): that daemon is asked to stop it.
+    Requested,
+    /// It had already ended in this state.
+    Final(crate::store::JobState),
+    /// There is no such job.
+    Missing,
+}
 
 impl Store {
     /// True when several daemons can share this store (PostgreSQL).
     pub fn is_shared(&self) -> bool {
-        self.pg().is_some()
-    }
-
-    fn shared(&self) -> Result<&super::pg::Pg, StoreError> {
-        self.pg().ok_or(StoreError::Unsupported(
-            "several daemons need a PostgreSQL store",
-        ))
+        self.backend.is_shared()
     }
 
     /// Record daemon `name` (or refresh its heartbeat) and take `cells` for it; a cell held
@@ -29,12 +52,12 @@ impl Store {
         cells: &[String],
         stale: Duration,
     ) -> Result<(), StoreError> {
-        self.shared()?.register_daemon(name, cells, stale)
+        self.backend.register_daemon(name, cells, stale)
     }
 
     /// Each cell and the daemon holding it, by cell name.
     pub fn cell_owners(&self) -> Result<Vec<(String, String)>, StoreError> {
-        self.shared()?.cell_owners()
+        self.backend.cell_owners()
     }
 
     /// Claim the next queued job daemon `owner` can run (all its devices among `devices`;
@@ -45,44 +68,44 @@ impl Store {
         devices: &[String],
         lease: Duration,
     ) -> Result<Option<Claimed>, StoreError> {
-        self.shared()?.claim(owner, devices, lease)
+        self.backend.claim(owner, devices, lease)
     }
 
     /// Renew `owner`'s heartbeat and the leases of its running jobs; returns how many it holds.
     pub fn heartbeat(&self, owner: &str, lease: Duration) -> Result<u64, StoreError> {
-        self.shared()?.heartbeat(owner, lease)
+        self.backend.heartbeat(owner, lease)
     }
 
     /// Re-queue running jobs whose lease expired; returns their ids.
     pub fn requeue_expired(&self) -> Result<Vec<i64>, StoreError> {
-        self.shared()?.requeue_expired()
+        self.backend.requeue_expired()
     }
 
     /// The daemon holding a job (none when it is not running on a shared store).
     pub fn job_owner(&self, id: i64) -> Result<Option<String>, StoreError> {
-        self.shared()?.job_owner(id)
+        self.backend.job_owner(id)
     }
 
     /// Put `owner`'s running jobs back in the queue; returns their ids.
     pub fn release_owned(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
-        self.shared()?.release_owned(owner)
+        self.backend.release_owned(owner)
     }
 
     /// An operator's cancel in a fleet: a queued or paused job ends at once; a running one
     /// is flagged for the daemon that runs it (told by `NOTIFY calibd_cancel`; its
     /// heartbeat also reads the flag).
     pub fn request_cancel(&self, id: i64) -> Result<CancelRequest, StoreError> {
-        self.shared()?.request_cancel(id)
+        self.backend.request_cancel(id)
     }
 
     /// The running jobs of daemon `owner` whose cancel an operator requested.
     pub fn cancel_requests(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
-        self.shared()?.cancel_requests(owner)
+        self.backend.cancel_requests(owner)
     }
 
     /// Send a notification to every daemon listening on `channel`.
     pub fn notify(&self, channel: &str, payload: &str) -> Result<(), StoreError> {
-        self.shared()?.notify(channel, payload)
+        self.backend.notify(channel, payload)
     }
 
     /// Listen on `channels` (identifiers) and call `on(channel, payload)` for each
@@ -94,6 +117,6 @@ impl Store {
         stop: &dyn Fn() -> bool,
         on: &mut dyn FnMut(&str, &str),
     ) -> Result<(), StoreError> {
-        self.shared()?.listen(channels, tick, stop, on)
+        self.backend.listen(channels, tick, stop, on)
     }
 }

@@ -3,49 +3,15 @@
 //! file and copied into the result. Neither is ever held whole in memory (SQLite's
 //! incremental BLOB I/O; PostgreSQL reads the value whole).
 
-use std::io::{Read, Write};
 use std::path::Path;
 
-use rusqlite::{MAIN_DB, OptionalExtension, Transaction, params};
-
 use super::{Store, StoreError};
-
-/// Chunk of the copies, bytes.
-const CHUNK: usize = 1 << 16;
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
     move |source| StoreError::Io {
         path: path.to_path_buf(),
         source,
     }
-}
-
-/// Insert job `id`'s result with the CSV file `path` as its main table, copied in chunks.
-pub(super) fn insert_result_with_file(
-    tx: &Transaction<'_>,
-    id: i64,
-    result: &str,
-    path: &Path,
-) -> Result<(), StoreError> {
-    let mut file = std::fs::File::open(path).map_err(io_err(path))?;
-    let len = file.metadata().map_err(io_err(path))?.len();
-    let len =
-        i64::try_from(len).map_err(|_| StoreError::Conflict("main table too large".into()))?;
-    tx.execute(
-        "INSERT INTO results (job_id, result, main_table_csv) VALUES (?1, ?2, zeroblob(?3))",
-        params![id, result, len],
-    )?;
-    // `results.job_id` is the INTEGER PRIMARY KEY: the row id is the job id.
-    let mut blob = tx.blob_open(MAIN_DB, "results", "main_table_csv", id, false)?;
-    let mut buf = vec![0u8; CHUNK];
-    loop {
-        let n = file.read(&mut buf).map_err(io_err(path))?;
-        if n == 0 {
-            break;
-        }
-        blob.write_all(&buf[..n]).map_err(io_err(path))?;
-    }
-    Ok(())
 }
 
 /// Datasets at least this large are read by jobs from a spooled file, row by row (bytes).
@@ -55,9 +21,9 @@ impl Store {
     /// The folder of spooled files: `spool/` beside the SQLite file, or under the system's
     /// temporary folder for PostgreSQL. A cache: emptied when the daemon starts.
     pub fn spool_dir(&self) -> std::path::PathBuf {
-        match self.path().parent() {
-            Some(dir) if self.pg().is_none() => dir.join("spool"),
-            _ => std::env::temp_dir().join(format!("calibd-spool-{}", std::process::id())),
+        match self.backend.file().and_then(Path::parent) {
+            Some(dir) => dir.join("spool"),
+            None => std::env::temp_dir().join(format!("calibd-spool-{}", std::process::id())),
         }
     }
 
@@ -97,36 +63,7 @@ impl Store {
         partial.push(format!(".{}-{k}.partial", std::process::id()));
         let partial = std::path::PathBuf::from(partial);
         let mut out = std::fs::File::create(&partial).map_err(io_err(&partial))?;
-        let copied = if let Some(pg) = self.pg() {
-            match pg.dataset(id)? {
-                Some(bytes) => {
-                    out.write_all(&bytes).map_err(io_err(&partial))?;
-                    true
-                }
-                None => false,
-            }
-        } else {
-            self.read(|c| {
-                let row: Option<i64> = c
-                    .query_row("SELECT rowid FROM datasets WHERE id = ?1", [id], |r| {
-                        r.get(0)
-                    })
-                    .optional()?;
-                let Some(rowid) = row else {
-                    return Ok(false);
-                };
-                let mut blob = c.blob_open(MAIN_DB, "datasets", "content", rowid, true)?;
-                let mut buf = vec![0u8; CHUNK];
-                loop {
-                    let n = blob.read(&mut buf).map_err(io_err(&partial))?;
-                    if n == 0 {
-                        break;
-                    }
-                    out.write_all(&buf[..n]).map_err(io_err(&partial))?;
-                }
-                Ok(true)
-            })?
-        };
+        let copied = self.backend.dataset_to_writer(id, &mut out, &partial)?;
         drop(out);
         if copied {
             std::fs::rename(&partial, dest).map_err(io_err(dest))?;
@@ -145,8 +82,8 @@ mod tests {
     fn a_dataset_spools_to_a_file_byte_for_byte() {
         let dir = tempfile::tempdir().unwrap();
         let s = Store::open(dir.path()).unwrap();
-        // Larger than one chunk and not a multiple of it.
-        let content: Vec<u8> = (0..(3 * CHUNK + 17)).map(|i| (i % 251) as u8).collect();
+        // Larger than one chunk (64 KiB) and not a multiple of it.
+        let content: Vec<u8> = (0..(3 * (1 << 16) + 17)).map(|i| (i % 251) as u8).collect();
         let info = s.put_dataset("big.csv", "text/csv", &content).unwrap();
         let dest = dir.path().join("spooled");
         assert!(s.dataset_to_file(&info.id, &dest).unwrap());

@@ -79,7 +79,63 @@ on_both!(
     schedules_are_unique_by_name_and_record_runs,
     idempotent_submission_and_campaign_state,
     a_run_whose_job_was_taken_writes_nothing,
+    a_resumed_job_keeps_its_first_start_and_says_when_it_resumed,
 );
+
+/// The store's clock has moved on from `t` (timestamps have millisecond resolution).
+fn after(t: &str) {
+    while format_time(chrono::Utc::now()).as_str() <= t {
+        std::thread::yield_now();
+    }
+}
+
+/// Pausing, resuming and starting a job again keeps its first `started_at`; `resumed_at`
+/// is null until it is resumed, then the instant of the resume, in the job status JSON too.
+fn a_resumed_job_keeps_its_first_start_and_says_when_it_resumed(f: &Fixture) {
+    let s = f.open();
+    let id = s.insert_job(&job("trical.campaign")).unwrap();
+    let run = s.start_job(id).unwrap().unwrap();
+    let first = s.job(id).unwrap().unwrap();
+    let started = first.started_at.clone().unwrap();
+    assert_eq!(first.resumed_at, None);
+    let v = serde_json::to_value(&first).unwrap();
+    assert!(
+        v["resumed_at"].is_null() && v["started_at"] == json!(started),
+        "{v}"
+    );
+    assert!(s.pause_job(run, "indicator stalled").unwrap());
+    after(&started);
+    let before_resume = format_time(chrono::Utc::now());
+    assert!(s.resume_job(id, "operator").unwrap());
+    let queued = s.job(id).unwrap().unwrap();
+    assert_eq!(queued.state, JobState::Queued);
+    assert_eq!(queued.started_at.as_deref(), Some(started.as_str()));
+    let resumed = queued.resumed_at.clone().unwrap();
+    assert!(
+        resumed > started && resumed >= before_resume,
+        "{started} {resumed}"
+    );
+    // Started again (a later attempt): the first start and the resume both stay.
+    after(&resumed);
+    let again = s.start_job(id).unwrap().unwrap();
+    assert_eq!(again.attempt, 2);
+    assert!(s.finish_job(again, &json!({}), None, &[], None).unwrap());
+    let done = s.job(id).unwrap().unwrap();
+    assert_eq!(done.state, JobState::Succeeded);
+    assert_eq!(done.started_at.as_deref(), Some(started.as_str()));
+    assert_eq!(done.resumed_at.as_deref(), Some(resumed.as_str()));
+    assert!(done.finished_at.unwrap() > resumed);
+    let v = serde_json::to_value(s.job(id).unwrap().unwrap()).unwrap();
+    assert_eq!(
+        (&v["started_at"], &v["resumed_at"]),
+        (&json!(started), &json!(resumed))
+    );
+    // A job never resumed keeps a null `resumed_at` through its whole life.
+    let other = s.insert_job(&job("serial.fk")).unwrap();
+    let r = s.start_job(other).unwrap().unwrap();
+    assert!(s.finish_job(r, &json!({}), None, &[], None).unwrap());
+    assert_eq!(s.job(other).unwrap().unwrap().resumed_at, None);
+}
 
 /// A main table written to a file is stored whole (in chunks on SQLite), and a dataset
 /// spools back to a file byte for byte, on both backends.

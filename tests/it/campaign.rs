@@ -138,6 +138,8 @@ async fn faults_are_retried_a_stall_pauses_and_resume_ends_with_the_uninterrupte
     }
     stall.store(true, Ordering::SeqCst);
     let paused = until_state(&d.svc, id, &[JobState::Paused]).await;
+    let started = paused.started_at.clone().expect("a paused job has started");
+    assert_eq!(paused.resumed_at, None, "not resumed yet");
     let reason = paused.error.unwrap_or_default();
     assert!(reason.contains("paused at configuration"), "{reason}");
     let held = journal(&d.svc, id).await.len();
@@ -148,7 +150,21 @@ async fn faults_are_retried_a_stall_pauses_and_resume_ends_with_the_uninterrupte
     // Nothing moves while paused; the operator clears the fault and resumes.
     stall.store(false, Ordering::SeqCst);
     assert_eq!(d.svc.resume(id).await.unwrap(), JobState::Queued);
-    until_state(&d.svc, id, &[JobState::Succeeded]).await;
+    let done = until_state(&d.svc, id, &[JobState::Succeeded]).await;
+    // The first start stays; `resumed_at` says when the operator resumed it (issue 32.10).
+    let resumed = done
+        .resumed_at
+        .clone()
+        .expect("resumed_at of a resumed job");
+    assert_eq!(done.started_at.as_deref(), Some(started.as_str()));
+    assert!(
+        started < resumed && resumed < done.finished_at.clone().unwrap(),
+        "started {started}, resumed {resumed}, finished {:?}",
+        done.finished_at
+    );
+    let status = serde_json::to_value(&done).unwrap();
+    assert_eq!(status["started_at"], serde_json::json!(started));
+    assert_eq!(status["resumed_at"], serde_json::json!(resumed));
     let got = journal(&d.svc, id).await;
     assert_eq!(
         got, reference,

@@ -6,49 +6,24 @@
 
 use std::time::Duration;
 
-use serde_json::Value;
-
 use super::Pg;
 use super::jobs::log_tx;
-use crate::store::{JobState, Run, StoreError};
-
-/// A job a daemon claimed: it is `running` and leased to that daemon.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Claimed {
-    /// Job id.
-    pub id: i64,
-    /// Priority.
-    pub priority: i64,
-    /// The job document.
-    pub doc: Value,
-    /// Devices it holds while it runs.
-    pub devices: Vec<String>,
-    /// The run's token: its writes count only while the job is still this attempt.
-    pub run: Run,
-}
-
-/// What an operator's cancel did to a job in the shared store.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum CancelRequest {
-    /// It was queued or paused: it is `cancelled` now.
-    Ended,
-    /// It runs on a daemon (named in the store): that daemon is asked to stop it.
-    Requested,
-    /// It had already ended in this state.
-    Final(crate::store::JobState),
-    /// There is no such job.
-    Missing,
-}
+use crate::store::backend::Fleet;
+use crate::store::{CancelRequest, Claimed, JobState, Run, StoreError};
 
 fn secs(d: Duration) -> f64 {
     d.as_secs_f64()
 }
 
-impl Pg {
+impl Fleet for Pg {
+    fn is_shared(&self) -> bool {
+        true
+    }
+
     /// Record (or refresh) daemon `name` and take the cells in `cells` for it. A cell held
     /// by another daemon whose heartbeat is older than `stale` is taken over; one held by a
     /// live daemon is refused (returned in the error).
-    pub(crate) fn register_daemon(
+    fn register_daemon(
         &self,
         name: &str,
         cells: &[String],
@@ -80,7 +55,7 @@ impl Pg {
     }
 
     /// The daemon holding each cell.
-    pub(crate) fn cell_owners(&self) -> Result<Vec<(String, String)>, StoreError> {
+    fn cell_owners(&self) -> Result<Vec<(String, String)>, StoreError> {
         let rows = self
             .conn()?
             .query("SELECT name, owner FROM cells ORDER BY name", &[])?;
@@ -92,7 +67,7 @@ impl Pg {
     /// Claim the next queued job `owner` can run (highest priority, then oldest): its
     /// devices must all be among `devices` (numerical jobs need none). The job becomes
     /// `running`, leased to `owner` for `lease`.
-    pub(crate) fn claim(
+    fn claim(
         &self,
         owner: &str,
         devices: &[String],
@@ -102,7 +77,7 @@ impl Pg {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
         let row = tx.query_opt(
-            "UPDATE jobs SET state = 'running', started_at = $4, progress = 0, owner = $1, \
+            "UPDATE jobs SET state = 'running', started_at = COALESCE(started_at, $4), progress = 0, owner = $1, \
              lease_until = now() + make_interval(secs => $3), attempt = attempt + 1 \
              WHERE id = (SELECT id FROM jobs WHERE state = 'queued' AND devices::jsonb <@ $2::TEXT::jsonb \
                          ORDER BY priority DESC, id FOR UPDATE SKIP LOCKED LIMIT 1) \
@@ -130,7 +105,7 @@ impl Pg {
 
     /// Renew the leases of `owner`'s running jobs and its heartbeat; returns how many jobs
     /// it still holds.
-    pub(crate) fn heartbeat(&self, owner: &str, lease: Duration) -> Result<u64, StoreError> {
+    fn heartbeat(&self, owner: &str, lease: Duration) -> Result<u64, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
         tx.execute(
@@ -149,7 +124,7 @@ impl Pg {
     /// Put running jobs whose lease expired back in the queue (their daemon died or lost
     /// the database); returns their ids. A campaign's journal stays, so it resumes where it
     /// was on the daemon that holds its cell.
-    pub(crate) fn requeue_expired(&self) -> Result<Vec<i64>, StoreError> {
+    fn requeue_expired(&self) -> Result<Vec<i64>, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
         cancel_requested_tx(&mut tx, None)?;
@@ -168,7 +143,7 @@ impl Pg {
     }
 
     /// The daemon holding a running job.
-    pub(crate) fn job_owner(&self, id: i64) -> Result<Option<String>, StoreError> {
+    fn job_owner(&self, id: i64) -> Result<Option<String>, StoreError> {
         let r = self
             .conn()?
             .query_opt("SELECT owner FROM jobs WHERE id = $1", &[&id])?;
@@ -180,7 +155,7 @@ impl Pg {
 
     /// Put the running jobs of `owner` back in the queue (a daemon restarting under the
     /// same name, or stopping); returns their ids.
-    pub(crate) fn release_owned(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
+    fn release_owned(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
         cancel_requested_tx(&mut tx, Some(owner))?;
@@ -199,7 +174,7 @@ impl Pg {
 
     /// An operator's cancel: a queued or paused job ends now; a running one is flagged and
     /// its daemon told (`NOTIFY calibd_cancel`, and its heartbeat reads the flag).
-    pub(crate) fn request_cancel(&self, id: i64) -> Result<CancelRequest, StoreError> {
+    fn request_cancel(&self, id: i64) -> Result<CancelRequest, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
         let Some(r) = tx.query_opt("SELECT state FROM jobs WHERE id = $1 FOR UPDATE", &[&id])?
@@ -234,7 +209,7 @@ impl Pg {
     }
 
     /// The running jobs of `owner` an operator asked to cancel.
-    pub(crate) fn cancel_requests(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
+    fn cancel_requests(&self, owner: &str) -> Result<Vec<i64>, StoreError> {
         let rows = self.conn()?.query(
             "SELECT id FROM jobs WHERE owner = $1 AND state = 'running' AND cancel_requested = 1",
             &[&owner],
@@ -243,7 +218,7 @@ impl Pg {
     }
 
     /// Send `payload` on notification channel `channel`.
-    pub(crate) fn notify(&self, channel: &str, payload: &str) -> Result<(), StoreError> {
+    fn notify(&self, channel: &str, payload: &str) -> Result<(), StoreError> {
         self.conn()?
             .execute("SELECT pg_notify($1, $2)", &[&channel, &payload])?;
         Ok(())
@@ -251,7 +226,7 @@ impl Pg {
 
     /// Listen on `channels` on a connection of its own and call `on(channel, payload)` for
     /// each notification, until `stop()` is true (checked at least every `tick`).
-    pub(crate) fn listen(
+    fn listen(
         &self,
         channels: &[&str],
         tick: Duration,

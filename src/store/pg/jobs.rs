@@ -4,12 +4,19 @@ use postgres::{GenericClient, Row};
 use serde_json::Value;
 
 use super::{Pg, now};
+use crate::store::backend::{Jobs, Runs};
 use crate::store::{
     JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered, Run, StoreError,
 };
 
-pub(super) const COLUMNS: &str = "id, kind, state, priority, devices, inputs_sha256, submitted_at, started_at, \
-     finished_at, progress, stage, message, error, submitted_by, schedule_id, rerun_of";
+/// The columns of a [`JobRecord`], in the order [`record`] reads them.
+macro_rules! columns {
+    () => {
+        "id, kind, state, priority, devices, inputs_sha256, submitted_at, started_at, \
+         finished_at, progress, stage, message, error, submitted_by, schedule_id, rerun_of, \
+         resumed_at"
+    };
+}
 
 pub(super) fn record(r: &Row) -> Result<JobRecord, StoreError> {
     let state: String = r.try_get(2)?;
@@ -27,6 +34,7 @@ pub(super) fn record(r: &Row) -> Result<JobRecord, StoreError> {
         inputs_sha256: serde_json::from_str(&hashes)?,
         submitted_at: r.try_get(6)?,
         started_at: r.try_get(7)?,
+        resumed_at: r.try_get(16)?,
         finished_at: r.try_get(8)?,
         progress: r.try_get(9)?,
         stage: r.try_get(10)?,
@@ -68,12 +76,8 @@ pub(super) fn check_run(c: &mut impl GenericClient, run: Run) -> Result<(), Stor
     Ok(())
 }
 
-impl Pg {
-    pub(crate) fn insert_job(&self, j: &NewJob) -> Result<i64, StoreError> {
-        self.insert_job_once(j).map(|(id, _)| id)
-    }
-
-    pub(crate) fn insert_job_once(&self, j: &NewJob) -> Result<(i64, bool), StoreError> {
+impl Jobs for Pg {
+    fn insert_job_once(&self, j: &NewJob) -> Result<(i64, bool), StoreError> {
         let doc = serde_json::to_string(&j.doc)?;
         let devices = serde_json::to_string(&j.devices)?;
         let hashes = serde_json::to_string(&j.inputs_sha256)?;
@@ -126,27 +130,30 @@ impl Pg {
         Ok((id, true))
     }
 
-    pub(crate) fn job(&self, id: i64) -> Result<Option<JobRecord>, StoreError> {
-        let row = self
-            .conn()?
-            .query_opt(&format!("SELECT {COLUMNS} FROM jobs WHERE id = $1"), &[&id])?;
+    fn job(&self, id: i64) -> Result<Option<JobRecord>, StoreError> {
+        let row = self.conn()?.query_opt_cached(
+            concat!("SELECT ", columns!(), " FROM jobs WHERE id = $1"),
+            &[&id],
+        )?;
         row.as_ref().map(record).transpose()
     }
 
-    pub(crate) fn job_doc(&self, id: i64) -> Result<Option<Value>, StoreError> {
+    fn job_doc(&self, id: i64) -> Result<Option<Value>, StoreError> {
         let row = self
             .conn()?
-            .query_opt("SELECT doc FROM jobs WHERE id = $1", &[&id])?;
+            .query_opt_cached("SELECT doc FROM jobs WHERE id = $1", &[&id])?;
         match row {
             Some(r) => Ok(Some(serde_json::from_str(r.try_get::<_, &str>(0)?)?)),
             None => Ok(None),
         }
     }
 
-    pub(crate) fn jobs(&self, f: &JobFilter) -> Result<Vec<JobRecord>, StoreError> {
+    fn jobs(&self, f: &JobFilter) -> Result<Vec<JobRecord>, StoreError> {
         let rows = self.conn()?.query(
-            &format!(
-                "SELECT {COLUMNS} FROM jobs WHERE ($1::TEXT IS NULL OR state = $1) \
+            concat!(
+                "SELECT ",
+                columns!(),
+                " FROM jobs WHERE ($1::TEXT IS NULL OR state = $1) \
                  AND ($2::TEXT IS NULL OR kind = $2) AND ($3::BIGINT IS NULL OR id < $3) \
                  ORDER BY id DESC LIMIT $4"
             ),
@@ -160,10 +167,10 @@ impl Pg {
         rows.iter().map(record).collect()
     }
 
-    pub(crate) fn count_by_state(&self) -> Result<Vec<(JobState, i64)>, StoreError> {
+    fn count_by_state(&self) -> Result<Vec<(JobState, i64)>, StoreError> {
         let rows = self
             .conn()?
-            .query("SELECT state, COUNT(*) FROM jobs GROUP BY state", &[])?;
+            .query_cached("SELECT state, COUNT(*) FROM jobs GROUP BY state", &[])?;
         let mut out = Vec::new();
         for r in rows {
             if let Some(s) = JobState::parse(r.try_get(0)?) {
@@ -173,93 +180,12 @@ impl Pg {
         Ok(out)
     }
 
-    pub(crate) fn start_job(&self, id: i64) -> Result<Option<Run>, StoreError> {
-        let mut c = self.conn()?;
-        let mut tx = c.transaction()?;
-        let row = tx.query_opt(
-            "UPDATE jobs SET state = 'running', started_at = $2, progress = 0, attempt = attempt + 1 \
-             WHERE id = $1 AND state = 'queued' RETURNING attempt",
-            &[&id, &now()],
-        )?;
-        let run = match row {
-            Some(r) => Some(Run {
-                job: id,
-                attempt: r.try_get(0)?,
-            }),
-            None => None,
-        };
-        if run.is_some() {
-            log_tx(&mut tx, Some(id), "info", "started")?;
-        }
-        tx.commit()?;
-        Ok(run)
-    }
-
-    pub(crate) fn record_progress(
-        &self,
-        run: Run,
-        fraction: f64,
-        stage: &str,
-        message: Option<&str>,
-        history: bool,
-    ) -> Result<(), StoreError> {
-        let mut c = self.conn()?;
-        let mut tx = c.transaction()?;
-        let n = tx.execute(
-            "UPDATE jobs SET progress = $2, stage = $3, message = $4 \
-             WHERE id = $1 AND state = 'running' AND attempt = $5",
-            &[&run.job, &fraction, &stage, &message, &run.attempt],
-        )?;
-        if n == 0 {
-            return check_run(&mut tx, run);
-        }
-        if history {
-            tx.execute(
-                "INSERT INTO progress (job_id, at, fraction, stage, message) VALUES ($1, $2, $3, $4, $5)",
-                &[&run.job, &now(), &fraction, &stage, &message],
-            )?;
-        }
-        tx.commit()?;
-        Ok(())
-    }
-
-    /// End job `id` (any run of it when `attempt` is none, else only that run).
-    pub(crate) fn end_job(
-        &self,
-        id: i64,
-        attempt: Option<i64>,
-        state: JobState,
-        error: Option<&str>,
-    ) -> Result<bool, StoreError> {
-        let mut c = self.conn()?;
-        let mut tx = c.transaction()?;
-        let n = tx.execute(
-            "UPDATE jobs SET state = $2, finished_at = $3, error = $4, owner = NULL, lease_until = NULL \
-             WHERE id = $1 AND (($5::BIGINT IS NULL AND state IN ('queued', 'running', 'paused')) \
-                                OR (state = 'running' AND attempt = $5))",
-            &[&id, &state.as_str(), &now(), &error, &attempt],
-        )?;
-        if n == 1 {
-            let (level, msg) = crate::store::records::end_log(state, error);
-            log_tx(&mut tx, Some(id), level, &msg)?;
-        } else if let Some(attempt) = attempt {
-            check_run(&mut tx, Run { job: id, attempt })?;
-        }
-        tx.commit()?;
-        Ok(n == 1)
-    }
-
-    pub(crate) fn log(
-        &self,
-        job: Option<i64>,
-        level: &str,
-        message: &str,
-    ) -> Result<(), StoreError> {
+    fn log(&self, job: Option<i64>, level: &str, message: &str) -> Result<(), StoreError> {
         log_tx(&mut *self.conn()?, job, level, message)
     }
 
-    pub(crate) fn logs(&self, id: i64) -> Result<Vec<LogLine>, StoreError> {
-        let rows = self.conn()?.query(
+    fn logs(&self, id: i64) -> Result<Vec<LogLine>, StoreError> {
+        let rows = self.conn()?.query_cached(
             "SELECT at, level, message FROM logs WHERE job_id = $1 ORDER BY id",
             &[&id],
         )?;
@@ -274,8 +200,8 @@ impl Pg {
             .collect()
     }
 
-    pub(crate) fn progress_history(&self, id: i64) -> Result<Vec<ProgressPoint>, StoreError> {
-        let rows = self.conn()?.query(
+    fn progress_history(&self, id: i64) -> Result<Vec<ProgressPoint>, StoreError> {
+        let rows = self.conn()?.query_cached(
             "SELECT at, fraction, stage, message FROM progress WHERE job_id = $1 ORDER BY seq",
             &[&id],
         )?;
@@ -293,7 +219,7 @@ impl Pg {
 
     /// At start-up of a single daemon: as SQLite does, running jobs become `interrupted`
     /// — but only those no other live daemon holds (no owner, or a lease that expired).
-    pub(crate) fn recover(&self) -> Result<Recovered, StoreError> {
+    fn recover(&self) -> Result<Recovered, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
         let interrupted: Vec<i64> = tx
@@ -337,5 +263,89 @@ impl Pg {
             interrupted,
             queued,
         })
+    }
+}
+
+impl Runs for Pg {
+    fn start_job(&self, id: i64) -> Result<Option<Run>, StoreError> {
+        let mut c = self.conn()?;
+        let mut tx = c.transaction()?;
+        let row = tx.query_opt(
+            "UPDATE jobs SET state = 'running', started_at = COALESCE(started_at, $2), progress = 0, \
+             attempt = attempt + 1 WHERE id = $1 AND state = 'queued' RETURNING attempt",
+            &[&id, &now()],
+        )?;
+        let run = match row {
+            Some(r) => Some(Run {
+                job: id,
+                attempt: r.try_get(0)?,
+            }),
+            None => None,
+        };
+        if run.is_some() {
+            log_tx(&mut tx, Some(id), "info", "started")?;
+        }
+        tx.commit()?;
+        Ok(run)
+    }
+
+    fn record_progress(
+        &self,
+        run: Run,
+        fraction: f64,
+        stage: &str,
+        message: Option<&str>,
+        history: bool,
+    ) -> Result<(), StoreError> {
+        let mut c = self.conn()?;
+        let (c, cache) = c.split();
+        let mut tx = c.transaction()?;
+        let update = cache.get(
+            &mut tx,
+            "UPDATE jobs SET progress = $2, stage = $3, message = $4 \
+             WHERE id = $1 AND state = 'running' AND attempt = $5",
+        )?;
+        let n = tx.execute(
+            &update,
+            &[&run.job, &fraction, &stage, &message, &run.attempt],
+        )?;
+        if n == 0 {
+            return check_run(&mut tx, run);
+        }
+        if history {
+            let insert = cache.get(
+                &mut tx,
+                "INSERT INTO progress (job_id, at, fraction, stage, message) VALUES ($1, $2, $3, $4, $5)",
+            )?;
+            tx.execute(&insert, &[&run.job, &now(), &fraction, &stage, &message])?;
+        }
+        tx.commit()?;
+        Ok(())
+    }
+
+    /// End job `id` (any run of it when `attempt` is none, else only that run).
+    fn end(
+        &self,
+        id: i64,
+        attempt: Option<i64>,
+        state: JobState,
+        error: Option<&str>,
+    ) -> Result<bool, StoreError> {
+        let mut c = self.conn()?;
+        let mut tx = c.transaction()?;
+        let n = tx.execute(
+            "UPDATE jobs SET state = $2, finished_at = $3, error = $4, owner = NULL, lease_until = NULL \
+             WHERE id = $1 AND (($5::BIGINT IS NULL AND state IN ('queued', 'running', 'paused')) \
+                                OR (state = 'running' AND attempt = $5))",
+            &[&id, &state.as_str(), &now(), &error, &attempt],
+        )?;
+        if n == 1 {
+            let (level, msg) = crate::store::records::end_log(state, error);
+            log_tx(&mut tx, Some(id), level, &msg)?;
+        } else if let Some(attempt) = attempt {
+            check_run(&mut tx, Run { job: id, attempt })?;
+        }
+        tx.commit()?;
+        Ok(n == 1)
     }
 }

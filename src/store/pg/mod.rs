@@ -2,101 +2,48 @@
 //! client (over tokio-postgres, with its own small runtime per connection) keeps the
 //! store's blocking shape, so async code reaches both backends alike through the
 //! service's storage module (which runs calls on the blocking pool; never call this client
-//! on a runtime thread: it panics there). A
-//! small pool of connections; the schema is the SQLite schema translated by
-//! [`translate`], plus a PostgreSQL-only step for the shared queue (leases, cells).
+//! on a runtime thread: it panics there). A small pool of connections, each keeping the
+//! hot statements it prepared ([`Statements`]); the schema is the SQLite schema translated
+//! by [`translate`], plus a PostgreSQL-only step for the shared queue (leases, cells).
 
 mod fleet;
 mod jobs;
 mod other;
 mod schedules;
 
-pub use fleet::{CancelRequest, Claimed};
-
+use std::collections::HashMap;
 use std::sync::Mutex;
 
-use postgres::{Client, NoTls};
+use postgres::{Client, GenericClient, NoTls, Statement};
 
-use super::StoreError;
-
-/// Where the store lives: the `store` setting.
-#[derive(Clone, PartialEq, Eq)]
-pub enum Location {
-    /// `sqlite:PATH`: the embedded SQLite file `calibd.sqlite3` in folder PATH.
-    Sqlite(std::path::PathBuf),
-    /// `postgres://…`: a PostgreSQL database.
-    Postgres(PgLocation),
-}
-
-/// A PostgreSQL location: the URL without a password, and the password from a file or an
-/// environment variable (kept out of `Debug` and of every message).
-#[derive(Clone, PartialEq, Eq)]
-pub struct PgLocation {
-    url: String,
-    password: Option<String>,
-}
-
-impl std::fmt::Debug for Location {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Location::Sqlite(p) => write!(f, "sqlite:{}", p.display()),
-            Location::Postgres(p) => p.fmt(f),
-        }
-    }
-}
-
-impl std::fmt::Debug for PgLocation {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let pw = if self.password.is_some() {
-            " (password set)"
-        } else {
-            ""
-        };
-        write!(f, "{}{pw}", self.url)
-    }
-}
-
-impl Location {
-    /// Parse a `store` setting: `sqlite:PATH` or a `postgres://` / `postgresql://` URL. A
-    /// password inside the URL is refused (it would end up in config files and logs): give
-    /// it as `password` (read from `password_file` or an environment variable).
-    pub fn parse(s: &str, password: Option<String>) -> Result<Location, StoreError> {
-        if let Some(path) = s.strip_prefix("sqlite:") {
-            if path.is_empty() {
-                return Err(StoreError::Location("`sqlite:` needs a folder".into()));
-            }
-            return Ok(Location::Sqlite(path.into()));
-        }
-        if !(s.starts_with("postgres://") || s.starts_with("postgresql://")) {
-            return Err(StoreError::Location(
-                "`store` must be `sqlite:FOLDER` or a `postgres://` URL".into(),
-            ));
-        }
-        let cfg: postgres::Config = s
-            .parse()
-            .map_err(|_| StoreError::Location("the PostgreSQL URL does not parse".into()))?;
-        if cfg.get_password().is_some() {
-            return Err(StoreError::Location(
-                "no password in the PostgreSQL URL: use `password_file` or CALIBD_STORE_PASSWORD"
-                    .into(),
-            ));
-        }
-        Ok(Location::Postgres(PgLocation {
-            url: s.to_string(),
-            password,
-        }))
-    }
-
-    /// The location with its password never shown (for logs).
-    pub fn display(&self) -> String {
-        format!("{self:?}")
-    }
-}
+use super::{PgLocation, StoreError, backend};
 
 /// The PostgreSQL store: a pool of connections.
 pub(crate) struct Pg {
     config: postgres::Config,
-    idle: Mutex<Vec<Client>>,
+    idle: Mutex<Vec<(Client, Statements)>>,
+}
+
+/// The statements prepared on one connection, by their SQL: the hot calls (status reads,
+/// progress) are parsed and planned once per connection, not once per call.
+#[derive(Default)]
+pub(crate) struct Statements(HashMap<&'static str, Statement>);
+
+impl Statements {
+    /// Statement `sql`, prepared on `c` (a connection or one of its transactions) the
+    /// first time.
+    pub(crate) fn get(
+        &mut self,
+        c: &mut impl GenericClient,
+        sql: &'static str,
+    ) -> Result<Statement, StoreError> {
+        if let Some(s) = self.0.get(sql) {
+            return Ok(s.clone());
+        }
+        let s = c.prepare(sql)?;
+        self.0.insert(sql, s.clone());
+        Ok(s)
+    }
 }
 
 impl std::fmt::Debug for Pg {
@@ -108,33 +55,64 @@ impl std::fmt::Debug for Pg {
 /// Connections kept idle at most.
 const IDLE: usize = 8;
 
-/// A pooled connection, returned to the pool when dropped (unless it broke).
+/// A pooled connection with its prepared statements, returned to the pool when dropped
+/// (unless it broke).
 pub(crate) struct Conn<'a> {
     pool: &'a Pg,
-    client: Option<Client>,
+    client: Option<(Client, Statements)>,
 }
 
 impl std::ops::Deref for Conn<'_> {
     type Target = Client;
     fn deref(&self) -> &Client {
-        self.client.as_ref().expect("taken only on drop")
+        &self.client.as_ref().expect("taken only on drop").0
     }
 }
 
 impl std::ops::DerefMut for Conn<'_> {
     fn deref_mut(&mut self) -> &mut Client {
-        self.client.as_mut().expect("taken only on drop")
+        &mut self.client.as_mut().expect("taken only on drop").0
+    }
+}
+
+impl Conn<'_> {
+    /// The client and its statement cache, apart (a transaction borrows the client).
+    pub(crate) fn split(&mut self) -> (&mut Client, &mut Statements) {
+        let (c, s) = self.client.as_mut().expect("taken only on drop");
+        (c, s)
+    }
+
+    /// At most one row of the cached statement `sql`.
+    pub(crate) fn query_opt_cached(
+        &mut self,
+        sql: &'static str,
+        params: &[&(dyn postgres::types::ToSql + Sync)],
+    ) -> Result<Option<postgres::Row>, StoreError> {
+        let (c, s) = self.split();
+        let st = s.get(c, sql)?;
+        Ok(c.query_opt(&st, params)?)
+    }
+
+    /// The rows of the cached statement `sql`.
+    pub(crate) fn query_cached(
+        &mut self,
+        sql: &'static str,
+        params: &[&(dyn postgres::types::ToSql + Sync)],
+    ) -> Result<Vec<postgres::Row>, StoreError> {
+        let (c, s) = self.split();
+        let st = s.get(c, sql)?;
+        Ok(c.query(&st, params)?)
     }
 }
 
 impl Drop for Conn<'_> {
     fn drop(&mut self) {
-        if let Some(c) = self.client.take()
+        if let Some((c, s)) = self.client.take()
             && !c.is_closed()
         {
             let mut idle = self.pool.idle.lock().unwrap_or_else(|p| p.into_inner());
             if idle.len() < IDLE {
-                idle.push(c);
+                idle.push((c, s));
             }
         }
     }
@@ -169,13 +147,23 @@ impl Pg {
     pub(crate) fn conn(&self) -> Result<Conn<'_>, StoreError> {
         let pooled = self.idle.lock().unwrap_or_else(|p| p.into_inner()).pop();
         let client = match pooled {
-            Some(c) if !c.is_closed() => c,
-            _ => self.config.connect(NoTls)?,
+            Some((c, s)) if !c.is_closed() => (c, s),
+            _ => (self.config.connect(NoTls)?, Statements::default()),
         };
         Ok(Conn {
             pool: self,
             client: Some(client),
         })
+    }
+}
+
+impl backend::Backend for Pg {
+    fn file(&self) -> Option<&std::path::Path> {
+        None
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
     }
 }
 

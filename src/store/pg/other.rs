@@ -9,6 +9,7 @@ use super::{Pg, now};
 use crate::jobs::Artefact;
 use crate::lab::Decision;
 use crate::procedures::{EntryStatus, JournalEntry};
+use crate::store::backend::{Campaigns, Datasets, Results};
 use crate::store::{ArtefactInfo, CellModel, DatasetInfo, MainTableCsv, Run, StoreError};
 
 /// Record a schedule occurrence within `c` and move the schedule's `checked_until`.
@@ -59,8 +60,8 @@ fn insert_cell_model(
     Ok(())
 }
 
-impl Pg {
-    pub(crate) fn finish_job(
+impl Results for Pg {
+    fn finish_job(
         &self,
         run: Run,
         result: &Value,
@@ -120,17 +121,17 @@ impl Pg {
         Ok(true)
     }
 
-    pub(crate) fn result(&self, id: i64) -> Result<Option<Value>, StoreError> {
+    fn result(&self, id: i64) -> Result<Option<Value>, StoreError> {
         let row = self
             .conn()?
-            .query_opt("SELECT result FROM results WHERE job_id = $1", &[&id])?;
+            .query_opt_cached("SELECT result FROM results WHERE job_id = $1", &[&id])?;
         match row {
             Some(r) => Ok(Some(serde_json::from_str(r.try_get::<_, &str>(0)?)?)),
             None => Ok(None),
         }
     }
 
-    pub(crate) fn main_table_csv(&self, id: i64) -> Result<Option<String>, StoreError> {
+    fn main_table_csv(&self, id: i64) -> Result<Option<String>, StoreError> {
         let row = self.conn()?.query_opt(
             "SELECT main_table_csv FROM results WHERE job_id = $1",
             &[&id],
@@ -141,7 +142,7 @@ impl Pg {
         })
     }
 
-    pub(crate) fn artefacts(&self, id: i64) -> Result<Vec<ArtefactInfo>, StoreError> {
+    fn artefacts(&self, id: i64) -> Result<Vec<ArtefactInfo>, StoreError> {
         let rows = self.conn()?.query(
             "SELECT name, media_type, octet_length(content)::BIGINT FROM artefacts WHERE job_id = $1 ORDER BY name",
             &[&id],
@@ -157,7 +158,7 @@ impl Pg {
             .collect()
     }
 
-    pub(crate) fn artefact(&self, id: i64, name: &str) -> Result<Option<Artefact>, StoreError> {
+    fn artefact(&self, id: i64, name: &str) -> Result<Option<Artefact>, StoreError> {
         let row = self.conn()?.query_opt(
             "SELECT name, media_type, content FROM artefacts WHERE job_id = $1 AND name = $2",
             &[&id, &name],
@@ -171,30 +172,9 @@ impl Pg {
         })
         .transpose()
     }
+}
 
-    pub(crate) fn put_dataset(
-        &self,
-        name: &str,
-        media_type: &str,
-        content: &[u8],
-    ) -> Result<DatasetInfo, StoreError> {
-        let id = crate::run::input::sha256_hex(content);
-        self.conn()?.execute(
-            "INSERT INTO datasets (id, name, media_type, size, created_at, content) \
-             VALUES ($1, $2, $3, $4, $5, $6) ON CONFLICT (id) DO NOTHING",
-            &[
-                &id,
-                &name,
-                &media_type,
-                &(content.len() as i64),
-                &now(),
-                &content,
-            ],
-        )?;
-        self.dataset_info(&id)?
-            .ok_or_else(|| StoreError::Conflict(format!("dataset {id} vanished")))
-    }
-
+impl Pg {
     fn dataset_rows(&self, one: Option<&str>) -> Result<Vec<DatasetInfo>, StoreError> {
         let rows = self.conn()?.query(
             "SELECT id, name, media_type, size, created_at FROM datasets \
@@ -213,23 +193,68 @@ impl Pg {
             })
             .collect()
     }
+}
 
-    pub(crate) fn dataset_info(&self, id: &str) -> Result<Option<DatasetInfo>, StoreError> {
+impl Datasets for Pg {
+    fn insert_dataset(
+        &self,
+        id: &str,
+        name: &str,
+        media_type: &str,
+        content: &[u8],
+    ) -> Result<(), StoreError> {
+        self.conn()?.execute(
+            "INSERT INTO datasets (id, name, media_type, size, created_at, content) \
+             VALUES ($1, $2, $3, $4, $5, $6) ON CONFLICT (id) DO NOTHING",
+            &[
+                &id,
+                &name,
+                &media_type,
+                &(content.len() as i64),
+                &now(),
+                &content,
+            ],
+        )?;
+        Ok(())
+    }
+
+    fn dataset_info(&self, id: &str) -> Result<Option<DatasetInfo>, StoreError> {
         Ok(self.dataset_rows(Some(id))?.into_iter().next())
     }
 
-    pub(crate) fn dataset(&self, id: &str) -> Result<Option<Vec<u8>>, StoreError> {
+    fn dataset(&self, id: &str) -> Result<Option<Vec<u8>>, StoreError> {
         let row = self
             .conn()?
             .query_opt("SELECT content FROM datasets WHERE id = $1", &[&id])?;
         Ok(row.map(|r| r.try_get(0)).transpose()?)
     }
 
-    pub(crate) fn datasets(&self) -> Result<Vec<DatasetInfo>, StoreError> {
+    fn datasets(&self) -> Result<Vec<DatasetInfo>, StoreError> {
         self.dataset_rows(None)
     }
 
-    pub(crate) fn append_measurement(&self, job: i64, e: &JournalEntry) -> Result<(), StoreError> {
+    fn dataset_to_writer(
+        &self,
+        id: &str,
+        out: &mut dyn std::io::Write,
+        path: &std::path::Path,
+    ) -> Result<bool, StoreError> {
+        // PostgreSQL reads the value whole.
+        match self.dataset(id)? {
+            Some(bytes) => {
+                out.write_all(&bytes).map_err(|source| StoreError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    }
+}
+
+impl Campaigns for Pg {
+    fn append_measurement(&self, job: i64, e: &JournalEntry) -> Result<(), StoreError> {
         let status = match e.status {
             EntryStatus::Measured => "measured",
             EntryStatus::Skipped => "skipped",
@@ -247,7 +272,7 @@ impl Pg {
         Ok(())
     }
 
-    pub(crate) fn measurements(&self, job: i64) -> Result<Vec<JournalEntry>, StoreError> {
+    fn measurements(&self, job: i64) -> Result<Vec<JournalEntry>, StoreError> {
         let rows = self.conn()?.query(
             "SELECT idx, status, data FROM measurements WHERE job_id = $1 ORDER BY idx",
             &[&job],
@@ -272,7 +297,7 @@ impl Pg {
             .collect()
     }
 
-    pub(crate) fn pause_job(&self, run: Run, reason: &str) -> Result<bool, StoreError> {
+    fn pause_job(&self, run: Run, reason: &str) -> Result<bool, StoreError> {
         let id = run.job;
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
@@ -290,13 +315,13 @@ impl Pg {
         Ok(n == 1)
     }
 
-    pub(crate) fn resume_job(&self, id: i64, why: &str) -> Result<bool, StoreError> {
+    fn resume_job(&self, id: i64, why: &str) -> Result<bool, StoreError> {
         let mut c = self.conn()?;
         let mut tx = c.transaction()?;
         let n = tx.execute(
-            "UPDATE jobs SET state = 'queued', error = NULL, finished_at = NULL \
+            "UPDATE jobs SET state = 'queued', error = NULL, finished_at = NULL, resumed_at = $2 \
              WHERE id = $1 AND state IN ('paused', 'interrupted')",
-            &[&id],
+            &[&id, &now()],
         )?;
         if n == 1 {
             log_tx(&mut tx, Some(id), "info", &format!("resumed: {why}"))?;
@@ -306,14 +331,7 @@ impl Pg {
         Ok(n == 1)
     }
 
-    pub(crate) fn current_cell_model(&self, cell: &str) -> Result<Option<CellModel>, StoreError> {
-        Ok(self
-            .cell_models(cell)?
-            .into_iter()
-            .find(|m| m.state == "current"))
-    }
-
-    pub(crate) fn cell_models(&self, cell: &str) -> Result<Vec<CellModel>, StoreError> {
+    fn cell_models(&self, cell: &str) -> Result<Vec<CellModel>, StoreError> {
         let rows = self.conn()?.query(
             "SELECT id, cell, job_id, state, reason, validation, model, at FROM cell_models \
              WHERE cell = $1 ORDER BY id DESC",

@@ -4,6 +4,7 @@ use postgres::Row;
 use postgres::error::SqlState;
 
 use super::{Pg, now};
+use crate::store::backend::Schedules;
 use crate::store::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun, StoreError};
 
 const COLUMNS: &str = "id, name, cron, timezone, job, priority, missed, enabled, created_at, created_by, checked_until";
@@ -45,8 +46,8 @@ fn unique(e: postgres::Error, name: &str) -> StoreError {
     }
 }
 
-impl Pg {
-    pub(crate) fn insert_schedule(
+impl Schedules for Pg {
+    fn insert_schedule(
         &self,
         s: &NewSchedule,
         created_by: Option<&str>,
@@ -64,7 +65,7 @@ impl Pg {
         Ok(r.try_get(0)?)
     }
 
-    pub(crate) fn update_schedule(
+    fn update_schedule(
         &self,
         id: i64,
         s: &NewSchedule,
@@ -82,14 +83,14 @@ impl Pg {
         Ok(n == 1)
     }
 
-    pub(crate) fn delete_schedule(&self, id: i64) -> Result<bool, StoreError> {
+    fn delete_schedule(&self, id: i64) -> Result<bool, StoreError> {
         Ok(self
             .conn()?
             .execute("DELETE FROM schedules WHERE id = $1", &[&id])?
             == 1)
     }
 
-    pub(crate) fn schedule(&self, id: i64) -> Result<Option<ScheduleRecord>, StoreError> {
+    fn schedule(&self, id: i64) -> Result<Option<ScheduleRecord>, StoreError> {
         let r = self.conn()?.query_opt(
             &format!("SELECT {COLUMNS} FROM schedules WHERE id = $1"),
             &[&id],
@@ -97,14 +98,14 @@ impl Pg {
         r.as_ref().map(row).transpose()
     }
 
-    pub(crate) fn schedules(&self) -> Result<Vec<ScheduleRecord>, StoreError> {
+    fn schedules(&self) -> Result<Vec<ScheduleRecord>, StoreError> {
         let rows = self
             .conn()?
             .query(&format!("SELECT {COLUMNS} FROM schedules ORDER BY id"), &[])?;
         rows.iter().map(row).collect()
     }
 
-    pub(crate) fn record_schedule_run(
+    fn record_schedule_run(
         &self,
         schedule: i64,
         due: &str,
@@ -118,11 +119,7 @@ impl Pg {
         Ok(())
     }
 
-    pub(crate) fn schedule_runs(
-        &self,
-        id: i64,
-        limit: usize,
-    ) -> Result<Vec<ScheduleRun>, StoreError> {
+    fn schedule_runs(&self, id: i64, limit: usize) -> Result<Vec<ScheduleRun>, StoreError> {
         let rows = self.conn()?.query(
             "SELECT due_at, at, outcome, job_id, message FROM schedule_runs WHERE schedule_id = $1 \
              ORDER BY id DESC LIMIT $2",
