@@ -98,7 +98,7 @@ impl Part {
             }
         }
         if let Some(red) = &mut self.reducer {
-            red.push(j.view((0, 0), (n, m)));
+            red.push(data, n, 0..n);
         }
         if want.amax {
             for (a, col) in self.amax.iter_mut().zip(data.chunks_exact(n)) {
@@ -130,11 +130,10 @@ pub(crate) fn fold(
         .iter_mut()
         .map(|p| move |rows: std::ops::Range<usize>, j: &DMatrix<f64>| p.add(rows, j, want))
         .collect();
-    let mut visitors: Vec<&mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send)> =
-        visits
-            .iter_mut()
-            .map(|v| v as &mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send))
-            .collect();
+    let mut visitors: Vec<&mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send)> = visits
+        .iter_mut()
+        .map(|v| v as &mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send))
+        .collect();
     if !problem.jacobian_blocks(x, cols, BLOCK_ROWS, &mut visitors)? {
         return Ok(None);
     }
@@ -148,8 +147,8 @@ pub(crate) fn fold(
         effects: vec![0.0; want.moves.len()],
         rows: 0,
     };
-    let mut stacked = (want.r_factor && threads > 1)
-        .then(|| RowReducer::new(width, super::dense::BLOCK_ROWS));
+    let mut stacked =
+        (want.r_factor && threads > 1).then(|| RowReducer::new(width, super::dense::BLOCK_ROWS));
     for p in &mut parts {
         out.rows += p.rows;
         for c in 0..p.gram.ncols() {
@@ -169,7 +168,7 @@ pub(crate) fn fold(
         if let Some(red) = &mut p.reducer {
             let r = red.finish();
             match &mut stacked {
-                Some(s) => s.push(r.view((0, 0), r.shape())),
+                Some(s) => s.push(r.as_slice(), r.nrows(), 0..r.nrows()),
                 None => out.r = r,
             }
         }

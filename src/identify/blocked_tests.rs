@@ -73,9 +73,17 @@ fn the_fold_equals_the_whole_jacobian() {
     assert!(close(f.effects[0], effect, effect, 1e-14));
     // Columns picked: the same sums of those columns.
     let cols = [3, 0, 7];
-    let f = fold(&p, &x, Some(&cols), &Want { amax: true, ..Want::default() })
-        .unwrap()
-        .expect("blocked form");
+    let f = fold(
+        &p,
+        &x,
+        Some(&cols),
+        &Want {
+            amax: true,
+            ..Want::default()
+        },
+    )
+    .unwrap()
+    .expect("blocked form");
     for (c, &k) in cols.iter().enumerate() {
         assert_eq!(f.amax[c], j.column(k).amax());
     }
@@ -94,7 +102,11 @@ fn folded_identification_equals_the_dense_one() {
         let o = SolveOptions::default();
         let dense = solve_with(&p, &unknowns, &x0, &o, Blocking::Dense, &NoMonitor).unwrap();
         let folded = solve_with(&p, &unknowns, &x0, &o, Blocking::Folded, &NoMonitor).unwrap();
-        let case = if all_params { "all parameters" } else { "twin set" };
+        let case = if all_params {
+            "all parameters"
+        } else {
+            "twin set"
+        };
         assert!(dense.converged() && folded.converged(), "{case}");
         assert_eq!(folded.unidentifiable, dense.unidentifiable, "{case}");
         assert_eq!(folded.free, dense.free, "{case}");
@@ -109,7 +121,10 @@ fn folded_identification_equals_the_dense_one() {
         };
         assert_eq!(deps(&folded), deps(&dense), "{case}");
         if all_params {
-            assert!(!dense.dependencies.is_empty(), "the full set is rank deficient");
+            assert!(
+                !dense.dependencies.is_empty(),
+                "the full set is rank deficient"
+            );
         }
         let near = |s: &Solution| -> Vec<(Vec<String>, Option<String>)> {
             s.near_dependent
@@ -122,7 +137,12 @@ fn folded_identification_equals_the_dense_one() {
         };
         assert_eq!(near(&folded), near(&dense), "{case}");
         for (a, b) in folded.near_dependent.iter().zip(&dense.near_dependent) {
-            assert!(close(a.singular_value, b.singular_value, b.singular_value, 1e-9));
+            assert!(close(
+                a.singular_value,
+                b.singular_value,
+                b.singular_value,
+                1e-9
+            ));
             assert!(close(a.effect_size, b.effect_size, b.effect_size, 1e-9));
         }
         assert!(

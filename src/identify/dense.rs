@@ -126,7 +126,7 @@ pub fn r_factor_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
 fn reduce_rows(j: &DMatrix<f64>, rows: std::ops::Range<usize>) -> DMatrix<f64> {
     let m = j.ncols();
     let mut reducer = RowReducer::new(m, BLOCK_ROWS);
-    reducer.push(j.view((rows.start, 0), (rows.len(), m)));
+    reducer.push(j.as_slice(), j.nrows(), rows);
     reducer.finish()
 }
 
@@ -182,18 +182,17 @@ impl RowReducer {
         }
     }
 
-    /// Append the rows of `rows` (`m` columns), factoring each block as it fills.
-    pub fn push(&mut self, rows: nalgebra::DMatrixView<'_, f64>) {
+    /// Append the rows `rows` of the column-major matrix `data` (`m` columns of `ld`
+    /// entries each), factoring each block as it fills.
+    pub fn push(&mut self, data: &[f64], ld: usize, rows: std::ops::Range<usize>) {
         let m = self.m;
-        let mut start = 0;
-        while start < rows.nrows() {
-            let len = (self.block - self.pending).min(rows.nrows() - start);
+        let mut start = rows.start;
+        while start < rows.end {
+            let len = (self.block - self.pending).min(rows.end - start);
             let at = self.have + self.pending;
             for c in 0..m {
-                let dst = &mut self.buf.col_as_slice_mut(c)[at..at + len];
-                for (o, v) in dst.iter_mut().zip(rows.column(c).rows(start, len).iter()) {
-                    *o = *v;
-                }
+                self.buf.col_as_slice_mut(c)[at..at + len]
+                    .copy_from_slice(&data[c * ld + start..c * ld + start + len]);
             }
             self.pending += len;
             start += len;

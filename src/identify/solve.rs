@@ -413,9 +413,7 @@ pub fn solve_with(
         }
     }
     let free = pl.free.clone();
-    let Fit {
-        rep, x, unc, r, ..
-    } = fit;
+    let Fit { rep, x, unc, r, .. } = fit;
     let residuals = rep.residuals.rows(0, n).into_owned();
     let cost_after = residuals.norm_squared();
     monitor.progress(0.85, "nuisance-only fit");

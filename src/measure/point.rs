@@ -542,7 +542,7 @@ impl PointProblem {
                     let lo = (3 * first).max(measured.start);
                     let hi = (3 * last).min(measured.end);
                     if block.nrows() == hi - lo {
-                        block.fill(0.0);
+                        block.as_mut_slice().fill(0.0);
                     } else {
                         block = DMatrix::zeros(hi - lo, width);
                     }
@@ -572,10 +572,12 @@ impl PointProblem {
                                 &mut scratch,
                             ),
                         };
+                        let len = hi - lo;
+                        let out = block.as_mut_slice();
                         let mut put = |a: usize, oc: usize, v: f64| {
                             let row = 3 * i + a;
                             if (lo..hi).contains(&row) {
-                                block[(row - lo, oc)] = v;
+                                out[oc * len + row - lo] = v;
                             }
                         };
                         for (c, &col) in self.cols.iter().enumerate() {

@@ -420,5 +420,9 @@ fn the_two_core_scan_picks_the_dense_argmax() {
     }
     let (i, v) = best.expect("candidates");
     assert_eq!((got, i), (100, 100));
-    assert!((design.log_det - v).abs() < 1e-9 * v.abs(), "{} vs {v}", design.log_det);
+    assert!(
+        (design.log_det - v).abs() < 1e-9 * v.abs(),
+        "{} vs {v}",
+        design.log_det
+    );
 }
