@@ -52,9 +52,9 @@ pub const PIVOTED_QR_FAER_MIN_COLS: usize = 64;
 pub const PARALLEL_MIN_ELEMENTS: usize = 1 << 20;
 /// Rows of a block in the blocked reduction: a block and the running R factor stay in
 /// cache while Householder reflections sweep them.
-const BLOCK_ROWS: usize = 2048;
+pub(crate) const BLOCK_ROWS: usize = 2048;
 
-fn threads_for(elements: usize) -> usize {
+pub(crate) fn threads_for(elements: usize) -> usize {
     if elements < PARALLEL_MIN_ELEMENTS {
         1
     } else {
@@ -63,7 +63,7 @@ fn threads_for(elements: usize) -> usize {
 }
 
 /// Contiguous row ranges of `n` rows for `parts` workers.
-fn row_ranges(n: usize, parts: usize) -> Vec<std::ops::Range<usize>> {
+pub(crate) fn row_ranges(n: usize, parts: usize) -> Vec<std::ops::Range<usize>> {
     let chunk = n.div_ceil(parts.max(1)).max(1);
     (0..n)
         .step_by(chunk)
@@ -124,50 +124,118 @@ pub fn r_factor_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
 /// time on top of the running factor (a tall-skinny QR: the same R as one factorisation,
 /// in a buffer of `cols + BLOCK_ROWS` rows).
 fn reduce_rows(j: &DMatrix<f64>, rows: std::ops::Range<usize>) -> DMatrix<f64> {
-    use faer::dyn_stack::{MemBuffer, MemStack};
-    use faer::linalg::qr::no_pivoting::factor;
-    let (n, m) = j.shape();
-    let block = BLOCK_ROWS.max(m);
-    let mut buf = faer::Mat::<f64>::zeros(m + block, m);
-    let bs_max = factor::recommended_block_size::<f64>(m + block, m);
-    let mut coeff = faer::Mat::<f64>::zeros(bs_max, m);
-    let mut mem = MemBuffer::new(factor::qr_in_place_scratch::<f64>(
-        m + block,
-        m,
-        bs_max,
-        faer::Par::Seq,
-        Default::default(),
-    ));
-    let data = j.as_slice();
-    let mut have = 0;
-    let mut start = rows.start;
-    while start < rows.end {
-        let len = block.min(rows.end - start);
-        for c in 0..m {
-            let src = &data[c * n + start..c * n + start + len];
-            buf.col_as_slice_mut(c)[have..have + len].copy_from_slice(src);
-        }
-        let tot = have + len;
-        let size = tot.min(m);
-        let bs = factor::recommended_block_size::<f64>(tot, m).min(bs_max);
-        factor::qr_in_place(
-            buf.as_mut().subrows_mut(0, tot),
-            coeff.as_mut().subrows_mut(0, bs).subcols_mut(0, size),
+    let m = j.ncols();
+    let mut reducer = RowReducer::new(m, BLOCK_ROWS);
+    reducer.push(j.as_slice(), j.nrows(), rows);
+    reducer.finish()
+}
+
+/// A running R factor of rows pushed in any pieces (faer's blocked QR of the factor so far
+/// stacked on the next `block` rows): a tall matrix reduced without ever being held whole.
+/// Rows are factored in blocks of `block` counted from the first row pushed, however they
+/// arrive, so the factor is the one of [`r_factor`] on the same rows, bit for bit.
+pub struct RowReducer {
+    m: usize,
+    block: usize,
+    buf: faer::Mat<f64>,
+    coeff: faer::Mat<f64>,
+    bs_max: usize,
+    mem: faer::dyn_stack::MemBuffer,
+    /// Rows of R at the top of `buf`.
+    have: usize,
+    /// Rows waiting below them.
+    pending: usize,
+}
+
+impl std::fmt::Debug for RowReducer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RowReducer")
+            .field("cols", &self.m)
+            .field("rows_held", &self.have)
+            .field("rows_pending", &self.pending)
+            .finish()
+    }
+}
+
+impl RowReducer {
+    /// A reducer of `m` columns factoring blocks of `block` rows.
+    pub fn new(m: usize, block: usize) -> Self {
+        use faer::linalg::qr::no_pivoting::factor;
+        let block = block.max(m).max(1);
+        let bs_max = factor::recommended_block_size::<f64>(m + block, m);
+        let mem = faer::dyn_stack::MemBuffer::new(factor::qr_in_place_scratch::<f64>(
+            m + block,
+            m,
+            bs_max,
             faer::Par::Seq,
-            MemStack::new(&mut mem),
+            Default::default(),
+        ));
+        Self {
+            m,
+            block,
+            buf: faer::Mat::<f64>::zeros(m + block, m),
+            coeff: faer::Mat::<f64>::zeros(bs_max, m),
+            bs_max,
+            mem,
+            have: 0,
+            pending: 0,
+        }
+    }
+
+    /// Append the rows `rows` of the column-major matrix `data` (`m` columns of `ld`
+    /// entries each), factoring each block as it fills.
+    pub fn push(&mut self, data: &[f64], ld: usize, rows: std::ops::Range<usize>) {
+        let m = self.m;
+        let mut start = rows.start;
+        while start < rows.end {
+            let len = (self.block - self.pending).min(rows.end - start);
+            let at = self.have + self.pending;
+            for c in 0..m {
+                self.buf.col_as_slice_mut(c)[at..at + len]
+                    .copy_from_slice(&data[c * ld + start..c * ld + start + len]);
+            }
+            self.pending += len;
+            start += len;
+            if self.pending == self.block {
+                self.factor();
+            }
+        }
+    }
+
+    /// Factor R stacked on the pending rows.
+    fn factor(&mut self) {
+        use faer::dyn_stack::MemStack;
+        use faer::linalg::qr::no_pivoting::factor;
+        let m = self.m;
+        let tot = self.have + self.pending;
+        if self.pending == 0 || m == 0 {
+            return;
+        }
+        let size = tot.min(m);
+        let bs = factor::recommended_block_size::<f64>(tot, m).min(self.bs_max);
+        factor::qr_in_place(
+            self.buf.as_mut().subrows_mut(0, tot),
+            self.coeff.as_mut().subrows_mut(0, bs).subcols_mut(0, size),
+            faer::Par::Seq,
+            MemStack::new(&mut self.mem),
             Default::default(),
         );
         // Keep R (upper triangle of the first `size` rows); clear what Q left below it.
         for c in 0..m {
-            let col = buf.col_as_slice_mut(c);
+            let col = self.buf.col_as_slice_mut(c);
             for v in &mut col[(c + 1).min(size)..tot] {
                 *v = 0.0;
             }
         }
-        have = size;
-        start += len;
+        self.have = size;
+        self.pending = 0;
     }
-    DMatrix::from_fn(have, m, |r, c| buf[(r, c)])
+
+    /// The factor of every row pushed (`min(rows, m)` x `m`).
+    pub fn finish(&mut self) -> DMatrix<f64> {
+        self.factor();
+        DMatrix::from_fn(self.have, self.m, |r, c| self.buf[(r, c)])
+    }
 }
 
 /// `J^T J` (the normal matrix of least squares).

@@ -21,8 +21,10 @@ pub(crate) fn clearly_above(rows: &Rows<'_>, free: &[usize], scale: &[f64], floo
     }
     let mut g = DMatrix::<f64>::zeros(m, m);
     let mut length = 0;
-    for (j, cols) in &rows.blocks {
-        length += j.nrows();
+    for (src, cols) in &rows.blocks {
+        // A folded block's R factor has its column dots (`R^T R = J^T J`).
+        let (j, count) = src.dots_source();
+        length += count;
         // Column of the block holding each free unknown (none: a zero column).
         let at: Vec<Option<usize>> = free
             .iter()
@@ -78,7 +80,7 @@ mod tests {
         let j = DMatrix::from_row_slice(3, 2, &[1.0, 1.0, 1.0, 1.0, 0.0, s]);
         let smin = crate::identify::trust::spectrum(&j, &[0, 1], &[1.0, 1.0]).smallest[0].0;
         let rows = Rows {
-            blocks: vec![(&j, vec![0, 1])],
+            blocks: vec![(crate::identify::reduced::Src::Dense(&j), vec![0, 1])],
             r: j.clone(),
         };
         assert!(clearly_above(&rows, &[0, 1], &[1.0, 1.0], smin / 3.0));

@@ -89,7 +89,7 @@ pub struct LmReport {
     pub at_bound: Vec<i8>,
 }
 
-fn project(x: &mut [f64], o: &LmOptions) {
+pub(super) fn project(x: &mut [f64], o: &LmOptions) {
     for (i, v) in x.iter_mut().enumerate() {
         if let Some(l) = &o.lower {
             *v = v.max(l[i]);
@@ -100,7 +100,7 @@ fn project(x: &mut [f64], o: &LmOptions) {
     }
 }
 
-fn bound_state(x: &[f64], o: &LmOptions) -> Vec<i8> {
+pub(super) fn bound_state(x: &[f64], o: &LmOptions) -> Vec<i8> {
     (0..x.len())
         .map(|i| {
             if o.lower.as_ref().is_some_and(|l| x[i] <= l[i]) {

@@ -7,6 +7,7 @@
 //! ([`robust`]), and the verdict on a result with its reasons ([`verdict`]: duplicated rows
 //! in [`duplicates`], validation beyond the training range in [`extrapolation`]). No I/O.
 
+mod blocked;
 mod bounds;
 pub mod dense;
 mod dots;
@@ -15,6 +16,7 @@ pub mod extrapolation;
 pub mod gauge;
 mod lean;
 pub mod lm;
+mod lm_blocked;
 pub mod prior;
 pub mod problem;
 pub mod rank;
@@ -34,7 +36,9 @@ pub use prior::{Prior, PriorReport, PriorSpec, solve_map};
 pub use problem::{Problem, Restricted};
 pub use rank::{Pivoting, RankReport, rank_revealing, rank_revealing_scaled};
 pub use robust::{Robust, RobustKind, RobustReport, solve_robust};
-pub use solve::{ParamReport, Solution, SolveOptions, Unknown, Unobservable, solve};
+pub use solve::{
+    Blocking, ParamReport, Solution, SolveOptions, Unknown, Unobservable, solve, solve_with,
+};
 pub use trust::{Degeneracy, NearDependent};
 pub use uncertainty::{Uncertainty, uncertainty};
 pub use verdict::{Assessment, Facts, Reason, Verdict, assess};

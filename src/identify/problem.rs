@@ -31,6 +31,22 @@ pub trait Problem: Sync {
     ) -> Result<bool, IdentifyError> {
         Ok(false)
     }
+    /// The Jacobian at `x` in row blocks, for solvers that fold each block into small
+    /// accumulators instead of holding the whole matrix: the rows are split into
+    /// `visitors.len()` contiguous parts of `ceil(rows / parts)` rows (the last shorter, as
+    /// [`super::dense::row_ranges`] splits them), part `k` evaluated on its own thread in
+    /// order, in blocks of about `block_rows` rows, each handed to `visitors[k]` with its
+    /// row range (columns: `cols`, or every unknown when `None`; the values of
+    /// [`Problem::jacobian`] bit for bit). `Ok(false)` (the default): not supported.
+    fn jacobian_blocks(
+        &self,
+        _x: &[f64],
+        _cols: Option<&[usize]>,
+        _block_rows: usize,
+        _visitors: &mut [&mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send)],
+    ) -> Result<bool, IdentifyError> {
+        Ok(false)
+    }
     /// This problem with only the unknowns `free` varying and the others held at `x`, in a
     /// cheaper form than [`Restricted`] (the same residuals and Jacobian to rounding), if
     /// the problem has one for that set; `None` (the default): use [`Restricted`].
@@ -137,5 +153,19 @@ impl Problem for Restricted<'_> {
             j.set_column(k, &full.column(i));
         }
         Ok(())
+    }
+    fn jacobian_blocks(
+        &self,
+        x: &[f64],
+        cols: Option<&[usize]>,
+        block_rows: usize,
+        visitors: &mut [&mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send)],
+    ) -> Result<bool, IdentifyError> {
+        let inner: Vec<usize> = match cols {
+            None => self.free.clone(),
+            Some(c) => c.iter().map(|&k| self.free[k]).collect(),
+        };
+        self.inner
+            .jacobian_blocks(&self.expand(x), Some(&inner), block_rows, visitors)
     }
 }

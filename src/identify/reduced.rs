@@ -2,7 +2,10 @@
 //! values and right singular vectors), and the rows a fit plan judges effects on, so that
 //! the identification pipeline factors each tall Jacobian only once.
 
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
+
+use super::blocked::{Want, fold};
+use super::{IdentifyError, Problem};
 
 /// The R factor of a tall matrix from [`super::dense::QR_FAER_MIN_ROWS`] rows on (the
 /// matrix itself otherwise): the same column norms, singular values and right singular
@@ -28,27 +31,89 @@ pub(crate) fn expand_cols(r: &DMatrix<f64>, cols: &[usize], m: usize) -> DMatrix
 /// Largest single-residual change of `j` (columns `cols`: column p is unknown `cols[p]`)
 /// for the move `w` (indexed by unknown).
 fn row_effect(j: &DMatrix<f64>, cols: &[usize], w: &[f64]) -> f64 {
-    let wc = nalgebra::DVector::from_fn(cols.len(), |p, _| w[cols[p]]);
-    (j * wc).amax()
+    (j * move_of(cols, w)).amax()
+}
+
+/// The move `w` (indexed by unknown) on the columns `cols`.
+fn move_of(cols: &[usize], w: &[f64]) -> DVector<f64> {
+    DVector::from_fn(cols.len(), |p, _| w[cols[p]])
+}
+
+/// A block of Jacobian rows: held, or folded from its problem on demand (too tall to hold).
+#[derive(Clone, Copy)]
+pub(crate) enum Src<'a> {
+    /// The rows themselves.
+    Dense(&'a DMatrix<f64>),
+    /// The Jacobian of `problem` at `x` (its columns those of the block), evaluated again in
+    /// blocks when a row effect is wanted; `r` its R factor, `rows` its row count.
+    Blocked {
+        problem: &'a dyn Problem,
+        x: &'a [f64],
+        r: &'a DMatrix<f64>,
+        rows: usize,
+    },
+}
+
+impl Src<'_> {
+    /// A matrix with the block's column dots (the rows, or their R factor) and the rows'
+    /// count.
+    pub(crate) fn dots_source(&self) -> (&DMatrix<f64>, usize) {
+        match self {
+            Src::Dense(j) => (j, j.nrows()),
+            Src::Blocked { r, rows, .. } => (r, *rows),
+        }
+    }
 }
 
 /// The Jacobian rows a plan judges effects on: blocks of rows, each with the unknown of
 /// each of its columns, and the R factor of all of them stacked (for spectra).
 pub(crate) struct Rows<'a> {
-    pub(crate) blocks: Vec<(&'a DMatrix<f64>, Vec<usize>)>,
+    pub(crate) blocks: Vec<(Src<'a>, Vec<usize>)>,
     pub(crate) r: DMatrix<f64>,
 }
 
 impl Rows<'_> {
-    /// Largest single-residual change for the move `v` of the unknowns `free` (scaled).
-    pub(crate) fn effect(&self, free: &[usize], v: &[f64], scale: &[f64]) -> f64 {
-        let mut w = vec![0.0; scale.len()];
-        for (&k, c) in free.iter().zip(v) {
-            w[k] = scale[k] * c;
-        }
-        self.blocks
+    /// Largest single-residual change for each move `vs[i]` of the unknowns `free`
+    /// (scaled); a folded block is evaluated once for all of them.
+    pub(crate) fn effects(
+        &self,
+        free: &[usize],
+        vs: &[&[f64]],
+        scale: &[f64],
+    ) -> Result<Vec<f64>, IdentifyError> {
+        let ws: Vec<Vec<f64>> = vs
             .iter()
-            .map(|(j, cols)| row_effect(j, cols, &w))
-            .fold(0.0, f64::max)
+            .map(|v| {
+                let mut w = vec![0.0; scale.len()];
+                for (&k, c) in free.iter().zip(v.iter()) {
+                    w[k] = scale[k] * c;
+                }
+                w
+            })
+            .collect();
+        let mut out = vec![0.0f64; vs.len()];
+        for (src, cols) in &self.blocks {
+            match src {
+                Src::Dense(j) => {
+                    for (o, w) in out.iter_mut().zip(&ws) {
+                        *o = o.max(row_effect(j, cols, w));
+                    }
+                }
+                Src::Blocked { problem, x, .. } => {
+                    let moves: Vec<DVector<f64>> = ws.iter().map(|w| move_of(cols, w)).collect();
+                    let want = Want {
+                        moves: &moves,
+                        ..Want::default()
+                    };
+                    let f = fold(*problem, x, Some(cols), &want)?.ok_or_else(|| {
+                        IdentifyError::Model("the Jacobian has no blocked form".into())
+                    })?;
+                    for (o, e) in out.iter_mut().zip(f.effects) {
+                        *o = o.max(e);
+                    }
+                }
+            }
+        }
+        Ok(out)
     }
 }

@@ -6,7 +6,9 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::reduced::{Rows, expand_cols, tall_r};
+use super::blocked::{Folded, Want, fold};
+use super::lm_blocked::{BlockedStart, levenberg_marquardt_blocked};
+use super::reduced::{Rows, Src, expand_cols, tall_r};
 use super::trust::{
     DegeneracyCheck, NearDependent, degeneracy, effect_sizes, physical_scales, spectrum_of_r,
 };
@@ -39,7 +41,7 @@ fn plan(
     unknowns: &[Unknown],
     floor: Option<f64>,
     report: bool,
-) -> Plan {
+) -> Result<Plan, IdentifyError> {
     let below = |v: f64| floor.is_some_and(|f| v < f);
     let (screened, mut free): (Vec<usize>, Vec<usize>) =
         structural.iter().partition(|&&k| below(effect[k]));
@@ -56,10 +58,12 @@ fn plan(
             .smallest
             .first()
             .is_some_and(|(s, _)| below(*s) && free.len() > 1);
-        for (s, v) in sp.smallest.iter().take(if hold { 1 } else { 3 }) {
+        let listed = &sp.smallest[..sp.smallest.len().min(if hold { 1 } else { 3 })];
+        let moves: Vec<&[f64]> = listed.iter().map(|(_, v)| &v[..]).collect();
+        let effects = rows.effects(&free, &moves, scale)?;
+        for ((s, v), &dir_effect) in listed.iter().zip(&effects) {
             let mut comps: Vec<(usize, f64)> = v.iter().copied().enumerate().collect();
             comps.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
-            let dir_effect = rows.effect(&free, v, scale);
             near.push(NearDependent {
                 singular_value: *s,
                 effect_size: dir_effect,
@@ -85,12 +89,12 @@ fn plan(
         };
         free.remove(p);
     }
-    Plan {
+    Ok(Plan {
         free,
         screened,
         floor,
         near,
-    }
+    })
 }
 
 /// One bounded LM run over `free` (others held at `x0`), with `gauges` held at their start.
@@ -100,6 +104,37 @@ struct Fit {
     unc: Uncertainty,
     /// R factor of the final Jacobian (columns of the fit's free unknowns).
     r: DMatrix<f64>,
+    /// Largest absolute value per column of the final Jacobian, when the fit folded it in
+    /// blocks (`rep.jacobian` is then empty).
+    amax: Option<Vec<f64>>,
+}
+
+impl Fit {
+    /// Largest absolute value per column of the final Jacobian.
+    fn column_amax(&self) -> Vec<f64> {
+        self.amax.clone().unwrap_or_else(|| {
+            effect_sizes(&self.rep.jacobian, &vec![1.0; self.rep.jacobian.ncols()])
+        })
+    }
+}
+
+/// The Jacobian at the start point: held, or folded in blocks (a problem too tall to hold
+/// it, see [`Blocking`]).
+enum Start0 {
+    Dense(DMatrix<f64>),
+    Folded(Folded),
+}
+
+/// Whether [`solve_with`] holds the Jacobian or folds it block by block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Blocking {
+    /// Folded from [`super::blocked::BLOCKED_MIN_ELEMENTS`] elements on, when the problem
+    /// evaluates its Jacobian in blocks.
+    Auto,
+    /// Always held.
+    Dense,
+    /// Folded whenever the problem evaluates its Jacobian in blocks.
+    Folded,
 }
 
 /// The start of every fit of [`solve`]: `x0`, its residuals and full Jacobian (a fit over
@@ -109,7 +144,7 @@ struct Fit {
 struct FitStart<'a> {
     x0: &'a [f64],
     r0: &'a DVector<f64>,
-    j0: &'a DMatrix<f64>,
+    j0: &'a Start0,
     uncertainty: bool,
     /// Fit through the problem's cheap held form ([`Problem::held`]) where it has one.
     cheap: bool,
@@ -138,21 +173,51 @@ fn run_fit(
         ..lm.clone()
     };
     let xs0: Vec<f64> = free.iter().map(|&k| x0[k]).collect();
-    let first = LmStart {
-        residuals: start.r0.clone(),
-        jacobian: DMatrix::from_fn(start.j0.nrows(), free.len(), |i, c| start.j0[(i, free[c])]),
-    };
     let cheap = start.cheap.then(|| problem.held(x0, free)).flatten();
     let target: &dyn Problem = cheap.as_deref().unwrap_or(&restricted);
-    let rep = levenberg_marquardt_from(target, &xs0, Some(first), &lm_opts, monitor)?;
-    let r = tall_r(&rep.jacobian);
+    let folded = match start.j0 {
+        Start0::Folded(f) => {
+            let first = BlockedStart {
+                residuals: start.r0.clone(),
+                gram: DMatrix::from_fn(free.len(), free.len(), |p, q| f.gram[(free[p], free[q])]),
+                jtr: DVector::from_fn(free.len(), |p, _| f.jtr[free[p]]),
+            };
+            levenberg_marquardt_blocked(target, &xs0, Some(first), &lm_opts, monitor)?
+        }
+        Start0::Dense(_) => None,
+    };
+    let (rep, r, amax) = match (folded, start.j0) {
+        (Some(b), _) => (b.rep, b.r, Some(b.amax)),
+        (None, Start0::Dense(j0)) => {
+            let first = LmStart {
+                residuals: start.r0.clone(),
+                jacobian: DMatrix::from_fn(j0.nrows(), free.len(), |i, c| j0[(i, free[c])]),
+            };
+            let rep = levenberg_marquardt_from(target, &xs0, Some(first), &lm_opts, monitor)?;
+            let r = tall_r(&rep.jacobian);
+            (rep, r, None)
+        }
+        // A target without a blocked form (a cheap held form): it evaluates its own start.
+        (None, Start0::Folded(_)) => {
+            let rep = levenberg_marquardt_from(target, &xs0, None, &lm_opts, monitor)?;
+            let r = tall_r(&rep.jacobian);
+            (rep, r, None)
+        }
+    };
+    let rows = rep.residuals.len();
     let unc = if start.uncertainty {
-        uncertainty_of_r(&r, rep.jacobian.nrows(), &rep.residuals)
+        uncertainty_of_r(&r, rows, &rep.residuals)
     } else {
-        sigma_only(rep.jacobian.nrows(), free.len(), &rep.residuals)
+        sigma_only(rows, free.len(), &rep.residuals)
     };
     let x = restricted.expand(&rep.x);
-    Ok(Fit { rep, x, unc, r })
+    Ok(Fit {
+        rep,
+        x,
+        unc,
+        r,
+        amax,
+    })
 }
 
 /// The uncertainty without its spectrum: the residual sigma only (std NaN).
@@ -190,6 +255,19 @@ pub fn solve(
     opts: &SolveOptions,
     monitor: &dyn Monitor,
 ) -> Result<Solution, IdentifyError> {
+    solve_with(problem, unknowns, x0, opts, Blocking::Auto, monitor)
+}
+
+/// [`solve`], holding the Jacobian or folding it in blocks as `blocking` says (the same
+/// solution to rounding either way).
+pub fn solve_with(
+    problem: &dyn Problem,
+    unknowns: &[Unknown],
+    x0: &[f64],
+    opts: &SolveOptions,
+    blocking: Blocking,
+    monitor: &dyn Monitor,
+) -> Result<Solution, IdentifyError> {
     let (n, m) = (problem.residual_count(), problem.unknown_count());
     if unknowns.len() != m || x0.len() != m {
         return Err(IdentifyError::Model(format!(
@@ -204,30 +282,67 @@ pub fn solve(
     if let Some(index) = r0.iter().position(|v| !v.is_finite()) {
         return Err(IdentifyError::NonFinite { index });
     }
-    let mut j0 = DMatrix::zeros(n, m);
-    problem.jacobian(x0, &mut j0)?;
+    let fold_it = match blocking {
+        Blocking::Auto => n * m >= super::blocked::BLOCKED_MIN_ELEMENTS,
+        Blocking::Dense => false,
+        Blocking::Folded => true,
+    };
+    let folded = if fold_it {
+        let want = Want {
+            gram: true,
+            r_factor: true,
+            amax: true,
+            residuals: Some(r0.as_slice()),
+            ..Want::default()
+        };
+        fold(problem, x0, None, &want)?
+    } else {
+        None
+    };
+    let j0 = match folded {
+        Some(f) => Start0::Folded(f),
+        None => {
+            let mut j0 = DMatrix::zeros(n, m);
+            problem.jacobian(x0, &mut j0)?;
+            Start0::Dense(j0)
+        }
+    };
     let scale = physical_scales(unknowns);
-    let effect = effect_sizes(&j0, &scale);
+    let effect = match &j0 {
+        Start0::Dense(j) => effect_sizes(j, &scale),
+        Start0::Folded(f) => (0..m).map(|k| f.amax[k] * scale[k]).collect(),
+    };
     // The tall Jacobian is reduced once: rank and dependencies work on its R factor (the
     // one the rank detection computes of a tall matrix itself), the spectra of the plans
     // on R from the crossover on and on the Jacobian below it (their arithmetic as before).
-    let rq0 = reduced(&j0);
+    let rq0 = match &j0 {
+        Start0::Dense(j) => reduced(j),
+        Start0::Folded(f) => f.r.clone(),
+    };
     let rank = if opts.physical_rank {
         rank_revealing_scaled(&rq0, &scale, &opts.pivoting, opts.rank_tolerance)
     } else {
         rank_revealing(&rq0, &opts.pivoting, opts.rank_tolerance)
     };
-    let rf0 = if n >= super::dense::QR_FAER_MIN_ROWS {
-        rq0
-    } else {
-        j0.clone()
+    let rf0 = match &j0 {
+        Start0::Dense(j) if n < super::dense::QR_FAER_MIN_ROWS => j.clone(),
+        _ => rq0,
+    };
+    let src0 = match &j0 {
+        Start0::Dense(j) => Src::Dense(j),
+        Start0::Folded(_) => Src::Blocked {
+            problem,
+            x: x0,
+            r: &rf0,
+            rows: n,
+        },
     };
     let mut structural = rank.kept.clone();
     structural.sort_unstable();
     let given_floor = opts.effect_fraction.zip(opts.noise).map(|(f, v)| f * v);
     let all: Vec<usize> = (0..m).collect();
     let start_rows = Rows {
-        blocks: vec![(&j0, all.clone())],
+        blocks: vec![(src0, all.clone())],
         r: rf0.clone(),
     };
     let mut pl = plan(
@@ -238,7 +353,7 @@ pub fn solve(
         unknowns,
         given_floor,
         opts.near_dependent,
-    );
+    )?;
     let start = FitStart {
         x0,
         r0: &r0,
@@ -256,7 +371,7 @@ pub fn solve(
             // or combination is held only if the data cannot see it at either point, since
             // a fitted frame can make an effect that vanishes at nominal a real one.
             // (The stacked rows through their blocks and the R factor of [R0; R_fit].)
-            let fit_effect = effect_sizes(&fit.rep.jacobian, &vec![1.0; pl.free.len()]);
+            let fit_effect = fit.column_amax();
             let mut effect_both = effect.clone();
             for (p, &k) in pl.free.iter().enumerate() {
                 effect_both[k] = effect_both[k].max(fit_effect[p] * scale[k]);
@@ -267,8 +382,17 @@ pub fn solve(
             stacked
                 .rows_mut(rf0.nrows(), r_fit.nrows())
                 .copy_from(&r_fit);
+            let fit_src = match fit.amax {
+                Some(_) => Src::Blocked {
+                    problem,
+                    x: &fit.x,
+                    r: &fit.r,
+                    rows: n,
+                },
+                None => Src::Dense(&fit.rep.jacobian),
+            };
             let both = Rows {
-                blocks: vec![(&j0, all.clone()), (&fit.rep.jacobian, pl.free.clone())],
+                blocks: vec![(src0, all.clone()), (fit_src, pl.free.clone())],
                 r: stacked,
             };
             let again = plan(
@@ -279,7 +403,7 @@ pub fn solve(
                 unknowns,
                 Some(floor),
                 opts.near_dependent,
-            );
+            )?;
             let more = again.free != pl.free;
             pl = again;
             if more {
@@ -289,7 +413,7 @@ pub fn solve(
         }
     }
     let free = pl.free.clone();
-    let Fit { rep, x, unc, r } = fit;
+    let Fit { rep, x, unc, r, .. } = fit;
     let residuals = rep.residuals.rows(0, n).into_owned();
     let cost_after = residuals.norm_squared();
     monitor.progress(0.85, "nuisance-only fit");

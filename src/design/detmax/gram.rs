@@ -125,6 +125,10 @@ impl GramPool {
     }
 }
 
+/// Candidates times envelope entries from which a scan for the best addition runs on two
+/// cores (1,000 marker-cluster blocks against 82 parameters: 3.4 million).
+pub(super) const PARALLEL_MIN_ENTRIES: usize = 1 << 20;
+
 /// Greedy steps already taken: (design, adding) -> (candidate, log det after the step).
 pub(super) type Memo = HashMap<(Vec<usize>, bool), (usize, f64)>;
 
@@ -192,25 +196,43 @@ impl<'a> Design<'a> {
 
     fn best_add(&mut self) -> Option<(usize, f64)> {
         let pool = self.pool;
-        let mut best: Option<(usize, f64)> = None;
-        let mut out = [0.0; LANES];
-        for g in 0..pool.n.div_ceil(LANES) {
-            log_dets(
-                &pool.env,
-                &self.mk,
-                pool.group(g),
-                1.0,
-                &mut self.work,
-                &mut out,
-            );
-            for (l, &v) in out.iter().enumerate() {
-                let i = g * LANES + l;
-                if i < pool.n && !self.member[i] && best.is_none_or(|b| v > b.1) {
-                    best = Some((i, v));
+        let (member, mk) = (&self.member, &self.mk);
+        // The first outside candidate with the largest log det among the groups `range`.
+        let scan = |range: std::ops::Range<usize>, work: &mut Work| {
+            let mut best: Option<(usize, f64)> = None;
+            let mut out = [0.0; LANES];
+            for g in range {
+                log_dets(&pool.env, mk, pool.group(g), 1.0, work, &mut out);
+                for (l, &v) in out.iter().enumerate() {
+                    let i = g * LANES + l;
+                    if i < pool.n && !member[i] && best.is_none_or(|b| v > b.1) {
+                        best = Some((i, v));
+                    }
                 }
             }
+            best
+        };
+        let groups = pool.n.div_ceil(LANES);
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        if threads < 2 || groups < 2 || pool.n * pool.env.len < PARALLEL_MIN_ENTRIES {
+            return scan(0..groups, &mut self.work);
         }
-        best
+        // Two halves on two cores; the first half's candidate wins ties (the serial order).
+        let mid = groups / 2;
+        let work = &mut self.work;
+        let (first, second) = std::thread::scope(|s| {
+            let later = s.spawn(|| scan(mid..groups, &mut Work::new(&pool.env)));
+            let first = scan(0..mid, work);
+            let second = later
+                .join()
+                .unwrap_or_else(|e| std::panic::resume_unwind(e));
+            (first, second)
+        });
+        match (first, second) {
+            (Some(a), Some(b)) if b.1 > a.1 => Some(b),
+            (Some(a), _) => Some(a),
+            (None, b) => b,
+        }
     }
 
     fn best_remove(&mut self) -> Option<(usize, f64)> {

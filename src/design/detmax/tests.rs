@@ -385,3 +385,44 @@ fn every_kernel_width_picks_the_same_set() {
         assert!(quiet.history.is_empty() && wide.history.len() == wide.exchanges + 1);
     }
 }
+
+/// A pool large enough for the best-addition scan to run on two cores (information
+/// matrices of 1,000 marker-cluster blocks) picks the candidate a dense Cholesky of every
+/// candidate's design picks, with its log det, and the first of a tie: block 100 repeated
+/// as block 900 (the other half of the scan) stands out and must win over its copy.
+#[test]
+fn the_two_core_scan_picks_the_dense_argmax() {
+    let mut rng = Rng::new(5);
+    let mut blocks = cluster_blocks(&mut rng, 1000, (4, 2, 10, 20));
+    blocks[100] *= 3.0;
+    blocks[900] = blocks[100].clone();
+    let pool = Pool::from_blocks(&blocks);
+    let g = pool.gram.as_ref().expect("kept as information matrices");
+    assert!(g.n * g.env.len >= gram::PARALLEL_MIN_ENTRIES);
+    let start: Vec<usize> = (0..8).map(|k| 37 * k + 3).collect();
+    let trace: f64 = blocks.iter().map(|b| b.norm_squared()).sum();
+    let ridge = 1e-9 * trace / (blocks.len() * pool.m) as f64;
+    let mut design = gram::Design::new(g, &start, ridge).expect("regular start");
+    let got = design.greedy(true, &mut gram::Memo::new()).expect("a step");
+    let mut set = vec![false; blocks.len()];
+    start.iter().for_each(|&i| set[i] = true);
+    let mut best: Option<(usize, f64)> = None;
+    for i in 0..blocks.len() {
+        if set[i] {
+            continue;
+        }
+        set[i] = true;
+        let v = dense_log_det(&blocks, &set, ridge);
+        set[i] = false;
+        if best.is_none_or(|b| v > b.1) {
+            best = Some((i, v));
+        }
+    }
+    let (i, v) = best.expect("candidates");
+    assert_eq!((got, i), (100, 100));
+    assert!(
+        (design.log_det - v).abs() < 1e-9 * v.abs(),
+        "{} vs {v}",
+        design.log_det
+    );
+}

@@ -447,14 +447,24 @@ impl Problem for PointProblem {
         self.fill_jacobian(x, Some(cols), j);
         Ok(true)
     }
+
+    fn jacobian_blocks(
+        &self,
+        x: &[f64],
+        cols: Option<&[usize]>,
+        block_rows: usize,
+        visitors: &mut [&mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send)],
+    ) -> Result<bool, IdentifyError> {
+        self.visit_jacobian_blocks(x, cols, block_rows, visitors);
+        Ok(true)
+    }
 }
 
 impl PointProblem {
-    /// The Jacobian at `x` into `j`: every unknown's column, or those of `cols` (column
-    /// `c` of `j` is unknown `cols[c]`; the chain computes only those).
-    fn fill_jacobian(&self, x: &[f64], cols: Option<&[usize]>, j: &mut DMatrix<f64>) {
+    /// The output column of each unknown for the columns `cols` (None: all), and which
+    /// chain parameters the chain must differentiate (empty: all).
+    fn column_map(&self, cols: Option<&[usize]>) -> (Vec<Option<usize>>, Vec<bool>) {
         let m = self.unknown_count();
-        // Output column of each unknown.
         let at: Vec<Option<usize>> = match cols {
             None => (0..m).map(Some).collect(),
             Some(cols) => {
@@ -477,6 +487,172 @@ impl PointProblem {
                 w
             }
         };
+        (at, wanted)
+    }
+
+    /// [`Problem::jacobian_blocks`]: the rows split into one contiguous part per visitor
+    /// (each on its own thread, with the trig memos of the measurements whose first row it
+    /// holds; a measurement split between two parts is evaluated by both), each part in
+    /// blocks of about `block_rows / 3` measurements, the distance rows last.
+    fn visit_jacobian_blocks(
+        &self,
+        x: &[f64],
+        cols: Option<&[usize]>,
+        block_rows: usize,
+        visitors: &mut [&mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send)],
+    ) {
+        let (at, wanted) = self.column_map(cols);
+        let width = cols.map_or(self.unknown_count(), <[usize]>::len);
+        let parts = visitors.len();
+        if parts == 0 {
+            return;
+        }
+        let count = self.meas.len();
+        let base = 3 * count;
+        let n = self.residual_count();
+        let chunk = n.div_ceil(parts).max(1);
+        let rows: Vec<std::ops::Range<usize>> = (0..parts)
+            .map(|k| (k * chunk).min(n)..((k + 1) * chunk).min(n))
+            .collect();
+        // The measurements whose first row each part holds (their memos go with it).
+        let owned: Vec<std::ops::Range<usize>> = rows
+            .iter()
+            .map(|r| r.start.min(base).div_ceil(3)..r.end.min(base).div_ceil(3))
+            .collect();
+        let per_block = (block_rows / 3).max(1);
+        self.with_chain(x, |chain| {
+            let centres = self.centres(x);
+            let nj = chain.joints.len();
+            let mut memos = self.trig.try_take();
+            let memos = memos.as_deref_mut().filter(|v| v.len() == nj * count);
+            let memos = memo_parts(memos.map(|v| &mut v[..]), &owned, nj);
+            let work = |part: std::ops::Range<usize>,
+                        own: std::ops::Range<usize>,
+                        mut memo: Option<&mut [TrigMemo]>,
+                        visit: &mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send)| {
+                let mut block = DMatrix::<f64>::zeros(0, width);
+                let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
+                let mut scratch = JacobianScratch::default();
+                scratch.set_wanted(wanted.clone());
+                let measured = part.start.min(base)..part.end.min(base);
+                let mut first = measured.start / 3;
+                while 3 * first < measured.end {
+                    let last = (first + per_block).min(measured.end.div_ceil(3));
+                    let lo = (3 * first).max(measured.start);
+                    let hi = (3 * last).min(measured.end);
+                    if block.nrows() == hi - lo {
+                        block.as_mut_slice().fill(0.0);
+                    } else {
+                        block = DMatrix::zeros(hi - lo, width);
+                    }
+                    for i in first..last {
+                        let (m, tau) = (&self.meas[i], &self.tau[i]);
+                        let memo_i = match memo.as_deref_mut() {
+                            Some(mm) if own.contains(&i) => {
+                                let o = i - own.start;
+                                Some(&mut mm[nj * o..nj * (o + 1)])
+                            }
+                            _ => None,
+                        };
+                        match memo_i {
+                            Some(mm) => chain.point_jacobian_memo(
+                                &m.q,
+                                Some(tau),
+                                &Vector3::zeros(),
+                                &mut buf,
+                                &mut scratch,
+                                mm,
+                            ),
+                            None => chain.point_jacobian_with(
+                                &m.q,
+                                Some(tau),
+                                &Vector3::zeros(),
+                                &mut buf,
+                                &mut scratch,
+                            ),
+                        };
+                        let len = hi - lo;
+                        let out = block.as_mut_slice();
+                        let mut put = |a: usize, oc: usize, v: f64| {
+                            let row = 3 * i + a;
+                            if (lo..hi).contains(&row) {
+                                out[oc * len + row - lo] = v;
+                            }
+                        };
+                        for (c, &col) in self.cols.iter().enumerate() {
+                            if let (Some(v), Some(oc)) = (buf.get(col), at[c]) {
+                                for a in 0..3 {
+                                    put(a, oc, v[a]);
+                                }
+                            }
+                        }
+                        if let Target::Ball(b) = m.target {
+                            if let Some(o) = self.free_slot(b) {
+                                for a in 0..3 {
+                                    if let Some(oc) = at[o + a] {
+                                        put(a, oc, -1.0);
+                                    }
+                                }
+                            }
+                        }
+                    }
+                    visit(lo..hi, &block);
+                    first = last;
+                }
+                let distances = part.start.max(base)..part.end.max(base);
+                if !distances.is_empty() {
+                    let mut block = DMatrix::<f64>::zeros(distances.len(), width);
+                    for row in distances.clone() {
+                        let (bi, bj, _) = self.plate.distances[row - base];
+                        let diff = centres[bi] - centres[bj];
+                        let u = diff / diff.norm().max(f64::MIN_POSITIVE);
+                        for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
+                            if let Some(o) = self.free_slot(ball) {
+                                for a in 0..3 {
+                                    if let Some(oc) = at[o + a] {
+                                        block[(row - distances.start, oc)] =
+                                            self.distance_weight * sign * u[a];
+                                    }
+                                }
+                            }
+                        }
+                    }
+                    visit(distances, &block);
+                }
+            };
+            let jobs: Vec<_> = rows
+                .into_iter()
+                .zip(owned)
+                .zip(memos)
+                .zip(visitors.iter_mut())
+                .collect();
+            if jobs.len() == 1 {
+                for (((part, own), memo), visit) in jobs {
+                    work(part, own, memo, &mut **visit);
+                }
+                return;
+            }
+            std::thread::scope(|s| {
+                let work = &work;
+                let handles: Vec<_> = jobs
+                    .into_iter()
+                    .map(|(((part, own), memo), visit)| {
+                        s.spawn(move || work(part, own, memo, &mut **visit))
+                    })
+                    .collect();
+                for h in handles {
+                    if let Err(e) = h.join() {
+                        std::panic::resume_unwind(e);
+                    }
+                }
+            });
+        })
+    }
+
+    /// The Jacobian at `x` into `j`: every unknown's column, or those of `cols` (column
+    /// `c` of `j` is unknown `cols[c]`; the chain computes only those).
+    fn fill_jacobian(&self, x: &[f64], cols: Option<&[usize]>, j: &mut DMatrix<f64>) {
+        let (at, wanted) = self.column_map(cols);
         self.with_chain(x, |chain| {
             let centres = self.centres(x);
             j.fill(0.0);
