@@ -4,6 +4,8 @@
 //! of the controller fails the job with its message; stopped first, the module is uploaded
 //! and loaded into T_ROB1, and the controller lists it.
 
+use calibd_drivers::TcpConnector;
+use calibd_drivers::rws::{RwsConfig, RwsHandle};
 use reqwest::Method;
 use serde_json::{Value, json};
 
@@ -89,12 +91,20 @@ async fn a_filtered_module_is_uploaded_and_loaded_by_an_operator_only() {
     assert_eq!(r["upload"]["path"], "$HOME/PickPlace.mod", "{r}");
     assert_eq!(r["upload"]["module"], "PickPlace");
     assert_eq!(r["summary"]["corrected"], 12);
-    let (st, lab) = s.get("/v1/lab?refresh=true").await;
+    // The controller (the cell's RWS mock, over its socket) lists the module, stopped.
+    let (st, lab) = s.get("/v1/lab").await;
     assert_eq!(st, 200);
-    let rws = lab["devices"]
+    let addr = lab["devices"]
         .as_array()
-        .and_then(|d| d.iter().find(|d| d["device"] == "irb120.rws"))
-        .cloned()
-        .unwrap_or_else(|| panic!("{lab}"));
-    assert!(rws.to_string().contains("\"PickPlace\""), "{rws}");
+        .and_then(|d| {
+            d.iter()
+                .find(|d| d["cell"] == "irb120" && d["device"].as_str().is_some_and(|n| n.ends_with("rws")))
+        })
+        .and_then(|d| d["address"].as_str())
+        .unwrap_or_else(|| panic!("{lab}"))
+        .to_string();
+    let h = RwsHandle::connect(TcpConnector::new(addr), RwsConfig::default());
+    let id = h.identity("CalibServer").await.unwrap();
+    assert!(id.rapid_modules.iter().any(|m| m == "PickPlace"), "{id:?}");
+    assert_eq!(id.execstate, "stopped");
 }

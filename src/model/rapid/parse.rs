@@ -501,6 +501,7 @@ impl Parser<'_> {
             if tk.kind == Tok::Ident
                 && stack.is_empty()
                 && k > s
+                && !(k == s + 1 && (self.is(s, "LOCAL") || self.is(s, "TASK")))
                 && BLOCK_WORDS.iter().any(|w| tk.is(self.src, w))
             {
                 return Err(self.err(

@@ -155,7 +155,7 @@ fn the_module_parses_with_its_declarations_and_moves() {
 
 #[test]
 fn a_module_that_does_not_parse_names_the_line() {
-    let cases: [(&str, usize, &str); 8] = [
+    let cases: [(&str, usize, &str); 9] = [
         (
             "MODULE m\n  VAR num a := 1\n  VAR num b := 2;\nENDMODULE",
             2,
@@ -178,6 +178,11 @@ fn a_module_that_does_not_parse_names_the_line() {
         ),
         ("MODULE m\n  x := (1 + 2];\nENDMODULE", 2, "closes the `(`"),
         ("PROC a()\nENDPROC", 1, "expected MODULE"),
+        (
+            "MODULE m\n  TASK PERS num a := 1\n  LOCAL VAR num b := 2;\nENDMODULE",
+            2,
+            "before LOCAL",
+        ),
         (
             "MODULE m\nPROC a()\n  x := 1\n  y := 2;\nENDPROC\nENDMODULE",
             3,
