@@ -97,8 +97,9 @@ async fn a_filtered_module_is_uploaded_and_loaded_by_an_operator_only() {
     let addr = lab["devices"]
         .as_array()
         .and_then(|d| {
-            d.iter()
-                .find(|d| d["cell"] == "irb120" && d["device"].as_str().is_some_and(|n| n.ends_with("rws")))
+            d.iter().find(|d| {
+                d["cell"] == "irb120" && d["device"].as_str().is_some_and(|n| n.ends_with("rws"))
+            })
         })
         .and_then(|d| d["address"].as_str())
         .unwrap_or_else(|| panic!("{lab}"))

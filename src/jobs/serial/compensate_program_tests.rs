@@ -197,5 +197,16 @@ fn a_target_without_its_tool_is_reported_and_a_given_tool_fixes_it() {
     ));
     let given = run(&doc);
     assert_eq!(given.result["summary"]["corrected"], 12);
-    assert_eq!(given.result["targets"], full.result["targets"]);
+    // The same corrections (the lines moved up by the tools' four lines).
+    let without_lines = |v: &Value| -> Vec<Value> {
+        let mut rows = v.as_array().unwrap().clone();
+        for r in &mut rows {
+            r.as_object_mut().unwrap().remove("line");
+        }
+        rows
+    };
+    assert_eq!(
+        without_lines(&given.result["targets"]),
+        without_lines(&full.result["targets"])
+    );
 }
