@@ -286,3 +286,40 @@ async fn a_lost_reply_during_a_move_never_fakes_the_next_move() {
         m.stop().await;
     }
 }
+
+#[tokio::test]
+async fn a_module_is_uploaded_and_loaded_and_refusals_carry_the_controller_message() {
+    let (m, h) = start(&[]).await;
+    let text = "MODULE Filtered\n  CONST robtarget p := [[1,2,3],[1,0,0,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\nENDMODULE\n";
+    // The calibd program runs: the controller refuses to load into a running task.
+    let e = h
+        .load_module("Filtered.mod", text, false)
+        .await
+        .unwrap_err();
+    let msg = e.to_string();
+    assert!(
+        e.is_device_error() && msg.contains("RAPID program is executing"),
+        "{msg}"
+    );
+    // Stopped first, it loads; the task lists the module.
+    let path = h.load_module("Filtered.mod", text, true).await.unwrap();
+    assert_eq!(path, "$HOME/Filtered.mod");
+    let id = h.identity("CalibServer").await.unwrap();
+    assert!(id.rapid_modules.iter().any(|n| n == "Filtered"), "{id:?}");
+    assert_eq!(id.execstate, "stopped");
+    // Loading it again replaces it (one entry); a syntax error is refused with its line.
+    h.load_module("Filtered.mod", text, false).await.unwrap();
+    let id = h.identity("CalibServer").await.unwrap();
+    assert_eq!(
+        id.rapid_modules.iter().filter(|n| *n == "Filtered").count(),
+        1
+    );
+    let bad = "MODULE Bad\n  CONST num a{2} := [1, 2;\nENDMODULE\n";
+    let e = h.load_module("Bad.mod", bad, false).await.unwrap_err();
+    assert!(e.to_string().contains("line 2"), "{e}");
+    assert!(matches!(
+        h.load_module("../x.mod", text, false).await,
+        Err(DriverError::InvalidRequest { .. })
+    ));
+    m.stop().await;
+}

@@ -89,6 +89,12 @@ pub const KINDS: &[KindInfo] = &[
         serial::compensate::Spec
     ),
     kind!(
+        "serial.compensate_program",
+        "an ABB RAPID module's robtargets rewritten so the controller's nominal kinematics reach what the calibrated model predicts; optional upload over RWS",
+        serial::compensate_program::prepare,
+        serial::compensate_program::Spec
+    ),
+    kind!(
         "pcr.fk",
         "forward kinematics of a 3-PF continuum robot over a joints table",
         pcr::fk::prepare,

@@ -9,7 +9,7 @@ use crate::model::dh::DhFile;
 use crate::model::humanoid::MarkerDef;
 use crate::model::pcr::PcrFile;
 use crate::procedures::{
-    Envelope, Indicators, JointRobot, LinearStages, MarkerStream, PoseSensor, Robot,
+    Envelope, Indicators, JointRobot, LinearStages, MarkerStream, ModuleLoader, PoseSensor, Robot,
 };
 
 /// `Debug` (name and devices) and `current_model` of a cell type.
@@ -53,6 +53,8 @@ pub struct TricalCell {
     pub robot: Arc<dyn Robot>,
     /// The centring device.
     pub indicators: Arc<dyn Indicators>,
+    /// The arm's controller as a store of program modules.
+    pub modules: Arc<dyn ModuleLoader>,
     /// The cell's current model.
     pub model: Mutex<DhFile>,
     /// Ballbar distances d12, d13, d23 of the plate (mm).

@@ -19,8 +19,8 @@ use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle};
 use calibd_drivers::{Backoff, Recorder, Stage, StageConfig, TcpConnector};
 
 use super::adapters::{
-    JointInterface, Microscope, PerJoint, QtmStream, RwsRobot, SmaractStages, StageEnvelope,
-    UwaveIndicators,
+    JointInterface, Microscope, PerJoint, QtmStream, RwsModules, RwsRobot, SmaractStages,
+    StageEnvelope, UwaveIndicators,
 };
 use super::devices::{DeviceLink, ProbeFuture};
 use super::probes::{self, probe};
@@ -289,6 +289,7 @@ fn ball_centring(d: BallCentringCell, rec: &Rec) -> Result<TricalCell, LabError>
         ),
     ];
     Ok(TricalCell {
+        modules: Arc::new(RwsModules::new(rws.clone(), rws_at.clone())),
         robot: Arc::new(MotionLimiter::new(
             RwsRobot::new(rws, rws_at),
             envelope.clone(),

@@ -11,6 +11,7 @@ pub mod joint;
 pub mod opw;
 pub mod params;
 pub mod pcr;
+pub mod rapid;
 pub mod srdf;
 pub mod trig;
 pub mod urdf;

@@ -61,6 +61,19 @@ pub trait Robot: Send + Sync {
     fn move_tool(&self, offset_mm: [f64; 3]) -> DeviceFuture<'_, ()>;
 }
 
+/// A robot controller that takes program modules (an IRC5 over RWS).
+pub trait ModuleLoader: Send + Sync {
+    /// Upload `text` as the file `file` in the controller's home directory and load it into
+    /// the robot task, replacing a module of the same name; with `stop`, stop the program
+    /// first. The file's path on the controller; a refusal carries the controller's message.
+    fn load_module<'a>(
+        &'a self,
+        file: &'a str,
+        text: &'a str,
+        stop: bool,
+    ) -> DeviceFuture<'a, String>;
+}
+
 /// Three indicators reading the offset of the ball centre from the TCP along the tool axes.
 pub trait Indicators: Send + Sync {
     /// A fresh reading (mm), with per-indicator sign and zero already applied.

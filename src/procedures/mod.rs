@@ -12,7 +12,7 @@ pub mod journal;
 pub use centring::{Centred, CentringError, CentringOptions, centre};
 pub use devices::{
     DeviceError, DeviceFuture, Indicators, JointRobot, LinearStages, MarkerFrames, MarkerStream,
-    PoseSensor, Robot,
+    ModuleLoader, PoseSensor, Robot,
 };
 pub use envelope::{Envelope, MotionLimiter, Workspace};
 pub use journal::{EntryStatus, Journal, JournalEntry, MemoryJournal};

@@ -124,6 +124,18 @@ impl<'a> Inputs<'a> {
         String::from_utf8(bytes).map_err(|_| JobError::invalid(field, "is not UTF-8 text"))
     }
 
+    /// Text given inline (a string of several lines is the text itself) or a reference to
+    /// a file (a RAPID module).
+    pub fn text_or_inline(&self, field: &str, v: &Value) -> Result<String, JobError> {
+        match v.as_str() {
+            Some(s) if s.contains('\n') => {
+                self.record(field, s.as_bytes());
+                Ok(s.to_string())
+            }
+            _ => self.text(field, v),
+        }
+    }
+
     /// The bytes of a binary input given as a reference (an image file or dataset id).
     pub fn bytes(&self, field: &str, v: &Value) -> Result<Vec<u8>, JobError> {
         let s = v

@@ -34,6 +34,7 @@ mod pcr_jobs;
 mod pcr_model;
 mod pcr_prior;
 mod pcr_twin;
+mod rapid_program;
 mod replay_steps;
 mod report;
 mod report_studies;

@@ -1,9 +1,10 @@
 //! The serial-arm job kinds (`serial.fk`, `serial.identify`, `serial.design`,
-//! `serial.dispersion`, `serial.compensate`) and what they share: loading a DH or URDF model, joint columns in
+//! `serial.dispersion`, `serial.compensate`, `serial.compensate_program`) and what they share: loading a DH or URDF model, joint columns in
 //! the model's units with limit checks, ball plates and measurement tables. A DH tree file
 //! (`"kind": "tree"`) is used through one named chain, as the serial DH file of that path.
 
 pub mod compensate;
+pub mod compensate_program;
 pub mod design;
 pub mod dispersion;
 pub mod fk;

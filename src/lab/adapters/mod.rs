@@ -32,4 +32,4 @@ pub mod serial;
 pub use joints::JointInterface;
 pub use pcr::{Microscope, PerJoint, SmaractStages, StageEnvelope};
 pub use qtm::QtmStream;
-pub use serial::{RwsRobot, UwaveIndicators, device_error};
+pub use serial::{RwsModules, RwsRobot, UwaveIndicators, device_error};

@@ -7,7 +7,7 @@ use calibd_drivers::DriverError;
 use calibd_drivers::rws::RwsHandle;
 use calibd_drivers::uwave::UwaveHandle;
 
-use crate::procedures::{DeviceError, DeviceFuture, Indicators, Robot};
+use crate::procedures::{DeviceError, DeviceFuture, Indicators, ModuleLoader, Robot};
 
 /// A driver error as the procedures see it: link trouble, timeouts, the device's own
 /// errors, local refusals and garbled replies are told apart.
@@ -147,6 +147,28 @@ impl Robot for RwsRobot {
         Box::pin(async move {
             self.confirm_previous().await?;
             self.settle(self.handle.move_rel_tool(offset_mm).await)
+        })
+    }
+}
+
+named_adapter!(
+    /// The program modules of an IRC5 over RWS (file service and `loadmod`).
+    RwsModules,
+    RwsHandle
+);
+
+impl ModuleLoader for RwsModules {
+    fn load_module<'a>(
+        &'a self,
+        file: &'a str,
+        text: &'a str,
+        stop: bool,
+    ) -> DeviceFuture<'a, String> {
+        Box::pin(async move {
+            self.handle
+                .load_module(file, text, stop)
+                .await
+                .map_err(|e| device_error(&self.name, e))
         })
     }
 }

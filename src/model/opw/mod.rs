@@ -246,6 +246,16 @@ impl Opw {
         out
     }
 
+    /// Signed branch measures at `q` (rad): the wrist centre's x in frame 1 (its sign tells
+    /// in front of or behind axis 1), the sine of the elbow angle and the sine of theta5.
+    pub fn branch_signs(&self, q: &[f64]) -> [f64; 3] {
+        let th = |k: usize| q[k] + self.offsets[k];
+        let phi = th(2) + self.psi3;
+        let (x, y) = (self.a2 + self.l3 * phi.cos(), self.l3 * phi.sin());
+        let x1 = self.a1 + th(1).cos() * x - th(1).sin() * y;
+        [x1, phi.sin(), th(4).sin()]
+    }
+
     /// The singularity measures of the ideal arm at joint values `q` (rad).
     pub fn singularity(&self, q: &[f64]) -> Singularity {
         let th = |k: usize| q[k] + self.offsets[k];

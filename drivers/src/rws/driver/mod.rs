@@ -4,6 +4,7 @@
 //! (the move logic is in `moves`).
 
 mod identity;
+mod modules;
 mod moves;
 
 pub use identity::{DEFAULT_CALIB_MODULE, RwsIdentity, TASK, parse_modules};
@@ -97,6 +98,7 @@ enum Op {
     MoveAbsJ([f64; 6], Reply<[f64; 6]>),
     MoveRelTool([f64; 3], Reply<[f64; 6]>),
     Identity(String, Reply<RwsIdentity>),
+    LoadModule(String, String, bool, Reply<String>),
 }
 
 impl std::fmt::Debug for Op {
@@ -109,6 +111,7 @@ impl std::fmt::Debug for Op {
             Op::MoveAbsJ(q, _) => write!(f, "MoveAbsJ({q:?})"),
             Op::MoveRelTool(d, _) => write!(f, "MoveRelTool({d:?})"),
             Op::Identity(m, _) => write!(f, "Identity({m})"),
+            Op::LoadModule(file, _, stop, _) => write!(f, "LoadModule({file}, stop {stop})"),
         }
     }
 }
@@ -191,6 +194,22 @@ impl RwsHandle {
         .await
     }
 
+    /// Upload `text` as `$HOME/<file>` (file service), then load it into T_ROB1 under RAPID
+    /// mastership, replacing a module of the same name; with `stop`, stop the RAPID
+    /// execution first (a controller does not load into a running task). The file's path;
+    /// a refusal is a [`DriverError::Device`] with the controller's message.
+    pub async fn load_module(
+        &self,
+        file: &str,
+        text: &str,
+        stop: bool,
+    ) -> Result<String, DriverError> {
+        call(&self.tx, DEVICE, |r| {
+            Op::LoadModule(file.to_string(), text.to_string(), stop, r)
+        })
+        .await
+    }
+
     /// Watch channel with link state and the last joints read.
     pub fn state(&self) -> watch::Receiver<RwsState> {
         self.state.clone()
@@ -260,11 +279,15 @@ impl<C: Connect> Actor<C> {
                     let res = self.identity(m).await;
                     drop(r.send(res))
                 }
+                Op::LoadModule(file, text, stop, r) => {
+                    let res = self.load_module(&file, &text, stop).await;
+                    drop(r.send(res))
+                }
             }
         }
     }
 
-    fn build(&mut self, method: &str, target: &str, form: Option<&str>) -> Request {
+    fn build(&mut self, method: &str, target: &str, body: Option<(&[u8], &str)>) -> Request {
         let mut headers = vec![
             ("Host".to_string(), self.cfg.host.clone()),
             ("Accept".to_string(), "application/json".to_string()),
@@ -293,13 +316,10 @@ impl<C: Connect> Actor<C> {
             );
             headers.push(("Authorization".into(), a));
         }
-        let body = form.map(|f| f.as_bytes().to_vec()).unwrap_or_default();
-        if form.is_some() {
-            headers.push((
-                "Content-Type".into(),
-                "application/x-www-form-urlencoded".into(),
-            ));
+        if let Some((_, ty)) = body {
+            headers.push(("Content-Type".into(), ty.into()));
         }
+        let body = body.map(|b| b.0.to_vec()).unwrap_or_default();
         Request {
             method: method.into(),
             target: target.into(),
@@ -364,11 +384,22 @@ impl<C: Connect> Actor<C> {
         target: &str,
         form: Option<&str>,
     ) -> Result<Response, DriverError> {
+        let body = form.map(|f| (f.as_bytes(), "application/x-www-form-urlencoded"));
+        self.exchange_body(method, target, body).await
+    }
+
+    /// As [`Actor::exchange`] with any body and content type.
+    async fn exchange_body(
+        &mut self,
+        method: &str,
+        target: &str,
+        body: Option<(&[u8], &str)>,
+    ) -> Result<Response, DriverError> {
         let mut tries = 0;
         loop {
             tries += 1;
             let was_up = self.link.is_up();
-            let req = self.build(method, target, form);
+            let req = self.build(method, target, body);
             let resp = match self.once(req).await {
                 Ok(r) => r,
                 // A stale keep-alive connection: retry once on a new one.

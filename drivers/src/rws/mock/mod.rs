@@ -5,6 +5,7 @@
 //! info and the module list of T_ROB1 come from [`ControllerInfo`]. The resources are in
 //! `route`.
 
+mod files;
 mod route;
 use route::route;
 
@@ -127,6 +128,10 @@ struct Robot {
     nonces: HashSet<String>,
     sessions: HashSet<String>,
     counter: u64,
+    /// Files of the file service by path (`$HOME/x.mod`).
+    files: HashMap<String, Vec<u8>>,
+    /// Whether a client holds RAPID mastership.
+    mastership: bool,
 }
 
 impl Robot {
@@ -150,6 +155,8 @@ impl Robot {
             nonces: HashSet::new(),
             sessions: HashSet::new(),
             counter: 0,
+            files: HashMap::new(),
+            mastership: false,
         }
     }
 
@@ -284,7 +291,9 @@ fn reason(status: u16) -> &'static str {
     match status {
         200 => "OK",
         204 => "No Content",
+        201 => "Created",
         400 => "Bad Request",
+        403 => "Forbidden",
         401 => "Unauthorized",
         404 => "Not Found",
         503 => "Service Unavailable",

@@ -3,7 +3,7 @@
 use serde_json::json;
 use tokio::time::Instant;
 
-use super::{Robot, error, json_response, no_content, state};
+use super::{Robot, error, files, json_response, no_content, state};
 use crate::rws::http::{Request, Response, parse_form};
 use crate::rws::rapid::{parse_jointtarget, parse_pos};
 
@@ -120,7 +120,18 @@ pub(super) fn route(r: &mut Robot, req: &Request) -> Response {
         ("GET", "/rw/panel/opmode", _) => {
             state(json!({"_type": "pnl-opmode", "_title": "opmode", "opmode": "AUTO"}))
         }
+        ("POST", "/rw/mastership", Some("request")) => {
+            r.mastership = true;
+            no_content()
+        }
+        ("POST", "/rw/mastership", Some("release")) => {
+            r.mastership = false;
+            no_content()
+        }
         ("POST", "/rw/mastership", _) | ("POST", "/rw/mastership/rapid", _) => no_content(),
+        ("PUT", p, _) if p.starts_with("/fileservice/") => files::put(r, p, &req.body),
+        ("GET", p, _) if p.starts_with("/fileservice/") => files::get(r, p),
+        ("POST", "/rw/rapid/tasks/T_ROB1", Some("loadmod")) => files::loadmod(r, &form),
         _ => error(
             404,
             -1073479661,

@@ -129,7 +129,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CompensateJob, JobErr
 
 /// The model: a model file as `serial.fk` takes it, or a `serial.identify` result (inline
 /// or a file) whose `calibrated_model` is used.
-fn resolve_model(
+pub(crate) fn resolve_model(
     inputs: &Inputs<'_>,
     model: &Value,
     chain: Option<&ChainSpec>,
@@ -150,7 +150,7 @@ fn resolve_model(
 }
 
 /// Replace the model's payload (the point mass named `payload` on the last body).
-fn set_payload(model: &mut SerialModel, p: &Payload) -> Result<(), JobError> {
+pub(crate) fn set_payload(model: &mut SerialModel, p: &Payload) -> Result<(), JobError> {
     if !(p.mass >= 0.0 && p.mass.is_finite()) || p.com_in_flange.iter().any(|v| !v.is_finite()) {
         return Err(JobError::invalid(
             "payload",
