@@ -9,8 +9,8 @@ use axum::response::{IntoResponse, Response};
 use serde_json::Value;
 
 use super::{ApiError, ApiPath, AppState, Caller};
-use crate::jobs::envelope::VERSION;
 use crate::report::html::{ReportInput, cell_name, render};
+use crate::run::VERSION;
 
 /// The policy of the report document: inline CSS and inline SVG only.
 pub(super) const REPORT_CSP: &str = "default-src 'none'; style-src 'unsafe-inline'; img-src data:; \

@@ -34,5 +34,4 @@ impl RapidError {
 }
 
 #[cfg(test)]
-#[path = "tests.rs"]
 mod tests;

@@ -2,14 +2,15 @@ use serde_json::{Value, json};
 
 use super::*;
 use crate::geometry::Frame;
-use crate::jobs::{NoReferences, prepare as prepare_job};
+use crate::jobs::prepare as prepare_job;
 use crate::model::compensate::rotation_vector;
 use crate::model::rapid::conf::Controller;
 use crate::model::rapid::data::{Held, RobTarget, tooldata, wobjdata};
+use crate::run::NoReferences;
 use crate::twin::SerialTwin;
 use crate::util::NoMonitor;
 
-const MODULE: &str = include_str!("../../../tests/data/rapid/PickPlace.mod");
+const MODULE: &str = include_str!("../../../../tests/data/rapid/PickPlace.mod");
 
 fn job(model: Value, nominal: Value, module: &str) -> Value {
     json!({"kind": "serial.compensate_program", "model": model, "nominal": nominal,

@@ -15,15 +15,15 @@ use serde_json::Value;
 
 use super::compensate::{resolve_model, set_payload};
 use super::{ChainSpec, SerialModel};
-use crate::jobs::{
-    Artefact, Cx, Inputs, JobError, Kind, Produced, RunFuture, Table, computed, parse_spec,
-};
 use crate::model::compensate::Tolerances;
 use crate::model::dh::Payload;
 use crate::model::rapid::correct::Filter;
 use crate::model::rapid::parse;
 use crate::model::rapid::program::{self, Filtered, Outcome, TargetReport};
-use crate::report::Run;
+use crate::run::Run;
+use crate::run::{
+    Artefact, Cx, Inputs, JobError, Kind, Produced, RunFuture, Table, computed, parse_spec,
+};
 use crate::util::Monitor;
 
 /// A `serial.compensate_program` job document.
@@ -34,10 +34,10 @@ pub(crate) struct Spec {
     kind: String,
     /// The calibrated model (DH file in mm), or a `serial.identify` result whose
     /// `calibrated_model` is used.
-    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
+    #[schemars(schema_with = "crate::run::schema::serial_model")]
     model: Value,
     /// The controller's nominal model (DH file in mm, same joints).
-    #[schemars(schema_with = "crate::jobs::schema::serial_model")]
+    #[schemars(schema_with = "crate::run::schema::serial_model")]
     nominal: Value,
     #[serde(default)]
     chain: Option<ChainSpec>,
@@ -443,5 +443,4 @@ impl Kind for ProgramJob {
 }
 
 #[cfg(test)]
-#[path = "compensate_program_tests.rs"]
 mod tests;

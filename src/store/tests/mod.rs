@@ -2,7 +2,6 @@ use serde_json::json;
 
 use super::*;
 
-#[path = "tests_shared.rs"]
 mod shared;
 
 fn job(kind: &str) -> NewJob {

@@ -180,5 +180,4 @@ pub(crate) fn fold(
 }
 
 #[cfg(test)]
-#[path = "blocked_tests.rs"]
 mod tests;
