@@ -1,7 +1,7 @@
 //! The layering of `src/` (ARCHITECTURE.md), checked from the source: every `crate::…` and
 //! `super::…` path in a file's non-test code is an import; it may only reach the file's own
 //! layer or one below, except the named exceptions; and no import circle spans more than
-//! two files. Test code (`tests.rs`, `*_tests.rs`, `#[cfg(test)] mod …` at a file's end)
+//! two files. Test code (`tests.rs`, `tests/`, `*_tests.rs`, `#[cfg(test)] mod …` at a file's end)
 //! may reach anywhere.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -78,9 +78,9 @@ fn module_of(rel: &str) -> Vec<String> {
 
 fn is_test_file(rel: &str) -> bool {
     let name = rel.rsplit('/').next().unwrap_or(rel);
-    name == "tests.rs"
+    rel.split('/').any(|dir| dir == "tests")
+        || name == "tests.rs"
         || name.ends_with("_tests.rs")
-        || name == "tests_shared.rs"
         || name == "testpg.rs"
 }
 
