@@ -163,6 +163,28 @@ fn scaled_normal(
 }
 
 /// `j^T r` as nalgebra's `tr_mul` forms it (one dot per column).
+/// Evaluate the trial point `xn` of a step whose linear model predicts the cost reduction
+/// `predicted`: its cost (infinite when the model fails or is not finite there) and the gain
+/// ratio. A step the linear model does not even predict to help is not evaluated.
+pub(super) fn trial<P: Problem + ?Sized>(
+    problem: &P,
+    xn: &[f64],
+    r_new: &mut DVector<f64>,
+    cost: f64,
+    predicted: f64,
+) -> (f64, f64) {
+    if predicted <= 0.0 {
+        return (f64::INFINITY, -1.0);
+    }
+    let eval = problem.residuals(xn, r_new.as_mut_slice());
+    let cost_new = if eval.is_ok() && r_new.iter().all(|v| v.is_finite()) {
+        r_new.norm_squared()
+    } else {
+        f64::INFINITY
+    };
+    (cost_new, (cost - cost_new) / predicted)
+}
+
 fn tr_mul(j: &DMatrix<f64>, r: &DVector<f64>) -> DVector<f64> {
     let n = j.nrows();
     let mut out = DVector::zeros(j.ncols());
@@ -308,22 +330,7 @@ pub fn levenberg_marquardt_from(
             let predicted = cost - lin.norm_squared();
             // A step the linear model does not even predict to help is not worth a model
             // evaluation.
-            let eval = if predicted > 0.0 {
-                problem.residuals(&xn, r_new.as_mut_slice())
-            } else {
-                Ok(())
-            };
-            let cost_new = if predicted > 0.0 && eval.is_ok() && r_new.iter().all(|v| v.is_finite())
-            {
-                r_new.norm_squared()
-            } else {
-                f64::INFINITY
-            };
-            let rho = if predicted > 0.0 {
-                (cost - cost_new) / predicted
-            } else {
-                -1.0
-            };
+            let (cost_new, rho) = trial(problem, &xn, &mut r_new, cost, predicted);
             if rho > 0.0 && cost_new < cost {
                 let reduction = (cost - cost_new) / cost;
                 x = xn;

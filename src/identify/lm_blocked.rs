@@ -6,7 +6,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::blocked::{Folded, Want, fold};
-use super::lm::{bound_state, project};
+use super::lm::{bound_state, project, trial};
 use super::{IdentifyError, LmOptions, LmReport, Problem, StopReason};
 use crate::util::Monitor;
 
@@ -171,22 +171,7 @@ pub(crate) fn levenberg_marquardt_blocked(
                 .sqrt();
             // The linear model's reduction |r|^2 - |r + J s|^2 = -(2 s.J^T r + s^T J^T J s).
             let predicted = -(2.0 * step.dot(&g) + step.dot(&(&gram * &step)));
-            let eval = if predicted > 0.0 {
-                problem.residuals(&xn, r_new.as_mut_slice())
-            } else {
-                Ok(())
-            };
-            let cost_new = if predicted > 0.0 && eval.is_ok() && r_new.iter().all(|v| v.is_finite())
-            {
-                r_new.norm_squared()
-            } else {
-                f64::INFINITY
-            };
-            let rho = if predicted > 0.0 {
-                (cost - cost_new) / predicted
-            } else {
-                -1.0
-            };
+            let (cost_new, rho) = trial(problem, &xn, &mut r_new, cost, predicted);
             if rho > 0.0 && cost_new < cost {
                 let reduction = (cost - cost_new) / cost;
                 x = xn;
