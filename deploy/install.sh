@@ -30,6 +30,15 @@ if [ -e "$DESTDIR/etc/calibd/calibd.toml" ]; then
 else
   install -m 0644 deploy/calibd.toml "$DESTDIR/etc/calibd/calibd.toml"
 fi
+# The example lab and the nominal models it names (relative paths: models/ beside it). The
+# daemon reads no lab until calibd.toml names one (`lab = "/etc/calibd/lab.toml"`); copy the
+# example to lab.toml and edit it for your cells. Models already installed are kept.
+install -m 0644 deploy/lab.example.toml "$DESTDIR/etc/calibd/lab.example.toml"
+install -d -m 0755 "$DESTDIR/etc/calibd/models"
+for m in deploy/models/*; do
+  dest="$DESTDIR/etc/calibd/models/$(basename "$m")"
+  [ -e "$dest" ] || install -m 0644 "$m" "$dest"
+done
 # The unit and the manual it names.
 install -D -m 0644 deploy/calibd.service "$DESTDIR/etc/systemd/system/calibd.service"
 install -D -m 0644 deploy/OPERATIONS.md "$DESTDIR/usr/share/doc/calibd/OPERATIONS.md"

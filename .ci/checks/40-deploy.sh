@@ -53,7 +53,9 @@ grep -q '^    sudo deploy/install.sh$' deploy/OPERATIONS.md ||
   fail "deploy/OPERATIONS.md no longer installs with deploy/install.sh: update this check"
 DESTDIR=$root CALIBD_BIN=$target/debug/calibd deploy/install.sh
 unit=$root/etc/systemd/system/calibd.service
-for f in usr/local/bin/calibd etc/calibd/calibd.toml etc/systemd/system/calibd.service; do
+for f in usr/local/bin/calibd etc/calibd/calibd.toml etc/systemd/system/calibd.service \
+  etc/calibd/lab.example.toml etc/calibd/models/irb120.json etc/calibd/models/pcr3pf.json \
+  etc/calibd/models/talos_reduced.urdf; do
   stat -c '40-deploy: installed %n mode %a owner %U:%G' "$root/$f"
 done
 

@@ -22,8 +22,8 @@ pub struct Envelope {
     pub workspace_mm: Option<Workspace>,
 }
 
-/// A box the TCP must stay in (mm, the model's world frame), with the model that places
-/// the TCP for a joint vector.
+/// A box the TCP must stay in (mm, the robot's base frame {0}: the controller's coordinates,
+/// whatever world frame the model is calibrated in), with the model that places the TCP.
 #[derive(Debug, Clone)]
 pub struct Workspace {
     /// Lower corner (mm).
@@ -41,9 +41,9 @@ impl PartialEq for Workspace {
 }
 
 impl Workspace {
-    /// The TCP position (mm) and rotation at joints `q` (rad).
+    /// The TCP position (mm) and rotation in the robot's base frame at joints `q` (rad).
     fn tcp_mm(&self, q: &[f64]) -> (Vector3<f64>, nalgebra::Matrix3<f64>) {
-        let f = self.chain.tcp(q, None);
+        let f = self.chain.tcp_in_base(q, None);
         let scale = if self.chain.units.mm { 1.0 } else { 1000.0 };
         (f.p * scale, f.r)
     }
@@ -179,7 +179,7 @@ mod tests {
         let robot = FakeRobot(cell);
         let q0 = vec![0.1, 0.3, 0.2, 0.0, 0.8, 0.0];
         block_on(robot.move_joints(&q0)).expect("start pose");
-        let p = chain.tcp(&q0, None).p * if chain.units.mm { 1.0 } else { 1000.0 };
+        let p = chain.tcp_in_base(&q0, None).p * if chain.units.mm { 1.0 } else { 1000.0 };
         let envelope = Envelope {
             limits: vec![[-3.0, 3.0]; 6],
             max_joint_step: 0.5,

@@ -3,18 +3,18 @@
 //! serial port path), in a process of their own. A daemon pointed at the same file then
 //! drives them over the real protocols exactly as it would drive the lab's instruments.
 //!
-//! The twins are the simulated lab's: an IRB 120 ball-centring cell, the 3-PF robot and
-//! the TALOS left arm in a QTM room.
-//! A cell is served only if the file describes the twin (its nominal model, ballbar and
-//! indicator mapping): the daemon's nominal must be the twin's, or the calibration would
-//! start from a model the twin does not have. `calibd twin serial|pcr --out DIR` writes
-//! the nominal models.
+//! Each cell's twin is built around what the lab file says: its nominal is the file's model
+//! (DH file, 3-PF file, URDF with the cell's joints and markers), its truth is drawn around
+//! that nominal from the seed, the ball plate has the file's ballbar distances, the
+//! indicators report on the file's channels with its signs and zeros, and QTM streams the
+//! markers under the file's labels. So the shipped example lab runs as written, and a
+//! daemon pointed at the same file calibrates a robot it does not know exactly.
 
 use std::path::Path;
 
 use calibd_drivers::mock::RunningMock;
 
-use super::trical::{INDICATOR_ZERO_MM, Served};
+use super::trical::Served;
 use super::{SimPcrOptions, SimTricalOptions};
 use crate::lab::config::Environment;
 use crate::lab::{BallCentringCell, CellLink, LabError, MocapCellLink, PcrCellLink, StageBackend};
@@ -114,32 +114,10 @@ async fn trical(
     d: &BallCentringCell,
     seed: u64,
 ) -> Result<(Vec<ServedDevice>, Vec<RunningMock>), LabError> {
-    let (nominal, ballbar) = super::trical::twin_cell(seed);
-    if serde_json::to_value(&d.model).ok() != serde_json::to_value(&nominal).ok() {
-        return Err(refuse(
-            &d.name,
-            "the model file is not the IRB 120 twin's nominal (write it with `calibd twin serial --out DIR`)".into(),
-        ));
-    }
-    if (0..3).any(|k| (d.ballbar[k] - ballbar[k]).abs() > 1e-9) {
-        return Err(refuse(
-            &d.name,
-            format!("ballbar_mm {:?} is not the twin's {ballbar:?}", d.ballbar),
-        ));
-    }
-    for (k, a) in d.uwave.axes.iter().enumerate() {
-        if usize::from(a.channel) != k
-            || a.sign != 1.0
-            || (a.zero_mm - INDICATOR_ZERO_MM).abs() > 1e-9
-        {
-            return Err(refuse(
-                &d.name,
-                format!(
-                    "indicators.axes[{k}] must be {{ channel = {k}, sign = 1, zero_mm = {INDICATOR_ZERO_MM} }} for the twin's device"
-                ),
-            ));
-        }
-    }
+    // The twin's nominal is the lab file's model, its plate the file's ballbar; its
+    // truth is drawn around them.
+    let twin = crate::twin::SerialTwin::around(d.model.clone(), d.ballbar, seed)
+        .map_err(|e| refuse(&d.name, format!("no twin around the lab file's cell: {e}")))?;
     let at = Served {
         rws: fixed(&d.name, "controller.address", &d.rws.address)?,
         uwave: Some(d.uwave.path.clone().into()),
@@ -150,7 +128,7 @@ async fn trical(
         max_joint_step_deg: d.max_joint_step_deg,
         ..SimTricalOptions::default()
     };
-    let (link, mocks) = super::trical::start_at(seed, &o, &at).await?;
+    let (link, mocks) = super::trical::start_twin_at(twin, seed, &o, &at, d.uwave.axes).await?;
     Ok((
         vec![
             ServedDevice {
@@ -170,13 +148,8 @@ async fn pcr(
     d: &PcrCellLink,
     seed: u64,
 ) -> Result<(Vec<ServedDevice>, Vec<RunningMock>), LabError> {
-    let nominal = super::pcr::twin_model(seed)?;
-    if serde_json::to_value(&d.model).ok() != serde_json::to_value(&nominal).ok() {
-        return Err(refuse(
-            &d.name,
-            "the model file is not the 3-PF twin's nominal (write it with `calibd twin pcr --out DIR`)".into(),
-        ));
-    }
+    let twin = crate::twin::PcrTwin::new(&d.model, seed)
+        .map_err(|e| refuse(&d.name, format!("no twin around the lab file's model: {e}")))?;
     let StageBackend::Mcs2(stages_at) = &d.stages.backend else {
         return Err(refuse(
             &d.name,
@@ -192,7 +165,8 @@ async fn pcr(
     let stages_at = fixed(&d.name, "stages.address", stages_at)?;
     let scope_at = fixed(&d.name, "microscope.address", &d.microscope)?;
     let (link, mocks) =
-        super::pcr::start_at(seed, &SimPcrOptions::default(), &stages_at, &scope_at).await?;
+        super::pcr::start_twin_at(twin, seed, &SimPcrOptions::default(), &stages_at, &scope_at)
+            .await?;
     Ok((
         vec![
             ServedDevice {
@@ -212,44 +186,17 @@ async fn mocap(
     d: &MocapCellLink,
     seed: u64,
 ) -> Result<(Vec<ServedDevice>, Vec<RunningMock>), LabError> {
-    let (root, names, markers) = super::mocap::twin_cell(seed)?;
-    if d.urdf.trim() != crate::twin::humanoid::TALOS_URDF.trim() {
-        return Err(refuse(
-            &d.name,
-            "the model is not the TALOS twin's URDF (tests/data/robots/talos/talos_reduced.urdf)"
-                .into(),
-        ));
-    }
-    if d.root_link != root || d.joint_names != names {
-        return Err(refuse(
-            &d.name,
-            format!("the twin measures root_link = {root:?}, names = {names:?}"),
-        ));
-    }
-    let want: Vec<(&str, &str)> = markers
-        .iter()
-        .map(|m| (m.name.as_str(), m.link.as_str()))
-        .collect();
-    let got: Vec<(&str, &str)> = d
-        .markers
-        .iter()
-        .map(|m| (m.name.as_str(), m.link.as_str()))
-        .collect();
-    if want != got || !d.labels.is_empty() {
-        return Err(refuse(
-            &d.name,
-            format!(
-                "the twin's markers (name, link) are {want:?}, labelled as named (no labels map)"
-            ),
-        ));
-    }
+    let twin = super::mocap::twin_around(&d.urdf, &d.root_link, &d.joint_names, &d.markers, seed)
+        .map_err(|e| refuse(&d.name, format!("no twin around the lab file's cell: {e}")))?;
     let qtm_at = fixed(&d.name, "mocap.address", &d.qtm)?;
     let joints_at = fixed(&d.name, "joints.address", &d.joints.address)?;
     let o = super::SimMocapOptions {
         joint_speed_rad_s: d.joints.speed_rad_s,
         ..super::SimMocapOptions::default()
     };
-    let (link, mocks) = super::mocap::start_at(seed, &o, &qtm_at, &joints_at).await?;
+    let (link, mocks) =
+        super::mocap::start_twin_at(twin, &d.urdf, &d.labels, seed, &o, &qtm_at, &joints_at)
+            .await?;
     Ok((
         vec![
             ServedDevice {

@@ -3,6 +3,7 @@
 //! behind the joint-interface mock's joint model (`calibd-joints/1`) and behind the QTM RT
 //! mock's marker model; the lab's joint and QTM drivers reach both over the real protocols.
 
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
@@ -163,7 +164,48 @@ pub async fn start_at(
     qtm_at: &str,
     joints_at: &str,
 ) -> Result<(MocapCellLink, Vec<RunningMock>), LabError> {
-    let twin = twin(seed)?;
+    start_twin_at(
+        twin(seed)?,
+        TALOS_URDF,
+        &BTreeMap::new(),
+        seed,
+        o,
+        qtm_at,
+        joints_at,
+    )
+    .await
+}
+
+/// A twin around a lab file's humanoid cell: its URDF, root link, joints and markers (the
+/// markers' guessed positions as nominal), true errors from `seed`.
+pub fn twin_around(
+    urdf: &str,
+    root: &str,
+    joints: &[String],
+    markers: &[crate::model::humanoid::MarkerDef],
+    seed: u64,
+) -> Result<HumanoidTwin, LabError> {
+    let mut spec = left_arm_spec(false);
+    spec.base = BaseMode::Identify;
+    spec.root = root.into();
+    spec.joints = joints.to_vec();
+    spec.markers = markers.to_vec();
+    HumanoidTwin::with_urdf(urdf, spec, seed).map_err(|e| mock_err("humanoid twin", e))
+}
+
+/// Start the devices of a motion-capture cell around `twin` (whose robot `urdf` describes):
+/// QTM at `qtm_at` streams each marker under its QTM label (`labels` maps QTM label to
+/// model marker, as a lab file does; unmapped markers keep their name), the joint interface
+/// at `joints_at` moves the twin.
+pub async fn start_twin_at(
+    twin: HumanoidTwin,
+    urdf: &str,
+    labels: &BTreeMap<String, String>,
+    seed: u64,
+    o: &SimMocapOptions,
+    qtm_at: &str,
+    joints_at: &str,
+) -> Result<(MocapCellLink, Vec<RunningMock>), LabError> {
     let names = twin.nominal.variables.clone();
     let limits: Vec<[f64; 2]> = twin
         .nominal
@@ -174,7 +216,15 @@ pub async fn start_at(
     let home: Vec<f64> = limits.iter().map(|[lo, hi]| lo.max(0.0).min(*hi)).collect();
     let markers = twin.spec.markers.clone();
     let root_link = twin.spec.root.clone();
-    let labels = markers.iter().map(|m| m.name.clone()).collect();
+    let streamed = markers
+        .iter()
+        .map(|m| {
+            labels
+                .iter()
+                .find(|(_, marker)| **marker == m.name)
+                .map_or_else(|| m.name.clone(), |(label, _)| label.clone())
+        })
+        .collect();
     let room: Shared = Arc::new(Mutex::new(Room {
         twin,
         q: home,
@@ -185,7 +235,7 @@ pub async fn start_at(
     args.rate_hz = o.rate_hz;
     let model: Arc<Mutex<dyn MarkerModel>> = Arc::new(Mutex::new(TwinMarkers {
         room: room.clone(),
-        labels,
+        labels: streamed,
     }));
     let qtm_mock = mock::start_with(
         qtm_at,
@@ -219,8 +269,8 @@ pub async fn start_at(
             max_step_rad: 2.0 * std::f64::consts::PI,
         },
         qtm: qtm_mock.addr.clone(),
-        labels: Default::default(),
-        urdf: TALOS_URDF.to_string(),
+        labels: labels.clone(),
+        urdf: urdf.to_string(),
         root_link,
         joint_names: names,
         limits,

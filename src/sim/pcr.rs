@@ -147,6 +147,18 @@ pub async fn start_at(
     scope_at: &str,
 ) -> Result<(PcrCellLink, Vec<RunningMock>), LabError> {
     let twin = PcrTwin::nominal(seed).map_err(|e| mock_err("pcr twin", e))?;
+    start_twin_at(twin, seed, o, stages_at, scope_at).await
+}
+
+/// Start the devices of a 3-PF cell around `twin` (a lab file's model with its truth drawn
+/// around it) at `stages_at` and `scope_at`.
+pub async fn start_twin_at(
+    twin: PcrTwin,
+    seed: u64,
+    o: &SimPcrOptions,
+    stages_at: &str,
+    scope_at: &str,
+) -> Result<(PcrCellLink, Vec<RunningMock>), LabError> {
     let file = twin.file.clone();
     let lim = file.limits();
     let lo = lim.iter().map(|l| l[0]).fold(f64::INFINITY, f64::min);

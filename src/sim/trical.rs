@@ -88,22 +88,29 @@ impl ArmModel for TwinArm {
 struct TwinIndicators {
     cell: Shared,
     stall: Arc<std::sync::atomic::AtomicBool>,
+    /// Tool axis k is read on `axes[k].channel` as `zero_mm + sign * error` (the inverse of
+    /// the lab file's `axis_mm = sign * (reading_mm - zero_mm)`).
+    axes: [AxisMap; 3],
 }
 
 impl IndicatorModel for TwinIndicators {
     fn channels(&self) -> Vec<u8> {
-        vec![0, 1, 2]
+        self.axes.iter().map(|a| a.channel).collect()
     }
     fn read_mm(&mut self, channel: u8, _t_s: f64) -> Option<f64> {
         if self.stall.load(std::sync::atomic::Ordering::SeqCst) {
             return None;
         }
+        let k = self.axes.iter().position(|a| a.channel == channel)?;
+        let a = &self.axes[k];
         let h = INDICATOR_HALF_RANGE_MM;
-        let v = match with(&self.cell, |c| c.indicator_values()) {
-            Some(v) => v[usize::from(channel).min(2)].clamp(-h, h),
+        // The plunger's travel is the same whichever way the axis is mapped: a free plunger
+        // (no ball) is fully extended, the reading at the bottom of its range.
+        let travel = match with(&self.cell, |c| c.indicator_values()) {
+            Some(v) => (a.sign * v[k]).clamp(-h, h),
             None => -h,
         };
-        Some(INDICATOR_ZERO_MM + v)
+        Some(a.zero_mm + travel)
     }
 }
 
@@ -157,7 +164,30 @@ pub async fn start_at(
     o: &SimTricalOptions,
     at: &Served,
 ) -> Result<(BallCentringCell, Vec<RunningMock>), LabError> {
-    let twin = SerialTwin::irb120(seed);
+    let axis = |c| AxisMap {
+        channel: c,
+        sign: 1.0,
+        zero_mm: INDICATOR_ZERO_MM,
+    };
+    start_twin_at(
+        SerialTwin::irb120(seed),
+        seed,
+        o,
+        at,
+        [axis(0), axis(1), axis(2)],
+    )
+    .await
+}
+
+/// Start the devices of a TriCal cell around `twin` at `at`; the indicators report the
+/// twin's tool-axis errors through `axes` (channel, sign and zero as a lab file maps them).
+pub async fn start_twin_at(
+    twin: SerialTwin,
+    seed: u64,
+    o: &SimTricalOptions,
+    at: &Served,
+    axes: [AxisMap; 3],
+) -> Result<(BallCentringCell, Vec<RunningMock>), LabError> {
     let file = twin.file.clone();
     let ballbar = twin.ballbar;
     let cell: Shared = Arc::new(Mutex::new(SimulatedCell::new(twin, seed ^ 0x5eed)));
@@ -184,17 +214,13 @@ pub async fn start_at(
     let ind: Arc<Mutex<dyn IndicatorModel>> = Arc::new(Mutex::new(TwinIndicators {
         cell,
         stall: o.indicator_stall.clone(),
+        axes: axes.clone(),
     }));
     let uw_mock = mock::start_pty_at(
         calibd_drivers::uwave::mock::handler_with(ind, &uw_args, Faults::default()),
         at.uwave.clone(),
     )
     .map_err(|e| mock_err("uwave", e))?;
-    let axis = |c| AxisMap {
-        channel: c,
-        sign: 1.0,
-        zero_mm: INDICATOR_ZERO_MM,
-    };
     let link = BallCentringCell {
         name: "irb120".into(),
         rws: RwsLink {
@@ -206,7 +232,7 @@ pub async fn start_at(
         uwave: UwaveLink {
             path: uw_mock.addr.clone(),
             baud: 57_600,
-            axes: [axis(0), axis(1), axis(2)],
+            axes,
             request_template: o.uwave_request.clone(),
         },
         ballbar,

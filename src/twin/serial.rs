@@ -12,6 +12,17 @@ use crate::util::Rng;
 /// The IRB 120 model file shipped with calibd (copied from `../shared/data/robots`).
 pub const IRB120_JSON: &str = include_str!("../../tests/data/robots/irb120.json");
 
+/// Why a twin cannot be built around a lab's nominal.
+#[derive(Debug, thiserror::Error)]
+pub enum TwinError {
+    /// The model file does not build a chain.
+    #[error("model: {0}")]
+    Model(#[from] crate::model::ModelError),
+    /// The ballbar distances do not make a plate.
+    #[error("ballbar: {0}")]
+    Plate(#[from] crate::measure::MeasureError),
+}
+
 /// The cell: nominal and true models, ball plate, sensor noise.
 #[derive(Debug, Clone)]
 pub struct SerialTwin {
@@ -33,12 +44,10 @@ pub struct SerialTwin {
 
 /// Deterministic true errors: lengths ~0.3 mm, angles ~0.05 deg, base ~1 mm / 0.1 deg, and
 /// compliances of a small arm (deg/(N*m)).
-fn perturb(nominal: &Chain, seed: u64) -> Chain {
+fn perturb(nominal: &Chain, names: &[String], seed: u64) -> Chain {
     let mut rng = Rng::new(seed);
     let mut t = nominal.clone();
-    let file = DhFile::parse(IRB120_JSON).ok();
-    let names: Vec<String> = file.map(|f| f.identify).unwrap_or_default();
-    for name in &names {
+    for name in names {
         let Ok(id) = t.param_by_name(name) else {
             continue;
         };
@@ -60,12 +69,18 @@ impl SerialTwin {
     /// The IRB 120 cell with true errors drawn from `seed`.
     pub fn irb120(seed: u64) -> Self {
         let file = DhFile::parse(IRB120_JSON).expect("the embedded IRB 120 file is valid");
-        let nominal = file.to_chain().expect("the embedded IRB 120 file builds");
-        let truth = perturb(&nominal, seed);
-        let ballbar = [200.012, 199.987, 200.003];
-        let plate =
-            BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2]).expect("valid triangle");
-        Self {
+        Self::around(file, [200.012, 199.987, 200.003], seed)
+            .expect("the embedded IRB 120 file and ballbar build")
+    }
+
+    /// A cell whose nominal is `file` (a lab's model file) and whose plate has the ballbar
+    /// distances `ballbar` (mm): the true robot is drawn around the nominal from `seed`
+    /// (every parameter the file identifies), as `calibd mock lab` serves a lab file.
+    pub fn around(file: DhFile, ballbar: [f64; 3], seed: u64) -> Result<Self, TwinError> {
+        let nominal = file.to_chain()?;
+        let truth = perturb(&nominal, &file.identify, seed);
+        let plate = BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2])?;
+        Ok(Self {
             file,
             nominal,
             truth,
@@ -73,7 +88,7 @@ impl SerialTwin {
             plate,
             centring_epsilon_mm: 0.010,
             tracker_noise_mm: 0.010,
-        }
+        })
     }
 
     /// Where the true TCP is at joint values `q` (rad), with the true static deflection.

@@ -12,17 +12,17 @@ use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
 
-const BIN: &str = env!("CARGO_BIN_EXE_calibd");
+pub(crate) const BIN: &str = env!("CARGO_BIN_EXE_calibd");
 const WAIT: Duration = Duration::from_secs(120);
 
 /// A child process killed on drop, with its stdout lines on a channel.
-struct Proc {
+pub(crate) struct Proc {
     child: Child,
     lines: mpsc::Receiver<String>,
 }
 
 impl Proc {
-    fn spawn(cmd: &mut Command) -> Proc {
+    pub(crate) fn spawn(cmd: &mut Command) -> Proc {
         let mut child = cmd
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -43,7 +43,7 @@ impl Proc {
     }
 
     /// Lines until one starts with `prefix` (that line), or panic after `WAIT`.
-    fn until(&self, prefix: &str) -> String {
+    pub(crate) fn until(&self, prefix: &str) -> String {
         let t0 = Instant::now();
         loop {
             let left = WAIT.saturating_sub(t0.elapsed());
@@ -67,7 +67,7 @@ impl Drop for Proc {
     }
 }
 
-fn free_port() -> u16 {
+pub(crate) fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
         .map(|a| a.port())
@@ -175,7 +175,7 @@ fn mock(lab: &Path, cell: &str) -> Proc {
     p
 }
 
-fn lab_check(lab: &Path) -> (bool, String) {
+pub(crate) fn lab_check(lab: &Path) -> (bool, String) {
     let out = Command::new(BIN)
         .args(["lab", "check", "--timeout-s", "5", "--config"])
         .arg(lab)
@@ -192,7 +192,7 @@ fn lab_check(lab: &Path) -> (bool, String) {
     )
 }
 
-struct Daemon {
+pub(crate) struct Daemon {
     _proc: Proc,
     url: String,
     token: String,
@@ -200,7 +200,7 @@ struct Daemon {
 }
 
 impl Daemon {
-    fn start(dir: &Path, lab: &Path) -> Daemon {
+    pub(crate) fn start(dir: &Path, lab: &Path) -> Daemon {
         let data = dir.join("data");
         let cfg = dir.join("calibd.toml");
         std::fs::write(&cfg, format!("workers = 2\nlab = \"{}\"\n", lab.display())).expect("write");
@@ -227,7 +227,7 @@ impl Daemon {
         }
     }
 
-    async fn get(&self, path: &str) -> Value {
+    pub(crate) async fn get(&self, path: &str) -> Value {
         self.http
             .get(format!("{}{path}", self.url))
             .bearer_auth(&self.token)
@@ -279,7 +279,7 @@ impl Daemon {
     }
 
     /// Run `doc` to success: its result and wall time.
-    async fn run(&self, doc: &Value) -> (i64, Value, f64) {
+    pub(crate) async fn run(&self, doc: &Value) -> (i64, Value, f64) {
         let t0 = Instant::now();
         let id = self.submit(doc).await;
         let j = self
@@ -470,12 +470,12 @@ fn lab_check_fails_clearly_where_nothing_listens() {
     assert!(out.contains("FAILED"), "{out}");
     assert!(out.contains("nothing listens at 127.0.0.1:"), "{out}");
     assert!(out.contains("devices failed the check"), "{out}");
-    // The example lab file names absent models: refused with the file and line.
+    // The example lab file names an absent secret: refused with the file and line.
     let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/lab.example.toml");
     let (ok, out) = lab_check(&example);
     assert!(!ok);
     assert!(
-        out.contains("lab.example.toml:17") && out.contains("/etc/calibd/models/irb120.json"),
+        out.contains("lab.example.toml:28") && out.contains("/etc/calibd/secrets/rws-password"),
         "{out}"
     );
 }

@@ -45,4 +45,5 @@ mod serial_on_axis;
 mod serial_prior;
 mod serial_stream;
 mod serial_twin;
+mod shipped_lab;
 mod talos_prior;

@@ -39,6 +39,21 @@ pub fn device_error(device: &str, e: DriverError) -> DeviceError {
     }
 }
 
+/// An RWS driver error as the procedures see it. The calib server's `calib_err = 2` (target
+/// unreachable or outside the robot's limits) is the controller refusing one target, not a
+/// faulty link: a campaign skips that configuration instead of pausing on it.
+pub fn rws_error(device: &str, e: DriverError) -> DeviceError {
+    match e {
+        DriverError::Device {
+            code: 2, message, ..
+        } => DeviceError::Refused {
+            device: device.into(),
+            reason: format!("the controller refused the target ({message})"),
+        },
+        e => device_error(device, e),
+    }
+}
+
 /// An ABB controller over RWS running the calibd RAPID module.
 ///
 /// A move whose reply never came (timeout, dropped link) leaves the robot's state unknown:
@@ -62,7 +77,7 @@ impl RwsRobot {
     }
 
     fn err(&self, e: DriverError) -> DeviceError {
-        device_error(&self.name, e)
+        rws_error(&self.name, e)
     }
 
     /// Before a move: if the last one got no reply, wait (up to 5 s) until the controller
@@ -188,5 +203,29 @@ impl Indicators for UwaveIndicators {
                 .await
                 .map_err(|e| device_error(&self.name, e))
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn calib_err(code: i64) -> DriverError {
+        DriverError::Device {
+            device: "rws",
+            code,
+            message: "calib server: target unreachable or outside the robot's limits".into(),
+        }
+    }
+
+    #[test]
+    fn an_unreachable_target_is_a_refusal_and_other_controller_errors_are_faults() {
+        let e = rws_error("irb120.rws", calib_err(2));
+        assert!(
+            matches!(&e, DeviceError::Refused { device, reason } if device == "irb120.rws" && reason.contains("unreachable")),
+            "{e:?}"
+        );
+        let e = rws_error("irb120.rws", calib_err(1));
+        assert!(matches!(e, DeviceError::Fault { .. }), "{e:?}");
     }
 }

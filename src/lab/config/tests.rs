@@ -271,13 +271,16 @@ fn a_section_of_another_kind_and_a_second_cell_of_the_same_name_are_refused() {
 }
 
 #[test]
-fn the_example_lab_file_parses_up_to_its_absent_models() {
-    // deploy/lab.example.toml names /etc/calibd paths: on a machine without them, the
-    // first thing missing is named with its line, not a parse error.
+fn the_example_lab_file_parses_up_to_its_absent_secret() {
+    // deploy/lab.example.toml finds its models beside it (deploy/models/); on a machine
+    // without the RWS password file it names, that is the first thing missing, with its line.
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/lab.example.toml");
     let e = load(&path, &ProcessEnv).unwrap_err();
-    assert!(e.message.contains("/etc/calibd/models/irb120.json"), "{e}");
-    assert_eq!(e.line, 17, "{e}");
+    assert!(
+        e.message.contains("/etc/calibd/secrets/rws-password"),
+        "{e}"
+    );
+    assert_eq!(e.line, 28, "{e}");
 }
 
 #[test]
@@ -286,9 +289,9 @@ fn the_example_lab_file_describes_three_cells_once_its_files_exist() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/lab.example.toml");
     let text = std::fs::read_to_string(path).expect("example");
     let text = text
-        .replace("/etc/calibd/models/irb120.json", "irb120.json")
-        .replace("/etc/calibd/models/pcr3pf.json", "pcr3pf.json")
-        .replace("/etc/calibd/models/talos_reduced.urdf", "talos.urdf")
+        .replace("models/irb120.json", "irb120.json")
+        .replace("models/pcr3pf.json", "pcr3pf.json")
+        .replace("models/talos_reduced.urdf", "talos.urdf")
         .replace("/etc/calibd/secrets/rws-password", "rws-password")
         .replace(
             "/dev/serial/by-id/usb-Mitutoyo_U-WAVE-R-if00-port0",

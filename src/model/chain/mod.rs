@@ -574,6 +574,11 @@ impl Chain {
         t
     }
 
+    /// TCP frame in the robot frame {0} (the controller's base coordinates): chain * tool.
+    pub fn tcp_in_base(&self, q: &[f64], tau: Option<&[f64]>) -> Frame {
+        self.flange(q, tau).mul(&self.tool_frame())
+    }
+
     /// TCP frame in the world frame {W}: base * chain * tool.
     pub fn tcp(&self, q: &[f64], tau: Option<&[f64]>) -> Frame {
         self.base_frame()

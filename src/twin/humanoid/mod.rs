@@ -45,7 +45,13 @@ pub struct HumanoidTwin {
 impl HumanoidTwin {
     /// A twin from a spec with true errors drawn from `seed`.
     pub fn new(spec: TwinSpec, seed: u64) -> Result<Self, ModelError> {
-        let urdf = UrdfModel::parse(TALOS_URDF)?;
+        Self::with_urdf(TALOS_URDF, spec, seed)
+    }
+
+    /// A twin of the robot described by `urdf` (a lab's model) with true errors drawn from
+    /// `seed` around it.
+    pub fn with_urdf(urdf: &str, spec: TwinSpec, seed: u64) -> Result<Self, ModelError> {
+        let urdf = UrdfModel::parse(urdf)?;
         let nominal = Humanoid::new(
             &urdf,
             &spec.root,
