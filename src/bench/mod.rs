@@ -2,6 +2,7 @@
 //! as the median of repeated runs (speed targets are checked here, never by timed tests).
 
 pub mod api;
+pub mod compare;
 pub mod humanoid;
 pub mod identify;
 pub mod kernels;

@@ -13,8 +13,11 @@ pub(crate) struct BenchArgs {
     /// measurements), `all` (those four), `serial.fk` (only the `serial.fk` table
     /// figures of `serial`), `identify:N` (one size), `kernels` (nalgebra against faer
     /// and the crossovers), `drivers` or `api` (the daemon under many concurrent
-    /// clients).
+    /// clients), or `compare OLD.json NEW.json` (two saved runs side by side; exits 1 when
+    /// a figure got slower beyond the noise of the runs).
     area: String,
+    /// For `compare`: the old and the new saved run.
+    files: Vec<PathBuf>,
     /// Also write every figure (median, min, max, peak memory) of `serial`, `pcr`,
     /// `humanoid`, `identify` or `all` to this JSON file, to compare a run with an earlier one.
     #[arg(long)]
@@ -40,8 +43,14 @@ fn numerical(a: &str) -> Option<Vec<calibd::bench::Figure>> {
 
 /// `calibd bench`: print each area's figures; write them as JSON with `--json`.
 pub(crate) fn bench(a: BenchArgs) -> Result<()> {
-    let BenchArgs { area, json } = a;
+    let BenchArgs { area, files, json } = a;
     let areas: Vec<&str> = match area.as_str() {
+        "compare" => return compare(&files),
+        other if !files.is_empty() => {
+            bail!(
+                "`calibd bench {other}` takes no file arguments (only `calibd bench compare OLD.json NEW.json` does)"
+            )
+        }
         "all" => vec!["serial", "pcr", "humanoid", "identify"],
         "api" => {
             let report = runtime()?.block_on(calibd::bench::api::run(Default::default()))?;
@@ -73,6 +82,32 @@ pub(crate) fn bench(a: BenchArgs) -> Result<()> {
         std::fs::write(&path, text + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
         eprintln!("figures written to {}", path.display());
+    }
+    Ok(())
+}
+
+/// `calibd bench compare OLD NEW`: print the comparison; an error when a figure is slower.
+fn compare(files: &[PathBuf]) -> Result<()> {
+    use calibd::bench::compare::{Change, SavedReport, compare, render};
+    let [old, new] = files else {
+        bail!(
+            "`calibd bench compare` takes two files written by `calibd bench AREA --json FILE`: OLD.json NEW.json"
+        );
+    };
+    let read = |p: &PathBuf| -> Result<SavedReport> {
+        let text =
+            std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
+        Ok(SavedReport::parse(&p.display().to_string(), &text)?)
+    };
+    let (old, new) = (read(old)?, read(new)?);
+    let rows = compare(&old, &new);
+    print!("{}", render(&old, &new, &rows));
+    let slower = rows
+        .iter()
+        .filter(|r| r.change == Change::Regression)
+        .count();
+    if slower > 0 {
+        bail!("{slower} figure(s) slower beyond the noise of the two runs");
     }
     Ok(())
 }
