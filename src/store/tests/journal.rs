@@ -57,20 +57,29 @@ fn postgres_a_duplicate_index_and_a_refused_write_are_told_apart() {
     }
 }
 
-/// A journal whose data folder is removed under it: SQLite refuses to write a database file
-/// that is gone (`SQLITE_READONLY_DBMOVED`), and the append is a typed storage fault.
+/// A journal whose database loses its table under it (another program damaged the file):
+/// the next append fails in SQLite, a typed storage fault that names the store.
 #[test]
-fn a_journal_write_on_a_removed_database_is_a_storage_fault() {
+fn a_journal_write_into_a_damaged_database_is_a_storage_fault() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let store = crate::store::Store::open(&data).unwrap();
+    let store = crate::store::Store::open(dir.path()).unwrap();
     let (id, _) = store.insert_job_once(&job("cell.trical_campaign")).unwrap();
     let journal = StoreJournal { store, job: id };
     journal.append(&entry(0)).unwrap();
-    std::fs::remove_dir_all(&data).unwrap();
-    let e = journal.append(&entry(1)).expect_err("the database is gone");
+    rusqlite::Connection::open(dir.path().join("calibd.sqlite3"))
+        .unwrap()
+        .execute_batch("DROP TABLE measurements")
+        .unwrap();
+    let e = journal.append(&entry(1)).expect_err("the table is gone");
     let JournalError::Storage { message } = &e else {
         panic!("{e:?}");
     };
-    assert!(message.starts_with("store: database: "), "{message}");
+    assert!(
+        message.starts_with("store: database: ") && message.contains("measurements"),
+        "{message}"
+    );
+    assert!(matches!(
+        journal.entries(),
+        Err(JournalError::Storage { .. })
+    ));
 }
