@@ -83,9 +83,12 @@ impl Resolver for WholeFiles {
 /// write the poses CSV, streamed (`whole` false) or from the job's result (`whole` true,
 /// the path before streaming: tables and result held in memory).
 pub fn run_fk_job(job: &Path, out: &Path, whole: bool) -> Result<usize, JobError> {
-    let text = std::fs::read_to_string(job).map_err(|e| JobError::Failed(e.to_string()))?;
-    let doc: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| JobError::Failed(e.to_string()))?;
+    let text = std::fs::read_to_string(job).map_err(|e| JobError::io("reading", Some(job), e))?;
+    let doc: serde_json::Value = serde_json::from_str(&text).map_err(|e| JobError::Input {
+        field: "job".into(),
+        reference: job.display().to_string(),
+        message: format!("not valid JSON: {e}"),
+    })?;
     let dir = DirResolver {
         dir: job.parent().map(Path::to_path_buf).unwrap_or_default(),
     };
@@ -96,8 +99,8 @@ pub fn run_fk_job(job: &Path, out: &Path, whole: bool) -> Result<usize, JobError
     let done = prepare(&doc, &WholeFiles(dir))?.run(&NoMonitor)?;
     let t = done
         .main_table
-        .ok_or_else(|| JobError::Failed("serial.fk has no main table".into()))?;
-    std::fs::write(out, t.to_csv()).map_err(|e| JobError::Failed(e.to_string()))?;
+        .ok_or_else(|| JobError::internal("the whole-table run", "serial.fk has no main table"))?;
+    std::fs::write(out, t.to_csv()).map_err(|e| JobError::io("writing", Some(out), e))?;
     Ok(t.rows.len())
 }
 

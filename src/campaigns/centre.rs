@@ -78,7 +78,10 @@ impl CentreJob {
             .await
             .map_err(|e| match e {
                 CentringError::Cancelled => JobError::Cancelled,
-                other => JobError::Failed(format!("centring aborted: {other}")),
+                other => JobError::Procedure {
+                    procedure: "centring aborted",
+                    source: other,
+                },
             })?;
         let mut t = Table::new(&["reading", "rx_mm", "ry_mm", "rz_mm", "norm_mm"]);
         for (i, r) in c.readings.iter().enumerate() {

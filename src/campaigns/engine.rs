@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
-use crate::procedures::{EntryStatus, Journal, JournalEntry};
+use crate::procedures::{EntryStatus, Journal, JournalEntry, JournalError};
 use crate::run::JobError;
 use crate::util::Monitor;
 
@@ -48,7 +48,7 @@ pub enum CampaignError {
     },
     /// The journal could not store a measurement: nothing more may be measured.
     #[error("journal: {0}")]
-    Journal(String),
+    Journal(JournalError),
     /// Cancelled by the operator.
     #[error("cancelled")]
     Cancelled,
@@ -69,9 +69,7 @@ impl From<CampaignError> for JobError {
             CampaignError::Paused { index, reason } => JobError::Paused { index, reason },
             CampaignError::Cancelled => JobError::Cancelled,
             CampaignError::Waiting { index, prompt } => JobError::Waiting { index, prompt },
-            CampaignError::Journal(m) => JobError::Failed(format!(
-                "the measurement journal failed: {m}; nothing more is measured"
-            )),
+            CampaignError::Journal(e) => JobError::Journal(e),
         }
     }
 }
@@ -129,15 +127,16 @@ pub fn recorded<T: DeserializeOwned>(
     offset: usize,
     len: usize,
 ) -> Result<Vec<T>, JobError> {
-    let entries = journal
-        .entries()
-        .map_err(|m| JobError::Failed(format!("journal: {m}")))?;
+    let entries = journal.entries()?;
     let mut out = Vec::new();
     for e in entries {
         if e.status == EntryStatus::Measured && e.index >= offset && e.index < offset + len {
-            out.push(serde_json::from_value(e.data).map_err(|err| {
-                JobError::Failed(format!("journal entry {} is unreadable: {err}", e.index))
-            })?);
+            out.push(
+                serde_json::from_value(e.data).map_err(|err| JournalError::Unreadable {
+                    index: e.index,
+                    message: err.to_string(),
+                })?,
+            );
         }
     }
     Ok(out)
@@ -210,8 +209,12 @@ pub async fn run<S: Step>(
             attempt += 1;
             match step.measure(index, p, monitor).await {
                 Ok(sample) => {
-                    let data = serde_json::to_value(&sample)
-                        .map_err(|e| CampaignError::Journal(e.to_string()))?;
+                    let data = serde_json::to_value(&sample).map_err(|e| {
+                        CampaignError::Journal(JournalError::Unwritable {
+                            index,
+                            message: e.to_string(),
+                        })
+                    })?;
                     append(journal, index, EntryStatus::Measured, data)?;
                     recorded += 1;
                     tracing::info!(index, stage = S::STAGE, attempt, "measured");

@@ -82,20 +82,17 @@ impl JogJob {
             }
         }
         let robot = &*cell.robot;
-        let from = robot
-            .joints()
-            .await
-            .map_err(|e| JobError::Failed(e.to_string()))?;
+        let from = robot.joints().await?;
         approach(robot, &self.q, cell.envelope.max_joint_step, cx)
             .await
             .map_err(|e| match e {
                 CentringError::Cancelled => JobError::Cancelled,
-                other => JobError::Failed(format!("jog: {other}")),
+                other => JobError::Procedure {
+                    procedure: "jog",
+                    source: other,
+                },
             })?;
-        let q = robot
-            .joints()
-            .await
-            .map_err(|e| JobError::Failed(e.to_string()))?;
+        let q = robot.joints().await?;
         let moved = from
             .iter()
             .zip(&q)

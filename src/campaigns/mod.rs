@@ -13,3 +13,6 @@ pub mod pcr;
 pub mod results;
 pub mod spec;
 pub mod trical;
+
+#[cfg(test)]
+mod journal_tests;

@@ -341,9 +341,7 @@ impl Job {
         let path = csv.clone();
         let rows = cx
             .compute(move |m| {
-                let io = |e: std::io::Error| {
-                    JobError::Failed(format!("writing the main table {}: {e}", path.display()))
-                };
+                let io = |e: std::io::Error| JobError::io("writing the main table", Some(&path), e);
                 let file = std::fs::File::create(&path).map_err(io)?;
                 let mut out = std::io::BufWriter::with_capacity(1 << 16, file);
                 let n = kind.write_main_csv(&mut out, m)?;

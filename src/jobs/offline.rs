@@ -62,7 +62,7 @@ pub fn run(job: &Job, lab: Arc<Lab>, monitor: &dyn Monitor) -> Result<Completed,
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
-        .map_err(|e| JobError::Failed(format!("cannot start a runtime: {e}")))?;
+        .map_err(|e| JobError::internal("cannot start a runtime", e))?;
     run_on(
         rt.handle(),
         job,
@@ -122,7 +122,7 @@ pub fn write_main_csv(job: &Job, path: &Path, monitor: &dyn Monitor) -> Result<u
     let mut partial = path.as_os_str().to_owned();
     partial.push(".partial");
     let partial = std::path::PathBuf::from(partial);
-    let io = |e: std::io::Error| JobError::Failed(format!("writing {}: {e}", path.display()));
+    let io = |e: std::io::Error| JobError::io("writing", Some(path), e);
     let written = (|| {
         let file = std::fs::File::create(&partial).map_err(io)?;
         let mut out = std::io::BufWriter::with_capacity(1 << 16, file);

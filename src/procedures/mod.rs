@@ -15,4 +15,4 @@ pub use devices::{
     ModuleLoader, PoseSensor, Robot,
 };
 pub use envelope::{Envelope, MotionLimiter, Workspace};
-pub use journal::{EntryStatus, Journal, JournalEntry, MemoryJournal};
+pub use journal::{EntryStatus, Journal, JournalEntry, JournalError, MemoryJournal};

@@ -75,7 +75,7 @@ impl Cx {
             f(&cx)
         })
         .await
-        .map_err(|e| JobError::Failed(format!("internal error: a computation panicked ({e})")))?
+        .map_err(|e| JobError::internal("a computation panicked", e))?
     }
 
     fn map(&self, fraction: f64) -> f64 {

@@ -87,12 +87,11 @@ impl Output {
                 fields,
                 ..Default::default()
             }),
-            Ok(other) => Err(JobError::Failed(format!(
-                "internal error: a result serialised to {other} instead of an object"
-            ))),
-            Err(e) => Err(JobError::Failed(format!(
-                "internal error: a result could not be serialised: {e}"
-            ))),
+            Ok(other) => Err(JobError::internal(
+                "serialising a result",
+                format!("it serialised to {other} instead of an object"),
+            )),
+            Err(e) => Err(JobError::internal("serialising a result", e)),
         }
     }
 }
@@ -132,8 +131,9 @@ pub trait Kind: Send + Sync + std::fmt::Debug + 'static {
         _out: &mut dyn std::io::Write,
         _monitor: &dyn Monitor,
     ) -> Result<usize, JobError> {
-        Err(JobError::Failed(
-            "internal error: this kind does not stream its main table".into(),
+        Err(JobError::internal(
+            "streaming the main table",
+            "this kind does not stream its main table",
         ))
     }
 
@@ -147,8 +147,9 @@ pub trait Kind: Send + Sync + std::fmt::Debug + 'static {
     /// The result fields of a streamed run that wrote `rows` rows: everything but the rows,
     /// which are only in the main table.
     fn streamed_fields(&self, _rows: usize) -> Result<Map<String, Value>, JobError> {
-        Err(JobError::Failed(
-            "internal error: this kind does not stream its main table".into(),
+        Err(JobError::internal(
+            "streaming the main table",
+            "this kind does not stream its main table",
         ))
     }
 }
@@ -182,13 +183,14 @@ impl<T: Serialize> Run<T> {
     /// The job output: the result serialised as the fields map, the table and artefacts.
     pub fn into_output(self) -> Result<Output, JobError> {
         let fields = match serde_json::to_value(&self.result)
-            .map_err(|e| JobError::Failed(format!("serialising the result: {e}")))?
+            .map_err(|e| JobError::internal("serialising the result", e))?
         {
             Value::Object(m) => m,
             other => {
-                return Err(JobError::Failed(format!(
-                    "the result serialised to {other}, not an object"
-                )));
+                return Err(JobError::internal(
+                    "serialising the result",
+                    format!("it serialised to {other}, not an object"),
+                ));
             }
         };
         Ok(Output {

@@ -315,4 +315,6 @@ impl Service {
 }
 
 #[cfg(test)]
+mod error_tests;
+#[cfg(test)]
 mod tests;

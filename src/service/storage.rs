@@ -11,7 +11,7 @@ use serde_json::Value;
 
 use super::{Service, ServiceError};
 use crate::jobs::Artefact;
-use crate::procedures::{Journal, JournalEntry};
+use crate::procedures::{Journal, JournalEntry, JournalError};
 use crate::store::{
     ArtefactInfo, CellModel, DatasetInfo, JobRecord, Location, LogLine, NewSchedule, ProgressPoint,
     ScheduleRecord, ScheduleRun, Store, StoreError, StoreJournal,
@@ -69,11 +69,11 @@ fn off_runtime<T: Send>(f: impl FnOnce() -> T + Send) -> T {
 pub(super) struct RunJournal(pub(super) StoreJournal);
 
 impl Journal for RunJournal {
-    fn entries(&self) -> Result<Vec<JournalEntry>, String> {
+    fn entries(&self) -> Result<Vec<JournalEntry>, JournalError> {
         off_runtime(|| self.0.entries())
     }
 
-    fn append(&self, e: &JournalEntry) -> Result<(), String> {
+    fn append(&self, e: &JournalEntry) -> Result<(), JournalError> {
         off_runtime(|| self.0.append(e))
     }
 }

@@ -34,13 +34,7 @@ impl Service {
         let store = self.shared.store.clone();
         let lab = self.shared.lab.clone();
         let (id, created, job) = blocking(move || {
-            let job = jobs::prepare(&doc, &StoreResolver(store.clone())).map_err(|e| {
-                if e.is_invalid_input() {
-                    ServiceError::Invalid(e)
-                } else {
-                    ServiceError::Internal(e.to_string())
-                }
-            })?;
+            let job = jobs::prepare(&doc, &StoreResolver(store.clone()))?;
             let devices = job.devices();
             if !devices.is_empty() && !who.may_drive_devices {
                 return Err(ServiceError::Forbidden(format!(

@@ -33,6 +33,18 @@ pub enum ServiceError {
     Internal(String),
 }
 
+impl From<JobError> for ServiceError {
+    /// A job refused before it is queued: the job's own fault is [`ServiceError::Invalid`]
+    /// (422, with field and value); anything else is the daemon's (500, details logged).
+    fn from(e: JobError) -> Self {
+        if e.is_invalid_input() {
+            ServiceError::Invalid(e)
+        } else {
+            ServiceError::Internal(e.to_string())
+        }
+    }
+}
+
 /// Settings of the service.
 #[derive(Debug, Clone)]
 pub struct ServiceConfig {

@@ -219,10 +219,11 @@ async fn run_one(svc: &Service, entry: Entry, claimed: Option<Run>) {
                         let path = dir.join(format!("job-{id}-{}.csv", run.attempt));
                         job2.run_streamed_in(cx, path).await
                     }
-                    Err(e) => Err(JobError::Failed(format!(
-                        "cannot create the spool folder {}: {e}",
-                        dir.display()
-                    ))),
+                    Err(e) => Err(JobError::io(
+                        "cannot create the spool folder",
+                        Some(&dir),
+                        e,
+                    )),
                 }
             } else {
                 job2.run_in(cx).await
@@ -358,7 +359,12 @@ async fn conclude(svc: &Service, run: Run, ran: Result<jobs::Completed, JobError
         Err(e @ (JobError::Paused { .. } | JobError::Waiting { .. })) => {
             Outcome::Ended(JobState::Paused, Some(e.to_string()))
         }
-        Err(e) => Outcome::Ended(JobState::Failed, Some(e.to_string())),
+        Err(e) => {
+            if e.is_internal() {
+                tracing::error!(job = id, error = %e, "the job failed on an internal or storage fault");
+            }
+            Outcome::Ended(JobState::Failed, Some(e.to_string()))
+        }
     }
 }
 

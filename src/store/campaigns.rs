@@ -6,7 +6,7 @@ use serde::Serialize;
 use serde_json::Value;
 
 use super::{Run, Store, StoreError};
-use crate::procedures::{Journal, JournalEntry};
+use crate::procedures::{Journal, JournalEntry, JournalError};
 
 /// A cell model as stored.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -76,13 +76,18 @@ pub struct StoreJournal {
 }
 
 impl Journal for StoreJournal {
-    fn entries(&self) -> Result<Vec<JournalEntry>, String> {
-        self.store.measurements(self.job).map_err(|e| e.to_string())
+    fn entries(&self) -> Result<Vec<JournalEntry>, JournalError> {
+        self.store
+            .measurements(self.job)
+            .map_err(JournalError::storage)
     }
 
-    fn append(&self, e: &JournalEntry) -> Result<(), String> {
+    fn append(&self, e: &JournalEntry) -> Result<(), JournalError> {
         self.store
             .append_measurement(self.job, e)
-            .map_err(|e| e.to_string())
+            .map_err(|err| match err {
+                StoreError::Conflict(_) => JournalError::Duplicate { index: e.index },
+                other => JournalError::storage(other),
+            })
     }
 }

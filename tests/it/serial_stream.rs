@@ -155,3 +155,40 @@ fn a_file_changed_after_validation_fails_and_leaves_the_old_output() {
     );
     assert_eq!(std::fs::read_to_string(&out).unwrap().lines().count(), 501);
 }
+
+#[test]
+fn an_unwritable_poses_file_is_an_io_error_naming_it_and_calibd_run_exits_1() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_fk_job(dir.path(), 50).unwrap();
+    let out = dir.path().join("poses.csv");
+    // The `.partial` file the rows go to is a folder: it cannot be created.
+    std::fs::create_dir(dir.path().join("poses.csv.partial")).unwrap();
+    let prepared = prepare(
+        &job_doc(dir.path()),
+        &DirResolver {
+            dir: dir.path().into(),
+        },
+    )
+    .unwrap();
+    let e = calibd::offline::write_main_csv(&prepared, &out, &NoMonitor).unwrap_err();
+    let calibd::jobs::JobError::Io { what, path, .. } = &e else {
+        panic!("{e:?}");
+    };
+    assert_eq!(
+        (what.as_str(), path.as_deref()),
+        ("writing", Some(out.as_path()))
+    );
+    let named = format!("writing {}: ", out.display());
+    assert!(e.to_string().starts_with(&named), "{e}");
+    assert!(e.is_internal() && !e.is_invalid_input());
+    // `calibd run` fails the same way, with exit code 1 (every failed run's).
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_calibd"))
+        .args(["run", &job.display().to_string(), "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains(&named), "{err}");
+    assert!(!out.exists());
+}

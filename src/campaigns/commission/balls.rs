@@ -47,7 +47,10 @@ fn locate(
             .get(r.ball)
             .copied()
             .flatten()
-            .ok_or_else(|| JobError::Failed(format!("the plate has no ball {}", r.ball + 1)))?;
+            .ok_or_else(|| JobError::CellMismatch {
+                what: "plate",
+                message: format!("the plate has no ball {}", r.ball + 1),
+            })?;
         measured.push(ball_position(&flange(&chain, &r.q), &t, &t_std, noise));
         world.push(w);
     }

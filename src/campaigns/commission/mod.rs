@@ -130,10 +130,13 @@ impl Step for GuidedCentring<'_> {
 /// in mm and writes the tool and base in the file's units).
 pub fn chain_mm(file: &DhFile) -> Result<Chain, crate::run::JobError> {
     if file.units.length != "mm" {
-        return Err(crate::run::JobError::Failed(format!(
-            "commissioning needs a model with lengths in mm (the cell's model is in {})",
-            file.units.length
-        )));
+        return Err(crate::run::JobError::CellMismatch {
+            what: "model",
+            message: format!(
+                "commissioning needs a model with lengths in mm (the cell's model is in {})",
+                file.units.length
+            ),
+        });
     }
     Ok(file.to_chain()?)
 }

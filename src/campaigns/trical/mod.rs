@@ -215,7 +215,10 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
         journal_entries: journal.entries().map(|e| e.len()).unwrap_or(0),
     };
     let model = run.result.calibrated_model.dh().cloned().ok_or_else(|| {
-        JobError::Failed("the identification of a DH cell returned a URDF model".into())
+        JobError::internal(
+            "the identification of a DH cell",
+            "it returned a URDF model",
+        )
     })?;
     let candidate = Candidate {
         cell: job.cell.clone(),

@@ -286,10 +286,13 @@ impl CampaignJob {
         let candidates = pool(&chain, plate, d.pool_per_ball, d.seed);
         let n = d.per_ball * plate.len();
         if candidates.len() < n {
-            return Err(JobError::Failed(format!(
-                "only {} configurations of the pool reach the balls on the model; {n} are needed",
-                candidates.len()
-            )));
+            return Err(JobError::CellMismatch {
+                what: "model",
+                message: format!(
+                    "only {} configurations of the pool reach the balls on the model; {n} are needed",
+                    candidates.len()
+                ),
+            });
         }
         let pool = candidates
             .iter()

@@ -301,8 +301,8 @@ impl IdentifyJob {
         {
             res.push(vec![(i + 1) as f64, *a, *b]);
         }
-        let model_value =
-            serde_json::to_value(&file).map_err(|e| JobError::Failed(e.to_string()))?;
+        let model_value = serde_json::to_value(&file)
+            .map_err(|e| JobError::internal("serialising the calibrated model", e))?;
         let um = |v: &[f64]| -> Vec<f64> { v.iter().map(|x| x * 1e6).collect() };
         let (cb, ca) = (
             um(&cal.calibration_errors[0]),

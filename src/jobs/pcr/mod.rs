@@ -169,8 +169,10 @@ pub fn twin_files(seed: u64) -> Result<Vec<(String, String)>, JobError> {
         joints.push(q.to_vec());
     }
     let square = crate::design::trajectory::square(&Pose2::default(), 0.002, 5);
-    let json =
-        |v: &PcrFile| serde_json::to_string_pretty(v).map_err(|e| JobError::Failed(e.to_string()));
+    let json = |v: &PcrFile| {
+        serde_json::to_string_pretty(v)
+            .map_err(|e| JobError::internal("serialising a model file", e))
+    };
     let truth = twin
         .file
         .with_values(&twin.true_params, &twin.true_extrinsics);

@@ -275,7 +275,8 @@ pub fn twin_files(t: &PatternTwin) -> Result<Vec<(String, Vec<u8>)>, JobError> {
     files.push(("truth.csv".into(), truth.to_csv().into_bytes()));
     files.push((
         "pattern_pose.json".into(),
-        serde_json::to_vec_pretty(&job).map_err(|e| JobError::Failed(e.to_string()))?,
+        serde_json::to_vec_pretty(&job)
+            .map_err(|e| JobError::internal("serialising the twin's job", e))?,
     ));
     Ok(files)
 }

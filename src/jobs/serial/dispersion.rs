@@ -215,7 +215,7 @@ fn study(
     }
     let runs = results
         .into_inner()
-        .map_err(|_| JobError::Failed("a worker panicked".into()))?
+        .map_err(|_| JobError::internal("the dispersion runs", "a worker panicked"))?
         .into_iter()
         .flatten()
         .collect();

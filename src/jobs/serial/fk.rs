@@ -225,7 +225,7 @@ impl FkJob {
     /// flat in the number of rows when the joints come from a file. A pose that is not
     /// finite fails, naming its row and column.
     pub fn write_csv(&self, out: &mut dyn Write, monitor: &dyn Monitor) -> Result<usize, JobError> {
-        let io = |e: std::io::Error| JobError::Failed(format!("writing the poses CSV: {e}"));
+        let io = |e: std::io::Error| JobError::io("writing the poses CSV", None, e);
         let mut sink = CsvSink::new(out, &POSE_COLUMNS).map_err(io)?;
         let n = self.each_pose(monitor, &mut |row, p| {
             if let Some(j) = p.iter().position(|v| !v.is_finite()) {
@@ -270,7 +270,7 @@ impl Kind for FkJob {
             angle: self.model.angle_unit(),
         };
         let units = serde_json::to_value(units)
-            .map_err(|e| JobError::Failed(format!("internal error: {e}")))?;
+            .map_err(|e| JobError::internal("serialising the units", e))?;
         let mut m = serde_json::Map::new();
         m.insert("units".into(), units);
         // The poses are only in the main table (`GET /v1/jobs/{id}/table`): a table read

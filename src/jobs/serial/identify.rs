@@ -245,7 +245,8 @@ fn calibrated_file(
     let file = match value {
         Value::String(text) => SerialModelFile::Urdf(text),
         v => SerialModelFile::Dh(
-            serde_json::from_value(v).map_err(|e| JobError::Failed(e.to_string()))?,
+            serde_json::from_value(v)
+                .map_err(|e| JobError::internal("reading back the calibrated model", e))?,
         ),
     };
     Ok((file, art))

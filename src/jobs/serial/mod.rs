@@ -335,7 +335,8 @@ impl SerialModel {
             Source::Dh(f) => {
                 let mut out = f.with_chain(chain);
                 out.calibration = Some(provenance);
-                let v = serde_json::to_value(&out).map_err(|e| JobError::Failed(e.to_string()))?;
+                let v = serde_json::to_value(&out)
+                    .map_err(|e| JobError::internal("serialising the calibrated model", e))?;
                 let bytes = serde_json::to_vec_pretty(&v).unwrap_or_default();
                 Ok((
                     v,

@@ -133,10 +133,7 @@ impl TreeIdentifyJob {
 
     /// Run the cumulative fits and the optional K-fold.
     pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<TreeCalibration>, JobError> {
-        let fail = |e: crate::identify::IdentifyError| match e {
-            crate::identify::IdentifyError::Cancelled => JobError::Cancelled,
-            e => JobError::Failed(e.to_string()),
-        };
+        let fail = JobError::from;
         let mut prior = self.prior.clone();
         let mut k_fold_errors = None;
         if self.cv_weight {

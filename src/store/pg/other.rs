@@ -268,7 +268,14 @@ impl Campaigns for Pg {
                 &e.data.to_string(),
                 &now(),
             ],
-        )?;
+        )
+        .map_err(|err| {
+            if err.code() == Some(&postgres::error::SqlState::UNIQUE_VIOLATION) {
+                StoreError::Conflict(format!("configuration {} of job {job}", e.index))
+            } else {
+                StoreError::Postgres(err)
+            }
+        })?;
         Ok(())
     }
 

@@ -47,7 +47,15 @@ impl Campaigns for Sqlite {
             c.prepare_cached(
                 "INSERT INTO measurements (job_id, idx, status, data, at) VALUES (?1, ?2, ?3, ?4, ?5)",
             )?
-            .execute(params![job, e.index as i64, status, e.data.to_string(), now()])?;
+            .execute(params![job, e.index as i64, status, e.data.to_string(), now()])
+            .map_err(|err| match err {
+                rusqlite::Error::SqliteFailure(f, _)
+                    if f.extended_code == rusqlite::ffi::SQLITE_CONSTRAINT_PRIMARYKEY =>
+                {
+                    StoreError::Conflict(format!("configuration {} of job {job}", e.index))
+                }
+                other => StoreError::Sqlite(other),
+            })?;
             Ok(())
         })
     }

@@ -2,6 +2,7 @@ use serde_json::json;
 
 use super::*;
 
+mod journal;
 mod shared;
 
 fn job(kind: &str) -> NewJob {

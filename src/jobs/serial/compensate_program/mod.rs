@@ -367,7 +367,10 @@ impl ProgramJob {
             .modules
             .load_module(&file, &text, u.stop_program)
             .await
-            .map_err(|e| JobError::Failed(format!("upload to cell {}: {e}", u.cell)))?;
+            .map_err(|e| JobError::Upload {
+                cell: u.cell.clone(),
+                message: e.to_string(),
+            })?;
         Ok(Uploaded {
             cell: u.cell.clone(),
             path,
