@@ -30,10 +30,17 @@ if [ -e "$DESTDIR/etc/calibd/calibd.toml" ]; then
 else
   install -m 0644 deploy/calibd.toml "$DESTDIR/etc/calibd/calibd.toml"
 fi
-# The example lab and the nominal models it names (relative paths: models/ beside it). The
-# daemon reads no lab until calibd.toml names one (`lab = "/etc/calibd/lab.toml"`); copy the
-# example to lab.toml and edit it for your cells. Models already installed are kept.
+# The example lab and the nominal models it names (relative paths: models/ beside it).
+# Models already installed are kept.
 install -m 0644 deploy/lab.example.toml "$DESTDIR/etc/calibd/lab.example.toml"
+# calibd.toml names /etc/calibd/lab.toml: a first install gets the example there, to be
+# edited (its devices' addresses, secrets); an existing lab file is kept.
+if [ -e "$DESTDIR/etc/calibd/lab.toml" ]; then
+  echo "install.sh: keeping the existing $DESTDIR/etc/calibd/lab.toml"
+else
+  install -m 0644 deploy/lab.example.toml "$DESTDIR/etc/calibd/lab.toml"
+  echo "install.sh: installed the example lab as $DESTDIR/etc/calibd/lab.toml: describe your cells in it"
+fi
 install -d -m 0755 "$DESTDIR/etc/calibd/models"
 for m in deploy/models/*; do
   dest="$DESTDIR/etc/calibd/models/$(basename "$m")"

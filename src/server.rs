@@ -99,6 +99,14 @@ pub async fn start(
             Some(Arc::new(lab))
         }
         file => {
+            if !std::path::Path::new(file).exists() {
+                return Err(ServeError::Lab(format!(
+                    "the lab file {file} does not exist: copy the example there \
+                     (/etc/calibd/lab.example.toml when installed, deploy/lab.example.toml in the \
+                     repository) and describe your cells in it, or set lab = \"sim\" to rehearse \
+                     on the simulated lab, lab = \"none\" to run numerical jobs only"
+                )));
+            }
             let cells = crate::lab::config::load(
                 std::path::Path::new(file),
                 &crate::lab::config::ProcessEnv,

@@ -87,13 +87,32 @@ case " ${envs[*]} " in *" CALIBD_DATA=$data "*) ;; *) fail "the unit does not po
 as_nobody=(setpriv --reuid="$uid" --regid="$gid" --clear-groups)
 "${as_nobody[@]}" test -x "$root/etc/calibd" || fail "nobody cannot enter $root/etc/calibd"
 
-# 3. Start it as nobody, on a free loopback port (CALIBD_LISTEN overrides the file's listen).
+# 3. The installed settings name the installed lab file (absolute: moved into the scratch
+# root with CALIBD_LAB, as the unit's paths are). Without it the daemon refuses to start
+# and says where the example is.
+lab_file=$(sed -n 's/^lab = "\(.*\)"$/\1/p' "$root/etc/calibd/calibd.toml")
+[ "$lab_file" = /etc/calibd/lab.toml ] || fail "calibd.toml names lab = \"$lab_file\", expected the installed lab file"
+[ -s "$root$lab_file" ] || fail "install.sh did not install $lab_file"
+if missing=$(env -i PATH=/usr/local/bin:/usr/bin:/bin "${envs[@]}" CALIBD_LISTEN=127.0.0.1:0 \
+  CALIBD_LAB="$root/etc/calibd/absent.toml" "${as_nobody[@]}" "${argv[@]}" 2>&1 </dev/null); then
+  fail "calibd started without its lab file"
+fi
+case $missing in *"absent.toml does not exist"*"lab.example.toml"*) ;; *) fail "no clear refusal without the lab file: $missing" ;; esac
+echo "40-deploy: without its lab file calibd refuses to start: $(echo "$missing" | tail -n1 | cut -c1-160)"
+# The admin's step of OPERATIONS.md: the RWS password the lab file names, readable by the
+# service (its path moved into the scratch root).
+install -d -m 0755 "$root/etc/calibd/secrets"
+printf 'rws-secret\n' >"$root/etc/calibd/secrets/rws-password"
+chmod 0644 "$root/etc/calibd/secrets/rws-password"
+sed -i "s#\"/etc/calibd/secrets/#\"$root/etc/calibd/secrets/#" "$root$lab_file"
+
+# 4. Start it as nobody, on a free loopback port (CALIBD_LISTEN overrides the file's listen).
 out=$scratch/stdout.log
 err=$scratch/stderr.log
 (
   umask "${umask_unit:-0022}"
   exec env -i PATH=/usr/local/bin:/usr/bin:/bin "${envs[@]}" CALIBD_LISTEN=127.0.0.1:0 \
-    "${as_nobody[@]}" "${argv[@]}" >"$out" 2>"$err"
+    CALIBD_LAB="$root$lab_file" "${as_nobody[@]}" "${argv[@]}" >"$out" 2>"$err"
 ) &
 pid=$!
 echo "40-deploy: started as uid $uid: ${argv[*]}"
@@ -116,7 +135,7 @@ done
 case $url in http://127.0.0.1:*) ;; *) fail "unexpected listening line: $url" ;; esac
 echo "40-deploy: listening on $url"
 
-# 4. `calibd health` (the container's HEALTHCHECK) until it answers 200.
+# 5. `calibd health` (the container's HEALTHCHECK) until it answers 200.
 calibd=$root/usr/local/bin/calibd
 deadline=$((SECONDS + 60))
 until health=$("$calibd" health --server "$url" --timeout 5); do
@@ -125,14 +144,11 @@ until health=$("$calibd" health --server "$url" --timeout 5); do
   sleep 0.2
 done
 echo "40-deploy: $health"
-# The example's lab = "sim" starts the simulated lab (its U-WAVE receiver is a pty); the
-# daemon refuses to start without it, this shows it in the log.
-if grep -q '^lab = "sim"' "$root/etc/calibd/calibd.toml"; then
-  grep -q 'simulated lab started' "$err" || { show_logs; fail "no 'simulated lab started' in the log"; }
-  echo "40-deploy: the simulated lab started as uid $uid"
-fi
+# The installed lab file's cells, not a simulated lab (its devices are at the example's
+# addresses: absent here, so the cells are listed but unavailable).
+grep -q 'simulated lab started' "$err" && { show_logs; fail "the installed daemon started a simulated lab"; }
 
-# 5. The generated operator token opens the API; nothing else does.
+# 6. The generated operator token opens the API; nothing else does.
 tok=$data/operator.token
 [ -s "$tok" ] || { show_logs; fail "no operator token in $tok (tokens preset in the example config?)"; }
 [ "$(stat -c '%a %u' "$tok")" = "600 $uid" ] || fail "operator.token: $(stat -c 'mode %a owner %u' "$tok")"
@@ -146,8 +162,13 @@ c=$(code "$url/v1/jobs")
 c=$(code -H "Authorization: Bearer not-$token" "$url/v1/jobs")
 [ "$c" = 401 ] || fail "GET /v1/jobs with a wrong token: HTTP $c (want 401)"
 echo "40-deploy: GET /v1/jobs without a token / with a wrong one: 401"
+lab_json=$(curl --noproxy '*' -s --max-time 20 -H "Authorization: Bearer $token" "$url/v1/lab")
+for cell in irb120 pcr3pf talos; do
+  case $lab_json in *"\"$cell\""*) ;; *) show_logs; fail "GET /v1/lab does not list the installed lab's cell $cell: $lab_json" ;; esac
+done
+echo "40-deploy: GET /v1/lab lists the installed lab file's cells irb120, pcr3pf, talos"
 
-# 6. SIGTERM (systemctl stop) ends it cleanly within the unit's TimeoutStopSec=.
+# 7. SIGTERM (systemctl stop) ends it cleanly within the unit's TimeoutStopSec=.
 stop_s=$(sed -n 's/^TimeoutStopSec=//p' "$unit")
 kill -TERM "$pid"
 deadline=$((SECONDS + ${stop_s:-30}))
@@ -164,7 +185,7 @@ if health=$("$calibd" health --server "$url" --timeout 2); then
 fi
 echo "40-deploy: stopped on SIGTERM; health now fails: $health"
 
-# 7. The installed unit passes systemd-analyze verify (offline; --root: its ExecStart= binary
+# 8. The installed unit passes systemd-analyze verify (offline; --root: its ExecStart= binary
 # is the scratch root's, the units it depends on are copies of the system's).
 verify_log=$scratch/verify.log
 for d in /usr/lib/systemd/system /lib/systemd/system; do
@@ -182,7 +203,7 @@ if [ "$vrc" != 0 ] || grep -q 'calibd' "$verify_log"; then
 fi
 echo "40-deploy: systemd-analyze verify: ok"
 
-# 8. The container build context leaves out target/ and .git (podman and docker files agree).
+# 9. The container build context leaves out target/ and .git (podman and docker files agree).
 cmp -s .containerignore .dockerignore || fail ".containerignore and .dockerignore differ"
 grep -qx '\*\*/target' .containerignore && grep -qx '\.git' .containerignore ||
   fail ".containerignore does not exclude target/ and .git"

@@ -139,7 +139,9 @@ async fn lab(
             })
         })
         .collect();
-    Ok(Json(json!({"cells": cells, "devices": devices})))
+    Ok(Json(
+        json!({"simulated": lab.is_simulated(), "cells": cells, "devices": devices}),
+    ))
 }
 
 async fn openapi() -> Response {

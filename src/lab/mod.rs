@@ -212,6 +212,12 @@ impl Lab {
         self.cells().flat_map(|c| c.devices()).collect()
     }
 
+    /// Whether the lab is the simulated one (digital twins behind mock devices it started),
+    /// not devices a lab file names: the page and `lab check` say so.
+    pub fn is_simulated(&self) -> bool {
+        !self.mock_addresses().is_empty()
+    }
+
     /// Addresses of attached simulated devices.
     pub fn mock_addresses(&self) -> Vec<String> {
         self.attached

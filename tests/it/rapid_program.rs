@@ -94,6 +94,7 @@ async fn a_filtered_module_is_uploaded_and_loaded_by_an_operator_only() {
     // The controller (the cell's RWS mock, over its socket) lists the module, stopped.
     let (st, lab) = s.get("/v1/lab").await;
     assert_eq!(st, 200);
+    assert_eq!(lab["simulated"], true, "the page's banner: {lab}");
     let addr = lab["devices"]
         .as_array()
         .and_then(|d| {

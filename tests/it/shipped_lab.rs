@@ -105,6 +105,8 @@ async fn the_example_campaigns_run_unchanged_on_the_example_lab() {
     assert!(ok, "lab check on the example lab: {out}");
 
     let daemon = Daemon::start(dir.path(), &lab);
+    let l = daemon.get("/v1/lab").await;
+    assert_eq!(l["simulated"], false, "a lab file's devices, no banner: {l}");
     for (file, cell) in [
         ("trical_campaign.json", "irb120"),
         ("pcr_campaign.json", "pcr3pf"),
@@ -136,4 +138,28 @@ async fn the_example_campaigns_run_unchanged_on_the_example_lab() {
         }
     }
     drop(mock);
+}
+
+#[test]
+fn the_daemon_refuses_to_start_without_its_lab_file_and_says_where_the_example_is() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let cfg = dir.path().join("calibd.toml");
+    let missing = dir.path().join("lab.toml");
+    std::fs::write(&cfg, format!("lab = \"{}\"\n", missing.display())).expect("write");
+    let out = Command::new(BIN)
+        .args(["serve", "--listen", "127.0.0.1:0", "--config"])
+        .arg(&cfg)
+        .arg("--data")
+        .arg(dir.path().join("data"))
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("calibd serve runs");
+    assert!(!out.status.success(), "started without its lab file");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&format!("{} does not exist", missing.display()))
+            && err.contains("lab.example.toml")
+            && err.contains("lab = \"sim\""),
+        "{err}"
+    );
 }

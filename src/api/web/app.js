@@ -286,6 +286,7 @@ async function loadDevices() {
 async function loadLab(refresh = false) {
   try {
     const r = await api("/v1/lab" + (refresh ? "?refresh=true" : ""));
+    $("#sim-banner").hidden = !r.simulated;
     $("#lab-cells").replaceChildren(...r.cells.map((c) => el("div", { class: c.available ? "cell-ok" : "cell-down" },
       `${c.name} (${c.kind}): ${c.available ? "available" : c.reason}`)));
     const text = (d) => d.state === "ok" ? `${d.kind}: ${d.identity.summary}` : d.state === "failed" ? `${d.kind}: ${d.error} — fix: ${d.fix}` : "not checked yet";
