@@ -43,6 +43,10 @@ fn submitter(c: &Caller, role: Role) -> Submitter {
 struct SubmitQuery {
     #[serde(default)]
     priority: i64,
+    /// Validate and plan only: the plan, its envelope check and the estimated duration;
+    /// nothing is stored, queued or moved.
+    #[serde(default)]
+    dry_run: bool,
 }
 
 async fn submit(
@@ -56,6 +60,10 @@ async fn submit(
     let Query(q) = q?;
     let key = idempotency_key(&headers)?;
     let doc = json_body(&s, b)?;
+    if q.dry_run {
+        let r = s.service.dry_run(doc).await?;
+        return Ok((StatusCode::OK, Json(r)).into_response());
+    }
     let origin = Origin {
         idempotency_key: key,
         ..Default::default()

@@ -10,6 +10,7 @@ pub mod jog;
 pub mod mocap;
 pub mod operator;
 pub mod pcr;
+pub mod preflight;
 pub mod results;
 pub mod spec;
 pub mod trical;

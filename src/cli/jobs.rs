@@ -58,6 +58,10 @@ pub(crate) struct SubmitArgs {
     /// Priority (higher runs first).
     #[arg(long, default_value_t = 0)]
     priority: i64,
+    /// Plan only: print the plan's envelope check and estimated duration; nothing is
+    /// submitted or moved (exits non-zero if the plan leaves the cell's envelope).
+    #[arg(long, conflicts_with = "watch")]
+    dry_run: bool,
     #[command(flatten)]
     remote: Remote,
 }
@@ -154,8 +158,14 @@ pub(crate) fn submit(a: SubmitArgs) -> Result<()> {
         job,
         watch,
         priority,
+        dry_run,
         remote: r,
     } = a;
+    if dry_run {
+        return remote(&r, |c| async move {
+            commands::dry_run(&c, &job).await.map(|_| ())
+        });
+    }
     remote(&r, |c| async move {
         commands::submit(&c, &job, priority, watch)
             .await

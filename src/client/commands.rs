@@ -25,6 +25,59 @@ pub async fn submit(
     Ok(id)
 }
 
+/// A dry run of a job file: print the plan's size, its envelope check (each offending
+/// configuration) and the estimated duration; an error if the plan leaves the envelope.
+pub async fn dry_run(c: &Client, job: &Path) -> Result<Value, ClientError> {
+    let doc = c.load_job_file(job).await?;
+    let v = c.dry_run(&doc).await?;
+    println!("{}", dry_run_summary(&v));
+    if v["envelope"]["ok"] == false {
+        return Err(ClientError::Protocol(
+            "the plan leaves the cell's envelope: the daemon would refuse this job".into(),
+        ));
+    }
+    Ok(v)
+}
+
+/// The lines `calibd submit --dry-run` prints for a dry-run answer.
+pub fn dry_run_summary(v: &Value) -> String {
+    let mut out = format!(
+        "dry run of {} (nothing submitted)",
+        v["kind"].as_str().unwrap_or("?")
+    );
+    if let Some(why) = v["unavailable"].as_str() {
+        out.push_str(&format!("\nnow: {why}"));
+    }
+    let Some(plan) = v["plan"].as_array() else {
+        out.push_str("\nno plan: this kind moves nothing");
+        return out;
+    };
+    let moves: u64 = plan.iter().filter_map(|t| t["moves"].as_u64()).sum();
+    out.push_str(&format!(
+        "\ncell {}: {} configurations, {moves} joint moves, estimated duration {:.1} s",
+        v["cell"].as_str().unwrap_or("?"),
+        plan.len(),
+        v["estimated_duration_s"].as_f64().unwrap_or(f64::NAN)
+    ));
+    let off = v["envelope"]["offending"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    if off.is_empty() {
+        out.push_str("\nenvelope: every configuration and path inside");
+    }
+    for o in &off {
+        out.push_str(&format!(
+            "\noutside the envelope: {} {} ({}): {}",
+            o["stage"].as_str().unwrap_or("?"),
+            o["index"].as_u64().map_or(0, |i| i + 1),
+            o["at"].as_str().unwrap_or("?"),
+            o["reason"].as_str().unwrap_or("?")
+        ));
+    }
+    out
+}
+
 /// Follow a job with a progress bar on stderr until it ends; print its summary.
 pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
     let mut err = std::io::stderr();

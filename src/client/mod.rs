@@ -227,6 +227,16 @@ impl Client {
             .ok_or_else(|| ClientError::Protocol(format!("no id in {v}")))
     }
 
+    /// A dry run of a job document (`POST /v1/jobs?dry_run=true`): the daemon's answer with
+    /// a campaign's plan, envelope check and estimated duration; nothing is submitted.
+    pub async fn dry_run(&self, doc: &Value) -> Result<Value, ClientError> {
+        self.json(
+            self.req(reqwest::Method::POST, "/v1/jobs?dry_run=true")
+                .json(doc),
+        )
+        .await
+    }
+
     /// Upload a dataset; returns its id.
     pub async fn upload(
         &self,

@@ -267,6 +267,16 @@ impl Job {
         self.prepared.devices()
     }
 
+    /// The plan checked against its cell's envelope, for kinds that move (see
+    /// [`Kind::preflight`]).
+    pub fn preflight(
+        &self,
+        lab: &crate::lab::Lab,
+        monitor: &dyn Monitor,
+    ) -> Option<Result<crate::run::Preflight, JobError>> {
+        self.prepared.preflight(lab, monitor)
+    }
+
     /// Whether an interrupted or paused run can continue from its journal.
     pub fn resumable(&self) -> bool {
         self.prepared.resumable()

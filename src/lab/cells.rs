@@ -61,6 +61,8 @@ pub struct TricalCell {
     pub ballbar: [f64; 3],
     /// The envelope the procedures enforce.
     pub envelope: Envelope,
+    /// Joint speed of the controller's moves (deg/s), for a plan's estimated duration.
+    pub joint_speed_deg_s: f64,
     /// Its devices: names (queue locks), addresses, probes.
     pub links: Vec<DeviceLink>,
 }

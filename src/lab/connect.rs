@@ -78,6 +78,8 @@ pub struct BallCentringCell {
     pub joint_limits_deg: Option<Vec<[f64; 2]>>,
     /// Box the TCP must stay in (mm, robot base frame: min, max), if configured.
     pub workspace_mm: Option<[[f64; 3]; 2]>,
+    /// Joint speed of the controller's moves (deg/s), for a plan's estimated duration.
+    pub joint_speed_deg_s: f64,
 }
 
 /// How the 3-PF cell's stage controller is reached.
@@ -281,12 +283,12 @@ fn ball_centring(d: BallCentringCell, rec: &Rec) -> Result<TricalCell, LabError>
             d.rws.address,
             probe(rws.clone(), move |h| probes::rws(h, module.clone())),
         ),
-        DeviceLink::new(
+        absent_port(DeviceLink::new(
             uwave_name,
             "Mitutoyo U-WAVE-R",
             d.uwave.path,
             probe(uwave.clone(), move |h| probes::uwave(h, channels)),
-        ),
+        )),
     ];
     Ok(TricalCell {
         modules: Arc::new(RwsModules::new(rws.clone(), rws_at.clone())),
@@ -297,10 +299,22 @@ fn ball_centring(d: BallCentringCell, rec: &Rec) -> Result<TricalCell, LabError>
         indicators: Arc::new(UwaveIndicators::new(uwave, uwave_at)),
         model: Mutex::new(d.model),
         ballbar: d.ballbar,
+        joint_speed_deg_s: d.joint_speed_deg_s,
         envelope,
         links,
         name: d.name,
     })
+}
+
+/// A serial device whose port does not exist is failed from the start (an unplugged
+/// receiver): its cell is unavailable until a probe finds it, the other cells serve.
+fn absent_port(link: DeviceLink) -> DeviceLink {
+    if Path::new(&link.address).exists() {
+        link
+    } else {
+        let error = format!("serial port {}: no such file or directory", link.address);
+        link.failed_from_start(error)
+    }
 }
 
 /// Where the lab's traffic is recorded, if anywhere.
@@ -465,7 +479,14 @@ fn mocap(d: MocapCellLink, rec: &Rec) -> Result<MocapCell, LabError> {
         format!("{j} at {}", d.joints.address),
         format!("{q} at {}", d.qtm),
     );
-    let (joints_probe, names) = (joints.clone(), Arc::new(d.joint_names.clone()));
+    let (joints_probe, names) = (
+        joints.clone(),
+        Arc::new((d.joint_names.clone(), d.limits.clone())),
+    );
+    let cell_markers = Arc::new(probes::CellMarkers {
+        labels: d.labels.clone(),
+        markers: d.markers.iter().map(|m| m.name.clone()).collect(),
+    });
     let robot: Arc<dyn JointRobot> = Arc::new(
         JointInterface::new(joints, d.joint_names.clone(), d.joints.speed_rad_s, j_at)
             .within(d.limits.clone(), d.joints.max_step_rad),
@@ -481,7 +502,7 @@ fn mocap(d: MocapCellLink, rec: &Rec) -> Result<MocapCell, LabError> {
             q,
             "Qualisys QTM (RT 1.25)",
             d.qtm,
-            probe(qtm.clone(), probes::qtm),
+            probe(qtm.clone(), move |h| probes::qtm(h, cell_markers.clone())),
         ),
     ];
     Ok(MocapCell {
@@ -500,7 +521,8 @@ fn mocap(d: MocapCellLink, rec: &Rec) -> Result<MocapCell, LabError> {
 impl Lab {
     /// Connect to every device of `cells` (driver actors on the current tokio runtime;
     /// they connect and reconnect in the background, so an absent device is reported by
-    /// the first request, never here).
+    /// the first request or probe, never here; a serial port that does not exist fails its
+    /// device from the start).
     pub fn connect(cells: Vec<CellLink>) -> Result<Lab, super::LabError> {
         Lab::connect_recording(cells, None)
     }

@@ -105,6 +105,18 @@ impl DeviceLink {
         }
     }
 
+    /// Mark the device failed before its first probe (`error`, e.g. its serial port does not
+    /// exist), so its cell is unavailable from the start; the next probe replaces this.
+    pub fn failed_from_start(self, error: String) -> Self {
+        let fix = fix_for(self.kind, &self.address, &error);
+        *self.status.lock().unwrap_or_else(|p| p.into_inner()) = DeviceStatus::Failed {
+            error,
+            fix,
+            checked_at: crate::util::format_time(chrono::Utc::now()),
+        };
+        self
+    }
+
     /// The last check.
     pub fn status(&self) -> DeviceStatus {
         self.status

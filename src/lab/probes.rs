@@ -97,13 +97,71 @@ pub async fn microscope(h: MicroscopeHandle) -> Result<Identity, ProbeError> {
     checked(h.identity().await)
 }
 
-/// QTM: versions, capture frequency and the labelled markers.
-pub async fn qtm(h: QtmHandle) -> Result<Identity, ProbeError> {
-    checked(h.identity().await)
+/// The markers a motion-capture cell measures: QTM label -> model marker (labels not listed
+/// keep their name) and the model's marker names.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellMarkers {
+    /// QTM label -> model marker name.
+    pub labels: std::collections::BTreeMap<String, String>,
+    /// The cell's markers (model names).
+    pub markers: Vec<String>,
 }
 
-/// The humanoid's joint interface: the robot, its joints and their limits.
-pub async fn joints(h: JointsHandle, want: Arc<Vec<String>>) -> Result<Identity, ProbeError> {
+impl CellMarkers {
+    /// The cell's markers that none of the stream's `labels` maps to.
+    pub fn missing(&self, stream: &[String]) -> Vec<String> {
+        let seen: std::collections::BTreeSet<&str> = stream
+            .iter()
+            .map(|l| self.labels.get(l).unwrap_or(l).as_str())
+            .collect();
+        self.markers
+            .iter()
+            .filter(|m| !seen.contains(m.as_str()))
+            .cloned()
+            .collect()
+    }
+}
+
+/// QTM: versions, capture frequency and the labelled markers, which must include every
+/// marker of the cell.
+pub async fn qtm(h: QtmHandle, cell: Arc<CellMarkers>) -> Result<Identity, ProbeError> {
+    let id = h
+        .identity()
+        .await
+        .map_err(|e| ProbeError::from(e.to_string()))?;
+    let missing = cell.missing(&id.labels);
+    let i = checked::<calibd_drivers::qtm::QtmIdentity>(Ok(id))?;
+    if !missing.is_empty() {
+        return Err(ProbeError {
+            error: format!(
+                "{} — but {} of the cell's {} markers are not in the stream: {}",
+                i.summary,
+                missing.len(),
+                cell.markers.len(),
+                missing.join(", ")
+            ),
+            fix: Some(
+                "label those markers in QTM (AIM model or manual labels), or map their QTM labels to them in the lab file's [cell.mocap] labels".into(),
+            ),
+        });
+    }
+    Ok(Identity {
+        summary: format!(
+            "{}; all {} cell markers labelled",
+            i.summary,
+            cell.markers.len()
+        ),
+        details: i.details,
+    })
+}
+
+/// The humanoid's joint interface: the robot, its joints and their limits, which must
+/// contain the cell's envelope (`want`: joint names and [lower, upper] in rad).
+pub async fn joints(
+    h: JointsHandle,
+    want: Arc<(Vec<String>, Vec<[f64; 2]>)>,
+) -> Result<Identity, ProbeError> {
+    let (want, envelope) = (&want.0, &want.1);
     let id = h
         .hello()
         .await
@@ -119,8 +177,52 @@ pub async fn joints(h: JointsHandle, want: Arc<Vec<String>>) -> Result<Identity,
             ),
         });
     }
+    let wider = beyond_interface(&id, want, envelope);
+    if !wider.is_empty() {
+        return Err(ProbeError {
+            error: format!(
+                "{}: the cell's envelope reaches beyond the interface's limits: {}",
+                id.robot,
+                wider.join("; ")
+            ),
+            fix: Some(
+                "narrow the lab file's [cell.envelope] joint_limits_deg (or the URDF's limits) to the robot's, or correct the bridge's limits".into(),
+            ),
+        });
+    }
     Ok(Identity {
-        summary: format!("{} ({}), {} joints", id.robot, id.protocol, id.joints.len()),
+        summary: format!(
+            "{} ({}), {} joints; the cell's limits within the interface's",
+            id.robot,
+            id.protocol,
+            id.joints.len()
+        ),
         details,
     })
+}
+
+/// The cell's joints whose envelope [lower, upper] (rad) is not inside the interface's
+/// limits (1e-9 rad of rounding allowed), each with both ranges in degrees.
+fn beyond_interface(
+    id: &calibd_drivers::joints::Identity,
+    names: &[String],
+    envelope: &[[f64; 2]],
+) -> Vec<String> {
+    names
+        .iter()
+        .zip(envelope)
+        .filter_map(|(n, e)| {
+            let k = id.joints.iter().position(|j| j == n)?;
+            let r = id.limits_rad.get(k)?;
+            (e[0] < r[0] - 1e-9 || e[1] > r[1] + 1e-9).then(|| {
+                format!(
+                    "{n}: envelope [{:.2}, {:.2}] deg, interface [{:.2}, {:.2}] deg",
+                    e[0].to_degrees(),
+                    e[1].to_degrees(),
+                    r[0].to_degrees(),
+                    r[1].to_degrees()
+                )
+            })
+        })
+        .collect()
 }

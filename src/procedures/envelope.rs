@@ -62,6 +62,71 @@ impl Workspace {
     }
 }
 
+impl Envelope {
+    /// Why joints `q` (rad) are outside the envelope (count, joint limits, workspace box),
+    /// if they are.
+    pub fn outside(&self, q: &[f64]) -> Option<String> {
+        if q.len() != self.limits.len() {
+            return Some(format!(
+                "{} joint values for {} joints",
+                q.len(),
+                self.limits.len()
+            ));
+        }
+        for (k, (v, l)) in q.iter().zip(&self.limits).enumerate() {
+            if !(v.is_finite() && *v >= l[0] && *v <= l[1]) {
+                return Some(format!(
+                    "joint {} target {:.3} deg outside [{:.3}, {:.3}] deg",
+                    k + 1,
+                    v.to_degrees(),
+                    l[0].to_degrees(),
+                    l[1].to_degrees()
+                ));
+            }
+        }
+        self.workspace_mm
+            .as_ref()
+            .and_then(|w| w.outside(&w.tcp_mm(q).0))
+    }
+
+    /// The joint moves of a move from `from` to `to` (rad) split as the approach splits it:
+    /// straight in joint space, in steps of at most 0.99 `max_joint_step`, the last on `to`.
+    pub fn steps(&self, from: &[f64], to: &[f64]) -> usize {
+        let d = from
+            .iter()
+            .zip(to)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        let step = 0.99 * self.max_joint_step;
+        if !(step > 0.0) || d <= step {
+            1
+        } else {
+            (d / step).ceil() as usize
+        }
+    }
+
+    /// Why the straight joint-space path from `from` to `to` (rad) leaves the envelope, if
+    /// it does: the joint box is convex, so its ends decide; the TCP box is checked at
+    /// points at most 1 deg of the largest joint change apart.
+    pub fn path_outside(&self, from: &[f64], to: &[f64]) -> Option<String> {
+        if let Some(why) = self.outside(from).or_else(|| self.outside(to)) {
+            return Some(why);
+        }
+        let w = self.workspace_mm.as_ref()?;
+        let d = from
+            .iter()
+            .zip(to)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        let n = (d / 1f64.to_radians()).ceil().max(1.0) as usize;
+        (1..n).find_map(|i| {
+            let s = i as f64 / n as f64;
+            let q: Vec<f64> = from.iter().zip(to).map(|(a, b)| a + s * (b - a)).collect();
+            w.outside(&w.tcp_mm(&q).0)
+        })
+    }
+}
+
 /// A robot whose moves are checked against an envelope before they are sent.
 #[derive(Debug, Clone)]
 pub struct MotionLimiter<R> {
@@ -91,23 +156,8 @@ impl<R: Robot> Robot for MotionLimiter<R> {
     fn move_joints<'a>(&'a self, q: &'a [f64]) -> DeviceFuture<'a, ()> {
         Box::pin(async move {
             let env = &self.envelope;
-            if q.len() != env.limits.len() {
-                return Err(Self::refuse(format!(
-                    "{} joint values for {} joints",
-                    q.len(),
-                    env.limits.len()
-                )));
-            }
-            for (k, (v, l)) in q.iter().zip(&env.limits).enumerate() {
-                if !(v.is_finite() && *v >= l[0] && *v <= l[1]) {
-                    return Err(Self::refuse(format!(
-                        "joint {} target {:.3} deg outside [{:.3}, {:.3}] deg",
-                        k + 1,
-                        v.to_degrees(),
-                        l[0].to_degrees(),
-                        l[1].to_degrees()
-                    )));
-                }
+            if let Some(why) = env.outside(q) {
+                return Err(Self::refuse(why));
             }
             let now = self.inner.joints().await?;
             let step = now
@@ -121,13 +171,6 @@ impl<R: Robot> Robot for MotionLimiter<R> {
                     step.to_degrees(),
                     env.max_joint_step.to_degrees()
                 )));
-            }
-            if let Some(why) = env
-                .workspace_mm
-                .as_ref()
-                .and_then(|w| w.outside(&w.tcp_mm(q).0))
-            {
-                return Err(Self::refuse(why));
             }
             self.inner.move_joints(q).await
         })

@@ -6,6 +6,7 @@
 pub mod context;
 pub mod error;
 pub mod input;
+pub mod preflight;
 pub mod rows;
 pub mod schema;
 pub mod table;
@@ -20,6 +21,7 @@ use serde_json::{Map, Value};
 pub use context::Cx;
 pub use error::JobError;
 pub use input::{DirResolver, Inputs, NoReferences, Resolver};
+pub use preflight::Preflight;
 pub use table::Table;
 
 use crate::util::Monitor;
@@ -117,6 +119,16 @@ pub trait Kind: Send + Sync + std::fmt::Debug + 'static {
 
     /// Run the job in `cx`.
     fn run(self: Arc<Self>, cx: Cx) -> RunFuture;
+
+    /// The plan the job would execute on its cell in `lab`, checked against the cell's
+    /// envelope, without moving anything (dry runs, submission); `None` for kinds without one.
+    fn preflight(
+        &self,
+        _lab: &crate::lab::Lab,
+        _monitor: &dyn Monitor,
+    ) -> Option<Result<Preflight, JobError>> {
+        None
+    }
 
     /// Whether [`Kind::write_main_csv`] can write the main table without running the job
     /// through [`Kind::run`] (no result JSON, no table held in memory).

@@ -25,6 +25,7 @@ pub use events::Event;
 pub use fleet::FleetConfig;
 pub use queue::{Entry, Queue};
 pub use storage::open as open_store;
+pub use submit::DryRun;
 pub use types::{
     DeviceStatus, Origin, ScheduleOrigin, ServiceConfig, ServiceError, StoreResolver, Submitter,
 };

@@ -46,6 +46,7 @@ impl Service {
             if let Some(reason) = lab.unavailable_for(&devices) {
                 return Err(ServiceError::Conflict(reason));
             }
+            refuse_plan(&job, &lab)?;
             let idempotency = origin.idempotency_key.map(|key| {
                 let mut request = serde_json::to_vec(&doc).unwrap_or_default();
                 request.extend_from_slice(format!("\npriority={priority}").as_bytes());
@@ -97,6 +98,39 @@ impl Service {
         Ok((id, true))
     }
 
+    /// A dry run: the job validated and, for a campaign on a cell of this lab, its plan
+    /// checked against the cell's envelope with the estimated duration; nothing is stored,
+    /// queued or moved.
+    pub async fn dry_run(&self, doc: Value) -> Result<DryRun, ServiceError> {
+        let store = self.shared.store.clone();
+        let lab = self.shared.lab.clone();
+        blocking(move || {
+            let job = jobs::prepare(&doc, &StoreResolver(store)).map_err(invalid)?;
+            let devices = job.devices();
+            let preflight = match job.preflight(&lab, &crate::util::NoMonitor) {
+                Some(p) => Some(p.map_err(invalid)?),
+                None if !devices.is_empty() => {
+                    return Err(ServiceError::Invalid(crate::run::JobError::invalid(
+                        "cell",
+                        format!(
+                            "this daemon drives none of {}: a dry run plans on the cell's model and envelope",
+                            devices.join(", ")
+                        ),
+                    )));
+                }
+                None => None,
+            };
+            Ok(DryRun {
+                dry_run: true,
+                kind: job.kind.clone(),
+                unavailable: lab.unavailable_for(&devices),
+                devices,
+                preflight,
+            })
+        })
+        .await
+    }
+
     /// Validate a job document without submitting it (for schedules); returns its kind.
     pub async fn validate(&self, doc: Value) -> Result<String, ServiceError> {
         let store = self.shared.store.clone();
@@ -125,5 +159,42 @@ impl Service {
             },
         )
         .await
+    }
+}
+
+/// What `POST /v1/jobs?dry_run=true` answers.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct DryRun {
+    /// Always true: nothing was stored, queued or moved.
+    pub dry_run: bool,
+    /// The job kind.
+    pub kind: String,
+    /// Devices the job would drive.
+    pub devices: Vec<String>,
+    /// Why its cell cannot run it now (a device failed its last check), if so.
+    pub unavailable: Option<String>,
+    /// A campaign's plan, envelope check and estimated duration.
+    #[serde(flatten)]
+    pub preflight: Option<crate::run::Preflight>,
+}
+
+fn invalid(e: crate::run::JobError) -> ServiceError {
+    if e.is_invalid_input() {
+        ServiceError::Invalid(e)
+    } else {
+        ServiceError::Internal(e.to_string())
+    }
+}
+
+/// Refuse a campaign whose plan leaves its cell's envelope, with every offending
+/// configuration (a plan that cannot be made fails when the job runs, as before).
+fn refuse_plan(job: &jobs::Job, lab: &crate::lab::Lab) -> Result<(), ServiceError> {
+    match job.preflight(lab, &crate::util::NoMonitor) {
+        Some(Ok(p)) => match p.refusal() {
+            Some(refused) => Err(ServiceError::Invalid(refused)),
+            None => Ok(()),
+        },
+        Some(Err(e)) if e.is_invalid_input() => Err(ServiceError::Invalid(e)),
+        Some(Err(_)) | None => Ok(()),
     }
 }

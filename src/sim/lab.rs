@@ -72,7 +72,7 @@ pub async fn serve(
     seed: u64,
     env: &dyn Environment,
 ) -> Result<MockLab, LabError> {
-    let cells = crate::lab::config::load_for_mocks(path, env)?;
+    let cells = crate::lab::config::load(path, env)?;
     let name = |c: &CellLink| match c {
         CellLink::BallCentring(c) => c.name.clone(),
         CellLink::Pcr(c) => c.name.clone(),

@@ -241,6 +241,7 @@ pub async fn start_twin_at(
         max_tool_step_mm: 6.5,
         joint_limits_deg: None,
         workspace_mm: None,
+        joint_speed_deg_s: o.arm_speed_deg_s,
     };
     Ok((link, vec![rws_mock, uw_mock]))
 }

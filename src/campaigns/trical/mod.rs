@@ -156,10 +156,29 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
     let retry = job.options.retry.retry();
     let (plan, vplan) = {
         let (job, file, ballbar) = (job.clone(), file.clone(), cell.ballbar);
+        let envelope = cell.envelope.clone();
         cx.phase(0.0, 0.02)
-            .compute(move |m| job.plan(&file, ballbar, m))
+            .compute(move |m| job.plan(&file, ballbar, &envelope, m))
             .await?
     };
+    // The whole plan against the envelope before the first move (from where the robot
+    // stands on a fresh start; a resumed campaign continues from a measured configuration).
+    let fresh = cx
+        .journal()
+        .entries()
+        .map(|e| e.is_empty())
+        .unwrap_or(false);
+    let start = if fresh {
+        cell.robot.joints().await.ok()
+    } else {
+        None
+    };
+    if let Some(refused) = job
+        .preflight_on(cell, &plan, &vplan, start.as_deref())?
+        .refusal()
+    {
+        return Err(refused);
+    }
     let total = (plan.len() + vplan.len()).max(1) as f64;
     let split = 0.02 + 0.9 * plan.len() as f64 / total;
     let journal = cx.journal();

@@ -9,18 +9,21 @@ use std::sync::Arc;
 use serde::Deserialize;
 use serde_json::Value;
 
+use crate::campaigns::preflight::{self, check, travel};
 use crate::campaigns::spec::{CentringSpec, RetrySpec, default_cell, trical_devices};
 use crate::campaigns::trical::{Planned, Recorded};
 use crate::design::balls::ball_pool;
 use crate::jobs::serial::SerialModel;
 use crate::jobs::serial::design::{DesignOptions, select};
 use crate::jobs::serial::identify::{IdentifyJob, IdentifyOptions, SerialCalibration};
+use crate::lab::{Lab, TricalCell};
 use crate::measure::BallPlate;
 use crate::measure::point::{PointMeasurement, Target};
 use crate::model::Chain;
 use crate::model::dh::DhFile;
+use crate::procedures::Envelope;
 use crate::run::Run;
-use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, parse_spec};
+use crate::run::{Cx, Inputs, JobError, Kind, Preflight, RunFuture, parse_spec};
 use crate::util::Monitor;
 
 #[derive(Debug, Clone, Deserialize, schemars::JsonSchema)]
@@ -180,23 +183,17 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CampaignJob, JobError
     })
 }
 
-/// The chain's joint limits (rad).
-fn limits(chain: &Chain) -> Vec<[f64; 2]> {
-    chain
-        .actuated()
-        .iter()
-        .map(|&j| {
-            chain.joints[j]
-                .limits
-                .unwrap_or([-std::f64::consts::PI, std::f64::consts::PI])
-        })
-        .collect()
-}
-
 /// Configurations reaching each ball centre on `chain`, drawn from the middle 70 % of each
-/// joint range and kept away from the wrist singularity (|q5| > 10 deg).
-fn pool(chain: &Chain, plate: &BallPlate, per_ball: usize, seed: u64) -> Vec<Planned> {
-    let lim = limits(chain);
+/// joint range of the cell's envelope (its narrowed limits), kept away from the wrist
+/// singularity (|q5| > 10 deg) and inside the envelope (the TCP in its workspace box).
+fn pool(
+    chain: &Chain,
+    plate: &BallPlate,
+    envelope: &Envelope,
+    per_ball: usize,
+    seed: u64,
+) -> Vec<Planned> {
+    let lim = &envelope.limits;
     let centres: Vec<_> = plate.centres.iter().flatten().copied().collect();
     ball_pool(
         chain,
@@ -211,7 +208,7 @@ fn pool(chain: &Chain, plate: &BallPlate, per_ball: usize, seed: u64) -> Vec<Pla
                 })
                 .collect()
         },
-        |q| q.get(4).is_some_and(|v| v.abs() > 10f64.to_radians()),
+        |q| q.get(4).is_some_and(|v| v.abs() > 10f64.to_radians()) && envelope.outside(q).is_none(),
     )
     .into_iter()
     .map(|(q, ball)| Planned { q, ball })
@@ -251,45 +248,36 @@ impl CampaignJob {
         &self,
         file: &DhFile,
         ballbar: [f64; 3],
+        envelope: &Envelope,
         monitor: &dyn Monitor,
     ) -> Result<(Vec<Planned>, Vec<Planned>), JobError> {
         let plate = &BallPlate::from_ballbar(ballbar[0], ballbar[1], ballbar[2])?;
         let chain = file.to_chain()?;
         let vplan = match &self.validation {
-            Some(v) => short_tour(pool(&chain, plate, v.per_ball, v.seed)),
+            Some(v) => short_tour(pool(&chain, plate, envelope, v.per_ball, v.seed)),
             None => Vec::new(),
         };
         if let Some(c) = &self.configurations {
-            let mut out = Vec::new();
-            for (i, (q, ball)) in c.iter().enumerate() {
-                let q: Vec<f64> = q.iter().map(|v| v.to_radians()).collect();
-                if let Some((j, v, l)) = chain.limit_violation(&q) {
-                    return Err(JobError::row(
-                        "configurations",
-                        i + 1,
-                        format!(
-                            "q{} = {:.3} deg is outside the joint limits [{:.3}, {:.3}] deg",
-                            j + 1,
-                            v.to_degrees(),
-                            l[0].to_degrees(),
-                            l[1].to_degrees()
-                        ),
-                    ));
-                }
-                out.push(Planned { q, ball: *ball });
-            }
+            // Checked against the cell's envelope with the whole plan (`Kind::preflight`).
+            let out = c
+                .iter()
+                .map(|(q, ball)| Planned {
+                    q: q.iter().map(|v| v.to_radians()).collect(),
+                    ball: *ball,
+                })
+                .collect();
             return Ok((out, vplan));
         }
         let Some(d) = &self.design else {
             return Err(JobError::invalid("design", "missing"));
         };
-        let candidates = pool(&chain, plate, d.pool_per_ball, d.seed);
+        let candidates = pool(&chain, plate, envelope, d.pool_per_ball, d.seed);
         let n = d.per_ball * plate.len();
         if candidates.len() < n {
             return Err(JobError::CellMismatch {
                 what: "model",
                 message: format!(
-                    "only {} configurations of the pool reach the balls on the model; {n} are needed",
+                    "only {} configurations of the pool reach the balls inside the cell's envelope on the model; {n} are needed",
                     candidates.len()
                 ),
             });
@@ -349,9 +337,65 @@ fn ball_point(q: &[f64], ball: usize) -> PointMeasurement {
     }
 }
 
+/// Assumed corrective moves of the centring loop per configuration, for the estimate (the
+/// simulated cell averages about 3).
+const CENTRING_MOVES: f64 = 4.0;
+
+impl CampaignJob {
+    /// The plan as targets for the envelope check.
+    pub(crate) fn targets(plan: &[Planned], vplan: &[Planned]) -> Vec<preflight::Target> {
+        let t = |stage, p: &Planned| preflight::Target {
+            stage,
+            what: format!("ball {}", p.ball + 1),
+            q: p.q.clone(),
+        };
+        plan.iter()
+            .map(|p| t("measurement", p))
+            .chain(vplan.iter().map(|p| t("validation", p)))
+            .collect()
+    }
+
+    /// The plan on `cell`, checked against its envelope from `start` (the robot's joints,
+    /// when known), with the estimated duration: the joint travel at the cell's joint speed
+    /// plus [`CENTRING_MOVES`] settled corrective moves per configuration.
+    pub(crate) fn preflight_on(
+        &self,
+        cell: &TricalCell,
+        plan: &[Planned],
+        vplan: &[Planned],
+        start: Option<&[f64]>,
+    ) -> Result<Preflight, JobError> {
+        let copts = self.options.centring.options("options.centring", cell)?;
+        let targets = Self::targets(plan, vplan);
+        let (steps, envelope) = check(&targets, start, &cell.envelope);
+        let travel_deg = travel(&targets, start).to_degrees();
+        let centring_s = targets.len() as f64 * CENTRING_MOVES * copts.settle.as_secs_f64();
+        Ok(Preflight {
+            cell: self.cell.clone(),
+            joints: (1..=6).map(|k| format!("q{k}")).collect(),
+            plan: steps,
+            envelope,
+            estimated_duration_s: travel_deg / cell.joint_speed_deg_s + centring_s,
+        })
+    }
+
+    fn preflight_in(&self, lab: &Lab, monitor: &dyn Monitor) -> Result<Preflight, JobError> {
+        let cell = lab.trical(&self.cell)?;
+        let file = self.model.clone().unwrap_or_else(|| cell.current_model());
+        let (plan, vplan) = self.plan(&file, cell.ballbar, &cell.envelope, monitor)?;
+        self.preflight_on(cell, &plan, &vplan, None)
+    }
+}
+
 impl Kind for CampaignJob {
     fn resumable(&self) -> bool {
         true
+    }
+
+    fn preflight(&self, lab: &Lab, monitor: &dyn Monitor) -> Option<Result<Preflight, JobError>> {
+        // A cell of another daemon (a fleet) is checked there, before its first move.
+        lab.cell(&self.cell)?;
+        Some(self.preflight_in(lab, monitor))
     }
 
     fn devices(&self) -> Vec<String> {

@@ -1,6 +1,7 @@
-//! A humanoid's joint interface (`calibd-joints/1` driver) as a [`JointRobot`]: postures go
-//! to the robot as one move whose duration follows from the largest joint change and the
-//! cell's joint speed; the robot's refusals (unknown joint, out of limits, bad request) are
+//! A humanoid's joint interface (`calibd-joints/1` driver) as a [`JointRobot`]: a posture
+//! goes to the robot as moves within the cell's largest joint step (a longer one is split,
+//! as the TriCal approach moves are), each timed by its largest joint change and the cell's
+//! joint speed; the robot's refusals (unknown joint, out of limits, bad request) are
 //! refusals, its other errors faults.
 
 use std::collections::BTreeMap;
@@ -43,34 +44,52 @@ impl JointInterface {
     }
 
     /// Refuse, before a byte leaves, a posture outside `limits` (rad, one pair per joint of
-    /// the interface) or moving any joint by more than `max_step_rad`.
+    /// the interface), and split a move of any joint by more than `max_step_rad` into steps.
     pub fn within(mut self, limits: Vec<[f64; 2]>, max_step_rad: f64) -> Self {
         self.envelope = Some((limits, max_step_rad));
         self
     }
 
-    /// Why the move from `now` to `target` leaves the envelope, if it does.
-    fn outside(
+    /// Why `target` leaves the envelope's joint limits, if it does.
+    fn outside(&self, target: &BTreeMap<String, f64>) -> Option<String> {
+        let (limits, _) = self.envelope.as_ref()?;
+        target.iter().find_map(|(name, v)| {
+            let k = self.joints.iter().position(|j| j == name);
+            let [lo, hi] = k.and_then(|k| limits.get(k))?;
+            (!(v >= lo && v <= hi))
+                .then(|| format!("{name} = {v:.4} rad outside [{lo:.4}, {hi:.4}] rad"))
+        })
+    }
+
+    /// The postures of the move from `now` to `target`: straight in joint space, in steps of
+    /// at most 0.99 of the envelope's largest step (one step without an envelope).
+    fn steps(
         &self,
         now: &BTreeMap<String, f64>,
         target: &BTreeMap<String, f64>,
-    ) -> Option<String> {
-        let (limits, max_step) = self.envelope.as_ref()?;
-        target.iter().find_map(|(name, v)| {
-            let k = self.joints.iter().position(|j| j == name);
-            let lim = k.and_then(|k| limits.get(k));
-            if let Some([lo, hi]) = lim
-                && !(v >= lo && v <= hi)
-            {
-                return Some(format!(
-                    "{name} = {v:.4} rad outside [{lo:.4}, {hi:.4}] rad"
-                ));
-            }
-            let step = now.get(name).map_or(0.0, |q| (v - q).abs());
-            (step > *max_step).then(|| {
-                format!("{name} moves {step:.4} rad, above the {max_step:.4} rad step limit")
+    ) -> Vec<BTreeMap<String, f64>> {
+        let travel = target
+            .iter()
+            .map(|(k, v)| now.get(k).map_or(0.0, |q| (v - q).abs()))
+            .fold(0.0, f64::max);
+        let step = self.envelope.as_ref().map_or(f64::INFINITY, |e| 0.99 * e.1);
+        let n = if step > 0.0 && travel > step {
+            (travel / step).ceil() as usize
+        } else {
+            1
+        };
+        (1..=n)
+            .map(|i| {
+                let s = i as f64 / n as f64;
+                target
+                    .iter()
+                    .map(|(k, v)| {
+                        let q = now.get(k).map_or(*v, |q| q + s * (v - q));
+                        (k.clone(), if i == n { *v } else { q })
+                    })
+                    .collect()
             })
-        })
+            .collect()
     }
 
     fn err(&self, e: DriverError) -> DeviceError {
@@ -142,24 +161,32 @@ impl JointRobot for JointInterface {
     fn move_to<'a>(&'a self, posture: &'a [(String, f64)]) -> DeviceFuture<'a, ()> {
         Box::pin(async move {
             let target: BTreeMap<String, f64> = posture.iter().cloned().collect();
-            let now = self.handle.read().await.map_err(|e| self.err(e))?;
-            if let Some(reason) = self.outside(&now.positions_rad, &target) {
+            if let Some(reason) = self.outside(&target) {
                 return Err(DeviceError::Refused {
                     device: self.name.clone(),
                     reason,
                 });
             }
-            let duration = self.duration(&now.positions_rad, &target)?;
-            tracing::debug!(
-                device = %self.name,
-                joints = target.len(),
-                duration_s = duration.as_secs_f64(),
-                "move"
-            );
-            self.handle
-                .move_to(target, duration)
+            let mut now = self
+                .handle
+                .read()
                 .await
-                .map_err(|e| self.err(e))?;
+                .map_err(|e| self.err(e))?
+                .positions_rad;
+            for step in self.steps(&now, &target) {
+                let duration = self.duration(&now, &step)?;
+                tracing::debug!(
+                    device = %self.name,
+                    joints = step.len(),
+                    duration_s = duration.as_secs_f64(),
+                    "move"
+                );
+                self.handle
+                    .move_to(step.clone(), duration)
+                    .await
+                    .map_err(|e| self.err(e))?;
+                now.extend(step);
+            }
             Ok(())
         })
     }
@@ -215,12 +242,20 @@ mod tests {
             .await
             .expect_err("outside the cell's limits");
         assert!(e.to_string().contains("outside [-0.5000, 0.9000]"), "{e}");
-        let e = fenced
-            .move_to(&[("joint_1".into(), 0.0)])
-            .await
-            .expect_err("a 0.5 rad step");
-        assert!(e.to_string().contains("step limit"), "{e}");
         assert_eq!(r.joints().await.expect("joints"), vec![1.0, -0.5]);
+        // A 0.5 rad move of joint_1 within a 0.3 rad step: two moves of 0.25 rad, each at
+        // 5 rad/s (0.05 s), ending on the target.
+        let planned = fenced.steps(
+            &BTreeMap::from([("joint_3".to_string(), 0.4), ("joint_1".to_string(), -0.5)]),
+            &BTreeMap::from([("joint_1".to_string(), 0.0)]),
+        );
+        assert_eq!(planned.len(), 2);
+        assert!((planned[0]["joint_1"] + 0.25).abs() < 1e-12, "{planned:?}");
+        fenced
+            .move_to(&[("joint_3".into(), 0.4), ("joint_1".into(), 0.0)])
+            .await
+            .expect("a split move");
+        assert_eq!(r.joints().await.expect("joints"), vec![0.4, 0.0]);
         let bad = JointInterface::new(r.handle.clone(), names, 0.0, "arm.joints");
         let e = bad
             .move_to(&[("joint_1".into(), 0.0)])

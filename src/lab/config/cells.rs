@@ -38,12 +38,6 @@ impl Reader<'_> {
         };
         let ind = self.need(c, &s.indicators, "indicators")?.get_ref();
         let port = ind.port.get_ref();
-        if self.check_ports && !Path::new(port).exists() {
-            return Err(self.err(
-                &ind.port.span(),
-                format!("indicators.port: serial port {port} does not exist (is the U-WAVE-R receiver plugged in? see `ls /dev/serial/by-id/`)"),
-            ));
-        }
         let axes = ind.axes.get_ref();
         let [x, y, z] = axes.as_slice() else {
             return Err(self.err(
@@ -135,6 +129,16 @@ impl Reader<'_> {
             max_tool_step_mm: positive(self, c, env.max_tool_step_mm, 2.0, "max_tool_step_mm")?,
             joint_limits_deg: limits_deg,
             workspace_mm,
+            joint_speed_deg_s: match ctl.get_ref().joint_speed_deg_s {
+                None => 20.0,
+                Some(v) if v > 0.0 && v.is_finite() => v,
+                Some(v) => {
+                    return Err(self.err(
+                        &ctl.span(),
+                        format!("controller.joint_speed_deg_s = {v} must be positive"),
+                    ));
+                }
+            },
         })
     }
 

@@ -1,8 +1,9 @@
 //! A lab from its configuration file: the cells of a real lab and the addresses, serial
 //! ports and credentials of their devices, read into the same [`CellLink`] descriptions the
 //! simulated lab produces. Everything is checked before a device is contacted: unknown
-//! keys, missing devices, serial ports that do not exist, model files that do not parse,
-//! inline passwords; each error names the file, the line and the key. Secrets come from a
+//! keys, missing device sections, model files that do not parse, inline passwords; each
+//! error names the file, the line and the key. A device that is absent (an unplugged
+//! receiver's serial port) is not a file error: its cell is unavailable, the rest serve. Secrets come from a
 //! file or an environment variable and are never logged or echoed.
 //!
 //! The format is documented in `deploy/lab.example.toml`.
@@ -102,6 +103,9 @@ struct RwsSpec {
     password: Option<Spanned<toml::Value>>,
     #[serde(default = "default_module")]
     module: String,
+    /// Joint speed of the RAPID module's moves (deg/s), for estimated durations.
+    #[serde(default)]
+    joint_speed_deg_s: Option<f64>,
 }
 
 fn default_rws_user() -> String {
@@ -268,32 +272,7 @@ pub fn parse(
     path: &Path,
     env: &dyn Environment,
 ) -> Result<Vec<CellLink>, LabConfigError> {
-    parse_with(text, path, env, true)
-}
-
-/// [`load`] for the side that serves the devices (`calibd mock lab`): serial ports are
-/// created, not checked.
-pub fn load_for_mocks(path: &Path, env: &dyn Environment) -> Result<Vec<CellLink>, LabConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|e| LabConfigError {
-        file: path.into(),
-        line: 0,
-        message: format!("cannot read the lab file: {e}"),
-    })?;
-    parse_with(&text, path, env, false)
-}
-
-fn parse_with(
-    text: &str,
-    path: &Path,
-    env: &dyn Environment,
-    check_ports: bool,
-) -> Result<Vec<CellLink>, LabConfigError> {
-    let r = Reader {
-        text,
-        path,
-        env,
-        check_ports,
-    };
+    let r = Reader { text, path, env };
     let file: LabFile = toml::from_str(text).map_err(|e| {
         let line = e.span().map_or(0, |s| r.line(&s));
         r.err_at(line, e.message().trim().to_string())
@@ -323,7 +302,6 @@ struct Reader<'a> {
     text: &'a str,
     path: &'a Path,
     env: &'a dyn Environment,
-    check_ports: bool,
 }
 
 impl Reader<'_> {

@@ -547,3 +547,5 @@ async fn commissioning_the_tcp_over_mock_processes() {
     );
     assert!(err < 3.0, "{r}");
 }
+
+mod absent;
