@@ -106,7 +106,10 @@ async fn the_example_campaigns_run_unchanged_on_the_example_lab() {
 
     let daemon = Daemon::start(dir.path(), &lab);
     let l = daemon.get("/v1/lab").await;
-    assert_eq!(l["simulated"], false, "a lab file's devices, no banner: {l}");
+    assert_eq!(
+        l["simulated"], false,
+        "a lab file's devices, no banner: {l}"
+    );
     for (file, cell) in [
         ("trical_campaign.json", "irb120"),
         ("pcr_campaign.json", "pcr3pf"),

@@ -232,7 +232,7 @@ impl MocapCampaignJob {
         let (table, field) = match &self.postures {
             Postures::Table(t) => (t.clone(), "postures"),
             Postures::Nocp(n) => {
-                let job = DesignJob::new(
+                let mut job = DesignJob::new(
                     &Inputs::new(&NoReferences),
                     &cell.urdf,
                     &cell.root_link,
@@ -244,6 +244,8 @@ impl MocapCampaignJob {
                     n.n,
                     &n.options,
                 )?;
+                // Postures only inside the cell's envelope (its limits narrow the URDF's).
+                job.narrow_limits(&cell.limits)?;
                 (job.design(monitor)?.result.postures, "postures.nocp")
             }
         };

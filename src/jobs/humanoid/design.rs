@@ -389,6 +389,42 @@ fn no_room(what: &str) -> JobError {
 }
 
 impl DesignJob {
+    /// Draw the postures only within `limits` (rad, one per measured joint, in their order):
+    /// a cell's envelope narrowing the URDF's limits. The intersection is used; a joint whose
+    /// envelope does not overlap the URDF's range is refused, named.
+    pub fn narrow_limits(&mut self, limits: &[[f64; 2]]) -> Result<(), JobError> {
+        let names = self.loaded.model.variables.clone();
+        let own = &mut self.postures.constraints.limits;
+        if limits.len() != own.len() {
+            return Err(JobError::invalid(
+                "cell",
+                format!(
+                    "{} joint limits for {} measured joints",
+                    limits.len(),
+                    own.len()
+                ),
+            ));
+        }
+        for (k, (l, n)) in own.iter_mut().zip(limits).enumerate() {
+            let (lo, hi) = (l[0].max(n[0]), l[1].min(n[1]));
+            if !(lo <= hi) {
+                return Err(JobError::invalid(
+                    "cell",
+                    format!(
+                        "joint `{}`: the cell's limits [{:.3}, {:.3}] rad leave nothing of the model's [{:.3}, {:.3}] rad",
+                        names.get(k).map_or("?", String::as_str),
+                        n[0],
+                        n[1],
+                        l[0],
+                        l[1]
+                    ),
+                ));
+            }
+            *l = [lo, hi];
+        }
+        Ok(())
+    }
+
     /// Design the postures: the typed result (the postures are also the main table) and
     /// `trajectory.csv`.
     pub fn design(&self, monitor: &dyn Monitor) -> Result<Run<HumanoidDesign>, JobError> {
