@@ -11,5 +11,6 @@ pub mod mocap;
 pub mod operator;
 pub mod pcr;
 pub mod results;
+mod results_report;
 pub mod spec;
 pub mod trical;
