@@ -9,7 +9,8 @@ use axum::response::{IntoResponse, Response};
 use serde_json::Value;
 
 use super::{ApiError, ApiPath, AppState, Caller};
-use crate::report::html::{ReportInput, cell_name, render};
+use crate::jobs::report_view::typed_result;
+use crate::report::html::{Envelope, ReportInput, cell_name, render};
 use crate::run::VERSION;
 
 /// The policy of the report document: inline CSS and inline SVG only.
@@ -33,7 +34,8 @@ pub(super) async fn report(
                 .unwrap_or("unfinished")
         )));
     };
-    let cell = cell_name(&job, &result);
+    let envelope = Envelope::read(&result);
+    let cell = cell_name(&job, &envelope);
     let journal = s.service.journal(id).await?;
     let artefacts = s.service.svg_artefacts(id).await?;
     let history = match cell {
@@ -58,7 +60,8 @@ pub(super) async fn report(
     let now = chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true);
     let html = render(&ReportInput {
         job: &job,
-        result: &result,
+        envelope: &envelope,
+        result: typed_result(&result).as_ref(),
         artefacts: &artefacts,
         cell_history: &history,
         journal: &journal,

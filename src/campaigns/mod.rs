@@ -12,6 +12,7 @@ pub mod operator;
 pub mod pcr;
 pub mod preflight;
 pub mod results;
+mod results_report;
 pub mod spec;
 pub mod trical;
 

@@ -2,7 +2,7 @@
 //! `serial.identify`, `pcr.identify` and `humanoid.identify` report it), the cell, and the
 //! figures of the measuring.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::jobs::humanoid::identify::HumanoidCalibration;
 use crate::jobs::pcr::accuracy::PcrAccuracy;
@@ -11,7 +11,7 @@ use crate::jobs::serial::identify::SerialCalibration;
 use crate::run::Table;
 
 /// Figures of a TriCal campaign's measuring.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TricalStats {
     /// Configurations planned for the identification.
     pub planned: usize,
@@ -40,7 +40,7 @@ pub struct TricalStats {
 }
 
 /// The result of a `cell.trical_campaign`: the identification's result and the campaign's.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TricalCampaign {
     /// The `serial.identify` result on the centred configurations.
     #[serde(flatten)]
@@ -52,12 +52,12 @@ pub struct TricalCampaign {
     /// The model the campaign started from.
     pub start_model: crate::model::dh::DhFile,
     /// The centred configurations (rows of the main table).
-    #[serde(serialize_with = "crate::report::json_rows")]
+    #[serde(serialize_with = "crate::report::json_rows", skip_deserializing)]
     pub measurements: Table,
 }
 
 /// Figures of a 3-PF campaign's measuring.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PcrStats {
     /// Joint sets planned (calibration + validation).
     pub planned: usize,
@@ -84,25 +84,25 @@ pub struct PcrStats {
 }
 
 /// The result of a `cell.pcr_campaign`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PcrCampaign {
     /// The `pcr.identify` result.
     #[serde(flatten)]
     pub calibration: PcrCalibration,
     /// The `pcr.accuracy` result of the identified model, if asked for.
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none", skip_deserializing)]
     pub accuracy: Option<PcrAccuracy>,
     /// The cell.
     pub cell: String,
     /// Measuring figures.
     pub campaign: PcrStats,
     /// The calibration and validation joint sets (rows of the main table).
-    #[serde(serialize_with = "crate::report::json_rows")]
+    #[serde(serialize_with = "crate::report::json_rows", skip_deserializing)]
     pub measurements: Table,
 }
 
 /// Figures of a motion-capture campaign.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MocapStats {
     /// Postures planned.
     pub planned: usize,
@@ -127,7 +127,7 @@ pub struct MocapStats {
 }
 
 /// The result of a `cell.mocap_campaign`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MocapCampaign {
     /// The `humanoid.identify` result.
     #[serde(flatten)]
@@ -137,7 +137,7 @@ pub struct MocapCampaign {
     /// Campaign figures.
     pub campaign: MocapStats,
     /// The averaged postures (rows of the main table).
-    #[serde(serialize_with = "crate::report::json_rows")]
+    #[serde(serialize_with = "crate::report::json_rows", skip_deserializing)]
     pub measurements: Table,
 }
 

@@ -2,7 +2,7 @@
 //! box bounds by projection with an active set, a stated stopping reason, and cancellation.
 
 use nalgebra::{DMatrix, DVector};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::{IdentifyError, Problem};
 use crate::util::Monitor;
@@ -44,7 +44,7 @@ impl Default for LmOptions {
 }
 
 /// Why the solver stopped.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StopReason {
     /// Converged: the relative cost reduction fell below `ftol`.

@@ -18,7 +18,7 @@
 //! (not rescaled by the fitted residual variance: the noise is taken as given).
 
 use nalgebra::DMatrix;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::trust::effect_sizes;
 use super::trust::physical_scales;
@@ -108,9 +108,11 @@ impl Problem for MapProblem<'_> {
 }
 
 /// What the prior did, for the result (`mode`: `least_squares`, `map` or `map_cv`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PriorReport {
-    /// `least_squares` (no prior), `map` (fixed weight) or `map_cv` (weight by K-fold).
+    /// `least_squares` (no prior), `map` (fixed weight) or `map_cv` (weight by K-fold);
+    /// not read back (the report does not show it).
+    #[serde(skip_deserializing)]
     pub mode: &'static str,
     /// The weight `lambda` used (null for least squares).
     pub weight: Option<f64>,
@@ -128,7 +130,7 @@ pub struct PriorReport {
 }
 
 /// Held-out error of one candidate weight.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FoldError {
     /// Candidate weight.
     pub weight: f64,

@@ -3,7 +3,11 @@
 //! combinations and unobservable directions.
 
 use nalgebra::DVector;
-use serde::Serialize;
+use std::borrow::Cow;
+
+use serde::{Deserialize, Serialize};
+
+use crate::util::serde_num::f64_or_nan;
 
 use super::trust::{Degeneracy, NearDependent};
 use super::{LmOptions, Pivoting, StopReason, Uncertainty};
@@ -86,29 +90,32 @@ impl Default for SolveOptions {
 }
 
 /// One line of the parameter table of a result (binding field names of jobs.md).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ParamReport {
     /// Parameter name.
     pub name: String,
     /// Unit of nominal, value and std.
     pub unit: String,
     /// Nominal value.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub nominal: f64,
     /// Identified value (nominal if unidentifiable).
+    #[serde(deserialize_with = "f64_or_nan")]
     pub value: f64,
     /// Standard deviation (null if held fixed).
     pub std: Option<f64>,
     /// Whether the data determine it.
     pub identifiable: bool,
     /// Largest change of any residual over the parameter's plausible range (residual unit).
+    #[serde(deserialize_with = "f64_or_nan")]
     pub effect_size: f64,
     /// `lower` or `upper` when the solution sits on a bound.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub at_bound: Option<&'static str>,
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub at_bound: Option<Cow<'static, str>>,
 }
 
 /// An unidentifiable parameter and the identifiable ones it duplicates.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Dependency {
     /// The unidentifiable parameter.
     pub name: String,
@@ -117,7 +124,7 @@ pub struct Dependency {
 }
 
 /// An unknown held at its start value because its whole effect is below the noise.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Unobservable {
     /// The unknown.
     pub name: String,

@@ -466,8 +466,8 @@ pub fn solve_with(
             weakly.push(u.name.clone());
         }
         let at_bound = pos.and_then(|p| match rep.at_bound[p] {
-            -1 => Some("lower"),
-            1 => Some("upper"),
+            -1 => Some("lower".into()),
+            1 => Some("upper".into()),
             _ => None,
         });
         params.push(ParamReport {

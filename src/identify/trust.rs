@@ -9,7 +9,7 @@
 //! of each unknown, in measurement units, comparable with the measurement noise.
 
 use nalgebra::DMatrix;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::Unknown;
 
@@ -43,7 +43,7 @@ pub fn is_angle(u: &Unknown) -> bool {
 
 /// One direction of the physically scaled Jacobian of the identified set with a small
 /// singular value: a combination of parameters the data barely determine.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct NearDependent {
     /// Singular value: residual 2-norm change for a unit move along the direction in scaled
     /// unknowns (residual units per scale unit).
@@ -131,7 +131,7 @@ pub fn spectrum_of_r(r: &DMatrix<f64>, free: &[usize], scale: &[f64]) -> Spectru
 }
 
 /// Why a result is degenerate, and which unknowns are to blame.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Degeneracy {
     /// Human-readable reasons.
     pub reasons: Vec<String>,

@@ -10,7 +10,9 @@
 //! outside the training range, a parameter moved more than [`MOVED_TOLERANCES`] tolerances from
 //! nominal, prior-dominated parameters. Accepted otherwise.
 
-use serde::Serialize;
+use std::borrow::Cow;
+
+use serde::{Deserialize, Serialize};
 
 pub use super::duplicates::{Duplicates, find_duplicates};
 pub use super::extrapolation::{JointAxis, OutOfRange, out_of_range};
@@ -34,7 +36,7 @@ pub const DEFAULT_TOLERANCE_DEG: f64 = 1.0;
 pub const PRIOR_DOMINATED_FRACTION: f64 = 0.5;
 
 /// Whether to use a calibration.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Verdict {
     /// Use it.
@@ -76,10 +78,10 @@ impl Verdict {
 }
 
 /// One reason of a verdict.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Reason {
     /// Stable code, e.g. `zero_dof`, `duplicates`, `extrapolation`.
-    pub code: &'static str,
+    pub code: Cow<'static, str>,
     /// What was found, with the rows, joints, parameters and figures involved.
     pub message: String,
     /// The verdict this reason alone gives (`review` or `rejected`).
@@ -87,11 +89,12 @@ pub struct Reason {
 }
 
 /// The verdict and its reasons (the result fields `verdict`, `reasons`).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Assessment {
     /// The worst severity of the reasons; `accepted` with none.
     pub verdict: Verdict,
     /// Why, worst first.
+    #[serde(default)]
     pub reasons: Vec<Reason>,
 }
 
@@ -185,7 +188,7 @@ pub fn dof(equations: usize, unknowns: usize) -> usize {
 
 fn reason(code: &'static str, severity: Verdict, message: String) -> Reason {
     Reason {
-        code,
+        code: code.into(),
         message,
         severity,
     }
@@ -444,7 +447,10 @@ mod tests {
         let a = assess(&f);
         assert_eq!(a.verdict, Verdict::Rejected);
         assert_eq!(a.reasons[0].code, "degenerate");
-        assert_eq!(a.reasons.last().map(|r| r.code), Some("few_equations"));
+        assert_eq!(
+            a.reasons.last().map(|r| r.code.as_ref()),
+            Some("few_equations")
+        );
     }
 
     fn param(

@@ -10,6 +10,7 @@ pub mod humanoid;
 pub mod map_options;
 pub mod offline;
 pub mod pcr;
+pub mod report_view;
 pub mod schema;
 pub mod serial;
 pub mod tree;

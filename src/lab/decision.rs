@@ -240,7 +240,7 @@ mod tests {
             unit: "mm",
         };
         let reason = |severity| Reason {
-            code: "zero_dof",
+            code: "zero_dof".into(),
             message: "15 equations for 15 identified unknowns".into(),
             severity,
         };

@@ -5,14 +5,18 @@
 //! never models; a result without the data a plot needs simply gets no plot.
 
 pub mod html;
+pub mod json_result;
 pub mod plots;
 pub mod studies;
 pub mod svg;
+pub mod view;
 
 use serde::Serialize;
 
 use crate::run::{Artefact, Table};
+pub use json_result::JsonResult;
 pub use plots::ErrorSet;
+pub use view::Reportable;
 
 /// Serialise a table as JSON rows (`{column: value}` objects, non-finite as null): a
 /// `serialize_with` helper for typed results that carry a table.

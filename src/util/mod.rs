@@ -3,6 +3,7 @@
 
 pub mod monitor;
 pub mod rng;
+pub mod serde_num;
 pub mod stats;
 
 pub use monitor::{Monitor, NoMonitor, SubMonitor};

@@ -1,23 +1,31 @@
 //! Descriptive statistics used in every report (mean, median, std, quartiles, RMS).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+
+use super::serde_num::f64_or_nan;
 
 /// Summary of a sample of non-negative errors or values, with its unit.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct Summary {
     /// Number of values.
     pub count: usize,
     /// Arithmetic mean.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub mean: f64,
     /// Median (average of the two middle values for an even count).
+    #[serde(deserialize_with = "f64_or_nan")]
     pub median: f64,
     /// Sample standard deviation (n - 1 in the denominator; 0 for one value).
+    #[serde(deserialize_with = "f64_or_nan")]
     pub std: f64,
     /// Smallest value.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub min: f64,
     /// Largest value.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub max: f64,
     /// Root mean square.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub rms: f64,
     /// Unit of every number above.
     pub unit: String,

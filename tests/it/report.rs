@@ -168,3 +168,90 @@ fn humanoid_report_shows_rmse_before_and_after_and_cross_validation() {
     assert!(html.contains("Marker RMSE, calibration set"));
     assert!(html.contains("rmse_by_model.svg"));
 }
+
+/// The typed path: `serial.identify`'s stored result (run on the twin data, written out
+/// and read back as text) deserialises into its own result type, whose fields serialise
+/// back to the stored ones, and the report renders its verdict and parameter table from
+/// it. A stored result missing a field of the type is shown by field name, with a warning
+/// that names the field.
+#[test]
+fn stored_serial_result_reads_back_as_its_type_and_renders_verdict_and_parameters() {
+    use calibd::jobs::report_view::typed_result;
+    use calibd::jobs::serial::identify::SerialCalibration;
+    use serde_json::Value;
+
+    let done = run_in_examples(&example("serial_identify.json")).unwrap();
+    let stored: Value = serde_json::from_str(&done.result.to_string()).expect("stored JSON");
+    let typed: SerialCalibration =
+        serde_json::from_value(stored.clone()).expect("reads as SerialCalibration");
+    let back = serde_json::to_value(&typed).expect("serialises");
+    for k in [
+        "verdict",
+        "reasons",
+        "dof",
+        "parameters",
+        "unidentifiable",
+        "weakly_observable",
+        "residuals",
+        "validation",
+        "condition_number",
+        "convergence",
+        "calibrated_model",
+    ] {
+        assert_eq!(back[k], stored[k], "{k} does not round-trip");
+    }
+    let params = stored["parameters"].as_array().expect("parameters");
+    assert_eq!(typed.parameters.len(), params.len());
+    assert!(params.len() > 20, "{} parameters", params.len());
+
+    let html = report_of(&done);
+    assert!(!html.contains("does not read as"), "typed path not taken");
+    let verdict = stored["verdict"].as_str().expect("verdict");
+    assert!(html.contains(&format!("<h2>Verdict: {verdict}</h2>")));
+    let reasons = stored["reasons"].as_array().expect("reasons");
+    assert!(
+        !reasons.is_empty(),
+        "the twin job is under review with reasons"
+    );
+    for r in reasons {
+        let code = r["code"].as_str().unwrap_or("?");
+        assert!(
+            html.contains(&format!("<td><code>{code}</code></td>")),
+            "{code}"
+        );
+    }
+    assert!(html.contains(&format!(
+        "Residual degrees of freedom: {}.",
+        stored["dof"].as_u64().unwrap_or(0)
+    )));
+    let rows = html.matches("<tr data-param=").count();
+    assert_eq!(rows, params.len(), "one parameter row each");
+    for (i, p) in params.iter().enumerate() {
+        let shown = calibd::report::html::number(p["value"].as_f64().unwrap_or(f64::NAN));
+        assert!(
+            html.contains(&format!("data-pointer=\"/parameters/{i}/value\">{shown}<")),
+            "parameter {i}"
+        );
+    }
+
+    // A stored result without `parameters` (a renamed field): shown by field name, the
+    // missing field named among the warnings.
+    let mut renamed = stored.clone();
+    let o = renamed.as_object_mut().expect("object");
+    let ps = o.remove("parameters").expect("parameters");
+    o.insert("params".into(), ps);
+    let view = typed_result(&renamed);
+    let warned = view.warnings();
+    assert!(
+        warned
+            .iter()
+            .any(|w| w.contains("does not read as a serial.identify result")
+                && w.contains("parameters")),
+        "{warned:?}"
+    );
+    assert!(view.parameters().is_none());
+    assert_eq!(
+        view.verdict().map(|v| v.assessment.verdict.as_str()),
+        Some(verdict)
+    );
+}

@@ -442,7 +442,7 @@ impl IdentifyJob {
             convergence: HumanoidConvergence {
                 stop_reason: sol.stop,
                 converged: sol.converged(),
-                status: sol.status(),
+                status: sol.status().into(),
                 degenerate: sol.degenerate.clone(),
                 iterations: sol.iterations,
                 cost_before: sol.cost_before,

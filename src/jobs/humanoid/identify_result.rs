@@ -2,7 +2,9 @@
 //! by kind, identifiability, marker RMSE, convergence, robust and cross-validation
 //! summaries, the calibrated URDF).
 
-use serde::Serialize;
+use std::borrow::Cow;
+
+use serde::{Deserialize, Serialize};
 
 use crate::identify::verdict::Assessment;
 use serde_json::Value;
@@ -12,7 +14,7 @@ use crate::identify::solve::Dependency;
 use crate::identify::{Degeneracy, ParamReport, RobustKind, StopReason};
 
 /// Identified parameters by kind (`base_parameter_breakdown`).
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub struct Breakdown {
     /// Joint placement errors and offsets.
     pub joint_geometry: usize,
@@ -25,7 +27,7 @@ pub struct Breakdown {
 }
 
 /// One fit's summary (`frames_only`, `geometric_only`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FitReport {
     /// Every unknown.
     pub parameters: Vec<ParamReport>,
@@ -42,7 +44,7 @@ pub struct FitReport {
 }
 
 /// `identifiability` of `humanoid.identify`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Identifiability {
     /// Relative tolerance of the rank detection.
     pub rank_tolerance: f64,
@@ -56,7 +58,7 @@ pub struct Identifiability {
 }
 
 /// Marker RMSE before and after calibration (mm; null when never seen).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MarkerRmse {
     /// Marker name.
     pub name: String,
@@ -69,30 +71,33 @@ pub struct MarkerRmse {
 }
 
 /// `convergence` of `humanoid.identify`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct HumanoidConvergence {
     /// Why the solver stopped.
     pub stop_reason: StopReason,
     /// Whether it converged.
     pub converged: bool,
     /// Status.
-    pub status: &'static str,
+    pub status: Cow<'static, str>,
     /// Degeneracy, if any.
     pub degenerate: Option<Degeneracy>,
     /// Iterations.
     pub iterations: usize,
     /// Cost at the start.
+    #[serde(deserialize_with = "crate::util::serde_num::f64_or_nan")]
     pub cost_before: f64,
     /// Cost at the end.
+    #[serde(deserialize_with = "crate::util::serde_num::f64_or_nan")]
     pub cost_after: f64,
-    /// `m^2`.
+    /// `m^2` (not read back).
+    #[serde(skip_deserializing)]
     pub cost_unit: &'static str,
     /// Rank tolerance.
     pub rank_tolerance: f64,
 }
 
 /// `robust` of `humanoid.identify`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RobustSummary {
     /// The loss.
     pub loss: RobustKind,
@@ -107,7 +112,7 @@ pub struct RobustSummary {
 }
 
 /// One fold of the cross-validation.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FoldReport {
     /// Samples predicted.
     pub held_out_samples: usize,
@@ -118,7 +123,7 @@ pub struct FoldReport {
 }
 
 /// `cross_validation` of `humanoid.identify`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CrossValidation {
     /// Folds.
     pub folds: usize,
@@ -133,7 +138,7 @@ pub struct CrossValidation {
 }
 
 /// The result of `humanoid.identify`: serialises to the job's result fields.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct HumanoidCalibration {
     /// `verdict` (`accepted`, `review`, `rejected`) and its `reasons`.
     #[serde(flatten)]
@@ -151,6 +156,7 @@ pub struct HumanoidCalibration {
     /// Rank detection.
     pub identifiability: Identifiability,
     /// Condition number.
+    #[serde(deserialize_with = "crate::util::serde_num::f64_or_nan")]
     pub condition_number: f64,
     /// Marker RMSE of the non-calibrated model (mm).
     pub rmse_before_mm: f64,
@@ -183,10 +189,13 @@ pub struct HumanoidCalibration {
     /// Cross-validation.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cross_validation: Option<CrossValidation>,
-    /// The calibrated URDF text.
+    /// The calibrated URDF text (`rejected_urdf` when the verdict is `rejected`).
+    #[serde(alias = "rejected_urdf")]
     pub calibrated_urdf: String,
-    /// The calibrated model (the same URDF text).
+    /// The calibrated model (the same URDF text; `rejected_model` when rejected).
+    #[serde(alias = "rejected_model")]
     pub calibrated_model: String,
-    /// What the URDF holds.
+    /// What the URDF holds (not read back: the report shows it as stored).
+    #[serde(skip_deserializing)]
     pub calibrated_urdf_note: &'static str,
 }

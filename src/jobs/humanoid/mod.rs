@@ -6,6 +6,7 @@
 
 pub mod design;
 pub mod identify;
+mod identify_report;
 mod identify_result;
 mod plots;
 pub mod samples;

@@ -101,7 +101,7 @@ fn check_joints(
 }
 
 /// One identified unknown of `pcr.identify`: the solver's report and its bounds.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PcrParameter {
     /// Estimate, nominal, standard deviation, ...
     #[serde(flatten)]
@@ -115,22 +115,24 @@ pub struct PcrParameter {
 }
 
 /// `residual_std` of `pcr.identify`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PcrResidualStd {
     /// Value (m), counted over distinct configurations (null with zero degrees of freedom).
     pub value: Option<f64>,
-    /// `m`.
+    /// `m` (not read back: the report states it).
+    #[serde(skip_deserializing)]
     pub unit: &'static str,
     /// Degrees of freedom.
     pub dof: usize,
     /// Weight of angle residuals (m/rad).
     pub angle_weight: f64,
-    /// `m/rad`.
+    /// `m/rad` (not read back).
+    #[serde(skip_deserializing)]
     pub angle_weight_unit: &'static str,
 }
 
 /// `convergence` of `pcr.identify`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PcrConvergence {
     /// Every step converged.
     pub converged: bool,
@@ -139,7 +141,7 @@ pub struct PcrConvergence {
 }
 
 /// Position errors (m) before and after on the validation set.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PcrValidation {
     /// Nominal model.
     pub before: Summary,
@@ -148,7 +150,7 @@ pub struct PcrValidation {
 }
 
 /// The result of `pcr.identify`: serialises to the job's result fields.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PcrCalibration {
     /// `verdict` (`accepted`, `review`, `rejected`) and its `reasons`.
     #[serde(flatten)]
@@ -162,7 +164,8 @@ pub struct PcrCalibration {
     pub unidentifiable: Vec<String>,
     /// Dependencies of the held unknowns.
     pub dependencies: Vec<Dependency>,
-    /// How the gauge is fixed.
+    /// How the gauge is fixed (not read back: the report shows it as stored).
+    #[serde(skip_deserializing)]
     pub gauge: &'static str,
     /// Per step.
     pub steps: Vec<StepReport>,
@@ -171,13 +174,15 @@ pub struct PcrCalibration {
     /// Residual standard deviation.
     pub residual_std: PcrResidualStd,
     /// Condition number.
+    #[serde(deserialize_with = "crate::util::serde_num::f64_or_nan")]
     pub condition_number: f64,
     /// Convergence.
     pub convergence: PcrConvergence,
     /// Validation errors (when a validation set was given).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validation: Option<PcrValidation>,
-    /// The calibrated model file.
+    /// The calibrated model file (`rejected_model` when the verdict is `rejected`).
+    #[serde(alias = "rejected_model")]
     pub calibrated_model: PcrFile,
     /// The paper's Table 2 of the model the identification started from (as
     /// `pcr.sensitivity` reports it): which parameters the poses can see, with units.

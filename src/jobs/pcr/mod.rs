@@ -6,6 +6,7 @@ pub mod accuracy;
 pub mod fk;
 pub mod identify;
 pub mod identify_options;
+mod identify_report;
 pub mod ik;
 pub mod pattern_pose;
 pub mod sensitivity;

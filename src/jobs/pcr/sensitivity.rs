@@ -77,7 +77,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<SensitivityJob, JobEr
 }
 
 /// `configurations` of `pcr.sensitivity`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SensitivityConfigurations {
     /// Number of joint sets.
     pub count: usize,
@@ -86,13 +86,14 @@ pub struct SensitivityConfigurations {
 }
 
 /// The result of `pcr.sensitivity` (Table 2): serialises to the job's result fields.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PcrSensitivity {
     /// The configurations.
     pub configurations: SensitivityConfigurations,
     /// Per parameter type.
     pub sensitivity: Vec<SensitivityRow>,
-    /// How it was computed.
+    /// How it was computed (not read back).
+    #[serde(skip_deserializing)]
     pub method: &'static str,
 }
 

@@ -203,7 +203,7 @@ fn solution_result(
         convergence: Convergence {
             stop_reason: sol.stop,
             converged: sol.converged(),
-            status: sol.status(),
+            status: sol.status().into(),
             degenerate: sol.degenerate.clone(),
             iterations: sol.iterations,
             cost_before: sol.cost_before,
@@ -424,11 +424,13 @@ impl IdentifyJob {
             BeforeAfter {
                 before: Summary::of(&abs(&sol.residuals_before), unit),
                 after: Summary::of(&abs(&sol.residuals), unit),
-                meaning: Some("absolute distance residuals | |TCP - anchor| + length_offset - L |"),
+                meaning: Some(
+                    "absolute distance residuals | |TCP - anchor| + length_offset - L |".into(),
+                ),
             },
             model_file,
         );
-        r.measurement_type = Some("distance");
+        r.measurement_type = Some("distance".into());
         r.prior = Some(prior);
         r.anchor = Some(Anchor {
             x: anchor.x,
@@ -461,7 +463,8 @@ impl IdentifyJob {
                 before: Summary::of(&before, unit),
                 after: Summary::of(&after, unit),
                 meaning: Some(
-                    "absolute held-out distance errors; before: the starting model with the anchor and offset fitted to it",
+                    "absolute held-out distance errors; before: the starting model with the anchor and offset fitted to it"
+                        .into(),
                 ),
             });
         }

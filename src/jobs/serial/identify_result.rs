@@ -1,7 +1,9 @@
 //! The result of `serial.identify` as typed data: what its JSON fields are (parameters,
 //! rank, convergence, residuals, per-ball coincidence, the calibrated model file).
 
-use serde::Serialize;
+use std::borrow::Cow;
+
+use serde::{Deserialize, Serialize};
 
 use crate::identify::solve::Dependency;
 use crate::identify::verdict::Assessment;
@@ -10,10 +12,11 @@ use crate::identify::{
 };
 use crate::model::dh::DhFile;
 use crate::util::Summary;
+use crate::util::serde_num::f64_or_nan;
 
 /// The calibrated model file of a serial arm, of the same kind as the starting model:
 /// serialises as the DH JSON object, or as the URDF text.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(untagged)]
 #[allow(clippy::large_enum_variant)]
 pub enum SerialModelFile {
@@ -34,32 +37,36 @@ impl SerialModelFile {
 }
 
 /// `observability` of a serial identification.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Observability {
     /// Condition number of the physically scaled Jacobian.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub condition_number: f64,
     /// Nearly dependent parameter groups.
     pub near_dependent: Vec<NearDependent>,
-    /// How columns were scaled.
+    /// How columns were scaled (not read back).
+    #[serde(skip_deserializing)]
     pub scaling: &'static str,
 }
 
 /// `convergence` of a serial identification.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Convergence {
     /// Why the solver stopped.
     pub stop_reason: StopReason,
     /// Whether it converged.
     pub converged: bool,
-    /// `ok` / `degenerate` / ... (see `Solution::status`).
-    pub status: &'static str,
+    /// `converged` / `degenerate` / `not_converged` (see `Solution::status`).
+    pub status: Cow<'static, str>,
     /// Degeneracy, if any.
     pub degenerate: Option<Degeneracy>,
     /// Iterations used.
     pub iterations: usize,
     /// Cost at the start.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub cost_before: f64,
     /// Cost at the end.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub cost_after: f64,
     /// Cost with only the nuisance unknowns fitted.
     pub cost_nuisance_only: Option<f64>,
@@ -68,7 +75,7 @@ pub struct Convergence {
 }
 
 /// `rank` of a serial identification.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Rank {
     /// Identified (free) unknowns.
     pub rank: usize,
@@ -79,7 +86,7 @@ pub struct Rank {
 }
 
 /// `residual_std`: the fitted residual standard deviation.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ResidualStd {
     /// Value, counted over distinct configurations (null with zero degrees of freedom:
     /// an exact fit says nothing about the noise).
@@ -91,22 +98,22 @@ pub struct ResidualStd {
 }
 
 /// `before`/`after` error statistics (`residuals`, `validation`), with an optional note.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BeforeAfter {
     /// Errors of the starting model.
     pub before: Summary,
     /// Errors of the calibrated model.
     pub after: Summary,
     /// What the errors are, when not plain position errors.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub meaning: Option<&'static str>,
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub meaning: Option<Cow<'static, str>>,
 }
 
 /// The validation summary of an identification (`validation.before.mean`, ...).
 pub type ValidationSummary = BeforeAfter;
 
 /// Point coincidence of one ball (see [`coincidence_report`]).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BallCoincidence {
     /// 1-based ball number.
     pub ball: usize,
@@ -125,7 +132,7 @@ pub struct BallCoincidence {
 }
 
 /// Distance error between the mean positions of two balls.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BallDistanceError {
     /// 1-based ball numbers.
     pub balls: [usize; 2],
@@ -140,7 +147,7 @@ pub struct BallDistanceError {
 }
 
 /// Point-coincidence statistics on ball measurements (`balls`, `ball_distances`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CoincidenceReport {
     /// Per ball.
     pub balls: Vec<BallCoincidence>,
@@ -149,7 +156,7 @@ pub struct CoincidenceReport {
 }
 
 /// `anchor` of a distance identification.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Anchor {
     /// x.
     pub x: f64,
@@ -161,14 +168,15 @@ pub struct Anchor {
     pub std: [Option<f64>; 3],
     /// Anchor fitted to the starting model.
     pub nominal_fit: [f64; 3],
-    /// Frame (`W`).
+    /// Frame (`W`; not read back).
+    #[serde(skip_deserializing)]
     pub frame: &'static str,
     /// Length unit.
     pub unit: String,
 }
 
 /// `length_offset` of a distance identification.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LengthOffset {
     /// Value.
     pub value: f64,
@@ -178,12 +186,13 @@ pub struct LengthOffset {
     pub nominal_fit: f64,
     /// Length unit.
     pub unit: String,
-    /// Definition.
+    /// Definition (not read back).
+    #[serde(skip_deserializing)]
     pub meaning: &'static str,
 }
 
 /// The result of `serial.identify`: serialises to the job's result fields.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SerialCalibration {
     /// `verdict` (`accepted`, `review`, `rejected`) and its `reasons`.
     #[serde(flatten)]
@@ -191,8 +200,8 @@ pub struct SerialCalibration {
     /// Residual degrees of freedom: distinct equations minus identified unknowns.
     pub dof: usize,
     /// `distance` for `L_mm` measurements; absent for points.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub measurement_type: Option<&'static str>,
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub measurement_type: Option<Cow<'static, str>>,
     /// Every unknown with its estimate and standard deviation.
     pub parameters: Vec<ParamReport>,
     /// Unknowns held at nominal by the rank detection.
@@ -210,6 +219,7 @@ pub struct SerialCalibration {
     /// Rank detection.
     pub rank: Rank,
     /// Condition number of the identified unknowns.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub condition_number: f64,
     /// Residual standard deviation.
     pub residual_std: ResidualStd,
@@ -236,7 +246,8 @@ pub struct SerialCalibration {
     /// Point coincidence on validation balls.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validation_coincidence: Option<CoincidenceReport>,
-    /// The calibrated model file.
+    /// The calibrated model file (`rejected_model` when the verdict is `rejected`).
+    #[serde(alias = "rejected_model")]
     pub calibrated_model: SerialModelFile,
     /// Unused columns and similar (absent when none).
     #[serde(skip_serializing_if = "Option::is_none")]

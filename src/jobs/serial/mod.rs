@@ -10,6 +10,7 @@ pub mod dispersion;
 pub mod fk;
 pub mod identify;
 mod identify_inputs;
+mod identify_report;
 mod identify_result;
 pub mod joints;
 mod plots;

@@ -25,6 +25,7 @@ use crate::run::Run;
 use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::util::{Monitor, Summary};
 
+mod report;
 mod spec;
 pub(crate) use spec::Spec;
 pub use spec::prepare;
@@ -45,7 +46,7 @@ pub struct TreeIdentifyJob {
 }
 
 /// Held-out figure of the last model.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct HeldOut {
     /// K.
     pub folds: usize,
@@ -56,7 +57,7 @@ pub struct HeldOut {
 }
 
 /// The result of `tree.identify`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TreeCalibration {
     /// `verdict` (`accepted`, `review`, `rejected`) and its `reasons`.
     #[serde(flatten)]
@@ -77,12 +78,15 @@ pub struct TreeCalibration {
     /// `converged`, `degenerate` or `not_converged` (last fit).
     pub status: String,
     /// Condition number of the physically scaled Jacobian (last fit).
+    #[serde(deserialize_with = "crate::util::serde_num::f64_or_nan")]
     pub condition_number: f64,
     /// Mean marker error of the last model (mm).
+    #[serde(deserialize_with = "crate::util::serde_num::f64_or_nan")]
     pub error_after_mean_mm: f64,
     /// K-fold held-out errors of the last model, when asked for.
     pub held_out: Option<HeldOut>,
-    /// What the lumped coefficients mean.
+    /// What the lumped coefficients mean (not read back).
+    #[serde(skip_deserializing)]
     pub elasticity_note: &'static str,
     /// Unused table columns.
     pub warnings: Vec<String>,

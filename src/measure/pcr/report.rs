@@ -1,20 +1,26 @@
 //! Reports of the 3-PF identification: model-error statistics, the paper's Table 3, and
 //! what each step did.
 
-use serde::Serialize;
+use std::borrow::Cow;
+
+use serde::{Deserialize, Serialize};
 
 use crate::identify::StopReason;
 use crate::identify::solve::Dependency;
 use crate::util::Summary;
+use crate::util::serde_num::f64_or_nan;
 
 /// Max, mean and min of a set of errors.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ErrorStats {
     /// Largest.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub max: f64,
     /// Mean.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub mean: f64,
     /// Smallest.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub min: f64,
 }
 
@@ -31,10 +37,10 @@ impl ErrorStats {
 }
 
 /// A row of Table 3: one error kind, nominal and identified model.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Table3Row {
     /// `um` or `mrad`.
-    pub unit: &'static str,
+    pub unit: Cow<'static, str>,
     /// Nominal robot parameters (extrinsics identified alone).
     pub nominal: ErrorStats,
     /// Identified model.
@@ -42,7 +48,7 @@ pub struct Table3Row {
 }
 
 /// Table 3 for one set of measurements.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Table3Set {
     /// Number of poses.
     pub poses: usize,
@@ -54,7 +60,7 @@ pub struct Table3Set {
 }
 
 /// The paper's Table 3: model errors before and after, calibration and validation sets.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Table3 {
     /// On the calibration measurements.
     pub calibration: Table3Set,
@@ -64,7 +70,7 @@ pub struct Table3 {
 }
 
 /// What one step did.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StepReport {
     /// Step name.
     pub name: String,
@@ -81,9 +87,12 @@ pub struct StepReport {
     pub iterations: usize,
     /// Objective before and after (m^2): the weighted sum of squares of the pose residuals,
     /// plus in MAP the prior term times the squared position repeatability.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub cost_before: f64,
     /// After.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub cost_after: f64,
     /// Mean position model error on the calibration set after the step (um).
+    #[serde(deserialize_with = "f64_or_nan")]
     pub mean_e_p_um: f64,
 }

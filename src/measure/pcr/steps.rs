@@ -415,8 +415,8 @@ pub fn identify_steps(
                 identifiable: pos.is_some() && !last.dropped.contains(&k),
                 effect_size: effect,
                 at_bound: pos.and_then(|p| match last.at_bound[p] {
-                    -1 => Some("lower"),
-                    1 => Some("upper"),
+                    -1 => Some("lower".into()),
+                    1 => Some("upper".into()),
                     _ => None,
                 }),
             }
@@ -427,12 +427,12 @@ pub fn identify_steps(
     let set = |p0: &[f64], t0: &[f64], p1: &[f64], t1: &[f64]| Table3Set {
         poses: p0.len(),
         e_p: Table3Row {
-            unit: "um",
+            unit: "um".into(),
             nominal: ErrorStats::of(p0, 1e6),
             identified: ErrorStats::of(p1, 1e6),
         },
         e_theta: Table3Row {
-            unit: "mrad",
+            unit: "mrad".into(),
             nominal: ErrorStats::of(t0, 1e3),
             identified: ErrorStats::of(t1, 1e3),
         },

@@ -4,7 +4,7 @@
 //! cumulative table of the elastic-humanoid paper and K-fold held-out errors.
 
 use nalgebra::{DMatrix, Vector3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::tree_prior::TreePrior;
 use crate::identify::duplicates::{duplicate_configurations, shuffled_groups};
@@ -291,7 +291,7 @@ pub fn fit(
 }
 
 /// One column of the cumulative table.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Step {
     /// What the step adds.
     pub name: String,
@@ -304,6 +304,7 @@ pub struct Step {
     /// `converged`, `degenerate` or `not_converged`.
     pub status: String,
     /// Condition number of the physically scaled Jacobian of the identified set.
+    #[serde(deserialize_with = "crate::util::serde_num::f64_or_nan")]
     pub condition_number: f64,
 }
 

@@ -7,14 +7,14 @@
 //! so `E` comes out exactly zero; the diameters only enter through their ratios, so a common
 //! change of all three `d_i` (row `d (all)`) comes out exactly zero too.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::params::{E_INDEX, LIMB_FIELDS, ROBOT_PARAMS};
 use super::{Equilibrium, Pcr, PcrError};
 use crate::util::Monitor;
 
 /// One row of Table 2.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SensitivityRow {
     /// Parameter type (`Ax`, ..., `d`, `d (all)`, `E`).
     pub parameter: String,

@@ -6,97 +6,35 @@ use std::fmt::Write;
 
 use serde_json::Value;
 
-use super::sections::{names, unit_at};
-use super::{ReportInput, num_cell, text};
+use super::{ReportInput, cell_html, opt_text, text};
 use crate::report::svg::escape;
+use crate::report::view::{NumTable, Reportable};
 
-fn stats_table(r: &Value, base: &str, title: &str) -> String {
-    let keys = ["count", "mean", "median", "std", "min", "max", "rms"];
-    let present: Vec<&str> = keys
-        .iter()
-        .copied()
-        .filter(|k| r.pointer(&format!("{base}/after/{k}")).is_some())
-        .collect();
-    let mut h = format!("<h3>{}</h3><table><thead><tr><th></th>", escape(title));
-    for k in &present {
-        let _ = write!(h, "<th>{k}</th>");
+fn num_table(t: &NumTable) -> String {
+    let mut h = format!("<h3>{}</h3><table><thead><tr>", escape(&t.title));
+    for k in &t.head {
+        let _ = write!(h, "<th>{}</th>", escape(k));
     }
     h.push_str("</tr></thead><tbody>");
-    for side in ["before", "after"] {
-        let _ = write!(h, "<tr><th>{side}</th>");
-        for k in &present {
-            h.push_str(&num_cell(r, &format!("{base}/{side}/{k}")));
+    for row in &t.rows {
+        h.push_str("<tr>");
+        for c in row {
+            h.push_str(&cell_html(c));
         }
         h.push_str("</tr>");
     }
     h.push_str("</tbody></table>");
-    if let Some(m) = r
-        .pointer(&format!("{base}/meaning"))
-        .filter(|v| v.is_string())
-    {
-        let _ = write!(h, "<p class=\"meta\">{}</p>", text(Some(m)));
+    if let Some(m) = &t.note {
+        let _ = write!(h, "<p class=\"meta\">{}</p>", escape(m));
     }
     h
 }
 
 /// Validation: held-out errors, the PCR Table 3, cross-validation folds.
-pub(super) fn validation(r: &Value) -> String {
+pub(super) fn validation(r: &dyn Reportable) -> String {
     let mut h = String::new();
-    if r.pointer("/validation/after").is_some() {
-        let unit = unit_at(r, "/validation/after/unit", "");
-        h.push_str(&stats_table(
-            r,
-            "/validation",
-            &format!("Held-out validation errors ({unit})"),
-        ));
-    }
-    if r.pointer("/residuals/after").is_some() {
-        let unit = unit_at(r, "/residuals/after/unit", "");
-        h.push_str(&stats_table(
-            r,
-            "/residuals",
-            &format!("Residuals of the fit, calibration set ({unit})"),
-        ));
-    }
-    if let Some(t) = r.get("model_error").and_then(Value::as_object) {
-        h.push_str("<h3>Model error (Table 3)</h3><table><thead><tr><th>set</th><th>error</th><th>model</th><th>max</th><th>mean</th><th>min</th><th>unit</th></tr></thead><tbody>");
-        for set in ["calibration", "validation"]
-            .iter()
-            .filter(|s| t.contains_key(**s))
-        {
-            for e in ["e_P", "e_theta"] {
-                for m in ["nominal", "identified"] {
-                    let p = format!("/model_error/{set}/{e}/{m}");
-                    let _ = write!(
-                        h,
-                        "<tr><td>{set}</td><td>{e}</td><td>{m}</td>{}{}{}<td>{}</td></tr>",
-                        num_cell(r, &format!("{p}/max")),
-                        num_cell(r, &format!("{p}/mean")),
-                        num_cell(r, &format!("{p}/min")),
-                        text(r.pointer(&format!("/model_error/{set}/{e}/unit")))
-                    );
-                }
-            }
-        }
-        h.push_str("</tbody></table>");
-    }
-    if let Some(folds) = r
-        .pointer("/cross_validation/per_fold")
-        .and_then(Value::as_array)
-    {
-        h.push_str("<h3>Cross-validation (held-out marker RMSE, mm)</h3><table><thead><tr><th>fold</th><th>held-out samples</th><th>nominal</th><th>calibrated</th></tr></thead><tbody>");
-        for i in 0..folds.len() {
-            let p = format!("/cross_validation/per_fold/{i}");
-            let _ = write!(
-                h,
-                "<tr><td>{}</td>{}{}{}</tr>",
-                i + 1,
-                num_cell(r, &format!("{p}/held_out_samples")),
-                num_cell(r, &format!("{p}/rmse_nominal_mm")),
-                num_cell(r, &format!("{p}/rmse_calibrated_mm"))
-            );
-        }
-        h.push_str("</tbody></table>");
+    for t in r.tables() {
+        h.push_str(&num_table(&t));
     }
     if h.is_empty() {
         h.push_str("<p class=\"warn\">No held-out validation: the job had no validation set. The errors above are residuals of the fit, which understate the error on new poses.</p>");
@@ -104,13 +42,14 @@ pub(super) fn validation(r: &Value) -> String {
     format!("<section><h2>Validation</h2>{h}</section>")
 }
 
-/// Warnings: the result's own, convergence, held and weakly observable parameters.
 /// The verdict (`accepted`, `review`, `rejected`) and its reasons; empty for results
 /// without one (kinds that are not identifications).
-pub(super) fn verdict(r: &Value) -> String {
-    let Some(v) = r.get("verdict").and_then(Value::as_str) else {
+pub(super) fn verdict(r: &dyn Reportable) -> String {
+    let Some(block) = r.verdict() else {
         return String::new();
     };
+    let a = &block.assessment;
+    let v = a.verdict.as_str();
     let meaning = match v {
         "accepted" => "use this calibration",
         "review" => "usable only after a person has read the reasons below",
@@ -125,25 +64,20 @@ pub(super) fn verdict(r: &Value) -> String {
         escape(v),
         escape(meaning)
     );
-    let reasons = r
-        .get("reasons")
-        .and_then(Value::as_array)
-        .cloned()
-        .unwrap_or_default();
-    if !reasons.is_empty() {
+    if !a.reasons.is_empty() {
         h.push_str("<table><tr><th>reason</th><th>gives</th><th>what was found</th></tr>");
-        for x in &reasons {
+        for x in &a.reasons {
             let _ = write!(
                 h,
                 "<tr><td><code>{}</code></td><td>{}</td><td>{}</td></tr>",
-                text(x.get("code")),
-                text(x.get("severity")),
-                text(x.get("message"))
+                escape(&x.code),
+                escape(x.severity.as_str()),
+                escape(&x.message)
             );
         }
         h.push_str("</table>");
     }
-    if let Some(d) = r.get("dof").and_then(Value::as_u64) {
+    if let Some(d) = block.dof {
         let _ = write!(
             h,
             r#"<p class="meta">Residual degrees of freedom: {d}.</p>"#
@@ -153,47 +87,47 @@ pub(super) fn verdict(r: &Value) -> String {
     h
 }
 
-pub(super) fn warnings(r: &Value) -> String {
-    let mut w: Vec<String> = r
-        .get("warnings")
-        .and_then(Value::as_array)
-        .map(|a| a.iter().map(|v| text(Some(v))).collect())
-        .unwrap_or_default();
-    if let Some(c) = r.get("convergence") {
-        if c.get("converged").and_then(Value::as_bool) == Some(false) {
+/// Warnings: the result's own, convergence, held and weakly observable parameters.
+pub(super) fn warnings(r: &dyn Reportable) -> String {
+    let mut w: Vec<String> = r.warnings().iter().map(|s| escape(s)).collect();
+    if let Some(c) = r.convergence() {
+        if c.converged == Some(false) {
             w.push(format!(
                 "the fit did not converge: {}",
-                text(c.get("status"))
+                opt_text(c.status.as_deref())
             ));
         }
-        if let Some(d) = c.get("degenerate").filter(|d| !d.is_null()) {
-            w.push(format!("degenerate solution: {}", text(Some(d))));
+        if let Some(d) = &c.degenerate {
+            w.push(format!("degenerate solution: {}", escape(d)));
         }
     }
-    let held = names(r, "unidentifiable");
-    if !held.is_empty() {
+    let held = r.held();
+    if !held.unidentifiable.is_empty() {
         w.push(format!(
             "{} parameters held at nominal (not identifiable from these data): {}",
-            held.len(),
-            escape(&held.join(", "))
+            held.unidentifiable.len(),
+            escape(&held.unidentifiable.join(", "))
         ));
     }
-    let weak = names(r, "weakly_observable");
-    if !weak.is_empty() {
-        w.push(format!("weakly observable: {}", escape(&weak.join(", "))));
+    if !held.weakly_observable.is_empty() {
+        w.push(format!(
+            "weakly observable: {}",
+            escape(&held.weakly_observable.join(", "))
+        ));
     }
-    if let Some(ps) = r.get("parameters").and_then(Value::as_array) {
+    if let Some(ps) = r.parameters() {
         let at: Vec<String> = ps
+            .rows
             .iter()
-            .filter(|p| p.get("at_bound").is_some_and(|b| !b.is_null()))
-            .map(|p| text(p.get("name")))
+            .filter(|p| p.at_bound.is_some())
+            .map(|p| escape(&p.name))
             .collect();
         if !at.is_empty() {
             w.push(format!("at a bound: {}", at.join(", ")));
         }
     }
-    if let Some(g) = r.get("gauge_freedom").and_then(Value::as_str) {
-        w.push(format!("gauge freedom: {}", escape(g)));
+    if let Some(g) = r.gauge_freedom() {
+        w.push(format!("gauge freedom: {}", escape(&g)));
     }
     let mut h = String::from("<section><h2>Warnings</h2>");
     if w.is_empty() {
@@ -212,23 +146,24 @@ pub(super) fn warnings(r: &Value) -> String {
 /// What was calibrated, when, on which cell, the decision calibd recorded and the
 /// fields a quality engineer fills in.
 pub(super) fn sign_off(input: &ReportInput<'_>, cell: Option<&str>) -> String {
-    let r = input.result;
+    let env = input.envelope;
     let id = input.job.get("id").and_then(Value::as_i64);
     let mut h = String::from("<section class=\"sign\"><h2>Sign-off</h2><table>");
     let what = format!(
         "{} (job {}){}",
-        text(r.get("kind")),
+        opt_text(env.kind.as_deref()),
         text(input.job.get("id")),
-        r.get("parameters")
-            .and_then(Value::as_array)
-            .map(|p| format!(", {} parameters", p.len()))
+        input
+            .result
+            .parameters()
+            .map(|p| format!(", {} parameters", p.rows.len()))
             .unwrap_or_default()
     );
     let _ = write!(h, "<tr><th>What was calibrated</th><td>{what}</td></tr>");
     let _ = write!(
         h,
         "<tr><th>When (finished, UTC)</th><td>{}</td></tr>",
-        text(r.get("finished_at"))
+        opt_text(env.finished_at.as_deref())
     );
     let _ = write!(
         h,

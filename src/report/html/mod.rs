@@ -18,20 +18,26 @@ pub use journal::journal_number;
 
 use std::fmt::Write;
 
+use std::collections::BTreeMap;
+
+use serde::Deserialize;
 use serde_json::Value;
 use sha2::{Digest, Sha256};
 
 use super::svg::escape;
+use super::view::{Cell, Num, Reportable};
 use crate::run::Artefact;
 
-/// What a report is made of: the stored job, its result and artefacts, and the cell's
-/// model history (when the job calibrated a cell).
+/// What a report is made of: the stored job, its result (envelope and typed content) and
+/// artefacts, and the cell's model history (when the job calibrated a cell).
 #[derive(Debug, Clone, Copy)]
 pub struct ReportInput<'a> {
     /// The job record (`GET /v1/jobs/{id}`).
     pub job: &'a Value,
-    /// The result document (`GET /v1/jobs/{id}/result`).
-    pub result: &'a Value,
+    /// The result's envelope (`GET /v1/jobs/{id}/result`, read once by [`Envelope::read`]).
+    pub envelope: &'a Envelope,
+    /// The result's content, typed by its kind (`jobs::report_view`).
+    pub result: &'a dyn Reportable,
     /// The job's artefacts; the SVG plots among them are embedded.
     pub artefacts: &'a [Artefact],
     /// The model history of the job's cell, newest first (`[]` when none).
@@ -43,6 +49,42 @@ pub struct ReportInput<'a> {
     pub generator_version: &'a str,
     /// When the report is written (RFC 3339).
     pub generated_at: &'a str,
+}
+
+/// The fields every stored result carries (the job envelope) and the stored model the
+/// report hashes, read once from the result JSON; the kind's content is a [`Reportable`].
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(default)]
+pub struct Envelope {
+    /// The job kind.
+    pub kind: Option<String>,
+    /// Start of the run (RFC 3339, UTC).
+    pub started_at: Option<String>,
+    /// End of the run.
+    pub finished_at: Option<String>,
+    /// Run time (s).
+    pub duration_s: Option<f64>,
+    /// The calibd that produced the result.
+    pub calibd_version: Option<String>,
+    /// SHA-256 of each input, by field name.
+    pub inputs_sha256: BTreeMap<String, String>,
+    /// The cell a campaign calibrated.
+    pub cell: Option<String>,
+    /// The calibrated model as stored (hashed as stored).
+    pub calibrated_model: Option<Value>,
+    /// The model of a rejected identification.
+    pub rejected_model: Option<Value>,
+    /// A note on the calibrated URDF.
+    pub calibrated_urdf_note: Option<String>,
+    /// How the gauge of the calibrated model is fixed.
+    pub gauge: Option<String>,
+}
+
+impl Envelope {
+    /// The envelope of a stored result (empty fields for anything missing or malformed).
+    pub fn read(result: &Value) -> Self {
+        Self::deserialize(result).unwrap_or_default()
+    }
 }
 
 /// A number as the report prints it: 4 significant digits, exponent form for very small
@@ -62,15 +104,26 @@ pub fn number(v: f64) -> String {
     }
 }
 
-/// A `<td>` with the number at `pointer` in the result (empty when absent).
-pub(crate) fn num_cell(result: &Value, pointer: &str) -> String {
-    match result.pointer(pointer).and_then(Value::as_f64) {
-        Some(v) => format!(
+/// A `<td>` with a number of the result and its pointer (a dash when not finite).
+pub(crate) fn num_cell(n: &Num) -> String {
+    if n.value.is_finite() {
+        format!(
             r#"<td class="num" data-pointer="{}">{}</td>"#,
-            escape(pointer),
-            number(v)
-        ),
-        None => r#"<td class="num">—</td>"#.into(),
+            escape(&n.pointer),
+            number(n.value)
+        )
+    } else {
+        r#"<td class="num">—</td>"#.into()
+    }
+}
+
+/// A table cell as HTML.
+pub(crate) fn cell_html(c: &Cell) -> String {
+    match c {
+        Cell::Head(t) => format!("<th>{}</th>", escape(t)),
+        Cell::Text(t) => format!("<td>{}</td>", escape(t)),
+        Cell::Num(n) => num_cell(n),
+        Cell::Missing => r#"<td class="num">—</td>"#.into(),
     }
 }
 
@@ -83,16 +136,16 @@ pub(crate) fn text(v: Option<&Value>) -> String {
     }
 }
 
-/// The job's cell: the result's `cell`, else the first device's prefix.
-pub(crate) fn cell_of(input: &ReportInput<'_>) -> Option<String> {
-    cell_name(input.job, input.result)
+/// Optional text, escaped (a dash when none).
+pub(crate) fn opt_text(v: Option<&str>) -> String {
+    v.map(escape).unwrap_or_else(|| "—".into())
 }
 
 /// The cell a job calibrated: the result's `cell`, else the prefix of its first device
 /// (`cell.device`); none for an offline job.
-pub fn cell_name(job: &Value, result: &Value) -> Option<String> {
-    if let Some(c) = result.get("cell").and_then(Value::as_str) {
-        return Some(c.to_string());
+pub fn cell_name(job: &Value, envelope: &Envelope) -> Option<String> {
+    if let Some(c) = &envelope.cell {
+        return Some(c.clone());
     }
     job.get("devices")
         .and_then(Value::as_array)
@@ -113,12 +166,12 @@ figure{margin:.6rem 0;break-inside:avoid}figure svg{max-width:100%;height:auto;b
 
 /// The whole report.
 pub fn render(input: &ReportInput<'_>) -> String {
-    let (job, result) = (input.job, input.result);
+    let (job, env, result) = (input.job, input.envelope, input.result);
     let id = job.get("id").and_then(Value::as_i64).unwrap_or(0);
-    let kind = result
-        .get("kind")
-        .or_else(|| job.get("kind"))
-        .and_then(Value::as_str)
+    let kind = env
+        .kind
+        .as_deref()
+        .or_else(|| job.get("kind").and_then(Value::as_str))
         .unwrap_or("?");
     let mut h = String::new();
     let _ = write!(
@@ -126,7 +179,7 @@ pub fn render(input: &ReportInput<'_>) -> String {
         r#"<!doctype html><html lang="en"><head><meta charset="utf-8"><title>Calibration report: job {id} ({})</title><style>{CSS}</style></head><body>"#,
         escape(kind)
     );
-    let cell = cell_of(input);
+    let cell = cell_name(job, env);
     let _ = write!(
         h,
         r#"<header><h1>Calibration report: job {id}, <code>{}</code>{}</h1><p class="meta">Written {} by calibd {}; the result was produced by calibd {}.</p></header>"#,
@@ -136,14 +189,14 @@ pub fn render(input: &ReportInput<'_>) -> String {
             .unwrap_or_default(),
         escape(input.generated_at),
         escape(input.generator_version),
-        text(result.get("calibd_version")),
+        opt_text(env.calibd_version.as_deref()),
     );
     h.push_str(&assessment::verdict(result));
     h.push_str(&sections::headline(result));
     h.push_str(&job_section(input));
-    h.push_str(&sections::datasets(job, result));
+    h.push_str(&sections::datasets(job, env, result));
     h.push_str(&journal::journal(input.journal));
-    h.push_str(&model_section(result));
+    h.push_str(&model_section(env));
     h.push_str(&sections::parameters(input));
     h.push_str(&assessment::validation(result));
     h.push_str(&plots_section(input.artefacts));
@@ -159,16 +212,24 @@ fn row(h: &mut String, name: &str, value: &str) {
 
 fn job_section(input: &ReportInput<'_>) -> String {
     let j = input.job;
-    let r = input.result;
+    let r = input.envelope;
     let mut h = String::from("<section><h2>Job</h2><table>");
     row(&mut h, "id", &text(j.get("id")));
     row(&mut h, "kind", &text(j.get("kind")));
     row(&mut h, "state", &text(j.get("state")));
     row(&mut h, "submitted by", &text(j.get("submitted_by")));
     row(&mut h, "submitted at (UTC)", &text(j.get("submitted_at")));
-    row(&mut h, "started at (UTC)", &text(r.get("started_at")));
-    row(&mut h, "finished at (UTC)", &text(r.get("finished_at")));
-    if let Some(d) = r.get("duration_s").and_then(Value::as_f64) {
+    row(
+        &mut h,
+        "started at (UTC)",
+        &opt_text(r.started_at.as_deref()),
+    );
+    row(
+        &mut h,
+        "finished at (UTC)",
+        &opt_text(r.finished_at.as_deref()),
+    );
+    if let Some(d) = r.duration_s {
         row(&mut h, "duration", &format!("{} s", number(d)));
     }
     if let Some(d) = j
@@ -199,11 +260,12 @@ fn sha256_of(v: &Value) -> String {
     d.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-fn model_section(result: &Value) -> String {
-    let rejected = result.get("calibrated_model").is_none();
-    let Some(m) = result
-        .get("calibrated_model")
-        .or_else(|| result.get("rejected_model"))
+fn model_section(env: &Envelope) -> String {
+    let rejected = env.calibrated_model.is_none();
+    let Some(m) = env
+        .calibrated_model
+        .as_ref()
+        .or(env.rejected_model.as_ref())
     else {
         return String::new();
     };
@@ -226,10 +288,10 @@ fn model_section(result: &Value) -> String {
         "SHA-256 of the calibrated model",
         &format!("<code>{}</code>", sha256_of(m)),
     );
-    if let Some(n) = result.get("calibrated_urdf_note") {
-        row(&mut h, "note", &text(Some(n)));
+    if let Some(n) = &env.calibrated_urdf_note {
+        row(&mut h, "note", &escape(n));
     }
-    if let Some(g) = result.get("gauge").and_then(Value::as_str) {
+    if let Some(g) = &env.gauge {
         row(&mut h, "gauge", &escape(g));
     }
     h.push_str("</table><p class=\"meta\">The calibrated model is the artefact of the job (download it from the job; its hash is above). The model the job started from is named by its hash under Data sets.</p></section>");

@@ -1,10 +1,25 @@
 use serde_json::json;
 
 use super::*;
+use crate::report::JsonResult;
 
-fn input<'a>(job: &'a Value, result: &'a Value, history: &'a [Value]) -> ReportInput<'a> {
+/// Render the report of a result read by field name (these results are hand-made, not a
+/// kind's typed result).
+fn render_json(job: &Value, result: &Value, history: &[Value]) -> String {
+    let envelope = Envelope::read(result);
+    let content = JsonResult(result);
+    render(&input(job, &envelope, &content, history))
+}
+
+fn input<'a>(
+    job: &'a Value,
+    envelope: &'a Envelope,
+    result: &'a dyn Reportable,
+    history: &'a [Value],
+) -> ReportInput<'a> {
     ReportInput {
         job,
+        envelope,
         result,
         artefacts: &[],
         cell_history: history,
@@ -35,7 +50,7 @@ fn user_strings_are_escaped_and_nothing_is_fetched() {
         "warnings": ["row \"3\" <bad>"],
         "parameters": [{"name": "a<1>", "unit": "mm", "nominal": 1.0, "value": 1.5,
             "std": 0.1, "identifiable": true, "effect_size": 0.2}]});
-    let html = render(&input(&job, &result, &[]));
+    let html = render_json(&job, &result, &[]);
     assert!(
         !html.contains("<script>") && !html.contains("<img"),
         "{html}"
@@ -63,7 +78,7 @@ fn headline_and_parameters_point_at_the_result_numbers() {
             {"name": "c", "unit": "mm", "nominal": 1.0, "value": 1.0, "std": null, "identifiable": false, "effect_size": 0.0}]});
     let history =
         [json!({"job_id": 1, "state": "superseded", "at": "2026-11-24T10:00:00Z", "reason": "ok"})];
-    let html = render(&input(&job, &result, &history));
+    let html = render_json(&job, &result, &history);
     for p in [
         "/validation/after/mean",
         "/validation/before/mean",

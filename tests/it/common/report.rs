@@ -1,7 +1,8 @@
 //! Helpers of the report tests: render a job's report and read back what it shows.
 
 use calibd::jobs::Completed;
-use calibd::report::html::{ReportInput, number, render};
+use calibd::jobs::report_view::typed_result;
+use calibd::report::html::{Envelope, ReportInput, number, render};
 use serde_json::{Value, json};
 
 /// (pointer, shown text) of every number cell of the report.
@@ -40,15 +41,23 @@ pub fn report_of(done: &Completed) -> String {
 pub fn report_with(done: &Completed, journal: &[Value]) -> String {
     let job = json!({"id": 42, "kind": done.result["kind"], "state": "succeeded",
         "submitted_by": "tester <qa>", "devices": [], "inputs_sha256": done.result["inputs_sha256"]});
-    render(&ReportInput {
+    let envelope = Envelope::read(&done.result);
+    let html = render(&ReportInput {
         job: &job,
-        result: &done.result,
+        envelope: &envelope,
+        result: typed_result(&done.result).as_ref(),
         artefacts: &done.artefacts,
         cell_history: &[],
         journal,
         generator_version: "test",
         generated_at: "2026-11-25T18:00:00Z",
-    })
+    });
+    // A kind with a typed result must read as its type (else the report warns).
+    assert!(
+        !html.contains("does not read as"),
+        "the stored result did not read as its kind's type"
+    );
+    html
 }
 
 /// Every number cell of the report shows the result's number at its pointer.
