@@ -13,3 +13,4 @@ pub mod pcr;
 pub mod results;
 pub mod spec;
 pub mod trical;
+pub mod verify;

@@ -195,7 +195,7 @@ fn limits(chain: &Chain) -> Vec<[f64; 2]> {
 
 /// Configurations reaching each ball centre on `chain`, drawn from the middle 70 % of each
 /// joint range and kept away from the wrist singularity (|q5| > 10 deg).
-fn pool(chain: &Chain, plate: &BallPlate, per_ball: usize, seed: u64) -> Vec<Planned> {
+pub(crate) fn pool(chain: &Chain, plate: &BallPlate, per_ball: usize, seed: u64) -> Vec<Planned> {
     let lim = limits(chain);
     let centres: Vec<_> = plate.centres.iter().flatten().copied().collect();
     ball_pool(
@@ -220,7 +220,7 @@ fn pool(chain: &Chain, plate: &BallPlate, per_ball: usize, seed: u64) -> Vec<Pla
 
 /// Order configurations to keep joint travel short (greedy nearest neighbour in the largest
 /// joint change, from the first), deterministic.
-fn short_tour(mut rest: Vec<Planned>) -> Vec<Planned> {
+pub(crate) fn short_tour(mut rest: Vec<Planned>) -> Vec<Planned> {
     let mut out = Vec::with_capacity(rest.len());
     if rest.is_empty() {
         return out;
