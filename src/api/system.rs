@@ -20,6 +20,7 @@ pub(super) fn router() -> Router<AppState> {
         .route("/devices", get(devices))
         .route("/cells", get(cells))
         .route("/cells/{name}/indicators", get(indicators))
+        .route("/cells/{name}/drift", get(drift))
         .route("/lab", get(lab))
 }
 
@@ -80,6 +81,25 @@ async fn devices(State(s): State<AppState>, caller: Caller) -> Result<Json<Value
 async fn cells(State(s): State<AppState>, caller: Caller) -> Result<Json<Value>, ApiError> {
     caller.require_read()?;
     Ok(Json(json!({"cells": s.service.cells().await?})))
+}
+
+/// A ball-centring cell's verifications (AP, RP) against its last calibration, with the
+/// drift chart as SVG.
+async fn drift(
+    State(s): State<AppState>,
+    caller: Caller,
+    ApiPath(name): ApiPath<String>,
+) -> Result<Json<Value>, ApiError> {
+    caller.require_read()?;
+    s.service
+        .lab()
+        .trical(&name)
+        .map_err(|e| ApiError::NotFound(e.to_string()))?;
+    let h = s.service.drift_history(&name).await?;
+    let svg = h.chart();
+    let mut v = serde_json::to_value(&h).map_err(|e| ApiError::Internal(e.to_string()))?;
+    v["svg"] = Value::String(svg);
+    Ok(Json(v))
 }
 
 /// One fresh reading of a ball-centring cell's three indicators (mm, or why there is

@@ -15,6 +15,7 @@ pub mod results;
 mod results_report;
 pub mod spec;
 pub mod trical;
+pub mod verify;
 
 #[cfg(test)]
 mod journal_tests;

@@ -162,6 +162,12 @@ pub const KINDS: &[KindInfo] = &[
         campaigns::trical::plan::Spec
     ),
     kind!(
+        "cell.verify",
+        "ISO 9283 verification on a ball-centring cell: AP, RP, AD at ball centres through the nominal and the compensated model, read without centring",
+        campaigns::verify::plan::prepare,
+        campaigns::verify::plan::Spec
+    ),
+    kind!(
         "cell.zero_check",
         "commissioning: the three indicators read 0.000 mm on the mated coupling (operator prompt, journalled readings)",
         campaigns::commission::zero_plan::prepare_zero,

@@ -57,6 +57,8 @@ pub struct TricalCell {
     pub modules: Arc<dyn ModuleLoader>,
     /// The cell's current model.
     pub model: Mutex<DhFile>,
+    /// The lab file's model: the nominal kinematics the controller plans with.
+    pub nominal: DhFile,
     /// Ballbar distances d12, d13, d23 of the plate (mm).
     pub ballbar: [f64; 3],
     /// The envelope the procedures enforce.

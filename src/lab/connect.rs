@@ -297,6 +297,7 @@ fn ball_centring(d: BallCentringCell, rec: &Rec) -> Result<TricalCell, LabError>
             envelope.clone(),
         )),
         indicators: Arc::new(UwaveIndicators::new(uwave, uwave_at)),
+        nominal: d.model.clone(),
         model: Mutex::new(d.model),
         ballbar: d.ballbar,
         joint_speed_deg_s: d.joint_speed_deg_s,

@@ -115,7 +115,7 @@ pub enum CentringError {
 
 /// A settled reading: fresh readings until two consecutive ones agree within
 /// `settle_tol_mm`; the later one is returned.
-async fn read(ind: &dyn Indicators, opts: &CentringOptions) -> Result<[f64; 3], CentringError> {
+pub async fn read(ind: &dyn Indicators, opts: &CentringOptions) -> Result<[f64; 3], CentringError> {
     let mut last = read_once(ind, opts).await?;
     let mut spread: f64 = 0.0;
     for _ in 1..opts.settle_readings.max(2) {

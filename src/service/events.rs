@@ -39,6 +39,26 @@ pub enum Event {
         #[serde(skip_serializing_if = "Option::is_none")]
         message: Option<String>,
     },
+    /// A verification's drift decision (see [`DriftEvent`]).
+    Drift(DriftEvent),
+}
+
+/// What the drift policy decided after verification job `id` on `cell`.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct DriftEvent {
+    /// The `cell.verify` job.
+    pub id: i64,
+    /// The cell.
+    pub cell: String,
+    /// `recalibrate` or `within_tolerance`.
+    pub action: String,
+    /// Mean compensated AP of the verification (mm).
+    pub ap_mm: f64,
+    /// The recalibration job submitted, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recalibration: Option<i64>,
+    /// Why, with the numbers.
+    pub reason: String,
 }
 
 impl Event {
@@ -46,6 +66,7 @@ impl Event {
     pub fn job_id(&self) -> i64 {
         match self {
             Event::State { id, .. } | Event::Progress { id, .. } => *id,
+            Event::Drift(d) => d.id,
         }
     }
 
@@ -54,6 +75,7 @@ impl Event {
         match self {
             Event::State { .. } => "state",
             Event::Progress { .. } => "progress",
+            Event::Drift(_) => "drift",
         }
     }
 }

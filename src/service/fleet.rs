@@ -70,6 +70,7 @@ enum WireEvent {
         stage: String,
         message: Option<String>,
     },
+    Drift(super::events::DriftEvent),
 }
 
 impl From<&Event> for WireEvent {
@@ -97,6 +98,7 @@ impl From<&Event> for WireEvent {
                 stage,
                 message,
             },
+            Event::Drift(d) => WireEvent::Drift(d),
         }
     }
 }
@@ -126,6 +128,7 @@ impl From<WireEvent> for Event {
                 stage,
                 message,
             },
+            WireEvent::Drift(d) => Event::Drift(d),
         }
     }
 }

@@ -5,6 +5,7 @@
 
 mod cancel;
 mod cells;
+mod drift;
 mod events;
 mod fleet;
 mod queue;
@@ -21,7 +22,8 @@ use serde_json::Value;
 use tokio::sync::{Notify, broadcast, mpsc};
 use tokio_util::sync::CancellationToken;
 
-pub use events::Event;
+pub use drift::{DriftHistory, DriftPoint};
+pub use events::{DriftEvent, Event};
 pub use fleet::FleetConfig;
 pub use queue::{Entry, Queue};
 pub use storage::open as open_store;

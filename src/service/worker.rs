@@ -295,6 +295,9 @@ async fn run_one(svc: &Service, entry: Entry, claimed: Option<Run>) {
         error,
         Some(t0.elapsed()),
     );
+    if state == JobState::Succeeded && job.kind == "cell.verify" {
+        super::drift::after_verify(svc, id).await;
+    }
 }
 
 /// Store a run's outcome: a result with its artefacts, and the cell's model decision, all in

@@ -32,7 +32,13 @@ pub struct SimTricalOptions {
     pub indicator_stall: Arc<std::sync::atomic::AtomicBool>,
     /// Data-request template the receiver answers (empty: readings only stream).
     pub uwave_request: String,
+    /// Filled with the cell's twin when it starts: tests change the true robot through it
+    /// (parameters drifting between nights).
+    pub twin: TwinHandle,
 }
+
+/// Where the simulated TriCal cell's twin is published once started.
+pub type TwinHandle = Arc<std::sync::OnceLock<Arc<Mutex<SimulatedCell>>>>;
 
 impl Default for SimTricalOptions {
     fn default() -> Self {
@@ -43,6 +49,7 @@ impl Default for SimTricalOptions {
             rws_faults: Vec::new(),
             indicator_stall: Arc::default(),
             uwave_request: String::new(),
+            twin: TwinHandle::default(),
         }
     }
 }
@@ -191,6 +198,8 @@ pub async fn start_twin_at(
     let file = twin.file.clone();
     let ballbar = twin.ballbar;
     let cell: Shared = Arc::new(Mutex::new(SimulatedCell::new(twin, seed ^ 0x5eed)));
+    // A second start with the same options keeps the first twin published.
+    let _ = o.twin.set(cell.clone());
     let mut rws_args = MockArgs::new(MockDevice::Abb);
     rws_args.user = at.user.clone();
     rws_args.password = at.password.clone();

@@ -13,6 +13,7 @@ mod cell_models;
 mod cli;
 mod commission;
 mod dispersion_values;
+mod drift;
 mod fleet;
 mod hil;
 mod humanoid_identifiability;

@@ -143,9 +143,24 @@ async function loadCells() {
       const cur = (c.models || []).find((m) => m.state === "current");
       return el("div", { class: "cell", "data-cell": c.name }, el("h3", {}, `${c.name} (${c.kind})`),
         el("p", {}, cur ? `current model: from job ${cur.job_id ?? "?"}, accepted ${time(cur.at)}: ${cur.reason}` : "current model: nominal (no calibration accepted yet)"),
-        (c.models || []).length ? table(["state", "job", "when", "reason"], c.models.map((m) => [m.state, m.job_id ?? "", time(m.at), m.reason])) : "");
+        (c.models || []).length ? table(["state", "job", "when", "reason"], c.models.map((m) => [m.state, m.job_id ?? "", time(m.at), m.reason])) : "",
+        c.kind === "ball_centring" ? driftChart(c.name) : "");
     }) : [el("p", { class: "hint" }, "no cells configured")]));
   } catch { /* shown as offline */ }
+}
+
+/** The cell's verifications (AP, RP) against its last calibration: the chart the daemon draws. */
+function driftChart(cell) {
+  const fig = el("figure", { class: "plot drift", "data-cell": cell });
+  api(`/v1/cells/${encodeURIComponent(cell)}/drift`).then((h) => {
+    if (!h.points.length) { fig.append(el("p", { class: "hint" }, "no verification (cell.verify) yet")); return; }
+    const root = new DOMParser().parseFromString(h.svg, "image/svg+xml").documentElement;
+    if (!root || root.nodeName !== "svg") return;
+    root.querySelectorAll("script, foreignObject").forEach((n) => n.remove());
+    root.querySelectorAll("*").forEach((n) => [...n.attributes].forEach((a) => { if (/^on/i.test(a.name) || /href$/i.test(a.name)) n.removeAttribute(a.name); }));
+    fig.append(document.importNode(root, true));
+  }).catch(() => {});
+  return fig;
 }
 
 const looksLikeFile = (s) => typeof s === "string" && !s.includes("\n") && (s.includes("/") || /\.(csv|json|urdf|xml|srdf|txt|tsv)$/i.test(s.trim()));

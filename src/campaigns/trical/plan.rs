@@ -186,7 +186,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CampaignJob, JobError
 /// Configurations reaching each ball centre on `chain`, drawn from the middle 70 % of each
 /// joint range of the cell's envelope (its narrowed limits), kept away from the wrist
 /// singularity (|q5| > 10 deg) and inside the envelope (the TCP in its workspace box).
-fn pool(
+pub(crate) fn pool(
     chain: &Chain,
     plate: &BallPlate,
     envelope: &Envelope,
@@ -217,7 +217,7 @@ fn pool(
 
 /// Order configurations to keep joint travel short (greedy nearest neighbour in the largest
 /// joint change, from the first), deterministic.
-fn short_tour(mut rest: Vec<Planned>) -> Vec<Planned> {
+pub(crate) fn short_tour(mut rest: Vec<Planned>) -> Vec<Planned> {
     let mut out = Vec::with_capacity(rest.len());
     if rest.is_empty() {
         return out;

@@ -8,6 +8,7 @@
 use serde::Serialize;
 
 use crate::geometry::{Pose2, wrap_angle};
+use crate::measure::iso9283::position_accuracy;
 use crate::util::stats::mean;
 
 /// Accuracy and repeatability at one commanded pose.
@@ -23,27 +24,20 @@ pub struct PoseAccuracy {
     pub barycentre: [f64; 2],
 }
 
-/// ISO 9283 accuracy of one commanded pose from the poses reached (at least one).
+/// ISO 9283 accuracy of one commanded pose from the poses reached (at least one); the
+/// position part is [`crate::measure::iso9283::position_accuracy`].
 pub fn pose_accuracy(commanded: &Pose2, reached: &[Pose2]) -> PoseAccuracy {
-    let xs: Vec<f64> = reached.iter().map(|p| p.x).collect();
-    let ys: Vec<f64> = reached.iter().map(|p| p.y).collect();
-    let (bx, by) = (mean(&xs), mean(&ys));
+    let xy: Vec<Vec<f64>> = reached.iter().map(|p| vec![p.x, p.y]).collect();
+    let a = position_accuracy(&[commanded.x, commanded.y], &xy);
     let dth: Vec<f64> = reached
         .iter()
         .map(|p| wrap_angle(p.theta - commanded.theta))
         .collect();
-    let l: Vec<f64> = reached.iter().map(|p| (p.x - bx).hypot(p.y - by)).collect();
-    let lm = mean(&l);
-    let sl = if l.len() > 1 {
-        (l.iter().map(|v| (v - lm).powi(2)).sum::<f64>() / (l.len() - 1) as f64).sqrt()
-    } else {
-        0.0
-    };
     PoseAccuracy {
-        ap_p: (bx - commanded.x).hypot(by - commanded.y),
+        ap_p: a.ap,
         ap_theta: mean(&dth),
-        rp: lm + 3.0 * sl,
-        barycentre: [bx, by],
+        rp: a.rp,
+        barycentre: [a.barycentre[0], a.barycentre[1]],
     }
 }
 

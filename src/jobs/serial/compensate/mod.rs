@@ -127,6 +127,30 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CompensateJob, JobErr
     })
 }
 
+impl CompensateJob {
+    /// The job for `targets` (frames in {W}, reference joints in rad) on `model` with the
+    /// default tolerances: the typed entry point for campaigns.
+    pub fn for_targets(
+        model: SerialModel,
+        targets: Vec<(Frame, [f64; 6])>,
+    ) -> Result<CompensateJob, JobError> {
+        let mm = 1e-3 / model.chain.units.metre();
+        let tol = Tolerances {
+            position: TOLERANCE_MM * mm,
+            angle: TOLERANCE_DEG.to_radians(),
+            singular_sin: SINGULAR_SIN,
+            singular_shoulder: SINGULAR_SHOULDER_MM * mm,
+        };
+        let solver = Compensator::new(model.chain.clone(), tol, WRIST_OFFSET_MM * mm)
+            .map_err(|e| JobError::invalid("model", e.to_string()))?;
+        Ok(CompensateJob {
+            model,
+            solver,
+            targets,
+        })
+    }
+}
+
 /// The model: a model file as `serial.fk` takes it, or a `serial.identify` result (inline
 /// or a file) whose `calibrated_model` is used.
 pub(crate) fn resolve_model(
