@@ -158,8 +158,8 @@ pub struct Served {
     pub password: String,
 }
 
-/// The IRB 120 twin's cell (nominal model and ballbar) for `seed`: what a lab file must
-/// name for `calibd mock lab` to serve it.
+/// The IRB 120 twin's cell (nominal model and ballbar) for `seed`, as the simulated lab
+/// (`lab = "sim"`) serves it.
 pub fn twin_cell(seed: u64) -> (crate::model::dh::DhFile, [f64; 3]) {
     let twin = SerialTwin::irb120(seed);
     (twin.file, twin.ballbar)
