@@ -7,8 +7,6 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use std::f64::consts::PI;
-
 use calibd_drivers::can::{Cia402Config, Cia402Handle, SocketCanConnector, SocketcandConnector};
 use calibd_drivers::joints::{JointsConfig, JointsHandle};
 use calibd_drivers::microscope::{MicroscopeConfig, MicroscopeHandle};
@@ -205,11 +203,7 @@ fn ball_centring(d: BallCentringCell, rec: &Rec) -> Result<TricalCell, LabError>
         cell: d.name.clone(),
         message: format!("model: {e}"),
     })?;
-    let mut limits: Vec<[f64; 2]> = chain
-        .actuated()
-        .iter()
-        .map(|&j| chain.joints[j].limits.unwrap_or([-PI, PI]))
-        .collect();
+    let mut limits = chain.variable_limits();
     if let Some(l) = &d.joint_limits_deg {
         // The configured envelope narrows the model's limits, never widens them.
         for (m, c) in limits.iter_mut().zip(l) {

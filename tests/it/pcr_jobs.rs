@@ -236,7 +236,48 @@ fn accuracy_after_calibration_is_nanometric_and_without_it_is_not() {
             "{}",
             nominal["summary"]
         );
+        // Side by side in one job: the nominal model commands the same trajectory on the same
+        // twin, measured through the calibrated extrinsics. A second method: a separate run
+        // whose control model is the nominal geometry with the calibrated extrinsics.
+        let mut doc = example(name);
+        doc["compare_with"] = json!("data/pcr_twin/pcr3pf.json");
+        let both = run_in_examples(&doc).expect("side by side").result;
+        assert_eq!(
+            both["summary"], r["summary"],
+            "the calibrated side is unchanged"
+        );
+        let c = &both["compared"];
+        let read = |p: &str| -> Value {
+            serde_json::from_str(&std::fs::read_to_string(examples().join(p)).expect("model"))
+                .expect("json")
+        };
+        let mut mixed = read("data/pcr_twin/pcr3pf.json");
+        mixed["extrinsics"] = read("data/pcr_twin/pcr3pf_calibrated.json")["extrinsics"].clone();
+        let mut doc = example(name);
+        doc["model"] = mixed;
+        let second = run_in_examples(&doc).expect("second method").result;
+        let (a, b) = (
+            num(&c["summary"]["ap_p_um"]["mean"]),
+            num(&second["summary"]["ap_p_um"]["mean"]),
+        );
+        assert!((a - b).abs() <= 1e-9 * b, "{a} vs {b}");
+        assert!(a > 10.0, "nominal AP_P {a} um");
+        let ratio = num(&c["mean_ap_p_ratio"]);
+        let own = num(&r["summary"]["ap_p_um"]["mean"]);
+        assert!(
+            (ratio - a / own).abs() <= 1e-9 * ratio && ratio > 100.0,
+            "{ratio}"
+        );
+        assert_eq!(c["ap_p_m"].as_array().map(Vec::len), Some(16));
+        eprintln!("{name}: mean AP_P calibrated {own:.4} um, nominal {a:.2} um ({ratio:.0}x)");
     }
+    // A reached table holds one model's poses: no comparison.
+    let e = refused(
+        json!({"kind": "pcr.accuracy", "model": "data/pcr_twin/pcr3pf.json",
+        "trajectory": {"square": 0.002}, "reached": "data/pcr_twin/calibration.csv",
+        "compare_with": "data/pcr_twin/pcr3pf.json"}),
+    );
+    assert!(e.contains("compare_with") && e.contains("twin"), "{e}");
 }
 
 fn refused(doc: Value) -> String {

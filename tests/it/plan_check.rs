@@ -31,20 +31,28 @@ fn operator() -> Submitter {
     }
 }
 
-/// The workspace box: the plate's ball centres +- the margin (mm).
+/// The workspace box: the plate's ball centres +- the margin (mm), in the robot's base
+/// frame (where the lab file's box is).
 fn workspace() -> [[f64; 3]; 2] {
     let twin = calibd::twin::SerialTwin::irb120(7);
-    let c: Vec<_> = twin.plate.centres.iter().flatten().collect();
+    let to_base = twin.nominal.base_frame().inverse();
+    let c: Vec<_> = twin
+        .plate
+        .centres
+        .iter()
+        .flatten()
+        .map(|p| to_base.apply(p))
+        .collect();
     let lo = |k: usize| c.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min) - MARGIN_MM;
     let hi = |k: usize| c.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max) + MARGIN_MM;
     [[lo(0), lo(1), lo(2)], [hi(0), hi(1), hi(2)]]
 }
 
-/// The TCP (mm) of the nominal model at `q_deg`.
+/// The TCP (mm, robot base frame) of the nominal model at `q_deg`.
 fn tcp_mm(q_deg: &[f64]) -> [f64; 3] {
     let twin = calibd::twin::SerialTwin::irb120(7);
     let q: Vec<f64> = q_deg.iter().map(|v| v.to_radians()).collect();
-    let p = twin.nominal.tcp(&q, None).p * if twin.nominal.units.mm { 1.0 } else { 1000.0 };
+    let p = twin.nominal.tcp_in_base(&q, None).p * if twin.nominal.units.mm { 1.0 } else { 1000.0 };
     [p.x, p.y, p.z]
 }
 

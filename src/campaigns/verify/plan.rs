@@ -11,7 +11,6 @@ use serde_json::Value;
 
 use crate::campaigns::spec::{CentringSpec, RetrySpec, default_cell, trical_devices};
 use crate::campaigns::trical::plan::{pool, short_tour};
-use crate::procedures::Envelope;
 use crate::campaigns::verify::drift::DriftPolicy;
 use crate::geometry::Frame;
 use crate::jobs::serial::SerialModel;
@@ -21,6 +20,7 @@ use crate::model::Chain;
 use crate::model::compensate::Status;
 use crate::model::dh::DhFile;
 use crate::model::opw::{Opw, nearest_turn};
+use crate::procedures::Envelope;
 use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, parse_spec};
 use crate::twin::cell::INDICATOR_HALF_RANGE_MM;
 use crate::util::Monitor;

@@ -89,17 +89,8 @@ pub(crate) fn calibrate(twin: &SerialTwin) -> (crate::model::dh::DhFile, f64, f6
 
 /// The twin's envelope: its model's joint limits, no workspace box.
 fn joint_limits(twin: &SerialTwin) -> crate::procedures::Envelope {
-    let chain = &twin.nominal;
     crate::procedures::Envelope {
-        limits: chain
-            .actuated()
-            .iter()
-            .map(|&j| {
-                chain.joints[j]
-                    .limits
-                    .unwrap_or([-std::f64::consts::PI, std::f64::consts::PI])
-            })
-            .collect(),
+        limits: twin.nominal.variable_limits(),
         max_joint_step: std::f64::consts::PI,
         max_tool_step_mm: 6.5,
         workspace_mm: None,
@@ -112,7 +103,13 @@ async fn compensated_ap_is_the_calibrated_validation_error_and_nominal_ap_the_no
     let (model, before, after) = calibrate(&twin);
     let job = job(3);
     let plan = job
-        .plan(&model, &twin.file, twin.ballbar, &joint_limits(&twin), &NoMonitor)
+        .plan(
+            &model,
+            &twin.file,
+            twin.ballbar,
+            &joint_limits(&twin),
+            &NoMonitor,
+        )
         .unwrap();
     assert_eq!(plan.poses.len(), 9, "dropped: {:?}", plan.dropped);
     let cell: SharedCell = Arc::new(Mutex::new(SimulatedCell::new(twin.clone(), 9)));
@@ -174,7 +171,13 @@ fn saturated_readings_are_out_of_range_not_errors_of_that_size() {
     let twin = SerialTwin::irb120(1);
     let job = job(2);
     let plan = job
-        .plan(&twin.file, &twin.file, twin.ballbar, &joint_limits(&twin), &NoMonitor)
+        .plan(
+            &twin.file,
+            &twin.file,
+            twin.ballbar,
+            &joint_limits(&twin),
+            &NoMonitor,
+        )
         .unwrap();
     let reading = |cycle, r: [f64; 3], out| Reading {
         index: 0,

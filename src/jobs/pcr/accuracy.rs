@@ -38,6 +38,11 @@ pub(crate) struct Spec {
     reached: Option<Value>,
     #[serde(default)]
     twin: Option<TwinSpec>,
+    /// A second model (e.g. the nominal one) commanding the same trajectory on the twin,
+    /// reported beside `model`'s accuracy.
+    #[serde(default)]
+    #[schemars(schema_with = "crate::run::schema::json_file_opt")]
+    compare_with: Option<Value>,
     #[serde(default)]
     #[allow(dead_code)]
     options: Option<Map<String, Value>>,
@@ -96,6 +101,8 @@ pub struct AccuracyJob {
     commanded: Vec<Pose2>,
     repetitions: usize,
     source: Source,
+    /// A second model commanding the same trajectory (twin only).
+    compare_with: Option<PcrModel>,
 }
 
 /// Schema of a `trajectory` field: `{square | circle, ...}` or a poses table.
@@ -166,6 +173,22 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<AccuracyJob, JobError
     if spec.repetitions == 0 {
         return Err(JobError::invalid("repetitions", "must be at least 1"));
     }
+    let compare_with = match &spec.compare_with {
+        Some(v) if spec.twin.is_some() => Some(load_model(inputs, v).map_err(|e| match e {
+            JobError::Invalid { field, message } if field == "model" => JobError::Invalid {
+                field: "compare_with".into(),
+                message,
+            },
+            e => e,
+        })?),
+        Some(_) => {
+            return Err(JobError::invalid(
+                "compare_with",
+                "needs a `twin`: a reached table holds the poses of one model's joints only",
+            ));
+        }
+        None => None,
+    };
     let source = match (spec.reached, spec.twin) {
         (Some(r), None) => {
             let t = inputs.table("reached", &r)?;
@@ -191,6 +214,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<AccuracyJob, JobError
         commanded,
         repetitions: spec.repetitions,
         source,
+        compare_with,
     })
 }
 
@@ -260,6 +284,24 @@ pub struct PcrAccuracy {
     pub per_pose: Vec<PoseRow>,
     /// Max, mean, min over the poses.
     pub summary: AccuracySummary,
+    /// The same trajectory commanded through `compare_with` (e.g. the nominal model), on
+    /// the same twin and measured the same way, when the job names one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub compared: Option<ComparedAccuracy>,
+}
+
+/// The accuracy of the trajectory commanded through a second model, side by side.
+#[derive(Debug, Clone, Serialize)]
+pub struct ComparedAccuracy {
+    /// The model file's `name`.
+    pub model: String,
+    /// AP_P of each commanded pose (m), in the order of `per_pose`.
+    pub ap_p_m: Vec<f64>,
+    /// Max, mean, min over the poses.
+    pub summary: AccuracySummary,
+    /// Mean AP_P through `compare_with` over mean AP_P through `model`: how many times
+    /// more accurate the job's model commands the trajectory.
+    pub mean_ap_p_ratio: f64,
 }
 
 impl AccuracyJob {
@@ -303,24 +345,24 @@ impl AccuracyJob {
             commanded,
             repetitions,
             source: Source::Reached(reached),
+            compare_with: None,
         })
     }
 
-    /// Run it: the typed result, with the per-pose table as the main table.
-    pub fn evaluate(&self, monitor: &dyn Monitor) -> Result<Run<PcrAccuracy>, JobError> {
-        let robot = &self.model.robot;
-        let control = super::ik::solve_rows(robot, &self.commanded, "trajectory", monitor)?;
+    /// The poses attained at the joints `q` of each commanded pose, `repetitions` readings
+    /// each, in {W} through this job's model's extrinsics (the measuring side is the same
+    /// whichever model commands).
+    fn attained(&self, q: &[[f64; 3]]) -> Result<Vec<Vec<Pose2>>, JobError> {
         let ext = self.model.file.extrinsics;
         let r = self.repetitions;
-        let reached: Vec<Vec<Pose2>> = match &self.source {
+        Ok(match &self.source {
             Source::Reached(m) => m
                 .chunks(r)
                 .map(|c| c.iter().map(|m| measured_pose(&ext, &m.z)).collect())
                 .collect(),
             Source::Twin(twin, seed) => {
-                let q: Vec<[f64; 3]> = control.iter().map(|e| e.q).collect();
                 let truth = twin
-                    .true_poses(&q)
+                    .true_poses(q)
                     .map_err(|e| JobError::Failed(format!("twin: {e}")))?;
                 let mut rng = Rng::new(*seed);
                 truth
@@ -332,7 +374,44 @@ impl AccuracyJob {
                     })
                     .collect()
             }
+        })
+    }
+
+    /// The trajectory commanded through `compare_with`, side by side with `model`'s.
+    fn compared(
+        &self,
+        own: &AccuracySummary,
+        monitor: &dyn Monitor,
+    ) -> Result<Option<ComparedAccuracy>, JobError> {
+        let Some(other) = &self.compare_with else {
+            return Ok(None);
         };
+        let control =
+            super::ik::solve_rows(&other.robot, &self.commanded, "compare_with", monitor)?;
+        let q: Vec<[f64; 3]> = control.iter().map(|e| e.q).collect();
+        let reached = self.attained(&q)?;
+        let acc: Vec<_> = self
+            .commanded
+            .iter()
+            .zip(&reached)
+            .map(|(c, p)| pose_accuracy(c, p))
+            .collect();
+        let summary = summarise(&acc);
+        Ok(Some(ComparedAccuracy {
+            model: other.file.name.clone(),
+            ap_p_m: acc.iter().map(|a| a.ap_p).collect(),
+            mean_ap_p_ratio: summary.ap_p_um.mean / own.ap_p_um.mean,
+            summary,
+        }))
+    }
+
+    /// Run it: the typed result, with the per-pose table as the main table.
+    pub fn evaluate(&self, monitor: &dyn Monitor) -> Result<Run<PcrAccuracy>, JobError> {
+        let robot = &self.model.robot;
+        let control = super::ik::solve_rows(robot, &self.commanded, "trajectory", monitor)?;
+        let r = self.repetitions;
+        let q: Vec<[f64; 3]> = control.iter().map(|e| e.q).collect();
+        let reached = self.attained(&q)?;
         if monitor.is_cancelled() {
             return Err(JobError::Cancelled);
         }
@@ -392,6 +471,11 @@ impl AccuracyJob {
             },
             per_pose,
             summary: summarise(&acc),
+            compared: None,
+        };
+        let result = PcrAccuracy {
+            compared: self.compared(&result.summary, monitor)?,
+            ..result
         };
         // The plot: commanded against the mean attained position (mm).
         let mm = |x: f64| x * 1e3;

@@ -638,6 +638,19 @@ impl Chain {
         tau
     }
 
+    /// Limits of the joint variables (rad or length), in variable order; a joint without
+    /// limits turns a full turn, [-pi, pi].
+    pub fn variable_limits(&self) -> Vec<[f64; 2]> {
+        self.actuated()
+            .iter()
+            .map(|&j| {
+                self.joints[j]
+                    .limits
+                    .unwrap_or([-std::f64::consts::PI, std::f64::consts::PI])
+            })
+            .collect()
+    }
+
     /// Check a joint vector against the limits; returns the first violation
     /// (variable index, value, limits) if any.
     pub fn limit_violation(&self, q: &[f64]) -> Option<(usize, f64, [f64; 2])> {
