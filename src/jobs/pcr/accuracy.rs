@@ -13,7 +13,7 @@ use serde_json::{Map, Value};
 use super::{PcrModel, load_model, poses};
 use crate::design::trajectory::{circle, square};
 use crate::geometry::Pose2;
-use crate::measure::pcr::accuracy::{AccuracySummary, pose_accuracy, summarise};
+use crate::measure::pcr::accuracy::{AccuracySummary, PoseAccuracy, pose_accuracy, summarise};
 use crate::measure::pcr::{PcrMeasurement, measured_pose};
 use crate::model::pcr::PcrFile;
 use crate::run::Run;
@@ -377,6 +377,15 @@ impl AccuracyJob {
         })
     }
 
+    /// ISO 9283 accuracy of each commanded pose from its attained poses.
+    fn accuracies(&self, reached: &[Vec<Pose2>]) -> Vec<PoseAccuracy> {
+        self.commanded
+            .iter()
+            .zip(reached)
+            .map(|(c, p)| pose_accuracy(c, p))
+            .collect()
+    }
+
     /// The trajectory commanded through `compare_with`, side by side with `model`'s.
     fn compared(
         &self,
@@ -389,13 +398,7 @@ impl AccuracyJob {
         let control =
             super::ik::solve_rows(&other.robot, &self.commanded, "compare_with", monitor)?;
         let q: Vec<[f64; 3]> = control.iter().map(|e| e.q).collect();
-        let reached = self.attained(&q)?;
-        let acc: Vec<_> = self
-            .commanded
-            .iter()
-            .zip(&reached)
-            .map(|(c, p)| pose_accuracy(c, p))
-            .collect();
+        let acc = self.accuracies(&self.attained(&q)?);
         let summary = summarise(&acc);
         Ok(Some(ComparedAccuracy {
             model: other.file.name.clone(),
@@ -415,12 +418,7 @@ impl AccuracyJob {
         if monitor.is_cancelled() {
             return Err(JobError::Cancelled);
         }
-        let acc: Vec<_> = self
-            .commanded
-            .iter()
-            .zip(&reached)
-            .map(|(c, p)| pose_accuracy(c, p))
-            .collect();
+        let acc = self.accuracies(&reached);
         let mut t = Table::new(&[
             "x", "y", "theta", "q1", "q2", "q3", "ap_p", "ap_theta", "rp",
         ]);
