@@ -49,6 +49,7 @@ fn check(config: Option<PathBuf>, timeout_s: f64, json: bool) -> Result<()> {
         bail!("--timeout-s must be positive");
     }
     let timeout = std::time::Duration::from_secs_f64(timeout_s);
+    let simulated = lab_path == "sim";
     let rt = runtime()?;
     let reports = rt.block_on(async {
         let lab = match lab_path.as_str() {
@@ -64,6 +65,15 @@ fn check(config: Option<PathBuf>, timeout_s: f64, json: bool) -> Result<()> {
         lab.stop().await;
         Ok(r)
     })?;
+    if simulated {
+        // On stderr with --json, so the JSON stays the reports array.
+        let banner = "SIMULATED LAB: digital twins behind mock devices on loopback (lab = \"sim\"), not your robots; name a lab file (--config FILE) to check real devices";
+        if json {
+            eprintln!("{banner}");
+        } else {
+            println!("{banner}");
+        }
+    }
     if json {
         println!("{}", serde_json::to_string_pretty(&reports)?);
     } else {

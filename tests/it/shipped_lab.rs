@@ -103,6 +103,10 @@ async fn the_example_campaigns_run_unchanged_on_the_example_lab() {
     mock.until("mock lab ready");
     let (ok, out) = lab_check(&lab);
     assert!(ok, "lab check on the example lab: {out}");
+    assert!(
+        !out.contains("SIMULATED LAB"),
+        "a lab file's devices: {out}"
+    );
 
     let daemon = Daemon::start(dir.path(), &lab);
     let l = daemon.get("/v1/lab").await;
@@ -164,5 +168,25 @@ fn the_daemon_refuses_to_start_without_its_lab_file_and_says_where_the_example_i
             && err.contains("lab.example.toml")
             && err.contains("lab = \"sim\""),
         "{err}"
+    );
+}
+
+#[test]
+fn lab_check_of_the_simulated_lab_says_so_first() {
+    let out = Command::new(BIN)
+        .args(["lab", "check", "--timeout-s", "10", "--config", "sim"])
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("lab check runs");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.starts_with("SIMULATED LAB: digital twins"), "{text}");
+    assert!(
+        text.contains("irb120.rws") && text.contains("talos.qtm"),
+        "{text}"
     );
 }
