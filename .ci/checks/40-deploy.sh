@@ -209,4 +209,21 @@ grep -qx '\*\*/target' .containerignore && grep -qx '\.git' .containerignore ||
   fail ".containerignore does not exclude target/ and .git"
 grep -q '^HEALTHCHECK .*"/usr/local/bin/calibd", "health"' deploy/Containerfile ||
   fail "deploy/Containerfile's HEALTHCHECK does not run calibd health"
+# 10. The Containerfile's dependency layer: its COPY'd manifests with the stub crate roots it
+# makes must form a workspace cargo accepts (a new [[bin]]/[[bench]] without a stub would
+# break the image build). Its RUN line is run as written, with the release build replaced
+# by `cargo metadata` (no container registry is reachable here to build the image itself).
+layer=$(mktemp -d)
+cp Cargo.toml Cargo.lock "$layer/"
+mkdir -p "$layer/drivers" && cp drivers/Cargo.toml "$layer/drivers/"
+stub=$(awk '/^RUN mkdir -p src drivers\/src/,/^COPY \. \./' deploy/Containerfile |
+  grep -v '^COPY' | sed -e 's/^RUN //' -e 's/\\$//' | tr '\n' ' ')
+[ -n "$stub" ] || fail "deploy/Containerfile has no dependency layer (RUN mkdir -p src drivers/src ...)"
+stub=${stub//cargo build --release --locked --bin calibd/cargo metadata --locked --format-version 1 >\/dev\/null}
+(cd "$layer" && bash -c "$stub") || fail "the Containerfile's dependency layer does not resolve: $stub"
+rm -rf "$layer"
+echo "40-deploy: the Containerfile's dependency layer resolves with its stubs"
+for flag in --read-only --cap-drop=ALL 'no-new-privileges' '--format docker'; do
+  grep -q -- "$flag" deploy/OPERATIONS.md || fail "OPERATIONS.md's container section lacks $flag"
+done
 echo "40-deploy: passed"
