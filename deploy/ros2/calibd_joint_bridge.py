@@ -18,8 +18,13 @@ across connections (`busy` otherwise).
 Backends:
   fake  in-memory joints that move linearly over each move's duration (tests, trying it out).
   ros2  a `control_msgs/action/FollowJointTrajectory` client per `--controller` for moves
-        (one goal per controller, same duration) and a `sensor_msgs/JointState` subscription
-        (`--joint-states`) for positions; `rclpy` is imported only for this backend.
+        (one goal per controller, same duration, with goal tolerances and a goal time
+        tolerance) and a `sensor_msgs/JointState` subscription (`--joint-states`) for
+        positions. A move succeeds only when every goal's *status* is SUCCEEDED with error
+        code 0 (a cancelled or aborted goal also carries error code 0) and the joint states
+        then show every joint within the goal tolerance. Limits come from the URDF
+        (`--urdf FILE` or the `robot_description` topic) when given; `--use-sim-time` runs
+        the node on /clock. `rclpy` is imported only for this backend.
 
 The protocol half uses the Python standard library only (asyncio).
 """
@@ -59,6 +64,95 @@ def fmt_positions(positions):
     return ", ".join("%s = %.4f" % (k, v) for k, v in positions.items())
 
 
+# action_msgs/msg/GoalStatus codes.
+GOAL_STATUS = {
+    0: "UNKNOWN",
+    1: "ACCEPTED",
+    2: "EXECUTING",
+    3: "CANCELING",
+    4: "SUCCEEDED",
+    5: "CANCELED",
+    6: "ABORTED",
+}
+STATUS_SUCCEEDED = 4
+
+
+def check_goal_result(action, status, error_code, error_string):
+    """Raise JointError('fault') unless the goal SUCCEEDED with error code 0: a goal that was
+    cancelled, pre-empted or aborted can still carry error code 0 (SUCCESSFUL)."""
+    if status != STATUS_SUCCEEDED:
+        raise JointError(
+            "fault",
+            "%s ended %s (error %d%s)"
+            % (action, GOAL_STATUS.get(status, "status %d" % status), error_code,
+               (" " + error_string) if error_string else ""),
+        )
+    if error_code != 0:
+        raise JointError("fault", "%s failed: error %d %s" % (action, error_code, error_string))
+
+
+def off_target(target, positions, tolerance_rad):
+    """Joints of `target` whose measured position is missing or further than the tolerance,
+    as [(joint, error_rad or None)]."""
+    out = []
+    for name, want in target.items():
+        have = positions.get(name)
+        if have is None:
+            out.append((name, None))
+        elif abs(have - want) > tolerance_rad:
+            out.append((name, have - want))
+    return out
+
+
+def limits_from_urdf(xml_text, names):
+    """[(lo, hi)] in radians (or metres) for `names` from a URDF's <joint><limit>; a
+    continuous joint gets [-2 pi, 2 pi]. Raises ValueError naming what is missing."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.fromstring(xml_text)
+    except ET.ParseError as e:
+        raise ValueError("robot_description is not XML: %s" % e)
+    # Only the robot's own <joint> elements: <transmission> has <joint> children too.
+    joints = {j.get("name"): j for j in root.findall("joint")}
+    out = []
+    for n in names:
+        j = joints.get(n)
+        if j is None:
+            raise ValueError("robot_description has no joint %r" % n)
+        kind = j.get("type")
+        if kind == "continuous":
+            # No limit; offered to calibd as one turn each way (hello's limits are finite).
+            out.append((-2.0 * math.pi, 2.0 * math.pi))
+            continue
+        if kind not in ("revolute", "prismatic"):
+            raise ValueError("joint %r is %s, not a revolute, prismatic or continuous joint" % (n, kind))
+        lim = j.find("limit")
+        if lim is None or lim.get("lower") is None or lim.get("upper") is None:
+            raise ValueError("joint %r has no <limit lower=.. upper=..>" % n)
+        lo, hi = float(lim.get("lower")), float(lim.get("upper"))
+        if not lo <= hi:
+            raise ValueError("joint %r: lower %s > upper %s" % (n, lo, hi))
+        out.append((lo, hi))
+    return out
+
+
+def merge_limits(names, given, urdf):
+    """The limits to enforce: the URDF's, narrowed by the ones given on the command line
+    (never widened beyond the URDF); raises SystemExit if they do not overlap."""
+    if urdf is None:
+        return given
+    if given is None:
+        return urdf
+    out = []
+    for n, (glo, ghi), (ulo, uhi) in zip(names, given, urdf):
+        lo, hi = max(glo, ulo), min(ghi, uhi)
+        if lo > hi:
+            raise SystemExit("--limits for %s [%s, %s] lie outside the URDF's [%s, %s]" % (n, glo, ghi, ulo, uhi))
+        out.append((lo, hi))
+    return out
+
+
 class FakeBackend:
     """Joints in memory, moving linearly over a move's duration."""
 
@@ -94,31 +188,50 @@ class FakeBackend:
         self._stops += 1
 
 
+class Ros2Options:
+    """Settings of the ros2 backend (command line)."""
+
+    def __init__(self, goal_tolerance_rad=0.002, goal_time_tolerance_s=1.0, use_sim_time=False,
+                 robot_description_topic=None, wait_s=10.0):
+        self.goal_tolerance_rad = goal_tolerance_rad
+        self.goal_time_tolerance_s = goal_time_tolerance_s
+        self.use_sim_time = use_sim_time
+        self.robot_description_topic = robot_description_topic
+        self.wait_s = wait_s
+
+
 class Ros2Backend:
     """A ROS 2 robot: one FollowJointTrajectory action client per trajectory controller for
     moves (a move sends one goal to each controller, all with the same duration), and a
     JointState subscription for positions."""
 
-    def __init__(self, robot, names, limits, controllers, joint_states):
+    def __init__(self, robot, names, limits, controllers, joint_states, options=None):
         # Imported here so that the fake backend runs without ROS 2.
         import rclpy
         from rclpy.action import ActionClient
         from rclpy.executors import MultiThreadedExecutor
         from rclpy.node import Node
+        from rclpy.parameter import Parameter
         from control_msgs.action import FollowJointTrajectory
         from sensor_msgs.msg import JointState
 
+        o = options or Ros2Options()
         self.robot = robot
         self.names = list(names)
-        self.limits = list(limits)
+        self.limits = list(limits) if limits is not None else None
         self.moving = False
+        self.options = o
         self._FollowJointTrajectory = FollowJointTrajectory
         self._lock = threading.Lock()
         self._q = {}
+        self._states = 0  # JointState messages received
         self._goals = []
         self._stops = 0
         rclpy.init(args=None)
-        self._node = Node("calibd_joint_bridge")
+        self._node = Node(
+            "calibd_joint_bridge",
+            parameter_overrides=[Parameter("use_sim_time", Parameter.Type.BOOL, bool(o.use_sim_time))],
+        )
         # controllers: [(name, [joints])]; joints None = every joint of the bridge.
         self._controllers = []
         for name, joints in controllers:
@@ -131,11 +244,72 @@ class Ros2Backend:
         self._executor.add_node(self._node)
         threading.Thread(target=self._executor.spin, daemon=True).start()
         log.info("ros2 backend: joint states on %s", joint_states)
+        if o.robot_description_topic:
+            urdf = self._robot_description(o.robot_description_topic, o.wait_s)
+            self.limits = merge_limits(self.names, self.limits, limits_from_urdf(urdf, self.names))
+            log.info("ros2 backend: limits from %s", o.robot_description_topic)
+        if self.limits is None:
+            raise SystemExit("no joint limits: give --limits, --urdf or --robot-description")
+
+    def _robot_description(self, topic, wait_s):
+        """The URDF text latched on `topic` (robot_state_publisher publishes it once, with
+        transient-local durability, so a late subscriber still gets it)."""
+        from rclpy.qos import DurabilityPolicy, QoSProfile
+        from std_msgs.msg import String
+
+        got = threading.Event()
+        text = []
+
+        def on_msg(msg):
+            if not got.is_set():
+                text.append(msg.data)
+                got.set()
+
+        qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        sub = self._node.create_subscription(String, topic, on_msg, qos)
+        try:
+            if not got.wait(wait_s):
+                raise SystemExit("no URDF on %s within %.0f s" % (topic, wait_s))
+        finally:
+            self._node.destroy_subscription(sub)
+        return text[0]
 
     def _on_joint_state(self, msg):
         with self._lock:
             for n, p in zip(msg.name, msg.position):
                 self._q[n] = float(p)
+            self._states += 1
+
+    def _now_s(self):
+        """The node's clock in seconds: simulation time under --use-sim-time."""
+        return self._node.get_clock().now().nanoseconds * 1e-9
+
+    async def _confirm_arrival(self, target):
+        """Wait (node clock) until a joint state received after the goals finished shows
+        every joint within the goal tolerance; JointError('fault') naming the joints that
+        are off once the goal time tolerance has passed."""
+        o = self.options
+        with self._lock:
+            seen = self._states
+        deadline = self._now_s() + o.goal_time_tolerance_s
+        while True:
+            with self._lock:
+                fresh = self._states > seen
+                q = dict(self._q)
+            off = off_target(target, q, o.goal_tolerance_rad) if fresh else None
+            if off == []:
+                return
+            if self._now_s() > deadline:
+                if off is None:
+                    raise JointError("fault", "no joint state arrived after the move")
+                raise JointError(
+                    "fault",
+                    "the controllers reported success but the joint states are off target: "
+                    + ", ".join(
+                        "%s %s" % (n, "missing" if e is None else "%+.5f rad" % e) for n, e in off
+                    ),
+                )
+            await asyncio.sleep(TICK_S)
 
     async def _await(self, rclpy_future):
         """An rclpy future (completed on the executor thread) as an asyncio awaitable."""
@@ -182,6 +356,12 @@ class Ros2Backend:
         secs = int(duration_s)
         point.time_from_start = Duration(sec=secs, nanosec=int((duration_s - secs) * 1e9))
         goal.trajectory.points = [point]
+        from control_msgs.msg import JointTolerance
+
+        o = self.options
+        goal.goal_tolerance = [JointTolerance(name=n, position=o.goal_tolerance_rad) for n in joints]
+        gt = o.goal_time_tolerance_s
+        goal.goal_time_tolerance = Duration(sec=int(gt), nanosec=int((gt - int(gt)) * 1e9))
         handle = await self._await(client.send_goal_async(goal))
         if not handle.accepted:
             raise JointError("fault", "%s rejected the goal" % action)
@@ -192,12 +372,8 @@ class Ros2Backend:
             wrapped = await self._await(handle.get_result_async())
         finally:
             self._goals.remove(handle)
-        code = wrapped.result.error_code
-        if self._stops == stops and code != 0:
-            raise JointError(
-                "fault",
-                "%s failed: error %d %s" % (action, code, wrapped.result.error_string),
-            )
+        if self._stops == stops:
+            check_goal_result(action, wrapped.status, wrapped.result.error_code, wrapped.result.error_string)
 
     async def move(self, target, duration_s):
         stops = self._stops
@@ -214,6 +390,7 @@ class Ros2Backend:
             if isinstance(r, BaseException):
                 await self.stop()  # the other controllers must not go on alone
                 raise r
+        await self._confirm_arrival(target)
         return await self.positions()
 
     async def stop(self):
@@ -428,8 +605,9 @@ def parse_listen(s):
 
 
 def parse_limits(s, n):
+    """[(lo, hi)] from --limits, or None when not given."""
     if s is None:
-        return [(-math.pi, math.pi)] * n
+        return None
     out = []
     for item in s.split(","):
         lo, sep, hi = item.partition(":")
@@ -483,6 +661,29 @@ def main(argv=None):
         "controllers; a single NAME alone drives every joint (default /arm_left_controller)",
     )
     p.add_argument("--joint-states", default="/joint_states", help="ros2: JointState topic")
+    p.add_argument(
+        "--urdf",
+        metavar="FILE",
+        help="take the joint limits from this URDF (narrowed by --limits when both are given)",
+    )
+    p.add_argument(
+        "--robot-description",
+        metavar="TOPIC",
+        help="ros2: take the joint limits from the URDF latched on TOPIC (e.g. /robot_description)",
+    )
+    p.add_argument(
+        "--goal-tolerance-rad",
+        type=float,
+        default=0.002,
+        help="ros2: per-joint goal tolerance sent with each goal and checked on the joint states (default 0.002)",
+    )
+    p.add_argument(
+        "--goal-time-tolerance-s",
+        type=float,
+        default=1.0,
+        help="ros2: how late the goal may be reached, and how long to wait for the joint states to confirm it (default 1)",
+    )
+    p.add_argument("--use-sim-time", action="store_true", help="ros2: run the node on /clock (simulation)")
     p.add_argument("-v", "--verbose", action="store_true")
     a = p.parse_args(argv)
     if isinstance(a.listen, str):
@@ -496,11 +697,26 @@ def main(argv=None):
     if not names or len(set(names)) != len(names):
         raise SystemExit("--joints: give distinct, non-empty joint names")
     limits = parse_limits(a.limits, len(names))
+    if a.urdf:
+        try:
+            with open(a.urdf, encoding="utf-8") as f:
+                limits = merge_limits(names, limits, limits_from_urdf(f.read(), names))
+        except (OSError, ValueError) as e:
+            raise SystemExit("--urdf %s: %s" % (a.urdf, e))
+    for name, v in (("--goal-tolerance-rad", a.goal_tolerance_rad), ("--goal-time-tolerance-s", a.goal_time_tolerance_s)):
+        if not (math.isfinite(v) and v > 0):
+            raise SystemExit("%s: %r is not a positive number" % (name, v))
     if a.backend == "fake":
-        backend = FakeBackend(a.robot or "fake", names, limits)
+        backend = FakeBackend(a.robot or "fake", names, limits or [(-math.pi, math.pi)] * len(names))
     else:
+        options = Ros2Options(
+            goal_tolerance_rad=a.goal_tolerance_rad,
+            goal_time_tolerance_s=a.goal_time_tolerance_s,
+            use_sim_time=a.use_sim_time,
+            robot_description_topic=a.robot_description,
+        )
         backend = Ros2Backend(
-            a.robot or "talos", names, limits, parse_controllers(a.controller, names), a.joint_states
+            a.robot or "talos", names, limits, parse_controllers(a.controller, names), a.joint_states, options
         )
     asyncio.run(serve(Bridge(backend), *a.listen))
 

@@ -233,3 +233,25 @@ async fn the_bridge_answers_bad_lines_with_bad_request_and_reads_on() {
     assert_eq!(replies[4]["moving"], false);
     child.kill().await.expect("kill the bridge");
 }
+
+/// The bridge's ros2 backend (goal status, goal tolerances, arrival confirmed from the joint
+/// states, limits from the URDF, sim time) against a fake of the rclpy API: its Python tests
+/// (`deploy/ros2/test_calibd_joint_bridge.py`) pass.
+#[test]
+fn ros2_backend_passes_its_tests_against_a_fake_rclpy() {
+    let root = format!("{}/..", env!("CARGO_MANIFEST_DIR"));
+    let out = std::process::Command::new("python3")
+        .args([
+            "-B",
+            "-m",
+            "unittest",
+            "-v",
+            "deploy/ros2/test_calibd_joint_bridge.py",
+        ])
+        .current_dir(&root)
+        .output()
+        .expect("python3 runs the bridge's tests");
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{log}");
+    assert!(log.contains("Ran 7 tests"), "{log}");
+}
