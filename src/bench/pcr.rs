@@ -134,6 +134,7 @@ pub fn run() -> Vec<Figure> {
             sink += c.x[0];
         }));
     }
+    figs.extend(lu_12(&mut sink));
     figs.push(pattern_pose(&mut sink));
     std::hint::black_box(sink);
     figs
@@ -181,3 +182,40 @@ fn pattern_pose(sink: &mut f64) -> Figure {
     );
     fig
 }
+
+/// The shooting Newton's 12 x 12 factor-and-invert, calibd's stack LU against nalgebra's
+/// `SMatrix` LU on the same 1,000 random well-conditioned matrices (the choice recorded in
+/// `model/pcr/lu.rs` rests on these two figures).
+fn lu_12(sink: &mut f64) -> Vec<Figure> {
+    use crate::model::pcr::lu::Lu;
+    let mut rng = crate::util::Rng::new(12);
+    let mats: Vec<[[f64; 12]; 12]> = (0..1000)
+        .map(|_| {
+            std::array::from_fn(|i| {
+                std::array::from_fn(|j| rng.normal() + if i == j { 6.0 } else { 0.0 })
+            })
+        })
+        .collect();
+    let own = time("12 x 12 LU + inverse, calibd's stack LU", 9, mats.len(), None, || {
+        for m in &mats {
+            if let Some(lu) = Lu::factor(*m) {
+                *sink += lu.inverse()[3][7] * lu.det_sign + lu.pivot_ratio;
+            }
+        }
+    });
+    let na: Vec<nalgebra::SMatrix<f64, 12, 12>> = mats
+        .iter()
+        .map(|m| nalgebra::SMatrix::<f64, 12, 12>::from_fn(|i, j| m[i][j]))
+        .collect();
+    let theirs = time("12 x 12 LU + inverse, nalgebra SMatrix LU", 9, na.len(), None, || {
+        for m in &na {
+            let lu = m.lu();
+            let d = lu.determinant();
+            if let Some(inv) = lu.try_inverse() {
+                *sink += inv[(3, 7)] * d.signum();
+            }
+        }
+    });
+    vec![own, theirs]
+}
+

@@ -142,36 +142,38 @@ impl<R: Read> CsvRows<R> {
     }
 }
 
-/// CSV written one row at a time: a header row, then each number as Rust's shortest
-/// round-trip decimal (`{}`), comma-separated, one `\n`-terminated line per row.
+/// CSV written one row at a time through `csv::Writer` (header names quoted where they
+/// need it, output buffered): a header row, then each number as Rust's shortest round-trip
+/// decimal (the text of `{}`), one `\n`-terminated line per row.
 #[derive(Debug)]
 pub struct CsvSink<W: Write> {
-    out: W,
+    out: csv::Writer<W>,
     rows: usize,
+    cell: String,
 }
 
 impl<W: Write> CsvSink<W> {
     /// Start a table with `columns` on `out` (writes the header row).
-    pub fn new<S: AsRef<str>>(mut out: W, columns: &[S]) -> std::io::Result<Self> {
-        for (k, c) in columns.iter().enumerate() {
-            if k > 0 {
-                out.write_all(b",")?;
-            }
-            out.write_all(c.as_ref().as_bytes())?;
-        }
-        out.write_all(b"\n")?;
-        Ok(Self { out, rows: 0 })
+    pub fn new<S: AsRef<str>>(out: W, columns: &[S]) -> std::io::Result<Self> {
+        let mut out = csv::WriterBuilder::new()
+            .terminator(csv::Terminator::Any(b'\n'))
+            .from_writer(out);
+        out.write_record(columns.iter().map(|c| c.as_ref()))?;
+        Ok(Self {
+            out,
+            rows: 0,
+            cell: String::with_capacity(32),
+        })
     }
 
     /// Append one row.
     pub fn row(&mut self, values: &[f64]) -> std::io::Result<()> {
-        for (k, v) in values.iter().enumerate() {
-            if k > 0 {
-                self.out.write_all(b",")?;
-            }
-            write!(self.out, "{v}")?;
+        for v in values {
+            self.cell.clear();
+            crate::util::decimal::push_f64(&mut self.cell, *v);
+            self.out.write_field(self.cell.as_bytes())?;
         }
-        self.out.write_all(b"\n")?;
+        self.out.write_record(None::<&[u8]>)?;
         self.rows += 1;
         Ok(())
     }
@@ -184,7 +186,7 @@ impl<W: Write> CsvSink<W> {
     /// The sink, flushed.
     pub fn finish(mut self) -> std::io::Result<W> {
         self.out.flush()?;
-        Ok(self.out)
+        self.out.into_inner().map_err(|e| e.into_error())
     }
 }
 
@@ -265,6 +267,19 @@ mod tests {
         assert_eq!(sink.rows(), 2);
         let bytes = sink.finish().unwrap();
         assert_eq!(String::from_utf8(bytes).unwrap(), joined(&cols, rows));
+    }
+
+    /// A column name with a comma, quote or space is quoted as RFC 4180 says, so the header
+    /// reads back (through the csv reader, the second method) as the names written.
+    #[test]
+    fn header_names_that_need_quotes_are_quoted_and_read_back() {
+        let cols = ["x, mm", "say \"y\"", "plain"];
+        let mut sink = CsvSink::new(Vec::new(), &cols).unwrap();
+        sink.row(&[1.0, 2.5, -0.0]).unwrap();
+        let text = String::from_utf8(sink.finish().unwrap()).unwrap();
+        assert_eq!(text, "\"x, mm\",\"say \"\"y\"\"\",plain\n1,2.5,-0\n");
+        let r = CsvRows::new("t", text.as_bytes(), &|_: &str| false).unwrap();
+        assert_eq!(r.columns(), cols);
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! Small shared helpers with no domain knowledge: a seeded random generator, descriptive
 //! statistics, and the progress/cancellation hook of long computations.
 
+pub mod decimal;
 pub mod monitor;
 pub mod rng;
 pub mod serde_num;

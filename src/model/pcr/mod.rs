@@ -16,7 +16,7 @@
 //! Units are SI throughout: metres, radians, newtons, pascals.
 
 pub mod file;
-mod lu;
+pub(crate) mod lu;
 mod newton;
 pub mod params;
 mod rod;
