@@ -196,26 +196,37 @@ fn lu_12(sink: &mut f64) -> Vec<Figure> {
             })
         })
         .collect();
-    let own = time("12 x 12 LU + inverse, calibd's stack LU", 9, mats.len(), None, || {
-        for m in &mats {
-            if let Some(lu) = Lu::factor(*m) {
-                *sink += lu.inverse()[3][7] * lu.det_sign + lu.pivot_ratio;
+    let own = time(
+        "12 x 12 LU + inverse, calibd's stack LU",
+        9,
+        mats.len(),
+        None,
+        || {
+            for m in &mats {
+                if let Some(lu) = Lu::factor(*m) {
+                    *sink += lu.inverse()[3][7] * lu.det_sign + lu.pivot_ratio;
+                }
             }
-        }
-    });
+        },
+    );
     let na: Vec<nalgebra::SMatrix<f64, 12, 12>> = mats
         .iter()
         .map(|m| nalgebra::SMatrix::<f64, 12, 12>::from_fn(|i, j| m[i][j]))
         .collect();
-    let theirs = time("12 x 12 LU + inverse, nalgebra SMatrix LU", 9, na.len(), None, || {
-        for m in &na {
-            let lu = m.lu();
-            let d = lu.determinant();
-            if let Some(inv) = lu.try_inverse() {
-                *sink += inv[(3, 7)] * d.signum();
+    let theirs = time(
+        "12 x 12 LU + inverse, nalgebra SMatrix LU",
+        9,
+        na.len(),
+        None,
+        || {
+            for m in &na {
+                let lu = m.lu();
+                let d = lu.determinant();
+                if let Some(inv) = lu.try_inverse() {
+                    *sink += inv[(3, 7)] * d.signum();
+                }
             }
-        }
-    });
+        },
+    );
     vec![own, theirs]
 }
-

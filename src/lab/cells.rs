@@ -99,6 +99,10 @@ pub struct MocapCell {
     pub joints: Vec<String>,
     /// Joint limits (rad), same order.
     pub limits: Vec<[f64; 2]>,
+    /// Largest joint change of one posture move (rad): longer moves are split.
+    pub max_step_rad: f64,
+    /// Mean joint speed (rad/s) of the interface, for estimates.
+    pub speed_rad_s: f64,
     /// The markers on the robot with their guessed positions.
     pub markers: Vec<MarkerDef>,
     /// Its devices: names (queue locks), addresses, probes.

@@ -507,6 +507,8 @@ fn mocap(d: MocapCellLink, rec: &Rec) -> Result<MocapCell, LabError> {
         root_link: d.root_link,
         joints: d.joint_names,
         limits: d.limits,
+        max_step_rad: d.joints.max_step_rad,
+        speed_rad_s: d.joints.speed_rad_s,
         markers: d.markers,
         links,
         name: d.name,

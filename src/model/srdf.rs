@@ -29,12 +29,16 @@ pub fn disabled_collisions(text: &str) -> Result<Vec<(String, String)>, ModelErr
 
 /// The unescaped value of attribute `name`, or an error naming the element and the byte.
 fn attr(e: &BytesStart<'_>, name: &str, at: u64) -> Result<String, ModelError> {
-    let bad = |what: String| ModelError::Parse(format!("SRDF: <disable_collisions> near byte {at}: {what}"));
+    let bad = |what: String| {
+        ModelError::Parse(format!("SRDF: <disable_collisions> near byte {at}: {what}"))
+    };
     let a = e
         .try_get_attribute(name)
         .map_err(|err| bad(format!("{err}")))?
         .ok_or_else(|| bad(format!("without `{name}`")))?;
-    let v = a.unescape_value().map_err(|err| bad(format!("`{name}`: {err}")))?;
+    let v = a
+        .unescape_value()
+        .map_err(|err| bad(format!("`{name}`: {err}")))?;
     Ok(v.into_owned())
 }
 

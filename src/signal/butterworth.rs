@@ -225,7 +225,10 @@ mod tests {
         let y = filtfilt(&f, &vec![-4.25; 400]).unwrap();
         assert!(y.iter().all(|v| (v + 4.25).abs() < 1e-9), "{:?}", &y[..4]);
         let t: Vec<f64> = (0..60_000).map(|k| k as f64 / rate).collect();
-        let x: Vec<f64> = t.iter().map(|t| (2.0 * std::f64::consts::PI * 0.3 * t).sin()).collect();
+        let x: Vec<f64> = t
+            .iter()
+            .map(|t| (2.0 * std::f64::consts::PI * 0.3 * t).sin())
+            .collect();
         let y = filtfilt(&f, &x).unwrap();
         let g2 = f.gain(0.3, rate).powi(2);
         // The slowest pole decays at 0.98 /s: 25 s from either end the transients are gone.

@@ -124,7 +124,11 @@ mod tests {
                 let back: f64 = ours.parse().expect("a decimal");
                 assert_eq!(back.to_bits(), v.to_bits(), "{ours} for {std}");
                 assert_eq!(ours.len(), std.len(), "{ours} vs {std}");
-                assert_eq!(ours[..ours.len() - 1], std[..std.len() - 1], "{ours} vs {std}");
+                assert_eq!(
+                    ours[..ours.len() - 1],
+                    std[..std.len() - 1],
+                    "{ours} vs {std}"
+                );
             }
         }
         // Ties between two shortest forms are rare (213 of 200,000 here).

@@ -247,3 +247,84 @@ async fn plans_are_checked_against_the_envelope_before_anything_moves() {
         m.stop().await;
     }
 }
+
+/// A motion-capture campaign's postures table checked before the first move: a posture
+/// outside the cell's narrowed limits is listed (and the plan refused at submit), long
+/// posture moves are split within the cell's joint step, and the estimated duration is the
+/// joint travel at the interface's speed plus settling and recording per posture.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mocap_postures_are_checked_against_the_cell_before_anything_moves() {
+    let (mut link, mocks) = calibd::sim::mocap::start_at(
+        5,
+        &calibd::sim::mocap::SimMocapOptions::default(),
+        "127.0.0.1:0",
+        "127.0.0.1:0",
+    )
+    .await
+    .expect("mocap twin");
+    let step = 20f64.to_radians();
+    link.joints.max_step_rad = step;
+    // Narrow the first joint to [-0.5, 0.5] rad.
+    link.limits[0] = [link.limits[0][0].max(-0.5), link.limits[0][1].min(0.5)];
+    let names = link.joint_names.clone();
+    let mid: Vec<f64> = link.limits.iter().map(|l| 0.5 * (l[0] + l[1])).collect();
+    let speed = link.joints.speed_rad_s;
+    let lab = Lab::connect(vec![CellLink::Mocap(link)]).expect("lab");
+    // Three postures: the middle, the first joint 0.8 rad away (outside), then 0.3 rad off.
+    let mut rows = vec![mid.clone(), mid.clone(), mid.clone()];
+    rows[1][0] = mid[0] + 0.8;
+    rows[2][0] = mid[0] + 0.3;
+    let table: Vec<Value> = rows
+        .iter()
+        .map(|r| {
+            Value::Object(
+                names
+                    .iter()
+                    .zip(r)
+                    .map(|(n, v)| (n.clone(), json!(v)))
+                    .collect(),
+            )
+        })
+        .collect();
+    let doc = json!({"kind": "cell.mocap_campaign", "cell": "talos", "postures": table,
+        "options": {"settle_s": 0.5, "record_s": 2.0}});
+    let job = calibd::jobs::prepare(&doc, &calibd::jobs::NoReferences).expect("job");
+    let p = job
+        .preflight(&lab, &calibd::util::NoMonitor)
+        .expect("a campaign on this lab's cell")
+        .expect("a plan");
+    let v = serde_json::to_value(&p).expect("json");
+    eprintln!("mocap dry run: {}", v["envelope"]);
+    assert_eq!(p.joints, names);
+    assert_eq!(v["envelope"]["checked"], 3);
+    let off = v["envelope"]["offending"].as_array().expect("offending");
+    assert_eq!(off.len(), 1, "{off:?}");
+    assert_eq!(off[0]["index"], 1);
+    assert_eq!(off[0]["at"], "target");
+    assert!(
+        off[0]["reason"].as_str().unwrap().contains("joint 1"),
+        "{off:?}"
+    );
+    // Moves: 1 to the first posture (where the robot stands is unknown), then the 0.8 rad
+    // and 0.5 rad changes of joint 1 in steps of at most 0.99 x 20 deg.
+    let moves: Vec<u64> = v["plan"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["moves"].as_u64().unwrap())
+        .collect();
+    let split = |d: f64| (d / (0.99 * step)).ceil() as u64;
+    assert_eq!(moves, vec![1, split(0.8), split(0.5)]);
+    assert_eq!(moves[1], 3);
+    let expect_s = (0.8 + 0.5) / speed + 3.0 * 2.5;
+    assert!(
+        (p.estimated_duration_s - expect_s).abs() < 1e-9,
+        "{} vs {expect_s}",
+        p.estimated_duration_s
+    );
+    let refused = p.refusal().expect("refused").to_string();
+    assert!(refused.contains("measurement 2"), "{refused}");
+    for m in mocks {
+        m.stop().await;
+    }
+}

@@ -12,13 +12,17 @@ use serde_json::Value;
 
 use crate::campaigns::engine::Retry;
 use crate::campaigns::mocap::{PostureSample, RecordOptions};
+use crate::campaigns::preflight;
 use crate::jobs::humanoid::design::{ConstraintSpec, DesignJob, DesignOptions};
 use crate::jobs::humanoid::identify::{HumanoidCalibration, IdentifyJob};
 use crate::jobs::humanoid::{BaseSpec, ColumnMap, FitSpec, MarkerSpec, PreprocessSpec};
-use crate::lab::MocapCell;
+use crate::lab::{Lab, MocapCell};
 use crate::model::humanoid::MarkerDef;
+use crate::procedures::Envelope;
 use crate::run::Run;
-use crate::run::{Cx, Inputs, JobError, Kind, NoReferences, RunFuture, Table, parse_spec};
+use crate::run::{
+    Cx, Inputs, JobError, Kind, NoReferences, Preflight, RunFuture, Table, parse_spec,
+};
 use crate::util::Monitor;
 
 /// `postures.nocp`: the `humanoid.design` fields that are not the cell's own.
@@ -223,13 +227,13 @@ impl MocapCampaignJob {
         job.calibrate(monitor)
     }
 
-    /// The postures (named joint values, rad): the NOCP design of the cell, or the table.
-    pub(crate) fn plan(
+    /// The postures table (the NOCP design of the cell, or the job's) and its field name.
+    fn posture_table(
         &self,
         cell: &MocapSetup,
         monitor: &dyn Monitor,
-    ) -> Result<Vec<Vec<(String, f64)>>, JobError> {
-        let (table, field) = match &self.postures {
+    ) -> Result<(Table, &'static str), JobError> {
+        Ok(match &self.postures {
             Postures::Table(t) => (t.clone(), "postures"),
             Postures::Nocp(n) => {
                 let mut job = DesignJob::new(
@@ -248,13 +252,36 @@ impl MocapCampaignJob {
                 job.narrow_limits(&cell.limits)?;
                 (job.design(monitor)?.result.postures, "postures.nocp")
             }
-        };
+        })
+    }
+
+    /// The postures' joint values (rad, the cell's joint order), unchecked.
+    fn posture_rows(
+        &self,
+        cell: &MocapSetup,
+        monitor: &dyn Monitor,
+    ) -> Result<(Vec<Vec<f64>>, &'static str), JobError> {
+        let (table, field) = self.posture_table(cell, monitor)?;
         let idx = table.cols(field, &cell.joints)?;
-        let mut plan = Vec::with_capacity(table.rows.len());
-        for (i, r) in table.rows.iter().enumerate() {
-            let mut p = Vec::with_capacity(idx.len());
-            for (k, &c) in idx.iter().enumerate() {
-                let v = r[c];
+        let rows = table
+            .rows
+            .iter()
+            .map(|r| idx.iter().map(|&c| r[c]).collect())
+            .collect();
+        Ok((rows, field))
+    }
+
+    /// The postures (named joint values, rad): the NOCP design of the cell, or the table.
+    pub(crate) fn plan(
+        &self,
+        cell: &MocapSetup,
+        monitor: &dyn Monitor,
+    ) -> Result<Vec<Vec<(String, f64)>>, JobError> {
+        let (rows, field) = self.posture_rows(cell, monitor)?;
+        let mut plan = Vec::with_capacity(rows.len());
+        for (i, r) in rows.iter().enumerate() {
+            let mut p = Vec::with_capacity(r.len());
+            for (k, &v) in r.iter().enumerate() {
                 let [lo, hi] = cell.limits[k];
                 if !(v.is_finite() && v >= lo && v <= hi) {
                     return Err(JobError::row(
@@ -271,6 +298,44 @@ impl MocapCampaignJob {
             plan.push(p);
         }
         Ok(plan)
+    }
+
+    /// The plan on `cell` before anything moves: every posture and the joint path to it
+    /// against the cell's limits, each move split within its joint step, and the estimated
+    /// duration (joint travel at the interface's speed, plus settling and recording).
+    pub(crate) fn preflight_on(
+        &self,
+        cell: &MocapCell,
+        monitor: &dyn Monitor,
+    ) -> Result<Preflight, JobError> {
+        let setup = self.setup(cell);
+        let (rows, _) = self.posture_rows(&setup, monitor)?;
+        let targets: Vec<preflight::Target> = rows
+            .into_iter()
+            .enumerate()
+            .map(|(i, q)| preflight::Target {
+                stage: "measurement",
+                what: format!("posture {}", i + 1),
+                q,
+            })
+            .collect();
+        let envelope = Envelope {
+            limits: setup.limits.clone(),
+            max_joint_step: cell.max_step_rad,
+            max_tool_step_mm: f64::INFINITY,
+            workspace_mm: None,
+        };
+        let (plan, check) = preflight::check(&targets, None, &envelope);
+        let travel_rad = preflight::travel(&targets, None);
+        let per_posture_s = self.options.settle_s + self.options.record_s;
+        Ok(Preflight {
+            cell: self.cell.clone(),
+            joints: setup.joints,
+            plan,
+            envelope: check,
+            estimated_duration_s: travel_rad / cell.speed_rad_s
+                + targets.len() as f64 * per_posture_s,
+        })
     }
 
     pub(crate) fn record_options(&self) -> RecordOptions {
@@ -317,6 +382,16 @@ pub fn samples_table(cell: &MocapSetup, rec: &[PostureSample]) -> Table {
 impl Kind for MocapCampaignJob {
     fn resumable(&self) -> bool {
         true
+    }
+
+    fn preflight(&self, lab: &Lab, monitor: &dyn Monitor) -> Option<Result<Preflight, JobError>> {
+        // A cell of another daemon (a fleet) is checked there, before its first move.
+        lab.cell(&self.cell)?;
+        Some(
+            lab.mocap(&self.cell)
+                .map_err(JobError::from)
+                .and_then(|cell| self.preflight_on(cell, monitor)),
+        )
     }
 
     fn devices(&self) -> Vec<String> {
