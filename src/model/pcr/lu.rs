@@ -1,5 +1,8 @@
 //! Dense LU with partial pivoting on a fixed-size stack matrix (the 12 x 12 shooting
 //! Jacobian): no allocation, and a cheap conditioning indicator for fold detection.
+//! Kept over nalgebra's `SMatrix` LU: factor + inverse 748 ns against 1.21 us on the same
+//! 1,000 matrices (`calibd bench pcr`, release, 2-core machine, 2026-11-28), and the
+//! inverse is on the FK and IK hot path.
 
 /// LU factors of an `N x N` matrix, `P A = L U`, stored in place.
 #[derive(Debug, Clone)]
