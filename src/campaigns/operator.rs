@@ -126,7 +126,10 @@ mod tests {
         }
         assert_eq!(auto_resumes(&j).unwrap(), 2);
         let e = j.entries().unwrap();
-        let last = e.iter().find(|e| e.index == AUTO_RESUME_OFFSET + 1).unwrap();
+        let last = e
+            .iter()
+            .find(|e| e.index == AUTO_RESUME_OFFSET + 1)
+            .unwrap();
         assert_eq!(last.data["auto_resume"], 2);
         // The same number twice is refused by the journal (one entry per resume).
         let again = AutoResumed {

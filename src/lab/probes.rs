@@ -203,7 +203,12 @@ pub async fn joints(
             id.joints.len()
         ),
         details,
-        fingerprint: format!("{} ({}), joints {}", id.robot, id.protocol, id.joints.join(" ")),
+        fingerprint: format!(
+            "{} ({}), joints {}",
+            id.robot,
+            id.protocol,
+            id.joints.join(" ")
+        ),
     })
 }
 

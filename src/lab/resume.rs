@@ -163,7 +163,10 @@ mod tests {
 
     fn before() -> Fingerprints {
         [
-            ("c.rws".to_string(), Some("IRC5-A, RobotWare 6.15".to_string())),
+            (
+                "c.rws".to_string(),
+                Some("IRC5-A, RobotWare 6.15".to_string()),
+            ),
             ("c.uwave".to_string(), Some("U-WAVE-R 1".to_string())),
         ]
         .into()
@@ -195,7 +198,9 @@ mod tests {
                 checked_at: "now".into(),
             },
         )];
-        assert!(matches!(compare(&before(), &down), Verdict::Down { device, .. } if device == "c.rws"));
+        assert!(
+            matches!(compare(&before(), &down), Verdict::Down { device, .. } if device == "c.rws")
+        );
         assert_eq!(compare(&before(), &down).operator_reason(), None);
         // Never identified before the fault: it cannot be told to be the same device.
         let unknown: Fingerprints = [("c.rws".to_string(), None)].into();

@@ -60,19 +60,31 @@ pub(super) fn watch(
                 _ => return,
             }
             let links = lab.links_for(&devices);
-            let now = futures_util::future::join_all(links.iter().map(|(_, l)| async {
-                (l.name.clone(), l.check(PROBE_TIMEOUT).await)
-            }))
+            let now = futures_util::future::join_all(
+                links
+                    .iter()
+                    .map(|(_, l)| async { (l.name.clone(), l.check(PROBE_TIMEOUT).await) }),
+            )
             .await;
             let verdict = compare(&before, &now);
             if let Verdict::Down { device, error } = &verdict {
                 tracing::debug!(job = id, device, error, "paused job: device still down");
                 continue;
             }
-            let outcome = resume_if_allowed(&svc, id, &verdict, &before, &paused_for, policy.max_auto_resumes).await;
+            let outcome = resume_if_allowed(
+                &svc,
+                id,
+                &verdict,
+                &before,
+                &paused_for,
+                policy.max_auto_resumes,
+            )
+            .await;
             match outcome {
                 Ok(msg) => tracing::info!(job = id, "{msg}"),
-                Err(e) => tracing::error!(job = id, error = %e, "automatic resume failed; the job waits for the operator"),
+                Err(e) => {
+                    tracing::error!(job = id, error = %e, "automatic resume failed; the job waits for the operator")
+                }
             }
             return;
         }

@@ -173,9 +173,11 @@ async fn trical(
         ..SimTricalOptions::default()
     };
     let (link, mocks) = super::trical::start_twin_at(twin, seed, &o, &at, d.uwave.axes).await?;
-    let hands = o.hands.get().cloned().ok_or_else(|| {
-        refuse(&d.name, "the simulated device's bench did not start".into())
-    })?;
+    let hands = o
+        .hands
+        .get()
+        .cloned()
+        .ok_or_else(|| refuse(&d.name, "the simulated device's bench did not start".into()))?;
     Ok((
         vec![
             ServedDevice {

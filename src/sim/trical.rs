@@ -54,7 +54,9 @@ pub struct Hands {
 
 impl std::fmt::Debug for Hands {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Hands").field("axes", &self.axes).finish_non_exhaustive()
+        f.debug_struct("Hands")
+            .field("axes", &self.axes)
+            .finish_non_exhaustive()
     }
 }
 

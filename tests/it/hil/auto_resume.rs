@@ -63,7 +63,10 @@ async fn a_campaign_paused_by_a_controller_reboot_resumes_by_itself() {
     assert_eq!(r["auto_resume"], 1, "{r}");
     assert_eq!(r["paused_for"].as_str(), Some(paused_for.as_str()), "{r}");
     for dev in ["irb120.rws", "irb120.uwave"] {
-        assert!(r["devices"][dev].as_str().is_some_and(|f| !f.is_empty()), "{r}");
+        assert!(
+            r["devices"][dev].as_str().is_some_and(|f| !f.is_empty()),
+            "{r}"
+        );
     }
     assert!(
         r["devices"]["irb120.rws"]
@@ -76,7 +79,9 @@ async fn a_campaign_paused_by_a_controller_reboot_resumes_by_itself() {
     assert!(logs.contains("resumed automatically (1 of 2)"), "{logs}");
     assert!(!logs.contains("resumed by the operator"), "{logs}");
     let result = d.get(&format!("/v1/jobs/{id}/result")).await;
-    let after = result["validation"]["after"]["mean"].as_f64().expect("mean");
+    let after = result["validation"]["after"]["mean"]
+        .as_f64()
+        .expect("mean");
     assert!(after < 0.010, "{}", result["validation"]);
     eprintln!(
         "job {id}: paused {t_paused:.1} s after the kill ({paused_for}); succeeded {:.1} s after the mock came back; {} journal entries; resume entry {r}; validation after {after:.4} mm",
