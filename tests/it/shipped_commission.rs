@@ -180,7 +180,7 @@ async fn the_commissioning_examples_run_in_order_on_the_example_lab() {
         "identify_tcp: {tcp:?}, {tool_err:.3} mm from the twin's true TCP; spread {} -> {} mm",
         r["previous_spread_rms_mm"], r["spread_rms_mm"]
     );
-    assert!(tool_err < 3.0, "{r}");
+    assert!(tool_err < 1.0, "{r}");
     let spread = r["spread_rms_mm"].as_f64().expect("spread");
     assert!(
         spread < r["previous_spread_rms_mm"].as_f64().expect("spread"),
@@ -201,18 +201,17 @@ async fn the_commissioning_examples_run_in_order_on_the_example_lab() {
         "locate_balls: distances {}, fit residual {} mm (before {}), base {}",
         r["distances"], r["fit_residual_rms_mm"], r["previous_residual_rms_mm"], r["base"]
     );
-    for (k, b) in r["balls"].as_array().expect("balls").iter().enumerate() {
-        let p: Vec<f64> = (0..3)
-            .map(|i| b["in_robot_mm"][i].as_f64().expect("ball"))
-            .collect();
-        let e = ((p[0] - balls[k].x).powi(2)
-            + (p[1] - balls[k].y).powi(2)
-            + (p[2] - balls[k].z).powi(2))
-        .sqrt();
-        eprintln!("ball {}: {e:.3} mm from the twin's", k + 1);
-        // The lab file's nominal geometry (not calibrated yet) limits this to millimetres.
-        assert!(e < 5.0, "ball {}: {b}", k + 1);
+    // The located balls against the ballbar (measured apart from the robot): within the
+    // kinematic error of the lab file's nominal geometry, not yet calibrated.
+    let pairs = r["distances"].as_array().expect("distances");
+    assert_eq!(pairs.len(), 3, "{r}");
+    for p in pairs {
+        assert_eq!(p["ballbar_mm"], 200.0, "{p}");
+        let diff = p["difference_mm"].as_f64().expect("difference");
+        assert!(diff.abs() < 0.5, "{p}");
     }
+    // The fitted base puts the balls on the plate far better than the lab file's base did.
     let fit = r["fit_residual_rms_mm"].as_f64().expect("fit");
-    assert!(fit < 3.0, "{r}");
+    let before = r["previous_residual_rms_mm"].as_f64().expect("before");
+    assert!(fit < 0.5 && fit < before / 5.0, "{r}");
 }
