@@ -19,6 +19,8 @@ pub struct DeviceIdentity {
     pub problems: Vec<String>,
     /// The typed identity serialized to JSON.
     pub details: serde_json::Value,
+    /// What names this unit (see [`Identity::fingerprint`]).
+    pub fingerprint: String,
 }
 
 /// Implemented by every driver's identity struct.
@@ -28,6 +30,11 @@ pub trait Identity: Serialize {
 
     /// One line for a table, e.g. `IRB120-sim, RobotWare 6.15.01.00, CalibServer loaded`.
     fn summary(&self) -> String;
+
+    /// What names this unit of hardware and its firmware, none of its live state (readings,
+    /// positions, motor state): equal before and after a reconnect when the same device came
+    /// back, so a paused campaign may resume by itself.
+    fn fingerprint(&self) -> String;
 
     /// What the operator has to fix before a calibration run, each with the fix; empty when
     /// the device is ready.
@@ -43,6 +50,7 @@ pub trait Identity: Serialize {
             problems: self.problems(),
             details: serde_json::to_value(self)
                 .unwrap_or_else(|e| serde_json::json!({ "serialize_error": e.to_string() })),
+            fingerprint: self.fingerprint(),
         }
     }
 }

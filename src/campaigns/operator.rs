@@ -15,6 +15,50 @@ use crate::procedures::{EntryStatus, Journal, JournalEntry};
 /// indices far below it).
 pub const MARKER_OFFSET: usize = 1_000_000;
 
+/// Journal index of the `n`-th automatic resume (0-based) is `AUTO_RESUME_OFFSET + n`.
+pub const AUTO_RESUME_OFFSET: usize = 2_000_000;
+
+/// The journal's record of an automatic resume: the campaign paused on a device fault and
+/// the daemon resumed it when the job's devices answered again as the same units.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AutoResumed {
+    /// 1 for the first automatic resume of the job.
+    pub auto_resume: usize,
+    /// Why the campaign had paused (the device fault).
+    pub paused_for: String,
+    /// The devices checked, each with the identity it answered with (its fingerprint).
+    pub devices: std::collections::BTreeMap<String, String>,
+    /// When (RFC 3339).
+    pub at: String,
+}
+
+/// Automatic resumes the journal holds.
+pub fn auto_resumes(journal: &dyn Journal) -> Result<usize, crate::procedures::JournalError> {
+    Ok(journal
+        .entries()?
+        .iter()
+        .filter(|e| e.index >= AUTO_RESUME_OFFSET && e.index < AUTO_RESUME_OFFSET + MARKER_OFFSET)
+        .count())
+}
+
+/// Journal the next automatic resume (its number is `r.auto_resume`).
+pub fn journal_auto_resume(
+    journal: &dyn Journal,
+    r: &AutoResumed,
+) -> Result<(), crate::procedures::JournalError> {
+    let index = AUTO_RESUME_OFFSET + r.auto_resume.saturating_sub(1);
+    let data =
+        serde_json::to_value(r).map_err(|e| crate::procedures::JournalError::Unwritable {
+            index,
+            message: e.to_string(),
+        })?;
+    journal.append(&JournalEntry {
+        index,
+        status: EntryStatus::Measured,
+        data,
+    })
+}
+
 /// The journal's record of a prompt shown to the operator.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Prompted {
@@ -64,5 +108,36 @@ mod tests {
         let j2 = MemoryJournal::with(j.entries().unwrap());
         assert!(confirm(&j2, 3, "jog to ball 1").is_ok());
         assert!(matches!(confirm(&j2, 4, "next"), Err(StepError::Wait(_))));
+    }
+
+    #[test]
+    fn automatic_resumes_are_counted_from_their_own_range() {
+        let j = MemoryJournal::default();
+        confirm(&j, 3, "jog").unwrap_err();
+        assert_eq!(auto_resumes(&j).unwrap(), 0);
+        for n in 1..=2 {
+            let r = AutoResumed {
+                auto_resume: n,
+                paused_for: "rws: connection refused".into(),
+                devices: [("c.rws".to_string(), "IRC5".to_string())].into(),
+                at: "2026-11-28T09:00:00Z".into(),
+            };
+            journal_auto_resume(&j, &r).unwrap();
+        }
+        assert_eq!(auto_resumes(&j).unwrap(), 2);
+        let e = j.entries().unwrap();
+        let last = e
+            .iter()
+            .find(|e| e.index == AUTO_RESUME_OFFSET + 1)
+            .unwrap();
+        assert_eq!(last.data["auto_resume"], 2);
+        // The same number twice is refused by the journal (one entry per resume).
+        let again = AutoResumed {
+            auto_resume: 2,
+            paused_for: String::new(),
+            devices: Default::default(),
+            at: String::new(),
+        };
+        assert!(journal_auto_resume(&j, &again).is_err());
     }
 }

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Parser;
+use tokio::io::AsyncBufReadExt;
 
 use super::{init_tracing, runtime};
 
@@ -27,7 +28,9 @@ pub(crate) fn lab_args(argv: &[OsString]) -> Option<MockLabCli> {
     }
 }
 
-/// `calibd mock lab`: serve the devices of a lab file's cells from the digital twins.
+/// `calibd mock lab`: serve the devices of a lab file's cells from the digital twins; the
+/// operator's hands on standard input, one a line: `mate CELL` (the centring device on its
+/// coupling platform), `unmate CELL` (back on the flange), `set CELL` (the set buttons).
 #[derive(Debug, Parser)]
 #[command(name = "calibd mock lab")]
 pub(crate) struct MockLabCli {
@@ -59,7 +62,22 @@ pub(crate) fn lab(args: MockLabCli) -> Result<()> {
             println!("mock {} ready on {}", d.device, d.address);
         }
         println!("mock lab ready");
-        let _ = tokio::signal::ctrl_c().await;
+        // The operator's hands, one action a line on standard input (until it closes).
+        let mut lines = tokio::io::BufReader::new(tokio::io::stdin()).lines();
+        let mut open = true;
+        loop {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => break,
+                l = lines.next_line(), if open => match l {
+                    Ok(Some(l)) if l.trim().is_empty() => {}
+                    Ok(Some(l)) => match lab.command(&l) {
+                        Ok(done) => println!("mock {done}"),
+                        Err(e) => println!("mock refused: {e}"),
+                    },
+                    _ => open = false,
+                },
+            }
+        }
         lab.stop().await;
         Ok(())
     })

@@ -78,6 +78,8 @@ pub struct BallCentringCell {
     pub workspace_mm: Option<[[f64; 3]; 2]>,
     /// Joint speed of the controller's moves (deg/s), for a plan's estimated duration.
     pub joint_speed_deg_s: f64,
+    /// Who resumes a campaign paused on a device fault.
+    pub resume: super::resume::ResumePolicy,
 }
 
 /// How the 3-PF cell's stage controller is reached.
@@ -143,6 +145,8 @@ pub struct PcrCellLink {
     pub max_stage_step_m: f64,
     /// Nominal model (its joint box is the stages' envelope).
     pub model: PcrFile,
+    /// Who resumes a campaign paused on a device fault.
+    pub resume: super::resume::ResumePolicy,
 }
 
 /// A humanoid's joint interface (`calibd-joints/1` over TCP).
@@ -177,6 +181,8 @@ pub struct MocapCellLink {
     pub limits: Vec<[f64; 2]>,
     /// Markers with their guessed positions.
     pub markers: Vec<MarkerDef>,
+    /// Who resumes a campaign paused on a device fault.
+    pub resume: super::resume::ResumePolicy,
 }
 
 /// One cell's description.
@@ -533,6 +539,12 @@ impl Lab {
         let rec = &Rec(dir.map(Path::to_path_buf));
         let mut lab = Lab::empty();
         for c in cells {
+            let (name, policy) = match &c {
+                CellLink::BallCentring(d) => (d.name.clone(), d.resume),
+                CellLink::Pcr(d) => (d.name.clone(), d.resume),
+                CellLink::Mocap(d) => (d.name.clone(), d.resume),
+            };
+            lab.set_resume_policy(&name, policy);
             let cell = match c {
                 CellLink::BallCentring(d) => Cell::BallCentring(ball_centring(d, rec)?),
                 CellLink::Pcr(d) => Cell::Pcr(pcr(d, rec)?),

@@ -20,6 +20,9 @@ pub struct Identity {
     pub summary: String,
     /// The typed identity as the driver reported it.
     pub details: serde_json::Value,
+    /// What names the unit, none of its live state: the same device after a reconnect has
+    /// the same fingerprint (automatic resume compares them).
+    pub fingerprint: String,
 }
 
 /// Why a probe failed, and the fix when the device's identity names it.
@@ -74,6 +77,8 @@ pub struct DeviceLink {
     pub address: String,
     probe: Box<dyn Fn() -> ProbeFuture + Send + Sync>,
     status: Mutex<DeviceStatus>,
+    /// The identity of the last probe that succeeded, kept while the device fails.
+    last_ok: Mutex<Option<Identity>>,
     /// One probe at a time per device (the background check and a refresh may meet).
     probing: tokio::sync::Mutex<()>,
 }
@@ -101,6 +106,7 @@ impl DeviceLink {
             address: address.into(),
             probe: Box::new(probe),
             status: Mutex::new(DeviceStatus::Unchecked),
+            last_ok: Mutex::new(None),
             probing: tokio::sync::Mutex::new(()),
         }
     }
@@ -125,6 +131,14 @@ impl DeviceLink {
             .clone()
     }
 
+    /// What the device said it was the last time a probe succeeded (None: never yet).
+    pub fn last_identity(&self) -> Option<Identity> {
+        self.last_ok
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
     /// Probe now (at most `timeout`), keep and return the result.
     pub async fn check(&self, timeout: Duration) -> DeviceStatus {
         let _one = self.probing.lock().await;
@@ -136,6 +150,9 @@ impl DeviceLink {
             ))),
         };
         let checked_at = crate::util::format_time(chrono::Utc::now());
+        if let Ok(identity) = &r {
+            *self.last_ok.lock().unwrap_or_else(|p| p.into_inner()) = Some(identity.clone());
+        }
         let s = match r {
             Ok(identity) => DeviceStatus::Ok {
                 identity,
@@ -223,6 +240,14 @@ impl Lab {
                     .iter()
                     .map(move |l| report(c.name(), l, l.status()))
             })
+            .collect()
+    }
+
+    /// The devices named in `devices`, with their cells.
+    pub fn links_for<'a>(&'a self, devices: &'a [String]) -> Vec<(&'a str, &'a DeviceLink)> {
+        self.cells()
+            .flat_map(|c| c.links().iter().map(move |l| (c.name(), l)))
+            .filter(|(_, l)| devices.contains(&l.name))
             .collect()
     }
 

@@ -10,6 +10,7 @@ pub mod connect;
 pub mod decision;
 pub mod devices;
 pub mod probes;
+pub mod resume;
 
 use std::collections::BTreeMap;
 use std::future::Future;
@@ -86,6 +87,8 @@ pub trait Attached: Send + Sync {
 #[derive(Default)]
 pub struct Lab {
     cells: BTreeMap<String, Cell>,
+    /// Each cell's resume setting (absent: the default).
+    resume: BTreeMap<String, resume::ResumePolicy>,
     attached: std::sync::Mutex<Vec<Box<dyn Attached>>>,
 }
 
@@ -136,6 +139,11 @@ impl Lab {
         }
         self.cells.insert(name, cell);
         Ok(())
+    }
+
+    /// Set the resume setting of cell `name`.
+    pub fn set_resume_policy(&mut self, name: &str, p: resume::ResumePolicy) {
+        self.resume.insert(name.to_string(), p);
     }
 
     /// Keep `a` alive with the lab and stop it in [`Lab::stop`].

@@ -37,6 +37,7 @@ fn checked<I: DriverIdentity>(r: Result<I, DriverError>) -> Result<Identity, Pro
         Ok(Identity {
             summary: d.summary,
             details: d.details,
+            fingerprint: d.fingerprint,
         })
     } else {
         Err(ProbeError {
@@ -81,14 +82,17 @@ pub async fn mcs(h: Arc<McsHandle>, channels: [u8; 3]) -> Result<Identity, Probe
 pub async fn cia402(drives: Arc<[Cia402Handle; 3]>) -> Result<Identity, ProbeError> {
     let mut summary = Vec::new();
     let mut details = Vec::new();
+    let mut fingerprint = Vec::new();
     for d in drives.iter() {
         let i = checked(d.identity().await)?;
         summary.push(i.summary);
         details.push(i.details);
+        fingerprint.push(i.fingerprint);
     }
     Ok(Identity {
         summary: summary.join("; "),
         details: serde_json::Value::Array(details),
+        fingerprint: fingerprint.join("; "),
     })
 }
 
@@ -152,6 +156,7 @@ pub async fn qtm(h: QtmHandle, cell: Arc<CellMarkers>) -> Result<Identity, Probe
             cell.markers.len()
         ),
         details: i.details,
+        fingerprint: i.fingerprint,
     })
 }
 
@@ -198,6 +203,12 @@ pub async fn joints(
             id.joints.len()
         ),
         details,
+        fingerprint: format!(
+            "{} ({}), joints {}",
+            id.robot,
+            id.protocol,
+            id.joints.join(" ")
+        ),
     })
 }
 

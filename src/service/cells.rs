@@ -66,6 +66,11 @@ impl Service {
     /// Resume a paused or interrupted campaign: it is queued again and continues from the
     /// first configuration its journal does not hold.
     pub async fn resume(&self, id: i64) -> Result<JobState, ServiceError> {
+        self.resume_as(id, "resumed by the operator").await
+    }
+
+    /// [`Service::resume`], logging `why` (who resumed it and on what grounds).
+    pub(super) async fn resume_as(&self, id: i64, why: &str) -> Result<JobState, ServiceError> {
         let rec = self.job(id).await?;
         if !matches!(rec.state, JobState::Paused | JobState::Interrupted) {
             return Err(ServiceError::Conflict(format!(
@@ -80,7 +85,8 @@ impl Service {
             )));
         }
         let st = self.shared.store.clone();
-        let ok = blocking(move || Ok(st.resume_job(id, "resumed by the operator")?)).await?;
+        let why = why.to_string();
+        let ok = blocking(move || Ok(st.resume_job(id, &why)?)).await?;
         if !ok {
             return Err(ServiceError::Conflict(format!(
                 "job {id} changed state; try again"

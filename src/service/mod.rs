@@ -9,6 +9,7 @@ mod drift;
 mod events;
 mod fleet;
 mod queue;
+mod resume;
 mod storage;
 mod submit;
 mod types;

@@ -106,6 +106,8 @@ async fn next(svc: &Service) -> Entry {
 enum Outcome {
     Succeeded(Option<crate::lab::Decision>),
     Ended(JobState, Option<String>),
+    /// Paused on a device fault (the reason): the cell may resume it by itself.
+    PausedOnFault(String),
     /// The job was taken from this run (its lease expired and it was queued or claimed
     /// again): nothing of this run is stored, and its end is not announced.
     Stale(StoreError),
@@ -184,6 +186,8 @@ async fn run_one(svc: &Service, entry: Entry, claimed: Option<Run>) {
         return;
     };
     svc.update_gauges();
+    // What each device was at the start: a paused job resumes by itself only on the same.
+    let before = svc.shared.lab.fingerprints(&entry.devices);
     svc.publish(Event::State {
         id,
         kind: job.kind.clone(),
@@ -248,6 +252,7 @@ async fn run_one(svc: &Service, entry: Entry, claimed: Option<Run>) {
             Some(format!("internal error: the job panicked ({e})")),
         )
     });
+    let mut fault = false;
     let (state, error) = match outcome {
         Outcome::Succeeded(decision) => {
             if let Some(d) = decision {
@@ -256,6 +261,10 @@ async fn run_one(svc: &Service, entry: Entry, claimed: Option<Run>) {
             (JobState::Succeeded, None)
         }
         Outcome::Ended(s, e) => (s, e),
+        Outcome::PausedOnFault(e) => {
+            fault = true;
+            (JobState::Paused, Some(e))
+        }
         Outcome::Stale(e) => return drop_stale(svc, run, &entry.devices, &e),
     };
     let e2 = error.clone();
@@ -286,6 +295,9 @@ async fn run_one(svc: &Service, entry: Entry, claimed: Option<Run>) {
         Ok(()) => {}
     }
     tracing::info!(parent: None, job = id, kind = %job.kind, state = state.as_str(), seconds = t0.elapsed().as_secs_f64(), "job finished");
+    if fault && let Some(e) = &error {
+        super::resume::watch(svc, id, entry.devices.clone(), before, e.clone());
+    }
     finish(
         svc,
         id,
@@ -359,9 +371,8 @@ async fn conclude(svc: &Service, run: Run, ran: Result<jobs::Completed, JobError
                 )
             }
         }
-        Err(e @ (JobError::Paused { .. } | JobError::Waiting { .. })) => {
-            Outcome::Ended(JobState::Paused, Some(e.to_string()))
-        }
+        Err(e @ JobError::Paused { .. }) => Outcome::PausedOnFault(e.to_string()),
+        Err(e @ JobError::Waiting { .. }) => Outcome::Ended(JobState::Paused, Some(e.to_string())),
         Err(e) => {
             if e.is_internal() {
                 tracing::error!(job = id, error = %e, "the job failed on an internal or storage fault");

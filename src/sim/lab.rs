@@ -34,9 +34,49 @@ pub struct MockLab {
     /// The devices served.
     pub devices: Vec<ServedDevice>,
     mocks: Vec<RunningMock>,
+    /// The operator's hands on each ball-centring cell's device, by cell.
+    hands: Vec<(String, super::trical::Hands)>,
 }
 
+/// The operator's actions `calibd mock lab` reads on its standard input, one a line.
+pub const OPERATOR_COMMANDS: &str = "mate CELL | unmate CELL | set CELL";
+
 impl MockLab {
+    /// Do what the operator's line says to a ball-centring cell's device (`mate CELL`: on
+    /// its coupling platform; `unmate CELL`: back on the flange; `set CELL`: press the
+    /// indicators' set buttons); what was done, or why not.
+    pub fn command(&self, line: &str) -> Result<String, String> {
+        let mut words = line.split_whitespace();
+        let (Some(verb), Some(cell), None) = (words.next(), words.next(), words.next()) else {
+            return Err(format!("{line:?}: give {OPERATOR_COMMANDS}"));
+        };
+        let Some((_, hands)) = self.hands.iter().find(|(c, _)| c == cell) else {
+            let have: Vec<&str> = self.hands.iter().map(|(c, _)| c.as_str()).collect();
+            return Err(format!(
+                "{cell}: no ball-centring cell of that name here (have: {})",
+                have.join(", ")
+            ));
+        };
+        match verb {
+            "mate" => {
+                hands.mate();
+                Ok(format!("{cell}: device mated on its coupling"))
+            }
+            "unmate" => {
+                hands.unmate();
+                Ok(format!("{cell}: device back on the flange"))
+            }
+            "set" => {
+                let shown = hands.set();
+                Ok(format!(
+                    "{cell}: set buttons pressed, indicators show {:.3} {:.3} {:.3} mm",
+                    shown[0], shown[1], shown[2]
+                ))
+            }
+            other => Err(format!("{other:?}: give {OPERATOR_COMMANDS}")),
+        }
+    }
+
     /// Stop every server.
     pub async fn stop(self) {
         for m in self.mocks {
@@ -86,13 +126,17 @@ pub async fn serve(
     let mut lab = MockLab {
         devices: Vec::new(),
         mocks: Vec::new(),
+        hands: Vec::new(),
     };
     for c in cells
         .iter()
         .filter(|c| only.is_empty() || only.contains(&name(c)))
     {
         let r = match c {
-            CellLink::BallCentring(d) => trical(d, seed).await,
+            CellLink::BallCentring(d) => trical(d, seed).await.map(|(dv, m, h)| {
+                lab.hands.push((d.name.clone(), h));
+                (dv, m)
+            }),
             CellLink::Pcr(d) => pcr(d, seed).await,
             CellLink::Mocap(d) => mocap(d, seed).await,
         };
@@ -113,7 +157,7 @@ pub async fn serve(
 async fn trical(
     d: &BallCentringCell,
     seed: u64,
-) -> Result<(Vec<ServedDevice>, Vec<RunningMock>), LabError> {
+) -> Result<(Vec<ServedDevice>, Vec<RunningMock>, super::trical::Hands), LabError> {
     // The twin's nominal is the lab file's model, its plate the file's ballbar; its
     // truth is drawn around them.
     let twin = crate::twin::SerialTwin::around(d.model.clone(), d.ballbar, seed)
@@ -129,6 +173,11 @@ async fn trical(
         ..SimTricalOptions::default()
     };
     let (link, mocks) = super::trical::start_twin_at(twin, seed, &o, &at, d.uwave.axes).await?;
+    let hands = o
+        .hands
+        .get()
+        .cloned()
+        .ok_or_else(|| refuse(&d.name, "the simulated device's bench did not start".into()))?;
     Ok((
         vec![
             ServedDevice {
@@ -141,6 +190,7 @@ async fn trical(
             },
         ],
         mocks,
+        hands,
     ))
 }
 

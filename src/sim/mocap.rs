@@ -262,6 +262,7 @@ pub async fn start_twin_at(
         }
     };
     let link = MocapCellLink {
+        resume: Default::default(),
         name: "talos".into(),
         joints: JointsLink {
             address: joints_mock.addr.clone(),

@@ -3,6 +3,7 @@
 //! ([`crate::lab::CellLink`]) and builds the [`Lab`] from them exactly as the daemon
 //! would for the real instruments; the mock servers stay attached to the lab.
 
+pub mod bench;
 pub mod lab;
 pub mod mocap;
 pub mod pcr;

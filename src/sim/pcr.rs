@@ -196,6 +196,7 @@ pub async fn start_twin_at(
     .await
     .map_err(|e| mock_err("microscope", e))?;
     let link = PcrCellLink {
+        resume: Default::default(),
         name: "pcr3pf".into(),
         stages: StagesLink {
             backend: StageBackend::Mcs2(stage_mock.addr.clone()),

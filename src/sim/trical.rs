@@ -9,6 +9,7 @@ use calibd_drivers::rws::mock::ArmModel;
 use calibd_drivers::uwave::AxisMap;
 use calibd_drivers::uwave::mock::IndicatorModel;
 
+use super::bench::{Bench, BenchHandle};
 use super::with;
 use crate::lab::{BallCentringCell, CellLink, LabError, RwsLink, UwaveLink};
 use crate::twin::SerialTwin;
@@ -35,6 +36,70 @@ pub struct SimTricalOptions {
     /// Filled with the cell's twin when it starts: tests change the true robot through it
     /// (parameters drifting between nights).
     pub twin: TwinHandle,
+    /// Filled with the centring device's bench (coupling, set buttons) when it starts.
+    pub hands: HandsHandle,
+}
+
+/// Where the simulated TriCal cell's operator hands are published once started.
+pub type HandsHandle = Arc<std::sync::OnceLock<Hands>>;
+
+/// The operator's hands on a simulated TriCal cell's device: mate it on its coupling, take
+/// it off, press the indicators' set buttons (see [`super::bench`]).
+#[derive(Clone)]
+pub struct Hands {
+    cell: Shared,
+    bench: BenchHandle,
+    axes: [AxisMap; 3],
+}
+
+impl std::fmt::Debug for Hands {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Hands")
+            .field("axes", &self.axes)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Hands {
+    /// Mate the device on its coupling platform.
+    pub fn mate(&self) {
+        lock(&self.bench).mate();
+    }
+
+    /// Put the device back on the robot's flange.
+    pub fn unmate(&self) {
+        lock(&self.bench).unmate();
+    }
+
+    /// Press every indicator's set button where the plungers stand now; what they show
+    /// after (mm).
+    pub fn set(&self) -> [f64; 3] {
+        let p = plungers(&self.cell, &self.bench, &self.axes);
+        let mut b = lock(&self.bench);
+        b.set(p);
+        std::array::from_fn(|k| b.display_mm(k, p[k], self.axes[k].zero_mm))
+    }
+}
+
+fn lock(b: &BenchHandle) -> std::sync::MutexGuard<'_, Bench> {
+    b.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Each indicator's plunger position from mid-travel (mm): on the coupling's master ball
+/// when mated, else on the twin's nearest ball, saturated at the ends of travel; a free
+/// plunger (no ball) is fully extended, at the bottom of its range whichever way the axis
+/// is mapped.
+fn plungers(cell: &Shared, bench: &BenchHandle, axes: &[AxisMap; 3]) -> [f64; 3] {
+    let h = INDICATOR_HALF_RANGE_MM;
+    let mated = lock(bench).mated();
+    let v = match mated {
+        Some(m) => Some(m),
+        None => with(cell, |c| c.indicator_values()),
+    };
+    std::array::from_fn(|k| match v {
+        Some(v) => (axes[k].sign * v[k]).clamp(-h, h),
+        None => -h,
+    })
 }
 
 /// Where the simulated TriCal cell's twin is published once started.
@@ -50,6 +115,7 @@ impl Default for SimTricalOptions {
             indicator_stall: Arc::default(),
             uwave_request: String::new(),
             twin: TwinHandle::default(),
+            hands: HandsHandle::default(),
         }
     }
 }
@@ -91,9 +157,11 @@ impl ArmModel for TwinArm {
 }
 
 /// The twin's indicators behind the U-WAVE mock: plungers at mid-travel when the TCP is on
-/// the ball centre, saturated at the ends of travel, fully extended with no ball.
+/// the ball centre, saturated at the ends of travel, fully extended with no ball; on the
+/// coupling when mated; each display relative to its last set (see [`super::bench`]).
 struct TwinIndicators {
     cell: Shared,
+    bench: BenchHandle,
     stall: Arc<std::sync::atomic::AtomicBool>,
     /// Tool axis k is read on `axes[k].channel` as `zero_mm + sign * error` (the inverse of
     /// the lab file's `axis_mm = sign * (reading_mm - zero_mm)`).
@@ -109,15 +177,8 @@ impl IndicatorModel for TwinIndicators {
             return None;
         }
         let k = self.axes.iter().position(|a| a.channel == channel)?;
-        let a = &self.axes[k];
-        let h = INDICATOR_HALF_RANGE_MM;
-        // The plunger's travel is the same whichever way the axis is mapped: a free plunger
-        // (no ball) is fully extended, the reading at the bottom of its range.
-        let travel = match with(&self.cell, |c| c.indicator_values()) {
-            Some(v) => (a.sign * v[k]).clamp(-h, h),
-            None => -h,
-        };
-        Some(a.zero_mm + travel)
+        let p = plungers(&self.cell, &self.bench, &self.axes)[k];
+        Some(lock(&self.bench).display_mm(k, p, self.axes[k].zero_mm))
     }
 }
 
@@ -220,8 +281,15 @@ pub async fn start_twin_at(
     let mut uw_args = MockArgs::new(MockDevice::Uwave);
     uw_args.rate_hz = o.indicator_rate_hz;
     uw_args.uwave_request = o.uwave_request.clone();
+    let bench: BenchHandle = Arc::new(Mutex::new(Bench::new(seed)));
+    let _ = o.hands.set(Hands {
+        cell: cell.clone(),
+        bench: bench.clone(),
+        axes: axes.clone(),
+    });
     let ind: Arc<Mutex<dyn IndicatorModel>> = Arc::new(Mutex::new(TwinIndicators {
         cell,
+        bench,
         stall: o.indicator_stall.clone(),
         axes: axes.clone(),
     }));
@@ -231,6 +299,7 @@ pub async fn start_twin_at(
     )
     .map_err(|e| mock_err("uwave", e))?;
     let link = BallCentringCell {
+        resume: Default::default(),
         name: "irb120".into(),
         rws: RwsLink {
             address: rws_mock.addr.clone(),

@@ -108,6 +108,7 @@ pub(crate) trait Campaigns {
     fn measurements(&self, job: i64) -> Result<Vec<JournalEntry>, StoreError>;
     fn pause_job(&self, run: Run, reason: &str) -> Result<bool, StoreError>;
     fn resume_job(&self, id: i64, why: &str) -> Result<bool, StoreError>;
+    fn note_pause(&self, id: i64, reason: &str) -> Result<bool, StoreError>;
     fn cell_models(&self, cell: &str) -> Result<Vec<CellModel>, StoreError>;
 }
 

@@ -52,6 +52,11 @@ impl Store {
         self.backend.resume_job(id, why)
     }
 
+    /// Replace the pause reason of paused job `id` (logged); false if it is not paused.
+    pub fn note_pause(&self, id: i64, reason: &str) -> Result<bool, StoreError> {
+        self.backend.note_pause(id, reason)
+    }
+
     /// The current model of `cell`, if one was accepted.
     pub fn current_cell_model(&self, cell: &str) -> Result<Option<CellModel>, StoreError> {
         Ok(self

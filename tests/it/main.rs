@@ -48,5 +48,6 @@ mod serial_on_axis;
 mod serial_prior;
 mod serial_stream;
 mod serial_twin;
+mod shipped_commission;
 mod shipped_lab;
 mod talos_prior;

@@ -12,13 +12,13 @@ use serde_json::Value;
 
 use crate::hil::{BIN, Daemon, Proc, free_port, lab_check};
 
-fn repo(p: &str) -> PathBuf {
+pub(crate) fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
 }
 
 /// The example lab in `dir`: every `address = "host:port"` on a free loopback port, the
 /// U-WAVE port and the RWS password file in `dir`, the models copied beside it.
-fn scratch_lab(dir: &Path) -> PathBuf {
+pub(crate) fn scratch_lab(dir: &Path) -> PathBuf {
     let text = std::fs::read_to_string(repo("deploy/lab.example.toml")).expect("example lab");
     let mut out = String::new();
     for line in text.lines() {
@@ -53,7 +53,7 @@ fn scratch_lab(dir: &Path) -> PathBuf {
     lab
 }
 
-fn example(name: &str) -> Value {
+pub(crate) fn example(name: &str) -> Value {
     let text = std::fs::read_to_string(repo(&format!("examples/{name}"))).expect("example");
     serde_json::from_str(&text).expect("example JSON")
 }

@@ -131,6 +131,10 @@ pub struct MicroscopeIdentity {
 impl crate::identity::Identity for MicroscopeIdentity {
     const DEVICE_KIND: &'static str = DEVICE;
 
+    fn fingerprint(&self) -> String {
+        self.id.clone()
+    }
+
     fn summary(&self) -> String {
         match (&self.pose, &self.pose_error) {
             (Some(p), _) => format!(

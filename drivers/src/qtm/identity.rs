@@ -44,6 +44,13 @@ pub(crate) fn after(
 impl Identity for QtmIdentity {
     const DEVICE_KIND: &'static str = "qtm";
 
+    fn fingerprint(&self) -> String {
+        format!(
+            "QTM {}, RT protocol {}, {} Hz, {} up",
+            self.qtm_version, self.protocol_version, self.frequency_hz, self.axis_upwards
+        )
+    }
+
     fn summary(&self) -> String {
         format!(
             "QTM {}, RT protocol {}, {} Hz, {} labelled markers ({})",

@@ -45,6 +45,13 @@ pub struct StageIdentity {
 impl Identity for StageIdentity {
     const DEVICE_KIND: &'static str = "smaract";
 
+    fn fingerprint(&self) -> String {
+        format!(
+            "{} serial {} name {:?}, {} channels",
+            self.controller, self.serial_number, self.device_name, self.channel_count
+        )
+    }
+
     fn summary(&self) -> String {
         let ch: Vec<String> = self
             .channels
@@ -109,6 +116,7 @@ impl Identity for StageIdentity {
             problems: self.problems(),
             details: serde_json::to_value(self)
                 .unwrap_or_else(|e| serde_json::json!({ "serialize_error": e.to_string() })),
+            fingerprint: self.fingerprint(),
         }
     }
 }

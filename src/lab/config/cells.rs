@@ -139,6 +139,7 @@ impl Reader<'_> {
                     ));
                 }
             },
+            resume: ResumePolicy::default(),
         })
     }
 
@@ -194,6 +195,7 @@ impl Reader<'_> {
             microscope: self.address(&scope.get_ref().address, "microscope.address")?,
             max_stage_step_m: positive(self, c, env.max_stage_step_m, 0.01, "max_stage_step_m")?,
             model,
+            resume: ResumePolicy::default(),
         })
     }
 
@@ -267,6 +269,7 @@ impl Reader<'_> {
             joint_names: j.names.clone(),
             limits,
             markers,
+            resume: ResumePolicy::default(),
         })
     }
 }

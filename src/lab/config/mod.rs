@@ -20,6 +20,7 @@ use super::connect::{
     BallCentringCell, CellLink, JointsLink, MocapCellLink, PcrCellLink, RwsLink, StageBackend,
     StagesLink, UwaveLink,
 };
+use super::resume::{DEFAULT_MAX_AUTO_RESUMES, ResumeMode, ResumePolicy};
 use crate::model::dh::DhFile;
 use crate::model::humanoid::MarkerDef;
 use crate::model::pcr::PcrFile;
@@ -76,6 +77,12 @@ struct CellSpec {
     joints: Option<Spanned<JointsSpec>>,
     #[serde(default)]
     envelope: EnvelopeSpec,
+    /// Who resumes a campaign paused on a device fault: `operator` (default) or `auto`.
+    #[serde(default)]
+    resume: Option<Spanned<String>>,
+    /// Automatic resumes allowed per job (with `resume = "auto"`).
+    #[serde(default)]
+    max_auto_resumes: Option<Spanned<i64>>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -469,11 +476,57 @@ impl Reader<'_> {
 
     fn cell(&self, c: &Spanned<CellSpec>) -> Result<CellLink, LabConfigError> {
         let s = c.get_ref();
+        let resume = self.resume_policy(s)?;
         match s.kind {
-            Kind::BallCentring => self.ball_centring(c).map(CellLink::BallCentring),
-            Kind::Pcr => self.pcr(c).map(CellLink::Pcr),
-            Kind::Humanoid => self.humanoid(c).map(CellLink::Mocap),
+            Kind::BallCentring => self
+                .ball_centring(c)
+                .map(|d| CellLink::BallCentring(BallCentringCell { resume, ..d })),
+            Kind::Pcr => self
+                .pcr(c)
+                .map(|d| CellLink::Pcr(PcrCellLink { resume, ..d })),
+            Kind::Humanoid => self
+                .humanoid(c)
+                .map(|d| CellLink::Mocap(MocapCellLink { resume, ..d })),
         }
+    }
+
+    /// The cell's `resume` and `max_auto_resumes`.
+    fn resume_policy(&self, s: &CellSpec) -> Result<ResumePolicy, LabConfigError> {
+        let mode = match &s.resume {
+            None => ResumeMode::Operator,
+            Some(m) => match m.get_ref().as_str() {
+                "operator" => ResumeMode::Operator,
+                "auto" => ResumeMode::Auto,
+                other => {
+                    return Err(self.err(
+                        &m.span(),
+                        format!("resume = {other:?}: give \"operator\" or \"auto\""),
+                    ));
+                }
+            },
+        };
+        let max_auto_resumes = match &s.max_auto_resumes {
+            None => DEFAULT_MAX_AUTO_RESUMES,
+            Some(n) if mode == ResumeMode::Operator => {
+                return Err(self.err(
+                    &n.span(),
+                    "max_auto_resumes applies with resume = \"auto\" only".into(),
+                ));
+            }
+            Some(n) => u32::try_from(*n.get_ref())
+                .ok()
+                .filter(|v| (1..=100).contains(v))
+                .ok_or_else(|| {
+                    self.err(
+                        &n.span(),
+                        format!("max_auto_resumes = {} must be 1 to 100", n.get_ref()),
+                    )
+                })?,
+        };
+        Ok(ResumePolicy {
+            mode,
+            max_auto_resumes,
+        })
     }
 }
 

@@ -338,6 +338,20 @@ impl Campaigns for Pg {
         Ok(n == 1)
     }
 
+    fn note_pause(&self, id: i64, reason: &str) -> Result<bool, StoreError> {
+        let mut c = self.conn()?;
+        let mut tx = c.transaction()?;
+        let n = tx.execute(
+            "UPDATE jobs SET error = $2 WHERE id = $1 AND state = 'paused'",
+            &[&id, &reason],
+        )?;
+        if n == 1 {
+            log_tx(&mut tx, Some(id), "warn", &format!("paused: {reason}"))?;
+        }
+        tx.commit()?;
+        Ok(n == 1)
+    }
+
     fn cell_models(&self, cell: &str) -> Result<Vec<CellModel>, StoreError> {
         let rows = self.conn()?.query(
             "SELECT id, cell, job_id, state, reason, validation, model, at FROM cell_models \

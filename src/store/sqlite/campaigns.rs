@@ -126,6 +126,20 @@ impl Campaigns for Sqlite {
         })
     }
 
+    fn note_pause(&self, id: i64, reason: &str) -> Result<bool, StoreError> {
+        self.write(|c| {
+            let tx = c.transaction()?;
+            let n = tx
+                .prepare_cached("UPDATE jobs SET error = ?2 WHERE id = ?1 AND state = 'paused'")?
+                .execute(params![id, reason])?;
+            if n == 1 {
+                log_tx(&tx, Some(id), "warn", &format!("paused: {reason}"))?;
+            }
+            tx.commit()?;
+            Ok(n == 1)
+        })
+    }
+
     fn cell_models(&self, cell: &str) -> Result<Vec<CellModel>, StoreError> {
         self.read(|c| {
             let mut st = c.prepare_cached(

@@ -4,9 +4,9 @@
 //! microscope on TCP); a lab file points at them; `calibd serve --config` runs as its own
 //! process and is driven over HTTP. Nothing is shared but sockets and serial ports.
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -18,18 +18,21 @@ const WAIT: Duration = Duration::from_secs(120);
 /// A child process killed on drop, with its stdout lines on a channel.
 pub(crate) struct Proc {
     child: Child,
+    stdin: Option<ChildStdin>,
     lines: mpsc::Receiver<String>,
 }
 
 impl Proc {
     pub(crate) fn spawn(cmd: &mut Command) -> Proc {
         let mut child = cmd
+            .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .env("RUST_LOG", "warn")
             .spawn()
             .expect("process starts");
         let out = child.stdout.take().expect("stdout");
+        let stdin = child.stdin.take();
         let (tx, lines) = mpsc::channel();
         std::thread::spawn(move || {
             for l in BufReader::new(out).lines() {
@@ -39,7 +42,18 @@ impl Proc {
                 }
             }
         });
-        Proc { child, lines }
+        Proc {
+            child,
+            stdin,
+            lines,
+        }
+    }
+
+    /// Write one line to the process's standard input (the mock lab's operator hands).
+    pub(crate) fn send(&mut self, line: &str) {
+        let stdin = self.stdin.as_mut().expect("stdin");
+        writeln!(stdin, "{line}").expect("write to stdin");
+        stdin.flush().expect("flush stdin");
     }
 
     /// Lines until one starts with `prefix` (that line), or panic after `WAIT`.
@@ -239,7 +253,7 @@ impl Daemon {
             .expect("json")
     }
 
-    async fn post(&self, path: &str, body: &Value) -> (u16, Value) {
+    pub(crate) async fn post(&self, path: &str, body: &Value) -> (u16, Value) {
         let r = self
             .http
             .post(format!("{}{path}", self.url))
@@ -252,14 +266,14 @@ impl Daemon {
         (s, r.json().await.unwrap_or(Value::Null))
     }
 
-    async fn submit(&self, doc: &Value) -> i64 {
+    pub(crate) async fn submit(&self, doc: &Value) -> i64 {
         let (s, r) = self.post("/v1/jobs", doc).await;
         assert_eq!(s, 201, "{r}");
         r["id"].as_i64().expect("id")
     }
 
     /// The job once its state is one of `states`.
-    async fn until_state(&self, id: i64, states: &[&str]) -> Value {
+    pub(crate) async fn until_state(&self, id: i64, states: &[&str]) -> Value {
         let t0 = Instant::now();
         loop {
             let j = self.get(&format!("/v1/jobs/{id}")).await;
@@ -549,3 +563,4 @@ async fn commissioning_the_tcp_over_mock_processes() {
 }
 
 mod absent;
+mod auto_resume;

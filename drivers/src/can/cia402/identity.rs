@@ -52,6 +52,19 @@ pub fn power_state(sw: u16) -> &'static str {
 impl Identity for Cia402Identity {
     const DEVICE_KIND: &'static str = DEVICE;
 
+    fn fingerprint(&self) -> String {
+        format!(
+            "node {} type {:#010x} vendor {:#010x} product {:#010x} rev {:#010x} serial {:?} name {:?}",
+            self.node_id,
+            self.device_type,
+            self.vendor_id,
+            self.product_code,
+            self.revision_number,
+            self.serial_number,
+            self.device_name
+        )
+    }
+
     fn summary(&self) -> String {
         format!(
             "node {} {:?}: vendor {:#010x} product {:#010x} rev {}.{}, {}",

@@ -66,6 +66,13 @@ fn module_fix(module: &str, task: &str) -> String {
 impl Identity for RwsIdentity {
     const DEVICE_KIND: &'static str = DEVICE;
 
+    fn fingerprint(&self) -> String {
+        format!(
+            "{}, RobotWare {}",
+            self.controller_name, self.robotware_version
+        )
+    }
+
     fn summary(&self) -> String {
         format!(
             "{}, RobotWare {}, {} {}, {} {} {}",

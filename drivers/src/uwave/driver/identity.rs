@@ -82,6 +82,20 @@ impl UwaveIdentity {
 impl Identity for UwaveIdentity {
     const DEVICE_KIND: &'static str = DEVICE;
 
+    fn fingerprint(&self) -> String {
+        let t: Vec<String> = self
+            .transmitters
+            .iter()
+            .map(|t| format!("ch{:02} {}", t.channel, t.id))
+            .collect();
+        format!(
+            "U-WAVE-R {} group {:02}; transmitters {}",
+            self.receiver.receiver_id,
+            self.receiver.group,
+            t.join(", ")
+        )
+    }
+
     fn summary(&self) -> String {
         let ch: Vec<String> = self
             .channels
