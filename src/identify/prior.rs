@@ -312,9 +312,7 @@ impl PriorSpec {
         is_model: impl Fn(usize) -> bool,
     ) -> Result<Vec<Option<f64>>, String> {
         if self.scale.is_some() {
-            return Err(
-                "scale \"auto\" is not taken by this job kind: give default_std".into(),
-            );
+            return Err("scale \"auto\" is not taken by this job kind: give default_std".into());
         }
         let positive = |what: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
@@ -369,9 +367,11 @@ impl PriorSpec {
     pub fn check_auto(&self) -> Result<(), String> {
         let d = &self.default_std;
         if self.scale.is_some() && (d.length_mm.is_some() || d.angle_deg.is_some()) {
-            return Err("scale \"auto\" chooses default_std.length_mm and angle_deg: \
+            return Err(
+                "scale \"auto\" chooses default_std.length_mm and angle_deg: \
                         give either the scale or those defaults"
-                .into());
+                    .into(),
+            );
         }
         Ok(())
     }

@@ -133,7 +133,10 @@ fn justin_runs_through_the_front_door_as_a_tree_identify_job() {
     for w in worst {
         println!(
             "worst: sample {} {} {:.2} mm q {}",
-            w["sample"], w["marker"], w["error_mm"].as_f64().unwrap_or(f64::NAN), w["q"]
+            w["sample"],
+            w["marker"],
+            w["error_mm"].as_f64().unwrap_or(f64::NAN),
+            w["q"]
         );
     }
     let held = &r["held_out"]["error_mm"];
@@ -178,7 +181,12 @@ fn justin_with_a_robust_loss_lists_what_it_down_weights() {
             down.len(),
             down.iter()
                 .take(5)
-                .map(|w| format!("{}/{} {:.1} mm", w["sample"], w["marker"], w["error_mm"].as_f64().unwrap_or(f64::NAN)))
+                .map(|w| format!(
+                    "{}/{} {:.1} mm",
+                    w["sample"],
+                    w["marker"],
+                    w["error_mm"].as_f64().unwrap_or(f64::NAN)
+                ))
                 .collect::<Vec<_>>()
                 .join(", ")
         );
@@ -189,6 +197,9 @@ fn justin_with_a_robust_loss_lists_what_it_down_weights() {
             held["rms"].as_f64().unwrap_or(f64::NAN),
             held["max"].as_f64().unwrap_or(f64::NAN)
         );
-        assert_eq!(r["worst_samples"][0]["error_mm"], steps[5]["error_mm"]["max"]);
+        assert_eq!(
+            r["worst_samples"][0]["error_mm"],
+            steps[5]["error_mm"]["max"]
+        );
     }
 }

@@ -98,7 +98,9 @@ fn map_score(
         b: DVector::from_fn(train.len(), |r, _| d.y[train[r]]),
     };
     let prior = Prior {
-        sigma: (0..m).map(|c| Some(if c < d.per { a } else { b })).collect(),
+        sigma: (0..m)
+            .map(|c| Some(if c < d.per { a } else { b }))
+            .collect(),
         mean: vec![0.0; m],
         noise: d.noise,
         weight: 1.0,
@@ -134,7 +136,10 @@ fn closed_form_rms(d: &Ridge, a: f64, b: f64, parts: &[Vec<usize>]) -> f64 {
             let sd = if c < d.per { a } else { b };
             h[(c, c)] += 1.0 / (sd * sd);
         }
-        let beta = h.cholesky().expect("positive definite").solve(&(xt.tr_mul(&yt) / s2));
+        let beta = h
+            .cholesky()
+            .expect("positive definite")
+            .solve(&(xt.tr_mul(&yt) / s2));
         let r = rows(&d.x, test) * beta - DVector::from_fn(test.len(), |r, _| d.y[test[r]]);
         sum += r.norm_squared();
         cnt += test.len();
@@ -162,8 +167,10 @@ fn the_grid_extends_to_an_interior_optimum_near_the_true_prior() {
     let d = ridge(400, 30, [0.05, 2.0], 0.3, 11);
     let group: Vec<usize> = (0..d.y.len()).collect();
     let axes = [axis(-12, -10, -20, 20), axis(-3, -1, -20, 20)];
-    let c = choose_grid(&axes, &group, 5, 3, |a, b, tr, te| map_score(&d, a, b, tr, te))
-        .expect("chooses");
+    let c = choose_grid(&axes, &group, 5, 3, |a, b, tr, te| {
+        map_score(&d, a, b, tr, te)
+    })
+    .expect("chooses");
     assert!(!c.at_edge, "{c:?}");
     assert!(c.extensions >= 6, "extensions {}", c.extensions);
     let parts = grouped_folds(&group, 5, 3);
@@ -203,8 +210,10 @@ fn an_optimum_beyond_the_limits_is_flagged_at_the_edge() {
     let d = ridge(200, 10, [0.05, 2.0], 0.3, 5);
     let group: Vec<usize> = (0..d.y.len()).collect();
     let axes = [axis(-12, -10, -12, -10), axis(-2, 2, -20, 20)];
-    let c = choose_grid(&axes, &group, 5, 3, |a, b, tr, te| map_score(&d, a, b, tr, te))
-        .expect("chooses");
+    let c = choose_grid(&axes, &group, 5, 3, |a, b, tr, te| {
+        map_score(&d, a, b, tr, te)
+    })
+    .expect("chooses");
     assert!(c.at_edge);
     assert_eq!(c.a, 2f64.powi(-10));
     // A bad axis is refused, naming the axis.

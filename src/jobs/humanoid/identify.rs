@@ -307,11 +307,13 @@ impl IdentifyJob {
     /// [`CV_FOLDS`] seeded folds of the training samples (base frame and markers carry over
     /// within the session). Also the candidates' errors when chosen; with `scale: "auto"`
     /// the stds chosen by [`IdentifyJob::auto_prior`] and their grid.
-    fn prior_weight(
-        &self,
-        monitor: &dyn Monitor,
-    ) -> Result<ChosenPrior, JobError> {
-        if self.fit.prior.as_ref().is_some_and(|m| m.spec.scale.is_some()) {
+    fn prior_weight(&self, monitor: &dyn Monitor) -> Result<ChosenPrior, JobError> {
+        if self
+            .fit
+            .prior
+            .as_ref()
+            .is_some_and(|m| m.spec.scale.is_some())
+        {
             let (o, auto) = self.auto_prior(monitor)?;
             return Ok((o, None, Some(auto)));
         }

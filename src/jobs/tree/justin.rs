@@ -12,7 +12,7 @@ use crate::model::elastic::justin::{
 /// `justin`: the data set's model files (paths relative to the job file, or inline text).
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-pub struct JustinSpec {
+pub(super) struct JustinSpec {
     /// `nominal_dh.yaml`: the DH rows of torso and arms.
     nominal_dh: String,
     /// `initial_guess.yaml`: camera pose and marker positions.
@@ -36,11 +36,14 @@ pub(super) fn build(s: &Spec, j: &JustinSpec, inputs: &Inputs<'_>) -> Result<Bui
         }
     }
     let bad = |field: &str, e: crate::model::ModelError| JobError::invalid(field, e.to_string());
-    let dh = parse_nominal_dh(&inputs.text_or_inline("justin.nominal_dh", &Value::from(j.nominal_dh.as_str()))?)
-        .map_err(|e| bad("justin.nominal_dh", e))?;
-    let guess = parse_initial_guess(
-        &inputs.text_or_inline("justin.initial_guess", &Value::from(j.initial_guess.as_str()))?,
+    let dh = parse_nominal_dh(
+        &inputs.text_or_inline("justin.nominal_dh", &Value::from(j.nominal_dh.as_str()))?,
     )
+    .map_err(|e| bad("justin.nominal_dh", e))?;
+    let guess = parse_initial_guess(&inputs.text_or_inline(
+        "justin.initial_guess",
+        &Value::from(j.initial_guess.as_str()),
+    )?)
     .map_err(|e| bad("justin.initial_guess", e))?;
     let elastic = elastic_options(&s.options.elastic, &revolute_rows());
     let model = model(&dh, &guess, &elastic).map_err(|e| bad("justin", e))?;

@@ -247,8 +247,7 @@ pub fn fit_weighted(
 ) -> Result<TreeFit, IdentifyError> {
     let mut start = model.clone();
     start.seed_compliance(groups, SEED_COMPLIANCE);
-    let mut problem =
-        TreeProblem::new(start, model.free_params(groups), with_features(model, obs));
+    let mut problem = TreeProblem::new(start, model.free_params(groups), with_features(model, obs));
     if let Some(w) = sqrt_w {
         problem = problem.weighted(w.to_vec());
     }
