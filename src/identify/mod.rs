@@ -18,6 +18,7 @@ mod lean;
 pub mod lm;
 mod lm_blocked;
 pub mod prior;
+pub mod prior_grid;
 pub mod problem;
 pub mod rank;
 mod reduced;

@@ -127,6 +127,9 @@ pub struct PriorReport {
     /// K-fold: per candidate weight, the held-out RMS error.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub k_fold_errors: Option<Vec<FoldError>>,
+    /// `scale: "auto"`: the stds the data chose and the held-out error over the grid.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub auto: Option<super::prior_grid::AutoPrior>,
 }
 
 /// Held-out error of one candidate weight.
@@ -149,6 +152,7 @@ impl PriorReport {
             objective: None,
             prior_cost: None,
             k_fold_errors: None,
+            auto: None,
         }
     }
 }
@@ -251,6 +255,7 @@ pub fn solve_map(
             objective: Some(objective),
             prior_cost: Some(prior_cost),
             k_fold_errors: None,
+            auto: None,
         },
     ))
 }
@@ -266,6 +271,18 @@ pub struct PriorSpec {
     /// Defaults for the model parameters without an entry in `std`.
     #[serde(default)]
     pub default_std: DefaultStd,
+    /// `"auto"`: the length and angle defaults are chosen from the data (K-fold over a
+    /// grid) instead of `default_std.length_mm` / `angle_deg`; `humanoid.identify` only.
+    #[serde(default)]
+    pub scale: Option<PriorScale>,
+}
+
+/// `options.prior.scale`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum PriorScale {
+    /// Chosen from the data.
+    Auto,
 }
 
 /// Default prior standard deviations by kind of parameter.
@@ -294,6 +311,9 @@ impl PriorSpec {
         unknowns: &[Unknown],
         is_model: impl Fn(usize) -> bool,
     ) -> Result<Vec<Option<f64>>, String> {
+        if self.scale.is_some() {
+            return Err("scale \"auto\" is not taken by this job kind: give default_std".into());
+        }
         let positive = |what: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(v)
@@ -338,6 +358,32 @@ impl PriorSpec {
                 })
             })
             .collect()
+    }
+}
+
+impl PriorSpec {
+    /// With `scale: "auto"`: check that no length or angle default is also given (the
+    /// message names them). Without it: nothing to check.
+    pub fn check_auto(&self) -> Result<(), String> {
+        let d = &self.default_std;
+        if self.scale.is_some() && (d.length_mm.is_some() || d.angle_deg.is_some()) {
+            return Err(
+                "scale \"auto\" chooses default_std.length_mm and angle_deg: \
+                        give either the scale or those defaults"
+                    .into(),
+            );
+        }
+        Ok(())
+    }
+
+    /// This spec with the length and angle defaults set (and `scale` cleared): one cell
+    /// of the automatic choice.
+    pub fn with_scale(&self, length_mm: f64, angle_deg: f64) -> PriorSpec {
+        let mut s = self.clone();
+        s.scale = None;
+        s.default_std.length_mm = Some(length_mm);
+        s.default_std.angle_deg = Some(angle_deg);
+        s
     }
 }
 

@@ -14,6 +14,7 @@ pub mod pcr;
 pub mod point;
 pub mod tree_markers;
 pub mod tree_prior;
+pub mod tree_robust;
 
 pub use ballplate::BallPlate;
 pub use distance::{DistanceMeasurement, DistanceProblem};

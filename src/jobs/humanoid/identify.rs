@@ -28,6 +28,14 @@ use crate::util::{Monitor, SubMonitor};
 
 pub use super::identify_result::*;
 
+/// Fit options with the prior's weight or stds as chosen, the weight candidates' K-fold
+/// errors (`"cv"`) or the automatic grid (`scale: "auto"`).
+type ChosenPrior = (
+    FitOptions,
+    Option<Vec<crate::identify::prior::FoldError>>,
+    Option<crate::identify::prior_grid::AutoPrior>,
+);
+
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub(crate) struct Spec {
@@ -51,11 +59,11 @@ pub(crate) struct Spec {
 /// A validated `humanoid.identify` job.
 #[derive(Debug)]
 pub struct IdentifyJob {
-    loaded: LoadedModel,
-    set: SampleSet,
-    options: FitSpec,
-    groups: Groups,
-    fit: FitOptions,
+    pub(super) loaded: LoadedModel,
+    pub(super) set: SampleSet,
+    pub(super) options: FitSpec,
+    pub(super) groups: Groups,
+    pub(super) fit: FitOptions,
 }
 
 /// Validate a `humanoid.identify` job.
@@ -131,8 +139,12 @@ impl IdentifyJob {
         if let Some(map) = &fit.prior {
             let free = groups.select(&loaded.model);
             let p = MarkerProblem::new(loaded.model.clone(), free, Vec::new());
-            map.spec
-                .sigmas(&p.unknowns(), |_| true)
+            // An automatic scale is checked with unit defaults (the values are the data's).
+            let spec = match map.spec.scale {
+                Some(_) => map.spec.with_scale(1.0, 1.0),
+                None => map.spec.clone(),
+            };
+            spec.sigmas(&p.unknowns(), |_| true)
                 .map_err(|m| JobError::invalid("options.prior", m))?;
         }
         Ok(IdentifyJob {
@@ -293,17 +305,24 @@ impl IdentifyJob {
     /// The fit options with the prior's weight: as given, or (`prior_weight: "cv"`) the
     /// candidate of [`CV_WEIGHTS`] with the smallest held-out marker RMS over
     /// [`CV_FOLDS`] seeded folds of the training samples (base frame and markers carry over
-    /// within the session). Also the candidates' errors when chosen.
-    fn prior_weight(
-        &self,
-        monitor: &dyn Monitor,
-    ) -> Result<(FitOptions, Option<Vec<crate::identify::prior::FoldError>>), JobError> {
+    /// within the session). Also the candidates' errors when chosen; with `scale: "auto"`
+    /// the stds chosen by [`IdentifyJob::auto_prior`] and their grid.
+    fn prior_weight(&self, monitor: &dyn Monitor) -> Result<ChosenPrior, JobError> {
+        if self
+            .fit
+            .prior
+            .as_ref()
+            .is_some_and(|m| m.spec.scale.is_some())
+        {
+            let (o, auto) = self.auto_prior(monitor)?;
+            return Ok((o, None, Some(auto)));
+        }
         let cv = matches!(
             self.options.prior_weight.as_ref().map(|w| w.fixed()),
             Some(Ok(None))
         );
         if !cv || self.fit.prior.is_none() {
-            return Ok((self.fit.clone(), None));
+            return Ok((self.fit.clone(), None, None));
         }
         let samples = &self.set.samples;
         let mut done = 0usize;
@@ -346,7 +365,7 @@ impl IdentifyJob {
         if let Some(map) = &mut o.prior {
             map.weight = w;
         }
-        Ok((o, Some(errors)))
+        Ok((o, Some(errors), None))
     }
 
     /// Run the calibration: the typed result and its artefacts (calibrated URDF,
@@ -358,7 +377,7 @@ impl IdentifyJob {
         } else {
             1.0
         };
-        let (fit_opts, weight_errors) =
+        let (fit_opts, weight_errors, auto) =
             self.prior_weight(&SubMonitor::new(monitor, 0.0, 0.5 * cv_share))?;
         let cal = calibrate(
             &self.loaded.model,
@@ -371,6 +390,10 @@ impl IdentifyJob {
         if weight_errors.is_some() {
             prior.mode = "map_cv";
             prior.k_fold_errors = weight_errors;
+        }
+        if auto.is_some() {
+            prior.mode = "map_auto";
+            prior.auto = auto;
         }
         let full = &cal.full;
         let sol = &full.solution;

@@ -174,7 +174,8 @@ pub struct HumanoidCalibration {
     /// degrees of freedom).
     pub residual_std_mm: Option<f64>,
     /// Which mode ran: `least_squares`, `map` (fixed prior weight) or `map_cv` (weight by
-    /// K-fold on the training samples, with each candidate's held-out RMS in m).
+    /// K-fold on the training samples, with each candidate's held-out RMS in m) or
+    /// `map_auto` (`scale: "auto"`: `auto` holds the chosen stds and the grid's errors).
     pub prior: PriorReport,
     /// Robust loss report.
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -4,6 +4,7 @@
 //! `tau_<joint>`, `<marker>_x/_y/_z` with occlusions as empty/NaN/null cells, an optional
 //! `column_map`, optional mocap pre-processing of a raw recording).
 
+mod auto_prior;
 pub mod design;
 pub mod identify;
 mod identify_report;
@@ -162,7 +163,8 @@ pub struct FitSpec {
     /// k-fold cross-validation of the calibration (identify only).
     #[serde(default)]
     pub cross_validation: Option<CrossValidationSpec>,
-    /// Gaussian prior on the joint parameters: MAP identification (identify only).
+    /// Gaussian prior on the joint parameters: MAP identification (identify only);
+    /// `{"scale": "auto"}` lets the data choose the length and angle stds.
     #[serde(default)]
     pub prior: Option<PriorSpec>,
     /// Weight of the prior: a positive number (default 1) or `"cv"` (K-fold on the
@@ -254,6 +256,15 @@ impl FitSpec {
                     return Err(JobError::invalid(
                         "options.prior",
                         "a prior and a robust loss cannot be combined: choose one",
+                    ));
+                }
+                spec.check_auto()
+                    .map_err(|m| JobError::invalid("options.prior", m))?;
+                if spec.scale.is_some() && w.is_some() {
+                    return Err(JobError::invalid(
+                        "options.prior_weight",
+                        "with prior.scale \"auto\" the weight is folded into the chosen \
+                         stds (weight 1): leave it out",
                     ));
                 }
                 let weight = match w {

@@ -16,8 +16,9 @@ use crate::identify::duplicates::duplicate_configurations;
 use crate::identify::prior::{PriorReport, PriorSpec, PriorWeight};
 use crate::identify::verdict::{self, Assessment, Facts};
 use crate::jobs::map_options::{MapWeight, check_map_options};
-use crate::measure::tree_markers::{STEPS, Step, TreeObservation, TreeProblem, cumulative, k_fold};
+use crate::measure::tree_markers::{STEPS, Step, TreeObservation, TreeProblem, with_features};
 use crate::measure::tree_prior::{TreePrior, check_names, choose_tree_weight};
+use crate::measure::tree_robust::{RobustOutcome, TreeRobust, cumulative_robust, k_fold_robust};
 use crate::model::elastic::{
     Drive, ElasticOptions, ElasticTree, Lumping, RowKind, TreeMarker, TreeRow,
 };
@@ -25,6 +26,7 @@ use crate::run::Run;
 use crate::run::{Cx, Inputs, JobError, Kind, RunFuture, computed, parse_spec};
 use crate::util::{Monitor, Summary};
 
+mod justin;
 mod report;
 mod spec;
 pub(crate) use spec::Spec;
@@ -43,7 +45,27 @@ pub struct TreeIdentifyJob {
     /// Choose the prior's weight by K-fold before the fits.
     cv_weight: bool,
     warnings: Vec<String>,
+    /// The model came from the Agile Justin data set's files (`justin`).
+    justin: bool,
+    /// A robust refit of the last step.
+    robust: Option<TreeRobust>,
 }
+
+/// One of the largest marker errors of the last model.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct WorstSample {
+    /// Sample (0-based data row of the samples table).
+    pub sample: usize,
+    /// Marker name.
+    pub marker: String,
+    /// 3-D error (mm).
+    pub error_mm: f64,
+    /// The sample's joint values, as in the table (`variables` order).
+    pub q: Vec<f64>,
+}
+
+/// How many of the largest errors the result lists.
+const WORST: usize = 10;
 
 /// Held-out figure of the last model.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -93,6 +115,14 @@ pub struct TreeCalibration {
     /// Which mode ran for the user's prior (`least_squares`: none; `map`; `map_cv`), its
     /// weight and noise (m), and the last fit's objective terms (noise units).
     pub prior: PriorReport,
+    /// The ten largest marker errors of the last model, largest first.
+    pub worst_samples: Vec<WorstSample>,
+    /// `options.robust`: the loss, its scale and the down-weighted measurements.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub robust: Option<RobustOutcome>,
+    /// `justin`: the published figures beside the first five steps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub published: Option<Vec<justin::Published>>,
 }
 
 const NOTE: &str = "gravity along -z of the tree root; lumping `subtree`: coefficients kz_g*, kx_g*, ky_g* (rad at full gravity load) multiply the unit gravity direction in the joint frame (joint deflection about z, lateral about x and y); lumping `bodies`: compliances c_z, c_x, c_y (rad/(N*m)) times the gravity torque of link weights w (N) and weight moments w_m* (N*m), only their products determined";
@@ -135,6 +165,33 @@ impl TreeIdentifyJob {
         (verdict::assess(&facts), dof, sigma)
     }
 
+    /// The [`WORST`] largest marker errors of `model` (gravity features from `start`).
+    fn worst(&self, model: &ElasticTree, start: &ElasticTree) -> Vec<WorstSample> {
+        let feats = with_features(start, &self.obs);
+        let mut all: Vec<WorstSample> = feats
+            .iter()
+            .enumerate()
+            .flat_map(|(i, o)| {
+                let pred = model.marker_positions(&o.sample);
+                o.points
+                    .iter()
+                    .zip(pred)
+                    .enumerate()
+                    .filter_map(|(m, (p, q))| p.map(|p| (m, (q - p).norm() * 1e3)))
+                    .map(|(m, e)| WorstSample {
+                        sample: i,
+                        marker: model.markers[m].name.clone(),
+                        error_mm: e,
+                        q: o.sample.q.clone(),
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        all.sort_by(|a, b| b.error_mm.total_cmp(&a.error_mm));
+        all.truncate(WORST);
+        all
+    }
+
     /// Run the cumulative fits and the optional K-fold.
     pub fn calibrate(&self, monitor: &dyn Monitor) -> Result<Run<TreeCalibration>, JobError> {
         let fail = JobError::from;
@@ -154,18 +211,19 @@ impl TreeIdentifyJob {
             prior.weight = w;
             k_fold_errors = Some(errors);
         }
-        let c = cumulative(
+        let (c, robust) = cumulative_robust(
             &self.model,
             &self.obs,
             self.last,
             self.max_iterations,
             &prior,
+            self.robust.as_ref(),
             monitor,
         )
         .map_err(fail)?;
         let held_out = match self.folds {
             Some(k) => {
-                let e = k_fold(
+                let e = k_fold_robust(
                     &self.model,
                     &self.obs,
                     self.last,
@@ -173,6 +231,7 @@ impl TreeIdentifyJob {
                     self.seed,
                     self.max_iterations,
                     &prior,
+                    self.robust.as_ref(),
                     monitor,
                 )
                 .map_err(fail)?;
@@ -217,6 +276,9 @@ impl TreeIdentifyJob {
                     }
                     None => PriorReport::least_squares(),
                 },
+                worst_samples: self.worst(&c.last.model, &c.start),
+                robust,
+                published: self.justin.then(justin::published),
             },
             main_table: None,
             artefacts: Vec::new(),

@@ -8,15 +8,25 @@ use super::*;
 pub(crate) struct Spec {
     #[allow(dead_code)]
     kind: String,
-    tree: TreeSpec,
+    /// The tree's rows (required unless `justin` is given).
+    #[serde(default)]
+    tree: Option<TreeSpec>,
+    /// DLR Agile Justin: the model from the data set's own files instead of `tree`,
+    /// `variables`, `markers` and `base`.
+    #[serde(default)]
+    pub(super) justin: Option<super::justin::JustinSpec>,
     #[schemars(schema_with = "crate::run::schema::table")]
     samples: Value,
-    variables: Vec<String>,
-    markers: Vec<MarkerSpec>,
+    /// Joint columns of `samples` (required unless `justin` is given).
+    #[serde(default)]
+    variables: Option<Vec<String>>,
+    /// Markers (required unless `justin` is given).
+    #[serde(default)]
+    markers: Option<Vec<MarkerSpec>>,
     #[serde(default)]
     base: Option<BaseSpec>,
     #[serde(default)]
-    options: Options,
+    pub(super) options: Options,
 }
 
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
@@ -87,9 +97,9 @@ struct BaseSpec {
 /// `options`.
 #[derive(Debug, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct Options {
+pub(super) struct Options {
     #[serde(default)]
-    elastic: ElasticSpec,
+    pub(super) elastic: ElasticSpec,
     /// K of a K-fold held-out figure of the last model (none if absent).
     #[serde(default)]
     folds: Option<usize>,
@@ -108,12 +118,16 @@ struct Options {
     /// of the fit without the prior.
     #[serde(default)]
     noise_m: Option<f64>,
+    /// A robust loss on each marker's 3-D error (per-sample weights by reweighting): the
+    /// last step is refitted with the weights of its own residuals.
+    #[serde(default)]
+    robust: Option<crate::measure::tree_robust::TreeRobust>,
 }
 
 /// Rows with lumped elasticity; `"*"` means every revolute row.
 #[derive(Debug, Default, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
-struct ElasticSpec {
+pub(super) struct ElasticSpec {
     #[serde(default)]
     joint: Vec<String>,
     #[serde(default)]
@@ -139,24 +153,25 @@ fn finite(field: &str, v: &[f64]) -> Result<(), JobError> {
     }
 }
 
-fn rows(s: &Spec) -> Result<Vec<TreeRow>, JobError> {
-    if s.tree.convention != "modified_dh" {
+fn rows(s: &Spec, tree: &TreeSpec, variables: &[String]) -> Result<Vec<TreeRow>, JobError> {
+    if tree.convention != "modified_dh" {
         return Err(JobError::invalid(
             "tree.convention",
             format!(
                 "`{}`: only `modified_dh` (Rx(alpha) Dx(a) Ry(beta) Rz(theta + q) Dz(d)) is accepted",
-                s.tree.convention
+                tree.convention
             ),
         ));
     }
+    let _ = s;
     let var = |field: &str, v: &str| {
-        s.variables
+        variables
             .iter()
             .position(|x| x == v)
             .ok_or_else(|| JobError::invalid(field, format!("`{v}` is not one of `variables`")))
     };
     let mut out: Vec<TreeRow> = Vec::new();
-    for (i, r) in s.tree.rows.iter().enumerate() {
+    for (i, r) in tree.rows.iter().enumerate() {
         let f = format!("tree.rows[{i}]");
         let parent = match &r.parent {
             None => None,
@@ -219,32 +234,64 @@ fn rows(s: &Spec) -> Result<Vec<TreeRow>, JobError> {
     Ok(out)
 }
 
-/// Validate a `tree.identify` job.
-pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobError> {
-    let s: Spec = parse_spec(doc)?;
-    let tree_rows = rows(&s)?;
+impl Spec {
+    pub(super) fn has_tree(&self) -> bool {
+        self.tree.is_some()
+    }
+    pub(super) fn has_variables(&self) -> bool {
+        self.variables.is_some()
+    }
+    pub(super) fn has_markers(&self) -> bool {
+        self.markers.is_some()
+    }
+    pub(super) fn has_base(&self) -> bool {
+        self.base.is_some()
+    }
+}
+
+/// A model built from the document: the tree, its joint columns, each marker's column
+/// prefix (`<prefix>_x/_y/_z`) and the elasticity asked for.
+pub(super) struct Built {
+    pub(super) model: ElasticTree,
+    pub(super) variables: Vec<String>,
+    pub(super) columns: Vec<String>,
+    pub(super) elastic: ElasticOptions,
+}
+
+/// `options.elastic` with `"*"` expanded to the rows `revolute`.
+pub(super) fn elastic_options(e: &ElasticSpec, revolute: &[String]) -> ElasticOptions {
+    let expand = |v: &[String]| -> Vec<String> {
+        if v.iter().any(|x| x == "*") {
+            revolute.to_vec()
+        } else {
+            v.to_vec()
+        }
+    };
+    ElasticOptions {
+        joint: expand(&e.joint),
+        lateral: expand(&e.lateral),
+        lumping: match e.lumping {
+            LumpingSpec::Subtree => Lumping::Subtree,
+            LumpingSpec::Bodies => Lumping::Bodies,
+        },
+    }
+}
+
+/// The model the document describes row by row (`tree`, `variables`, `markers`, `base`).
+fn described(s: &Spec) -> Result<Built, JobError> {
+    let need = |field: &str| JobError::invalid(field, "required (or give `justin`)");
+    let tree = s.tree.as_ref().ok_or_else(|| need("tree"))?;
+    let variables = s.variables.clone().ok_or_else(|| need("variables"))?;
+    let marker_specs = s.markers.as_ref().ok_or_else(|| need("markers"))?;
+    let tree_rows = rows(s, tree, &variables)?;
     let revolute: Vec<String> = tree_rows
         .iter()
         .filter(|r| matches!(r.kind, RowKind::Revolute { .. }))
         .map(|r| r.name.clone())
         .collect();
-    let expand = |v: &[String]| -> Vec<String> {
-        if v.iter().any(|x| x == "*") {
-            revolute.clone()
-        } else {
-            v.to_vec()
-        }
-    };
-    let elastic = ElasticOptions {
-        joint: expand(&s.options.elastic.joint),
-        lateral: expand(&s.options.elastic.lateral),
-        lumping: match s.options.elastic.lumping {
-            LumpingSpec::Subtree => Lumping::Subtree,
-            LumpingSpec::Bodies => Lumping::Bodies,
-        },
-    };
+    let elastic = elastic_options(&s.options.elastic, &revolute);
     let mut markers = Vec::new();
-    for (i, m) in s.markers.iter().enumerate() {
+    for (i, m) in marker_specs.iter().enumerate() {
         finite(&format!("markers[{i}].initial_m"), &m.initial_m)?;
         let row = tree_rows
             .iter()
@@ -258,21 +305,43 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobE
             local: m.initial_m.into(),
         });
     }
-    let mut model = ElasticTree::new(tree_rows, markers, s.variables.len(), &elastic)
+    let mut model = ElasticTree::new(tree_rows, markers, variables.len(), &elastic)
         .map_err(|e| JobError::invalid("tree", e.to_string()))?;
     if let Some(b) = &s.base {
         finite("base", &[b.xyz_m, b.abc_deg].concat())?;
         let a = b.abc_deg.map(f64::to_radians);
         model.base = [b.xyz_m[0], b.xyz_m[1], b.xyz_m[2], a[0], a[1], a[2]];
     }
+    let columns = model.markers.iter().map(|m| m.name.clone()).collect();
+    Ok(Built {
+        model,
+        variables,
+        columns,
+        elastic,
+    })
+}
+
+/// Validate a `tree.identify` job.
+pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobError> {
+    let s: Spec = parse_spec(doc)?;
+    let Built {
+        model,
+        variables,
+        columns,
+        elastic,
+    } = match &s.justin {
+        Some(j) => super::justin::build(&s, j, inputs)?,
+        None => described(&s)?,
+    };
+    let justin = s.justin.is_some();
     let table = inputs.table("samples", &s.samples)?;
-    let q_cols = table.cols("samples", &s.variables)?;
+    let q_cols = table.cols("samples", &variables)?;
     let mut used: BTreeSet<usize> = q_cols.iter().copied().collect();
     let mut m_cols = Vec::new();
-    for m in &model.markers {
+    for prefix in &columns {
         let names: Vec<String> = ["x", "y", "z"]
             .iter()
-            .map(|a| format!("{}_{a}", m.name))
+            .map(|a| format!("{prefix}_{a}"))
             .collect();
         let c = table.cols("samples", &names)?;
         used.extend(c.iter().copied());
@@ -328,6 +397,8 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<TreeIdentifyJob, JobE
         prior,
         cv_weight,
         warnings,
+        justin,
+        robust: s.options.robust.clone(),
     })
 }
 

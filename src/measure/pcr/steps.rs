@@ -460,6 +460,7 @@ pub fn identify_steps(
                 objective: Some(data + prior_cost),
                 prior_cost: Some(prior_cost),
                 k_fold_errors: None,
+                auto: None,
             }
         }
     };

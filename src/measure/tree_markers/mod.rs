@@ -31,6 +31,8 @@ pub struct TreeProblem {
     free: Vec<usize>,
     obs: Vec<TreeObservation>,
     rows: Vec<(usize, usize)>,
+    /// Square roots of per-marker weights (one per visible marker, in row order).
+    sqrt_w: Option<Vec<f64>>,
 }
 
 impl TreeProblem {
@@ -52,7 +54,22 @@ impl TreeProblem {
             free,
             obs,
             rows,
+            sqrt_w: None,
         }
+    }
+
+    /// The same problem with every visible marker's three rows multiplied by `sqrt_w` (one
+    /// factor per visible marker, observations in order, markers in order within).
+    pub fn weighted(mut self, sqrt_w: Vec<f64>) -> Self {
+        self.sqrt_w = Some(sqrt_w);
+        self
+    }
+
+    fn row_factor(&self, k: usize) -> f64 {
+        self.sqrt_w
+            .as_ref()
+            .and_then(|w| w.get(k).copied())
+            .unwrap_or(1.0)
     }
 
     /// Starting unknowns.
@@ -125,7 +142,7 @@ impl Problem for TreeProblem {
             let pred = model.marker_positions(&o.sample);
             while k < self.rows.len() && self.rows[k].0 == i {
                 let m = self.rows[k].1;
-                let e = pred[m] - o.points[m].unwrap_or(pred[m]);
+                let e = (pred[m] - o.points[m].unwrap_or(pred[m])) * self.row_factor(k);
                 r[3 * k..3 * k + 3].copy_from_slice(e.as_slice());
                 k += 1;
             }
@@ -143,9 +160,10 @@ impl Problem for TreeProblem {
             }
             model.marker_jacobians(&o.sample, |m, _, jac| {
                 if let Some(row) = (start..k).find(|&r| self.rows[r].1 == m) {
+                    let w = self.row_factor(row);
                     for (c, &g) in self.free.iter().enumerate() {
                         for (a, v) in jac[g].iter().enumerate() {
-                            j[(3 * row + a, c)] = *v;
+                            j[(3 * row + a, c)] = *v * w;
                         }
                     }
                 }
@@ -213,9 +231,26 @@ pub fn fit(
     prior: &TreePrior,
     monitor: &dyn Monitor,
 ) -> Result<TreeFit, IdentifyError> {
+    fit_weighted(model, obs, groups, max_iterations, prior, None, monitor)
+}
+
+/// [`fit`] with every visible marker's residual multiplied by `sqrt_w` (see
+/// [`TreeProblem::weighted`]; `None`: all 1).
+pub fn fit_weighted(
+    model: &ElasticTree,
+    obs: &[TreeObservation],
+    groups: Groups,
+    max_iterations: usize,
+    prior: &TreePrior,
+    sqrt_w: Option<&[f64]>,
+    monitor: &dyn Monitor,
+) -> Result<TreeFit, IdentifyError> {
     let mut start = model.clone();
     start.seed_compliance(groups, SEED_COMPLIANCE);
-    let problem = TreeProblem::new(start, model.free_params(groups), with_features(model, obs));
+    let mut problem = TreeProblem::new(start, model.free_params(groups), with_features(model, obs));
+    if let Some(w) = sqrt_w {
+        problem = problem.weighted(w.to_vec());
+    }
     let x0 = problem.initial();
     let mut so = SolveOptions {
         pivoting: Pivoting::Priority(problem.priority_order()),
@@ -247,12 +282,13 @@ pub fn fit(
     let noise = match (prior.noise_m, has_user) {
         (Some(s), true) => s,
         (None, true) => {
-            let ls = fit(
+            let ls = fit_weighted(
                 model,
                 obs,
                 groups,
                 max_iterations,
                 &TreePrior::default(),
+                sqrt_w,
                 monitor,
             )?;
             rms(&ls.solution.x)?
