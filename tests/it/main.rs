@@ -31,6 +31,7 @@ mod mock_joints;
 mod mock_microscope;
 mod mukca;
 mod openapi_jobs;
+mod pcr_camera;
 mod pcr_campaign;
 mod pcr_jobs;
 mod pcr_model;

@@ -159,7 +159,11 @@ fn frame_header(rest: &str, line: &str) -> Result<(u64, u32, u32, u8, f64), Code
     };
     let e = match e.parse::<f64>() {
         Ok(v) if v.is_finite() && v >= 0.0 => v,
-        _ => return Err(bad(&format!("exposure_us = {e:?} is not a finite number >= 0"))),
+        _ => {
+            return Err(bad(&format!(
+                "exposure_us = {e:?} is not a finite number >= 0"
+            )));
+        }
     };
     Ok((seq, w, h, d, e))
 }
@@ -203,7 +207,9 @@ impl Decoder for CameraCodec {
             "ERR" => {
                 let (code, text) = rest.split_once(' ').unwrap_or((rest, ""));
                 let code = code.parse::<i64>().map_err(|_| {
-                    CodecError::malformed(format!("error code {code:?} is not an integer in {line:?}"))
+                    CodecError::malformed(format!(
+                        "error code {code:?} is not an integer in {line:?}"
+                    ))
                 })?;
                 Reply::Err {
                     code,
@@ -340,7 +346,10 @@ mod tests {
         for r in [
             Reply::Id("calibd-frames/1 mock".into()),
             Reply::Ok,
-            Reply::Err { code: 2, text: "no frame".into() },
+            Reply::Err {
+                code: 2,
+                text: "no frame".into(),
+            },
         ] {
             ServerCodec.encode(r.clone(), &mut b).expect("encode");
             assert_eq!(CameraCodec.decode(&mut b).expect("decode"), Some(r));
@@ -348,7 +357,10 @@ mod tests {
         for q in [
             Request::Id,
             Request::Frame,
-            Request::Set { exposure_us: 800.0, frame_rate_hz: 25.5 },
+            Request::Set {
+                exposure_us: 800.0,
+                frame_rate_hz: 25.5,
+            },
         ] {
             CameraCodec.encode(q, &mut b).expect("encode");
             let line = ServerCodec.decode(&mut b).expect("decode").expect("line");

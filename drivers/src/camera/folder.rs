@@ -78,12 +78,13 @@ impl FolderCamera {
                 .into_iter()
                 .find(|(n, _)| above.is_none_or(|l| *n > l));
             if let Some((seq, path)) = newer {
-                let bytes = tokio::fs::read(&path)
-                    .await
-                    .map_err(|source| DriverError::Transport {
-                        device: DEVICE,
-                        source,
-                    })?;
+                let bytes =
+                    tokio::fs::read(&path)
+                        .await
+                        .map_err(|source| DriverError::Transport {
+                            device: DEVICE,
+                            source,
+                        })?;
                 *last = Some(seq);
                 let name = path
                     .file_name()

@@ -113,7 +113,10 @@ async fn session(
             ),
         };
         let busy = |_| err(3, "camera busy");
-        if !faults.send(&mut f, &conn.token, reply, Reply::wire, busy).await {
+        if !faults
+            .send(&mut f, &conn.token, reply, Reply::wire, busy)
+            .await
+        {
             return;
         }
     }
