@@ -35,6 +35,7 @@ mod pcr_camera;
 mod pcr_campaign;
 mod pcr_jobs;
 mod pcr_model;
+mod pcr_mount_markers;
 mod pcr_prior;
 mod pcr_twin;
 mod plan_check;

@@ -1,12 +1,12 @@
 //! Markers found in a wide-field image: a two-class threshold, 4-connected components of
 //! the bright pixels of a marker's area, the orientation from the gradients (modulo a
-//! quarter turn) refined by line fits to the four outer edges, the cells read and decoded
-//! (the bright inner corner fixes the quarter turn), and the centre from the centroid of the
-//! bright area (ground subtracted) minus the code's known offset.
+//! quarter turn), centre and angle from line fits to the four outer edges (edge positions
+//! from the area under profiles across them), and the cells read and decoded (the bright
+//! inner corner fixes the quarter turn).
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
-use super::{BITS, FiducialError, GRID, MarkerPose, bright_centroid, id_of};
+use super::{BITS, FiducialError, GRID, MarkerPose, id_of};
 use crate::measure::pattern::GrayImage;
 
 /// The scale of the image and the markers' size.
@@ -170,7 +170,7 @@ fn marker(img: &GrayImage, t: f64, comp: &[usize], cell_px: f64) -> Option<(u8, 
     let px = |c: i64, r: i64| f64::from(img.pixels[r as usize * w + c as usize]);
     // Ground and bright levels, and the orientation modulo a quarter turn from the
     // gradients (fourfold angle, weighted by the squared gradient).
-    let (mut g, mut ng, mut b, mut nb, mut zc, mut zs) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut g, mut ng, mut b, mut nb, mut zc, mut zs) = (0.0, 0.0f64, 0.0, 0.0f64, 0.0, 0.0);
     for (c, r) in window([cx, cy]) {
         if !inside(c, r) {
             return None;
@@ -209,7 +209,14 @@ fn marker(img: &GrayImage, t: f64, comp: &[usize], cell_px: f64) -> Option<(u8, 
     }
     let (uc, vc) = ((umin + umax) / 2.0, (vmin + vmax) / 2.0);
     let mut centre = [cx + c0 * uc - s0 * vc, cy + s0 * uc + c0 * vc];
-    let theta0 = refine_angle(img, centre, theta0, side, level).unwrap_or(theta0);
+    // The edges twice: the second pass profiles square to the refined edges.
+    let mut theta0 = theta0;
+    for _ in 0..2 {
+        let (dt, [du, dv]) = edges(img, centre, theta0, side, g, b)?;
+        let (s, c) = theta0.sin_cos();
+        centre = [centre[0] + c * du - s * dv, centre[1] + s * du + c * dv];
+        theta0 += dt;
+    }
     let (s0, c0) = theta0.sin_cos();
     // The cells along the axes of theta0: grid[row][column], offsets from the centre.
     let at = |a: i64, bb: i64| {
@@ -252,76 +259,61 @@ fn marker(img: &GrayImage, t: f64, comp: &[usize], cell_px: f64) -> Option<(u8, 
     let id = id_of(bits)?;
     let theta = theta0 + q as f64 * FRAC_PI_2;
     let theta = theta - 2.0 * PI * ((theta + PI) / (2.0 * PI)).floor();
-    // Centroid of the bright area over a window centred on it (twice: the ground level's
-    // error then cancels), minus the code's offset.
-    for _ in 0..2 {
-        let (mut m, mut sx, mut sy) = (0.0, 0.0, 0.0);
-        for (c, r) in window(centre) {
-            if !inside(c, r) {
-                return None;
-            }
-            let v = px(c, r) - g;
-            m += v;
-            sx += v * c as f64;
-            sy += v * r as f64;
-        }
-        centre = [sx / m, sy / m];
-    }
-    let [mx, my] = bright_centroid(id).ok()?;
-    let (s, c) = theta.sin_cos();
-    let (ox, oy) = (mx * cell_px, my * cell_px);
-    Some((
-        id,
-        [centre[0] - (c * ox - s * oy), centre[1] - (s * ox + c * oy)],
-        theta,
-    ))
+    Some((id, centre, theta))
 }
 
-/// The angle of the outer square refined by a line fit to each of its four edges: points
-/// where profiles across the edge (every pixel along its middle 80 %) cross `level`.
-fn refine_angle(
+/// The outer square's four edges, each a line fitted to edge positions measured every pixel
+/// along its middle 80 %: the area under the profile across the edge (from the middle of
+/// the ring to 3 px beyond, ground subtracted, over bright minus ground), which is unbiased
+/// for pixels that average the light they receive. Returns the angle correction (rad) and
+/// the centre's offset along the marker's two axes (px).
+fn edges(
     img: &GrayImage,
     centre: [f64; 2],
-    theta0: f64,
+    theta: f64,
     side: f64,
-    level: f64,
-) -> Option<f64> {
-    let mut sum = 0.0;
-    for j in 0..4 {
-        let phi = theta0 + j as f64 * FRAC_PI_2;
+    g: f64,
+    b: f64,
+) -> Option<(f64, [f64; 2])> {
+    const STEP: f64 = 0.25;
+    let cell = side / GRID as f64;
+    let (d0, d1) = (side / 2.0 - cell / 2.0, side / 2.0 + 3.0);
+    let mut delta = 0.0;
+    let mut offset = [0.0; 4];
+    for (j, off) in offset.iter_mut().enumerate() {
+        let phi = theta + j as f64 * FRAC_PI_2;
         let (n, tg) = ([phi.cos(), phi.sin()], [-phi.sin(), phi.cos()]);
         let (mut st, mut sd, mut stt, mut std_, mut k) = (0.0, 0.0, 0.0, 0.0, 0.0);
         let mut tau = -0.4 * side;
         while tau <= 0.4 * side {
             let base = [centre[0] + tg[0] * tau, centre[1] + tg[1] * tau];
-            // From the middle of the ring's cells to two pixels beyond the edge.
-            let cell = side / GRID as f64;
-            let mut d = side / 2.0 - cell / 2.0;
-            let mut prev: Option<(f64, f64)> = None;
-            while d <= side / 2.0 + 2.0 {
-                let v = sample(img, base[0] + n[0] * d, base[1] + n[1] * d)?;
-                if let Some((dp, vp)) = prev
-                    && vp > level
-                    && v <= level
-                {
-                    let cross = dp + (vp - level) / (vp - v) * (d - dp);
-                    st += tau;
-                    sd += cross;
-                    stt += tau * tau;
-                    std_ += tau * cross;
-                    k += 1.0;
-                    break;
-                }
-                prev = Some((d, v));
-                d += 0.25;
+            let mut area = 0.0;
+            let mut d = d0;
+            while d < d1 - 1e-9 {
+                // Trapezoids of the bilinear profile.
+                let v0 = sample(img, base[0] + n[0] * d, base[1] + n[1] * d)?;
+                let e = d + STEP;
+                let v1 = sample(img, base[0] + n[0] * e, base[1] + n[1] * e)?;
+                area += ((v0 + v1) / 2.0 - g) / (b - g) * STEP;
+                d = e;
             }
+            let edge = d0 + area;
+            st += tau;
+            sd += edge;
+            stt += tau * tau;
+            std_ += tau * edge;
+            k += 1.0;
             tau += 1.0;
         }
         if k < 5.0 {
             return None;
         }
         let slope = (k * std_ - st * sd) / (k * stt - st * st);
-        sum += -slope.atan();
+        delta += -slope.atan();
+        *off = (sd - slope * st) / k;
     }
-    Some(theta0 + sum / 4.0)
+    Some((
+        delta / 4.0,
+        [(offset[0] - offset[2]) / 2.0, (offset[1] - offset[3]) / 2.0],
+    ))
 }

@@ -2,8 +2,8 @@
 //! square of 5 x 5 cells, an always-bright ring around 3 x 3 inner cells of which one corner
 //! is bright and three dark (the orientation) and the other five carry the mount's code
 //! (missing squares say which mount). Rendered in [`render`], found in [`detect`]
-//! (threshold, connected components, orientation from the edges, decode, centre from the
-//! bright area's centroid), written into a model file by [`into_model`].
+//! (threshold, connected components, centre and orientation from line fits to the outer
+//! edges, decode), written into a model file by [`into_model`].
 //!
 //! Conventions: image coordinates in um in the wide-field camera frame (`origin_um` is the
 //! centre of pixel (0, 0), x along columns, y along rows); a marker's pose places its centre
@@ -77,23 +77,6 @@ pub fn cells(id: u8) -> Result<[[bool; GRID]; GRID], FiducialError> {
 /// The id whose code is `bits`, if any.
 fn id_of(bits: u8) -> Option<u8> {
     CODES.iter().position(|&c| c == bits).map(|i| i as u8)
-}
-
-/// Centroid of the bright cells of `id` in marker coordinates (cells).
-fn bright_centroid(id: u8) -> Result<[f64; 2], FiducialError> {
-    let c = cells(id)?;
-    let (mut sx, mut sy, mut n) = (0.0, 0.0, 0.0);
-    let half = (GRID / 2) as f64;
-    for (r, row) in c.iter().enumerate() {
-        for (k, &on) in row.iter().enumerate() {
-            if on {
-                sx += k as f64 - half;
-                sy += r as f64 - half;
-                n += 1.0;
-            }
-        }
-    }
-    Ok([sx / n, sy / n])
 }
 
 /// Write the six mounts into `file` as the nominal clamp positions: A_i (ids 0..2, world
