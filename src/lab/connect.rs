@@ -519,8 +519,8 @@ fn pose_source(
         }
         PoseSourceLink::Camera(c) => c,
     };
-    // A frame's transfer and the slowest frame period both fit in the timeout.
-    let timeout = Duration::from_secs(2) + Duration::from_secs_f64(2.0 / cam.frame_rate_hz);
+    // A frame's transfer, a slow bridge and the slowest frame period all fit in it.
+    let timeout = Duration::from_secs(10) + Duration::from_secs_f64(2.0 / cam.frame_rate_hz);
     let (source, link): (Arc<dyn FrameSource>, DeviceLink) = match &cam.source {
         FrameSourceLink::Network(addr) => {
             let h = CameraHandle::connect(

@@ -5,11 +5,59 @@
 
 use calibd::jobs::DirResolver;
 use calibd::jobs::prepare;
-use calibd::measure::fiducial::{FieldSpec, MarkerPose, render_field};
+use calibd::measure::fiducial::{DetectSpec, FieldSpec, MarkerPose, detect, render_field};
 use calibd::measure::pattern::codec::encode_png;
 use calibd::model::pcr::PcrFile;
 use calibd::util::NoMonitor;
 use serde_json::json;
+use std::f64::consts::PI;
+
+/// An angle wrapped into [-pi, pi).
+fn angle(a: f64) -> f64 {
+    (a + PI).rem_euclid(2.0 * PI) - PI
+}
+
+#[test]
+fn every_quarter_turn_and_id_decodes_at_its_pose() {
+    let markers: Vec<MarkerPose> = (0..10u8)
+        .map(|k| MarkerPose {
+            id: k,
+            x_um: -2000.0 + 900.0 * k as f64,
+            y_um: 1500.0 - 333.3 * k as f64,
+            theta_rad: -PI + 0.7 * k as f64,
+        })
+        .collect();
+    let spec = FieldSpec {
+        markers: markers.clone(),
+        cell_um: 100.0,
+        pixel_um: 10.0,
+        origin_um: [-3000.0, -2500.0],
+        width: 1300,
+        height: 500,
+        noise_frac: 0.01,
+        seed: 4,
+    };
+    let det = DetectSpec {
+        cell_um: 100.0,
+        pixel_um: 10.0,
+        origin_um: spec.origin_um,
+    };
+    let found = detect(&render_field(&spec).expect("render"), &det).expect("markers");
+    assert_eq!(found.len(), markers.len(), "{found:?}");
+    for (f, t) in found.iter().zip(&markers) {
+        assert_eq!(f.id, t.id);
+        assert!(
+            (f.x_um - t.x_um).hypot(f.y_um - t.y_um) < 0.25,
+            "{f:?} vs {t:?}"
+        );
+        assert!(
+            angle(f.theta_rad - t.theta_rad).abs() < 0.5e-3,
+            "{f:?} vs {t:?}"
+        );
+    }
+    // The ring's corners and the code: an id that does not exist is refused.
+    assert!(calibd::measure::fiducial::cells(10).is_err());
+}
 
 #[test]
 fn the_measured_mounts_become_the_models_nominal_clamp_positions() {
@@ -78,6 +126,20 @@ fn the_measured_mounts_become_the_models_nominal_clamp_positions() {
     let measured: PcrFile =
         serde_json::from_value(done.result["measured_model"].clone()).expect("a model file");
     measured.robot().expect("it solves");
+    // Each marker's pose (table rows by id) against the truth.
+    let mut worst_rad = 0.0f64;
+    for (row, m) in t.rows.iter().zip(&truth) {
+        assert_eq!(row[0], f64::from(m.id));
+        let e = (row[1] - m.x_um).hypot(row[2] - m.y_um);
+        let a = angle(row[3] - m.theta_rad);
+        eprintln!(
+            "mount {}: position error {e:.3} um, angle error {:.3} mrad",
+            m.id,
+            a * 1e3
+        );
+        worst_rad = worst_rad.max(a.abs());
+    }
+    assert!(worst_rad < 0.5e-3, "worst angle error {worst_rad} rad");
     let mut worst = 0.0f64;
     for i in 0..3 {
         let l = &measured.limbs[i];

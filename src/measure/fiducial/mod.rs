@@ -3,7 +3,8 @@
 //! is bright and three dark (the orientation) and the other five carry the mount's code
 //! (missing squares say which mount). Rendered in [`render`], found in [`detect`]
 //! (threshold, connected components, centre and orientation from line fits to the outer
-//! edges, decode), written into a model file by [`into_model`].
+//! edges, decode), written into a model file by [`into_model`]. Tested on rendered images
+//! in `tests/it/pcr_mount_markers.rs`.
 //!
 //! Conventions: image coordinates in um in the wide-field camera frame (`origin_um` is the
 //! centre of pixel (0, 0), x along columns, y along rows); a marker's pose places its centre
@@ -12,8 +13,6 @@
 
 pub mod detect;
 pub mod render;
-#[cfg(test)]
-mod tests;
 
 pub use detect::{DetectSpec, detect};
 pub use render::{FieldSpec, render_field};

@@ -1,6 +1,6 @@
 //! A wide-field image of markers at known poses, for tests and the twin: the cells
-//! averaged over each pixel (8 x 8 samples), a dark ground, Gaussian noise from a seed,
-//! 16-bit.
+//! averaged over each pixel (8 x 8 jittered samples: unbiased, where a regular grid would
+//! put every edge on a 1/8 px step), a dark ground, Gaussian noise from a seed, 16-bit.
 
 use super::{FiducialError, GRID, MarkerPose, cells};
 use crate::measure::pattern::GrayImage;
@@ -70,10 +70,11 @@ pub fn render_field(spec: &FieldSpec) -> Result<GrayImage, FiducialError> {
                 let mut on = 0usize;
                 for sy in 0..SUB {
                     for sx in 0..SUB {
+                        let (jx, jy) = (rng.uniform(), rng.uniform());
                         let x = spec.origin_um[0]
-                            + (col as f64 + (sx as f64 + 0.5) / SUB as f64 - 0.5) * spec.pixel_um;
+                            + (col as f64 + (sx as f64 + jx) / SUB as f64 - 0.5) * spec.pixel_um;
                         let y = spec.origin_um[1]
-                            + (row as f64 + (sy as f64 + 0.5) / SUB as f64 - 0.5) * spec.pixel_um;
+                            + (row as f64 + (sy as f64 + jy) / SUB as f64 - 0.5) * spec.pixel_um;
                         let (dx, dy) = (x - m.x_um, y - m.y_um);
                         // Marker coordinates from its corner, in cells.
                         let u = (co * dx + s * dy + half) / spec.cell_um;
