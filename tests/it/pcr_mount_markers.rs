@@ -22,7 +22,7 @@ fn every_quarter_turn_and_id_decodes_at_its_pose() {
     let markers: Vec<MarkerPose> = (0..10u8)
         .map(|k| MarkerPose {
             id: k,
-            x_um: -2000.0 + 900.0 * k as f64,
+            x_um: -2000.0 + 1200.0 * k as f64,
             y_um: 1500.0 - 333.3 * k as f64,
             theta_rad: -PI + 0.7 * k as f64,
         })
