@@ -1,7 +1,7 @@
 //! Device drivers for calibd: one async actor per device, generic over its transport, plus
 //! mock servers that speak the same protocols (replay and simulate modes, fault injection).
 //!
-//! Modules: [`uwave`] (Mitutoyo U-WAVE-R), [`rws`] (ABB IRC5 Robot Web Services 1.0),
+//! Modules: [`camera`] (`calibd-frames/1` and folder frame sources), [`uwave`] (Mitutoyo U-WAVE-R), [`rws`] (ABB IRC5 Robot Web Services 1.0),
 //! [`smaract`] (MCS / MCS2 / CiA 402 piezo stages), [`can`] (socketcand, SocketCAN, CANopen),
 //! [`qtm`] (Qualisys RT), [`microscope`] (`calibd-pose/1`), [`joints`] (`calibd-joints/1`, a
 //! humanoid's joint interface), [`mock`] (`calibd mock`: the
@@ -12,6 +12,7 @@
 
 pub mod actor;
 pub mod bench;
+pub mod camera;
 pub mod can;
 pub mod error;
 pub mod identity;

@@ -132,6 +132,12 @@ pub const KINDS: &[KindInfo] = &[
         pcr::pattern_pose::Spec
     ),
     kind!(
+        "pcr.mount_markers",
+        "the six rod-mount markers in a wide-field image, written as the model's measured clamp positions",
+        pcr::mount_markers::prepare,
+        pcr::mount_markers::Spec
+    ),
+    kind!(
         "humanoid.identify",
         "whole-body elasto-geometric calibration of a humanoid from motion-capture markers",
         humanoid::identify::prepare,

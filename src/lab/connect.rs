@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use calibd_drivers::camera::{CameraConfig, CameraHandle, FolderCamera, FrameSource};
 use calibd_drivers::can::{Cia402Config, Cia402Handle, SocketCanConnector, SocketcandConnector};
 use calibd_drivers::joints::{JointsConfig, JointsHandle};
 use calibd_drivers::microscope::{MicroscopeConfig, MicroscopeHandle};
@@ -17,8 +18,8 @@ use calibd_drivers::uwave::{AxisMap, SerialConnector, UwaveConfig, UwaveHandle};
 use calibd_drivers::{Backoff, Recorder, Stage, StageConfig, TcpConnector};
 
 use super::adapters::{
-    JointInterface, Microscope, PerJoint, QtmStream, RwsModules, RwsRobot, SmaractStages,
-    StageEnvelope, UwaveIndicators,
+    CameraMicroscope, JointInterface, Microscope, PerJoint, QtmStream, RwsModules, RwsRobot,
+    SmaractStages, StageEnvelope, UwaveIndicators,
 };
 use super::devices::{DeviceLink, ProbeFuture};
 use super::probes::{self, probe};
@@ -26,7 +27,7 @@ use super::{Cell, Lab, LabError, MocapCell, PcrCell, TricalCell};
 use crate::model::dh::DhFile;
 use crate::model::humanoid::MarkerDef;
 use crate::model::pcr::PcrFile;
-use crate::procedures::{Envelope, JointRobot, MotionLimiter, Workspace};
+use crate::procedures::{Envelope, JointRobot, MotionLimiter, PoseSensor, Workspace};
 
 /// An IRC5 controller reached over Robot Web Services.
 #[derive(Debug, Clone)]
@@ -132,6 +133,57 @@ pub struct StagesLink {
     pub pm_per_count: i64,
 }
 
+/// Where a camera's frames come from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FrameSourceLink {
+    /// A `calibd-frames/1` server at `host:port` (a camera bridge, or the mock camera).
+    Network(String),
+    /// Numbered image files written into a folder.
+    Folder(PathBuf),
+}
+
+impl FrameSourceLink {
+    /// The address shown to operators.
+    pub fn address(&self) -> String {
+        match self {
+            FrameSourceLink::Network(a) => a.clone(),
+            FrameSourceLink::Folder(p) => p.display().to_string(),
+        }
+    }
+}
+
+/// A microscope camera whose frames calibd measures (`[cell.camera]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraLink {
+    /// Where the frames come from.
+    pub source: FrameSourceLink,
+    /// Exposure time (us).
+    pub exposure_us: f64,
+    /// Frame rate (Hz).
+    pub frame_rate_hz: f64,
+    /// The pattern and the pixel size.
+    pub pattern: crate::measure::pattern::PatternSetup,
+}
+
+/// How a 3-PF cell reads its platform's pose.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PoseSourceLink {
+    /// A `calibd-pose/1` server at `host:port` (a vision PC computing the pose).
+    Server(String),
+    /// A camera: calibd computes the pose from its frames.
+    Camera(CameraLink),
+}
+
+impl PoseSourceLink {
+    /// The address shown to operators.
+    pub fn address(&self) -> String {
+        match self {
+            PoseSourceLink::Server(a) => a.clone(),
+            PoseSourceLink::Camera(c) => c.source.address(),
+        }
+    }
+}
+
 /// A 3-PF cell.
 #[derive(Debug, Clone)]
 pub struct PcrCellLink {
@@ -139,8 +191,8 @@ pub struct PcrCellLink {
     pub name: String,
     /// The stages.
     pub stages: StagesLink,
-    /// Microscope pose server `host:port`.
-    pub microscope: String,
+    /// The microscope: a pose server or a camera.
+    pub microscope: PoseSourceLink,
     /// Largest stage move of one command (m).
     pub max_stage_step_m: f64,
     /// Nominal model (its joint box is the stages' envelope).
@@ -418,19 +470,13 @@ fn stages(
 
 fn pcr(d: PcrCellLink, rec: &Rec) -> Result<PcrCell, LabError> {
     let (stage, channels, stage_probe) = stages(&d.stages, &d.name, rec)?;
-    let scope = MicroscopeHandle::connect(
-        rec.tcp(&d.microscope, &d.name, "microscope")?,
-        MicroscopeConfig {
-            timeout: Duration::from_secs(1),
-            backoff: backoff(),
-        },
-    );
     let (st, mi) = (
         format!("{}.stages", d.name),
         format!("{}.microscope", d.name),
     );
     let st_at = format!("{st} at {}", d.stages.backend.address());
-    let mi_at = format!("{mi} at {}", d.microscope);
+    let mi_at = format!("{mi} at {}", d.microscope.address());
+    let (microscope, mi_link) = pose_source(&d, &mi, mi_at, rec)?;
     let envelope = StageEnvelope {
         limits_m: d.model.limits(),
         max_step_m: d.max_stage_step_m,
@@ -442,20 +488,80 @@ fn pcr(d: PcrCellLink, rec: &Rec) -> Result<PcrCell, LabError> {
             d.stages.backend.address(),
             stage_probe,
         ),
-        DeviceLink::new(
-            mi,
-            "microscope (calibd-pose/1)",
-            d.microscope,
-            probe(scope.clone(), probes::microscope),
-        ),
+        mi_link,
     ];
     Ok(PcrCell {
         stages: Arc::new(SmaractStages::new(stage, channels, st_at).within(envelope)),
-        microscope: Arc::new(Microscope::new(scope, mi_at)),
+        microscope,
         model: Mutex::new(d.model),
         links,
         name: d.name,
     })
+}
+
+/// The microscope of a 3-PF cell as a pose sensor, and its device link named `mi`.
+fn pose_source(
+    d: &PcrCellLink,
+    mi: &str,
+    mi_at: String,
+    rec: &Rec,
+) -> Result<(Arc<dyn PoseSensor>, DeviceLink), LabError> {
+    let cam = match &d.microscope {
+        PoseSourceLink::Server(addr) => {
+            let scope = MicroscopeHandle::connect(
+                rec.tcp(addr, &d.name, "microscope")?,
+                MicroscopeConfig {
+                    timeout: Duration::from_secs(1),
+                    backoff: backoff(),
+                },
+            );
+            let link = DeviceLink::new(
+                mi,
+                "microscope (calibd-pose/1)",
+                addr.clone(),
+                probe(scope.clone(), probes::microscope),
+            );
+            return Ok((Arc::new(Microscope::new(scope, mi_at)), link));
+        }
+        PoseSourceLink::Camera(c) => c,
+    };
+    // A frame's transfer, a slow bridge and the slowest frame period all fit in it.
+    let timeout = Duration::from_secs(10) + Duration::from_secs_f64(2.0 / cam.frame_rate_hz);
+    let (source, link): (Arc<dyn FrameSource>, DeviceLink) = match &cam.source {
+        FrameSourceLink::Network(addr) => {
+            let h = CameraHandle::connect(
+                rec.tcp(addr, &d.name, "camera")?,
+                CameraConfig {
+                    timeout,
+                    backoff: backoff(),
+                    exposure_us: cam.exposure_us,
+                    frame_rate_hz: cam.frame_rate_hz,
+                },
+            );
+            let link = DeviceLink::new(
+                mi,
+                "microscope camera (calibd-frames/1)",
+                addr.clone(),
+                probe(h.clone(), probes::camera),
+            );
+            (Arc::new(h), link)
+        }
+        FrameSourceLink::Folder(dir) => {
+            let f = Arc::new(FolderCamera::new(dir.clone(), cam.frame_rate_hz, timeout));
+            let link = DeviceLink::new(
+                mi,
+                "microscope camera (frame folder)",
+                dir.display().to_string(),
+                probe(f.clone(), probes::camera_folder),
+            );
+            (f, link)
+        }
+    };
+    let sensor = CameraMicroscope::new(source, cam.pattern, mi_at).map_err(|e| LabError::Cell {
+        cell: d.name.clone(),
+        message: format!("camera: {e}"),
+    })?;
+    Ok((Arc::new(sensor), link))
 }
 
 fn mocap(d: MocapCellLink, rec: &Rec) -> Result<MocapCell, LabError> {

@@ -18,8 +18,8 @@ use std::pin::Pin;
 
 pub use cells::{Cell, CellModel, MocapCell, PcrCell, TricalCell};
 pub use connect::{
-    BallCentringCell, CellLink, JointsLink, MocapCellLink, PcrCellLink, RwsLink, StageBackend,
-    StagesLink, UwaveLink,
+    BallCentringCell, CameraLink, CellLink, FrameSourceLink, JointsLink, MocapCellLink,
+    PcrCellLink, PoseSourceLink, RwsLink, StageBackend, StagesLink, UwaveLink,
 };
 pub use decision::{Acceptance, Candidate, Decision, Evidence};
 pub use devices::{DeviceLink, DeviceReport, DeviceStatus, Identity};

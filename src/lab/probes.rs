@@ -101,6 +101,36 @@ pub async fn microscope(h: MicroscopeHandle) -> Result<Identity, ProbeError> {
     checked(h.identity().await)
 }
 
+/// A network camera: its identification and one fresh frame's size.
+pub async fn camera(h: calibd_drivers::camera::CameraHandle) -> Result<Identity, ProbeError> {
+    checked(h.identity().await)
+}
+
+/// A frame folder: that it can be read, how many frames it holds and the latest.
+pub async fn camera_folder(
+    f: Arc<calibd_drivers::camera::FolderCamera>,
+) -> Result<Identity, ProbeError> {
+    let frames = f.frames().map_err(|e| ProbeError {
+        error: format!("{}: {e}", f.dir().display()),
+        fix: Some(format!(
+            "create {} and point the camera's acquisition at it (numbered PNG or TIFF frames)",
+            f.dir().display()
+        )),
+    })?;
+    let latest = frames.last().map(|(n, p)| (*n, p.display().to_string()));
+    Ok(Identity {
+        summary: match &latest {
+            Some((n, _)) => format!("{} frames, latest number {n}", frames.len()),
+            None => "no frames yet (each pose waits for the next one written)".into(),
+        },
+        details: serde_json::json!({
+            "folder": f.dir().display().to_string(),
+            "frames": frames.len(),
+            "latest": latest.map(|(n, p)| serde_json::json!({"number": n, "file": p})),
+        }),
+    })
+}
+
 /// The markers a motion-capture cell measures: QTM label -> model marker (labels not listed
 /// keep their name) and the model's marker names.
 #[derive(Debug, Clone, PartialEq)]

@@ -4,6 +4,7 @@
 
 pub mod ballplate;
 pub mod distance;
+pub mod fiducial;
 pub mod iso9283;
 pub mod justin;
 pub mod marker_fit;

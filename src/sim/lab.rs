@@ -17,7 +17,9 @@ use calibd_drivers::mock::RunningMock;
 use super::trical::Served;
 use super::{SimPcrOptions, SimTricalOptions};
 use crate::lab::config::Environment;
-use crate::lab::{BallCentringCell, CellLink, LabError, MocapCellLink, PcrCellLink, StageBackend};
+use crate::lab::{
+    BallCentringCell, CellLink, LabError, MocapCellLink, PcrCellLink, PoseSourceLink, StageBackend,
+};
 
 /// One served device, for the ready lines.
 #[derive(Debug, Clone, PartialEq)]
@@ -213,10 +215,19 @@ async fn pcr(
         ));
     }
     let stages_at = fixed(&d.name, "stages.address", stages_at)?;
-    let scope_at = fixed(&d.name, "microscope.address", &d.microscope)?;
-    let (link, mocks) =
-        super::pcr::start_twin_at(twin, seed, &SimPcrOptions::default(), &stages_at, &scope_at)
-            .await?;
+    let key = match &d.microscope {
+        PoseSourceLink::Server(_) => "microscope.address",
+        PoseSourceLink::Camera(_) => "camera.address",
+    };
+    fixed(&d.name, key, &d.microscope.address())?;
+    let (link, mocks) = super::pcr::start_twin_at(
+        twin,
+        seed,
+        &SimPcrOptions::default(),
+        &stages_at,
+        &d.microscope,
+    )
+    .await?;
     Ok((
         vec![
             ServedDevice {
@@ -225,7 +236,7 @@ async fn pcr(
             },
             ServedDevice {
                 device: format!("{}.microscope", d.name),
-                address: link.microscope,
+                address: link.microscope.address(),
             },
         ],
         mocks,

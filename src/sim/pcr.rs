@@ -6,12 +6,17 @@
 
 use std::sync::{Arc, Mutex};
 
+use calibd_drivers::camera::mock::{FrameModel, Image};
 use calibd_drivers::microscope::mock::PoseModel;
 use calibd_drivers::mock::{self, FaultSpec, Faults, RunningMock};
 use calibd_drivers::smaract::mock::StageModel;
 
 use super::with;
-use crate::lab::{CellLink, LabError, PcrCellLink, StageBackend, StagesLink};
+use crate::lab::{
+    CameraLink, CellLink, FrameSourceLink, LabError, PcrCellLink, PoseSourceLink, StageBackend,
+    StagesLink,
+};
+use crate::measure::pattern::{PatternPose, PatternSetup, RenderSpec, render};
 use crate::model::pcr::Equilibrium;
 use crate::twin::PcrTwin;
 use crate::util::Rng;
@@ -27,6 +32,10 @@ pub struct SimPcrOptions {
     pub stage_faults: Vec<FaultSpec>,
     /// Faults planned on the microscope mock's replies.
     pub microscope_faults: Vec<FaultSpec>,
+    /// Side of the mock camera's square frames (px).
+    pub camera_size_px: usize,
+    /// Image noise of the mock camera (fraction of full scale).
+    pub camera_noise_frac: f64,
 }
 
 impl Default for SimPcrOptions {
@@ -36,6 +45,8 @@ impl Default for SimPcrOptions {
             stage_residual_nm: 2.0,
             stage_faults: Vec::new(),
             microscope_faults: Vec::new(),
+            camera_size_px: 1024,
+            camera_noise_frac: 0.01,
         }
     }
 }
@@ -97,19 +108,66 @@ struct TwinMicroscope {
 
 impl PoseModel for TwinMicroscope {
     fn image(&mut self) -> Option<[f64; 3]> {
-        with(&self.sim, |s| {
-            let eq = match &s.last {
-                Some(prev) => s
-                    .twin
-                    .truth
-                    .fk_from(prev, &s.q)
-                    .or_else(|_| s.twin.truth.fk(&s.q)),
-                None => s.twin.truth.fk(&s.q),
-            }
-            .ok()?;
-            let z = s.twin.read(&eq.pose, &mut s.noise);
-            s.last = Some(eq);
-            Some([z.x, z.y, z.theta])
+        with(&self.sim, |s| s.reading().map(|z| [z.x, z.y, z.theta]))
+    }
+}
+
+impl Sim {
+    /// The microscope's reading of the platform at the settled joints (solved from the
+    /// previous equilibrium), with the twin's repeatability noise.
+    fn reading(&mut self) -> Option<crate::geometry::Pose2> {
+        let eq = match &self.last {
+            Some(prev) => self
+                .twin
+                .truth
+                .fk_from(prev, &self.q)
+                .or_else(|_| self.twin.truth.fk(&self.q)),
+            None => self.twin.truth.fk(&self.q),
+        }
+        .ok()?;
+        let z = self.twin.read(&eq.pose, &mut self.noise);
+        self.last = Some(eq);
+        Some(z)
+    }
+}
+
+/// The microscope's camera over the twin: the encoded pattern rendered at the reading the
+/// pose server would send (the platform's true pose with the twin's repeatability), with
+/// image noise of `noise_frac` of full scale.
+struct TwinCamera {
+    sim: Shared,
+    setup: PatternSetup,
+    size_px: usize,
+    noise_frac: f64,
+    frames: u64,
+}
+
+impl FrameModel for TwinCamera {
+    fn image(&mut self, _exposure_us: f64) -> Result<Image, String> {
+        let z = with(&self.sim, |s| s.reading())
+            .ok_or_else(|| "the twin has no equilibrium at these joints".to_string())?;
+        self.frames += 1;
+        let img = render(&RenderSpec {
+            kind: self.setup.kind,
+            pose: PatternPose {
+                x: z.x * 1e6,
+                y: z.y * 1e6,
+                theta_rad: z.theta,
+            },
+            period_um: self.setup.period_um,
+            pixel_um: self.setup.pixel_um,
+            width: self.size_px,
+            height: self.size_px,
+            bit_depth: 16,
+            noise_frac: self.noise_frac,
+            seed: self.frames ^ 0x00ca_3e2a,
+        })
+        .map_err(|e| e.to_string())?;
+        Ok(Image {
+            width: img.width as u32,
+            height: img.height as u32,
+            bit_depth: 16,
+            pixels: img.pixels,
         })
     }
 }
@@ -127,7 +185,8 @@ pub(super) async fn start(
     seed: u64,
     o: &SimPcrOptions,
 ) -> Result<(CellLink, Vec<RunningMock>), LabError> {
-    let (link, mocks) = start_at(seed, o, "127.0.0.1:0", "127.0.0.1:0").await?;
+    let scope = PoseSourceLink::Server("127.0.0.1:0".into());
+    let (link, mocks) = start_at(seed, o, "127.0.0.1:0", &scope).await?;
     Ok((CellLink::Pcr(link), mocks))
 }
 
@@ -139,25 +198,27 @@ pub fn twin_model(seed: u64) -> Result<crate::model::pcr::PcrFile, LabError> {
         .file)
 }
 
-/// Start the simulated 3-PF cell's MCS2 stages at `stages_at` and microscope at `scope_at`.
+/// Start the simulated 3-PF cell's MCS2 stages at `stages_at` and its microscope as
+/// `scope` says (a pose server, or a network camera, at the address given).
 pub async fn start_at(
     seed: u64,
     o: &SimPcrOptions,
     stages_at: &str,
-    scope_at: &str,
+    scope: &PoseSourceLink,
 ) -> Result<(PcrCellLink, Vec<RunningMock>), LabError> {
     let twin = PcrTwin::nominal(seed).map_err(|e| mock_err("pcr twin", e))?;
-    start_twin_at(twin, seed, o, stages_at, scope_at).await
+    start_twin_at(twin, seed, o, stages_at, scope).await
 }
 
 /// Start the devices of a 3-PF cell around `twin` (a lab file's model with its truth drawn
-/// around it) at `stages_at` and `scope_at`.
+/// around it) at `stages_at`, and the microscope as `scope` says: a `calibd-pose/1` server,
+/// or a `calibd-frames/1` camera rendering the pattern (a folder camera is refused).
 pub async fn start_twin_at(
     twin: PcrTwin,
     seed: u64,
     o: &SimPcrOptions,
     stages_at: &str,
-    scope_at: &str,
+    scope: &PoseSourceLink,
 ) -> Result<(PcrCellLink, Vec<RunningMock>), LabError> {
     let file = twin.file.clone();
     let lim = file.limits();
@@ -185,16 +246,50 @@ pub async fn start_twin_at(
     )
     .await
     .map_err(|e| mock_err("mcs2", e))?;
-    let scope: Arc<Mutex<dyn PoseModel>> = Arc::new(Mutex::new(TwinMicroscope { sim }));
-    let scope_mock = mock::start_with(
-        scope_at,
-        calibd_drivers::microscope::mock::handler_with(
-            scope,
-            Faults::new(o.microscope_faults.clone()),
-        ),
-    )
-    .await
-    .map_err(|e| mock_err("microscope", e))?;
+    let (microscope, scope_mock) = match scope {
+        PoseSourceLink::Server(at) => {
+            let model: Arc<Mutex<dyn PoseModel>> = Arc::new(Mutex::new(TwinMicroscope { sim }));
+            let m = mock::start_with(
+                at,
+                calibd_drivers::microscope::mock::handler_with(
+                    model,
+                    Faults::new(o.microscope_faults.clone()),
+                ),
+            )
+            .await
+            .map_err(|e| mock_err("microscope", e))?;
+            (PoseSourceLink::Server(m.addr.clone()), m)
+        }
+        PoseSourceLink::Camera(cam) => {
+            let FrameSourceLink::Network(at) = &cam.source else {
+                return Err(mock_err(
+                    "camera",
+                    "the simulated camera serves calibd-frames/1: set camera.source = \"network\"",
+                ));
+            };
+            let model: Arc<Mutex<dyn FrameModel>> = Arc::new(Mutex::new(TwinCamera {
+                sim,
+                setup: cam.pattern,
+                size_px: o.camera_size_px,
+                noise_frac: o.camera_noise_frac,
+                frames: 0,
+            }));
+            let m = mock::start_with(
+                at,
+                calibd_drivers::camera::mock::handler_with(
+                    model,
+                    Faults::new(o.microscope_faults.clone()),
+                ),
+            )
+            .await
+            .map_err(|e| mock_err("camera", e))?;
+            let served = CameraLink {
+                source: FrameSourceLink::Network(m.addr.clone()),
+                ..cam.clone()
+            };
+            (PoseSourceLink::Camera(served), m)
+        }
+    };
     let link = PcrCellLink {
         resume: Default::default(),
         name: "pcr3pf".into(),
@@ -203,7 +298,7 @@ pub async fn start_twin_at(
             channels: [0, 1, 2],
             pm_per_count: 1000,
         },
-        microscope: scope_mock.addr.clone(),
+        microscope,
         // The whole travel: the simulated cell moves between any two planned joint sets.
         max_stage_step_m: file
             .limits()

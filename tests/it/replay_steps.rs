@@ -145,7 +145,8 @@ async fn a_recorded_transcript_of_each_device_drives_one_campaign_step() {
     )
     .await
     .expect("trical twin");
-    let (pc, m) = calibd::sim::pcr::start_at(SEED, &fast_pcr(), "127.0.0.1:0", "127.0.0.1:0")
+    let scope_at = calibd::lab::PoseSourceLink::Server("127.0.0.1:0".into());
+    let (pc, m) = calibd::sim::pcr::start_at(SEED, &fast_pcr(), "127.0.0.1:0", &scope_at)
         .await
         .expect("pcr twin");
     mocks.extend(m);
@@ -187,7 +188,7 @@ async fn a_recorded_transcript_of_each_device_drives_one_campaign_step() {
     tr.uwave.path = uwave.addr.clone();
     let mut pc = pc;
     pc.stages.backend = calibd::lab::StageBackend::Mcs2(mcs2.addr.clone());
-    pc.microscope = scope.addr.clone();
+    pc.microscope = calibd::lab::PoseSourceLink::Server(scope.addr.clone());
     let mut mo = mo;
     mo.joints.address = joints.addr.clone();
     mo.qtm = qtm.addr.clone();

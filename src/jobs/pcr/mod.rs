@@ -1,5 +1,5 @@
 //! The 3-PF robot's job kinds (`pcr.fk`, `pcr.ik`, `pcr.sensitivity`, `pcr.identify`,
-//! `pcr.accuracy`, `pcr.pattern_pose`) and what they share: the model file, joint and pose tables in SI units
+//! `pcr.accuracy`, `pcr.pattern_pose`, `pcr.mount_markers`) and what they share: the model file, joint and pose tables in SI units
 //! with limit checks, measurement tables, an optional external load.
 
 pub mod accuracy;
@@ -8,6 +8,7 @@ pub mod identify;
 pub mod identify_options;
 mod identify_report;
 pub mod ik;
+pub mod mount_markers;
 pub mod pattern_pose;
 pub mod sensitivity;
 pub mod verdict;

@@ -24,11 +24,13 @@ macro_rules! named_adapter {
     };
 }
 
+pub mod camera;
 pub mod joints;
 pub mod pcr;
 pub mod qtm;
 pub mod serial;
 
+pub use camera::CameraMicroscope;
 pub use joints::JointInterface;
 pub use pcr::{Microscope, PerJoint, SmaractStages, StageEnvelope};
 pub use qtm::QtmStream;

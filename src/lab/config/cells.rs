@@ -145,7 +145,11 @@ impl Reader<'_> {
 
     pub(super) fn pcr(&self, c: &Spanned<CellSpec>) -> Result<PcrCellLink, LabConfigError> {
         let s = c.get_ref();
-        self.only(c, &["stages", "microscope"], &["max_stage_step_m"])?;
+        self.only(
+            c,
+            &["stages", "microscope", "camera"],
+            &["max_stage_step_m"],
+        )?;
         let env = &s.envelope;
         let model = PcrFile::parse(&self.model_text(s)?)
             .map_err(|e| e.to_string())
@@ -184,7 +188,7 @@ impl Reader<'_> {
         if spec.pm_per_count.is_some_and(|p| p <= 0) {
             return Err(self.err(&st.span(), "stages.pm_per_count must be positive".into()));
         }
-        let scope = self.need(c, &s.microscope, "microscope")?;
+        let microscope = self.pose_source(c)?;
         Ok(PcrCellLink {
             name: s.name.get_ref().clone(),
             stages: StagesLink {
@@ -192,11 +196,78 @@ impl Reader<'_> {
                 channels: spec.channels,
                 pm_per_count: spec.pm_per_count.unwrap_or(1000),
             },
-            microscope: self.address(&scope.get_ref().address, "microscope.address")?,
+            microscope,
             max_stage_step_m: positive(self, c, env.max_stage_step_m, 0.01, "max_stage_step_m")?,
             model,
             resume: ResumePolicy::default(),
         })
+    }
+
+    /// The microscope: a pose server (`[cell.microscope]`) or a camera whose frames calibd
+    /// measures (`[cell.camera]`), exactly one of them.
+    fn pose_source(&self, c: &Spanned<CellSpec>) -> Result<PoseSourceLink, LabConfigError> {
+        let s = c.get_ref();
+        let cam = match (&s.microscope, &s.camera) {
+            (Some(m), None) => {
+                return Ok(PoseSourceLink::Server(
+                    self.address(&m.get_ref().address, "microscope.address")?,
+                ));
+            }
+            (None, Some(cam)) => cam,
+            (Some(_), Some(cam)) => {
+                return Err(self.err(
+                    &cam.span(),
+                    "give [cell.microscope] (a pose server) or [cell.camera] (frames calibd measures), not both".into(),
+                ));
+            }
+            (None, None) => {
+                return Err(self.err(
+                    &c.span(),
+                    format!(
+                        "cell `{}` needs [cell.microscope] (a pose server) or [cell.camera]",
+                        s.name.get_ref()
+                    ),
+                ));
+            }
+        };
+        let spec = cam.get_ref();
+        let bad = |m: String| self.err(&cam.span(), m);
+        for (key, v) in [
+            ("exposure_us", spec.exposure_us),
+            ("frame_rate_hz", spec.frame_rate_hz),
+            ("pixel_um", spec.pixel_um),
+            ("period_um", spec.period_um),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(bad(format!("camera.{key} = {v} must be positive")));
+            }
+        }
+        let source = match (spec.source, &spec.address, &spec.folder) {
+            (CameraSourceKind::Network, Some(a), None) => {
+                FrameSourceLink::Network(self.address(a, "camera.address")?)
+            }
+            (CameraSourceKind::Folder, None, Some(f)) => FrameSourceLink::Folder(self.resolve(f)),
+            (CameraSourceKind::Network, _, _) => {
+                return Err(bad(
+                    "camera: source = \"network\" needs address (and no folder)".into(),
+                ));
+            }
+            (CameraSourceKind::Folder, _, _) => {
+                return Err(bad(
+                    "camera: source = \"folder\" needs folder (and no address)".into(),
+                ));
+            }
+        };
+        Ok(PoseSourceLink::Camera(CameraLink {
+            source,
+            exposure_us: spec.exposure_us,
+            frame_rate_hz: spec.frame_rate_hz,
+            pattern: crate::measure::pattern::PatternSetup {
+                kind: spec.pattern,
+                period_um: spec.period_um,
+                pixel_um: spec.pixel_um,
+            },
+        }))
     }
 
     pub(super) fn humanoid(&self, c: &Spanned<CellSpec>) -> Result<MocapCellLink, LabConfigError> {

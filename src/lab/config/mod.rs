@@ -17,8 +17,8 @@ use serde::Deserialize;
 use toml::Spanned;
 
 use super::connect::{
-    BallCentringCell, CellLink, JointsLink, MocapCellLink, PcrCellLink, RwsLink, StageBackend,
-    StagesLink, UwaveLink,
+    BallCentringCell, CameraLink, CellLink, FrameSourceLink, JointsLink, MocapCellLink,
+    PcrCellLink, PoseSourceLink, RwsLink, StageBackend, StagesLink, UwaveLink,
 };
 use super::resume::{DEFAULT_MAX_AUTO_RESUMES, ResumeMode, ResumePolicy};
 use crate::model::dh::DhFile;
@@ -71,6 +71,9 @@ struct CellSpec {
     stages: Option<Spanned<StagesSpec>>,
     #[serde(default)]
     microscope: Option<Spanned<AddressSpec>>,
+    /// The microscope's camera, when calibd computes the pose itself.
+    #[serde(default)]
+    camera: Option<Spanned<CameraSpec>>,
     #[serde(default)]
     mocap: Option<Spanned<QtmSpec>>,
     #[serde(default)]
@@ -182,6 +185,36 @@ struct StagesSpec {
 #[serde(deny_unknown_fields)]
 struct AddressSpec {
     address: Spanned<String>,
+}
+
+/// `[cell.camera]`: where the frames come from, the acquisition settings and the pattern.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraSpec {
+    source: CameraSourceKind,
+    /// `host:port` of a `calibd-frames/1` server (source = "network").
+    #[serde(default)]
+    address: Option<Spanned<String>>,
+    /// Folder the frames are written to (source = "folder").
+    #[serde(default)]
+    folder: Option<PathBuf>,
+    exposure_us: f64,
+    frame_rate_hz: f64,
+    pixel_um: f64,
+    #[serde(default = "default_pattern")]
+    pattern: crate::measure::pattern::PatternKind,
+    period_um: f64,
+}
+
+fn default_pattern() -> crate::measure::pattern::PatternKind {
+    crate::measure::pattern::PatternKind::Encoded
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum CameraSourceKind {
+    Network,
+    Folder,
 }
 
 #[derive(Debug, Deserialize)]
@@ -363,6 +396,7 @@ impl Reader<'_> {
             ("indicators", s.indicators.as_ref().map(Spanned::span)),
             ("stages", s.stages.as_ref().map(Spanned::span)),
             ("microscope", s.microscope.as_ref().map(Spanned::span)),
+            ("camera", s.camera.as_ref().map(Spanned::span)),
             ("mocap", s.mocap.as_ref().map(Spanned::span)),
             ("joints", s.joints.as_ref().map(Spanned::span)),
         ];

@@ -310,3 +310,62 @@ fn the_example_lab_file_describes_three_cells_once_its_files_exist() {
         .collect();
     assert_eq!(kinds, ["ball_centring", "pcr", "humanoid"]);
 }
+
+#[test]
+fn a_camera_instead_of_the_pose_server_reads_with_its_settings_and_is_checked() {
+    let f = Fixture::new();
+    let camera = r#"[cell.camera]
+source = "folder"
+folder = "frames"
+exposure_us = 800.0
+frame_rate_hz = 50.0
+pixel_um = 1.25
+period_um = 10.0
+"#;
+    let server = "[cell.microscope]\naddress = \"127.0.0.1:5050\"\n";
+    let cells = f
+        .parse(&PCR.replace(server, camera))
+        .expect("a camera cell");
+    let [CellLink::Pcr(p)] = cells.as_slice() else {
+        panic!("one pcr cell: {cells:?}");
+    };
+    let PoseSourceLink::Camera(c) = &p.microscope else {
+        panic!("a camera: {:?}", p.microscope);
+    };
+    // The folder is relative to the lab file; the pattern defaults to the encoded one.
+    assert_eq!(
+        c.source,
+        FrameSourceLink::Folder(f.dir.path().join("frames"))
+    );
+    assert_eq!((c.exposure_us, c.frame_rate_hz), (800.0, 50.0));
+    assert_eq!(
+        c.pattern.kind,
+        crate::measure::pattern::PatternKind::Encoded
+    );
+    assert_eq!((c.pattern.pixel_um, c.pattern.period_um), (1.25, 10.0));
+    let e = f
+        .parse(&PCR.replace(server, &format!("{server}{camera}")))
+        .unwrap_err();
+    assert!(e.message.contains("not both"), "{e}");
+    let e = f
+        .parse(&PCR.replace(
+            server,
+            &camera.replace("folder = \"frames\"", "address = \"h:1\""),
+        ))
+        .unwrap_err();
+    assert!(
+        e.message.contains("source = \"folder\" needs folder"),
+        "{e}"
+    );
+    let e = f
+        .parse(&PCR.replace(server, &camera.replace("pixel_um = 1.25", "pixel_um = 0")))
+        .unwrap_err();
+    assert!(e.message.contains("camera.pixel_um"), "{e}");
+    let e = f
+        .parse(&TRICAL.replace("[cell.indicators]", &format!("{camera}[cell.indicators]")))
+        .unwrap_err();
+    assert!(
+        e.message.contains("[cell.camera]") && e.message.contains("does not belong"),
+        "{e}"
+    );
+}

@@ -21,6 +21,7 @@ pub mod code;
 pub mod codec;
 pub mod decode;
 pub mod phase;
+pub mod reader;
 pub mod render;
 pub mod track;
 
@@ -29,6 +30,7 @@ mod tests;
 
 pub use decode::decode_absolute;
 pub use phase::{PhaseEstimator, PhaseFit};
+pub use reader::{PatternSetup, PoseReader};
 pub use render::{RenderSpec, render};
 pub use track::Track;
 
