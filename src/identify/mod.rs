@@ -9,10 +9,10 @@
 
 mod blocked;
 mod bounds;
+pub mod coverage;
 pub mod dense;
 mod dots;
 pub mod duplicates;
-pub mod coverage;
 pub mod extrapolation;
 pub mod gauge;
 pub mod gauge_orbit;

@@ -155,13 +155,28 @@ fn iiwa14_keeps_the_sockets_free_rotation_in_the_base_frame_not_in_joint_1() {
         .run(&NoMonitor)
         .unwrap()
         .result;
-    assert_eq!(r["convergence"]["status"], "converged", "{}", r["convergence"]);
+    assert_eq!(
+        r["convergence"]["status"], "converged",
+        "{}",
+        r["convergence"]
+    );
     for f in ["dx", "dy", "dz", "rx", "ry", "rz", "offset"] {
         let name = format!("joint_a1.{f}");
         let (nominal, value, _, identifiable) = param(&r, &name);
-        let tol = if f.starts_with('d') { 1e-3 } else { 0.1f64.to_radians() };
-        assert!((value - nominal).abs() <= tol, "{name} moved {}", value - nominal);
-        println!("{name}: {:+.3e} from nominal, identifiable {identifiable}", value - nominal);
+        let tol = if f.starts_with('d') {
+            1e-3
+        } else {
+            0.1f64.to_radians()
+        };
+        assert!(
+            (value - nominal).abs() <= tol,
+            "{name} moved {}",
+            value - nominal
+        );
+        println!(
+            "{name}: {:+.3e} from nominal, identifiable {identifiable}",
+            value - nominal
+        );
     }
     // Joint 1's placement duplicates the base frame: held, and said so.
     assert!(!param(&r, "joint_a1.dy").3 && !param(&r, "joint_a1.rx").3);
@@ -188,7 +203,10 @@ fn iiwa14_keeps_the_sockets_free_rotation_in_the_base_frame_not_in_joint_1() {
         s[1] * 1e3,
         da * 1e3
     );
-    assert!((s[0] - 0.1272e-3).abs() < 2e-6 && (s[1] - 0.1621e-3).abs() < 2e-6, "{s:?}");
+    assert!(
+        (s[0] - 0.1272e-3).abs() < 2e-6 && (s[1] - 0.1621e-3).abs() < 2e-6,
+        "{s:?}"
+    );
     assert!((sa - s[1]).abs() < 1e-15);
     assert!((da - 6.4e-6).abs() < 1e-6, "{da}");
 }

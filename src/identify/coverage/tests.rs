@@ -54,6 +54,10 @@ fn errors_drawn_from_the_prediction_are_covered_at_the_two_sigma_probability() {
     // The predicted RMS length is sqrt(trace C).
     assert!((cov.points[0].predicted_rms - c.trace().sqrt()).abs() < 1e-12);
     let small = coverage(&errors, &js, &(&sp * 0.01), 0.02, "options.noise", "mm").unwrap();
-    assert!(small.fraction_within_2sigma < 0.2, "{}", small.fraction_within_2sigma);
+    assert!(
+        small.fraction_within_2sigma < 0.2,
+        "{}",
+        small.fraction_within_2sigma
+    );
     assert!(small.optimistic());
 }

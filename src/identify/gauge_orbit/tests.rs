@@ -36,8 +36,8 @@ fn unknown(name: &str, range: f64) -> Unknown {
 fn the_held_orbit_point_is_the_closest_to_the_start_and_costs_nothing() {
     let unknowns = [unknown("a", 1.0), unknown("b", 3.0), unknown("c", 1.0)];
     let x0 = [0.0, 0.0, 0.0];
-    let mut free = solve(&Sum, &unknowns, &x0, &SolveOptions::default(), &NoMonitor)
-        .expect("free fit");
+    let mut free =
+        solve(&Sum, &unknowns, &x0, &SolveOptions::default(), &NoMonitor).expect("free fit");
     // Somewhere else on the solution line, as a wandering fit would leave it.
     free.x = vec![7.0, -3.0, 1.0];
     let map = |x: &[f64], t: f64| vec![x[0] + t, x[1] - t, x[2]];

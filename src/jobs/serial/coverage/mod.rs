@@ -60,9 +60,12 @@ pub(crate) fn point_coverage(
     let errors: Vec<Vector3<f64>> = val
         .iter()
         .filter_map(|m| match m.target {
-            Target::Point(t) => {
-                Some(calibrated.tcp(&m.q, Some(&calibrated.static_torques(&m.q))).p - t)
-            }
+            Target::Point(t) => Some(
+                calibrated
+                    .tcp(&m.q, Some(&calibrated.static_torques(&m.q)))
+                    .p
+                    - t,
+            ),
             Target::Ball(_) => None,
         })
         .collect();
