@@ -9,11 +9,13 @@
 
 mod blocked;
 mod bounds;
+pub mod coverage;
 pub mod dense;
 mod dots;
 pub mod duplicates;
 pub mod extrapolation;
 pub mod gauge;
+pub mod gauge_orbit;
 mod lean;
 pub mod lm;
 mod lm_blocked;

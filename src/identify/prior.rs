@@ -160,6 +160,15 @@ impl PriorReport {
 /// Posterior standard deviations of the columns of a stacked Jacobian (`sqrt(diag((J^T
 /// J)^-1))`, columns equilibrated before the inversion); NaN where singular.
 pub fn posterior_std(j: &DMatrix<f64>) -> Vec<f64> {
+    match posterior_covariance(j) {
+        Some(c) => (0..j.ncols()).map(|k| c[(k, k)].max(0.0).sqrt()).collect(),
+        None => vec![f64::NAN; j.ncols()],
+    }
+}
+
+/// `(J^T J)^-1` of the stacked, noise-normalised Jacobian `j` (columns scaled to unit norm
+/// for the Cholesky factorisation): the posterior covariance; `None` when singular.
+pub fn posterior_covariance(j: &DMatrix<f64>) -> Option<DMatrix<f64>> {
     let m = j.ncols();
     let d: Vec<f64> = (0..m)
         .map(|k| j.column(k).norm())
@@ -169,14 +178,8 @@ pub fn posterior_std(j: &DMatrix<f64>) -> Vec<f64> {
     for (k, &dk) in d.iter().enumerate() {
         js.column_mut(k).unscale_mut(dk);
     }
-    let a = js.tr_mul(&js);
-    match a.cholesky() {
-        Some(c) => {
-            let inv = c.inverse();
-            (0..m).map(|k| inv[(k, k)].max(0.0).sqrt() / d[k]).collect()
-        }
-        None => vec![f64::NAN; m],
-    }
+    let inv = js.tr_mul(&js).cholesky()?.inverse();
+    Some(DMatrix::from_fn(m, m, |k, l| inv[(k, l)] / (d[k] * d[l])))
 }
 
 /// Identify `unknowns` by MAP with `prior` (see the module documentation), through the
@@ -226,9 +229,14 @@ pub fn solve_map(
     let mut ja = DMatrix::zeros(mp.residual_count(), m);
     mp.jacobian(&sol.x, &mut ja)?;
     let jf = DMatrix::from_fn(ja.nrows(), sol.free.len(), |r, c| ja[(r, sol.free[c])]);
-    let std = posterior_std(&jf);
+    let covariance = posterior_covariance(&jf);
+    let std: Vec<f64> = match &covariance {
+        Some(c) => (0..jf.ncols()).map(|k| c[(k, k)].max(0.0).sqrt()).collect(),
+        None => vec![f64::NAN; jf.ncols()],
+    };
     let dof = n.saturating_sub(sol.free.len());
     sol.uncertainty.std = std.clone();
+    sol.uncertainty.covariance = covariance;
     sol.uncertainty.dof = dof;
     sol.uncertainty.sigma = (sol.cost_after / dof.max(1) as f64).sqrt();
     // Effect sizes of the data alone, at the start.

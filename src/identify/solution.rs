@@ -180,6 +180,8 @@ pub struct Solution {
     pub uncertainty: Uncertainty,
     /// What a robust loss did (`None` for plain least squares).
     pub robust: Option<super::RobustReport>,
+    /// A gauge held by its structure ([`super::gauge_orbit::hold_orbit`]), if any.
+    pub held_gauge: Option<super::gauge_orbit::HeldGauge>,
 }
 
 impl Solution {

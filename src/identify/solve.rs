@@ -233,6 +233,7 @@ fn sigma_only(n: usize, m: usize, r: &DVector<f64>) -> Uncertainty {
         dof,
         condition_number: f64::NAN,
         singular_values: vec![],
+        covariance: None,
     }
 }
 
@@ -538,5 +539,6 @@ pub fn solve_with(
         residuals,
         uncertainty: unc,
         robust: None,
+        held_gauge: None,
     })
 }

@@ -17,6 +17,10 @@ pub struct Uncertainty {
     pub condition_number: f64,
     /// Singular values of the column-scaled Jacobian, largest first.
     pub singular_values: Vec<f64>,
+    /// Covariance of the identified unknowns (internal units, the order of `std`): its
+    /// diagonal is `std` squared; `None` when not computed or singular.
+    #[serde(skip)]
+    pub covariance: Option<DMatrix<f64>>,
 }
 
 /// Uncertainty at a solution with Jacobian `j` and residuals `r`.
@@ -41,6 +45,7 @@ pub fn uncertainty_of_r(rf: &DMatrix<f64>, n: usize, r: &DVector<f64>) -> Uncert
             dof,
             condition_number: 1.0,
             singular_values: vec![],
+            covariance: None,
         };
     }
     let d: Vec<f64> = (0..m)
@@ -63,6 +68,7 @@ pub fn uncertainty_of_r(rf: &DMatrix<f64>, n: usize, r: &DVector<f64>) -> Uncert
             dof,
             condition_number: f64::INFINITY,
             singular_values: vec![],
+            covariance: None,
         };
     };
     let mut order: Vec<usize> = (0..s.len()).collect();
@@ -83,8 +89,18 @@ pub fn uncertainty_of_r(rf: &DMatrix<f64>, n: usize, r: &DVector<f64>) -> Uncert
             sigma * var.sqrt() / d[k]
         })
         .collect();
+    // sigma^2 V S^-2 V^T, unscaled by the column norms.
+    let covariance = s.iter().all(|v| *v > 0.0).then(|| {
+        DMatrix::from_fn(m, m, |k, l| {
+            let sum: f64 = (0..s.len())
+                .map(|i| vt[(i, k)] * vt[(i, l)] / (s[i] * s[i]))
+                .sum();
+            sigma * sigma * sum / (d[k] * d[l])
+        })
+    });
     Uncertainty {
         std,
+        covariance,
         sigma,
         dof,
         condition_number: if smin > 0.0 {
@@ -117,5 +133,9 @@ mod tests {
             "{:?} vs {sa} {sb}",
             u.std
         );
+        // The covariance of a and b: -s2 mean(x) / sxx.
+        let c = u.covariance.expect("covariance");
+        assert!((c[(0, 1)] + s2 * 2.0 / sxx).abs() < 1e-12, "{c}");
+        assert!((c[(0, 0)] - sa * sa).abs() < 1e-12);
     }
 }

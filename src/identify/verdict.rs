@@ -8,7 +8,8 @@
 //! the nominal model's, unit mistakes. Review: fewer than [`MIN_EQUATIONS_PER_UNKNOWN`]
 //! equations per identified unknown, duplicated or near-duplicated configurations, validation
 //! outside the training range, a parameter moved more than [`MOVED_TOLERANCES`] tolerances from
-//! nominal, prior-dominated parameters. Accepted otherwise.
+//! nominal, prior-dominated parameters, held-out errors within their predicted 2 sigma less
+//! often than [`super::coverage::MIN_COVERAGE`]. Accepted otherwise.
 
 use std::borrow::Cow;
 
@@ -179,6 +180,8 @@ pub struct Facts {
     pub prior_dominated: Vec<String>,
     /// Unit mistakes in the inputs.
     pub units: Vec<UnitMistake>,
+    /// Coverage of the held-out errors by their predicted 2 sigma.
+    pub coverage: Option<super::coverage::Coverage>,
 }
 
 /// `dof` of a result: equations minus identified unknowns (0 when not more).
@@ -310,6 +313,26 @@ pub fn assess(f: &Facts) -> Assessment {
                 f.prior_dominated.len(),
                 100.0 * PRIOR_DOMINATED_FRACTION,
                 list(&f.prior_dominated, 8)
+            ),
+        ));
+    }
+    if let Some(c) = f.coverage.as_ref().filter(|c| c.optimistic()) {
+        out.push(reason(
+            "noise_model_optimistic",
+            Review,
+            format!(
+                "{} of {} held-out errors ({:.1} %) lie within their predicted 2 sigma \
+                 (expected {:.1} %, at least {:.0} %): the noise model (noise std {:.4} {} from \
+                 {}) and the parameter covariance are too optimistic; the standard deviations \
+                 understate the real uncertainty",
+                c.points.iter().filter(|p| p.within_2sigma).count(),
+                c.n,
+                100.0 * c.fraction_within_2sigma,
+                100.0 * c.expected,
+                100.0 * super::coverage::MIN_COVERAGE,
+                c.noise_std,
+                c.unit,
+                c.noise_from
             ),
         ));
     }

@@ -4,6 +4,7 @@
 //! observability criterion. Reports read results,
 //! never models; a result without the data a plot needs simply gets no plot.
 
+pub mod coverage;
 pub mod drift;
 pub mod html;
 pub mod json_result;

@@ -91,6 +91,7 @@ pub fn judge(
         moved,
         prior_dominated,
         units: Vec::new(),
+        coverage: None,
     };
     r.assessment = verdict::assess(&facts);
 }

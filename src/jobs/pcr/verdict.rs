@@ -83,6 +83,7 @@ pub fn judge(
         moved: verdict::moved_parameters(&params, |k| uncertainty.get(k).copied()),
         prior_dominated: Vec::new(),
         units: Vec::new(),
+        coverage: None,
     };
     r.assessment = verdict::assess(&facts);
 }

@@ -224,11 +224,13 @@ fn solution_result(
         },
         prior: None,
         gauge_freedom: None,
+        gauge_held: sol.held_gauge.clone(),
         residuals,
         coincidence: None,
         anchor: None,
         length_offset: None,
         validation: None,
+        coverage: None,
         validation_coincidence: None,
         calibrated_model,
         warnings: None,
@@ -375,10 +377,17 @@ impl IdentifyJob {
             &problem.unknowns(),
             &problem.nuisance(),
             weight,
+            Some(&calibrated),
             &mut r,
         );
         let mut artefacts = vec![model_art];
         artefacts.extend(inp.model.urdf_artefact(&calibrated));
+        if let Some(c) = &r.coverage {
+            artefacts.push(crate::report::svg_artefact(
+                "predicted_accuracy.svg",
+                crate::report::coverage::predicted_accuracy(c),
+            ));
+        }
         // The first 3 rows per measurement are its x, y, z residuals (a prior adds rows).
         let n3 = 3 * problem.measurements().len();
         let rb: Vec<f64> = sol.residuals_before.iter().take(n3).copied().collect();
@@ -478,6 +487,7 @@ impl IdentifyJob {
             &problem.unknowns(),
             &problem.nuisance(),
             weight,
+            None,
             &mut r,
         );
         let before: Vec<f64> = sol.residuals_before.iter().copied().collect();
@@ -520,6 +530,7 @@ mod tests {
         "calibrated_model",
         "condition_number",
         "convergence",
+        "coverage",
         "dependencies",
         "dof",
         "gauge_freedom",
@@ -588,6 +599,7 @@ mod tests {
             [
                 "calibrated_model.json",
                 "calibrated_model.urdf",
+                "predicted_accuracy.svg",
                 "residuals.csv",
                 "errors_per_configuration.svg",
                 "error_histogram.svg",

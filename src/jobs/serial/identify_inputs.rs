@@ -439,14 +439,21 @@ impl IdentifyInputs {
 
     /// Column order of rank detection: norm pivoting for DH models (whose parameter lists
     /// are minimal by construction, and where serial-robot.md keeps base parameters over
-    /// link-1 ones); the priority order of humanoid.md for URDF chains, whose six placement
-    /// errors per joint over-parameterise on purpose: a deterministic choice among
-    /// equivalent columns, translations before angles, so that a rotation acting through a
-    /// tiny lever (a strongly nonlinear direction) is the one held.
+    /// link-1 ones); for URDF chains, whose six placement errors per joint over-parameterise
+    /// on purpose, the base frame first, then the priority order of humanoid.md: a
+    /// deterministic choice among equivalent columns, translations before angles, so that a
+    /// rotation acting through a tiny lever (a strongly nonlinear direction) is the one held.
     pub fn pivoting(&self, problem: &PointProblem) -> Pivoting {
         match self.model.source {
             super::Source::Dh(_) => Pivoting::Norm,
-            super::Source::Urdf { .. } => Pivoting::Priority(problem.priority_order()),
+            super::Source::Urdf { .. } => {
+                // serial-robot.md keeps the base parameters over link-1 ones: the robot's
+                // pose in {W} (and a plate's free rotation) stays in the base frame instead
+                // of moving joint 1's placement.
+                let mut order = problem.priority_order();
+                order.sort_by_key(|&k| !matches!(self.ids.get(k), Some(ParamId::Base(_))));
+                Pivoting::Priority(order)
+            }
         }
     }
 

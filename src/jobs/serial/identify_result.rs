@@ -5,6 +5,8 @@ use std::borrow::Cow;
 
 use serde::{Deserialize, Serialize};
 
+use crate::identify::coverage::Coverage;
+use crate::identify::gauge_orbit::HeldGauge;
 use crate::identify::solve::Dependency;
 use crate::identify::verdict::Assessment;
 use crate::identify::{
@@ -229,6 +231,9 @@ pub struct SerialCalibration {
     /// Gauge freedom the plate leaves (point measurements only; inner `None` is null).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gauge_freedom: Option<Option<String>>,
+    /// The plate's free rotation held in the base frame (absent when none was held).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub gauge_held: Option<HeldGauge>,
     /// Residuals before/after.
     pub residuals: BeforeAfter,
     /// Point coincidence on the calibration balls (ball plates only).
@@ -243,6 +248,10 @@ pub struct SerialCalibration {
     /// Errors on the validation set (Cartesian or distance validation).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validation: Option<ValidationSummary>,
+    /// Predicted accuracy at the Cartesian validation points and its coverage (absent
+    /// without Cartesian validation or a parameter covariance).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub coverage: Option<Coverage>,
     /// Point coincidence on validation balls.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validation_coincidence: Option<CoincidenceReport>,

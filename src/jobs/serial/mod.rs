@@ -5,9 +5,11 @@
 
 pub mod compensate;
 pub mod compensate_program;
+mod coverage;
 pub mod design;
 pub mod dispersion;
 pub mod fk;
+mod gauge;
 pub mod identify;
 mod identify_inputs;
 mod identify_report;

@@ -27,6 +27,18 @@ pub trait SerialFit: Problem + Sized {
     /// Sum of squared held-out residuals of the model fitted on `self` at `x`, and their
     /// count, over the job's measurements `test`.
     fn held_out(&self, inp: &IdentifyInputs, x: &[f64], test: &[usize]) -> (f64, usize);
+    /// The least-squares solution `sol` (from `x0`) with a gauge the measurements leave held
+    /// (its `held_gauge`), or as it is.
+    fn hold_gauge(
+        &self,
+        _inp: &IdentifyInputs,
+        _x0: &[f64],
+        sol: Solution,
+        _opts: &SolveOptions,
+        _monitor: &dyn Monitor,
+    ) -> Result<Solution, JobError> {
+        Ok(sol)
+    }
 }
 
 impl SerialFit for PointProblem {
@@ -68,6 +80,23 @@ impl SerialFit for PointProblem {
             })
             .sum();
         (sum, 3 * test.len())
+    }
+    /// The plate's free rotation held in the base frame ([`super::gauge`]).
+    fn hold_gauge(
+        &self,
+        inp: &IdentifyInputs,
+        x0: &[f64],
+        sol: Solution,
+        opts: &SolveOptions,
+        monitor: &dyn Monitor,
+    ) -> Result<Solution, JobError> {
+        match super::gauge::hold_plate_gauge(inp, self, x0, &sol, opts, monitor)? {
+            Some((mut held, gauge)) => {
+                held.held_gauge = Some(gauge);
+                Ok(held)
+            }
+            None => Ok(sol),
+        }
     }
 }
 
@@ -200,6 +229,7 @@ pub fn identify_with<P: SerialFit>(
     };
     if inp.options.prior.is_none() {
         let sol = solve(&p, &p.names(), &x0, &options(uncertainty), monitor)?;
+        let sol = p.hold_gauge(inp, &x0, sol, &options(uncertainty), monitor)?;
         return Ok((p, sol, PriorReport::least_squares()));
     }
     let noise = match inp.options.noise {

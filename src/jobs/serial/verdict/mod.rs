@@ -97,13 +97,15 @@ fn per_row(inp: &IdentifyInputs) -> usize {
 
 /// Judge a serial calibration `r` of `sol` (unknowns `unknowns`, the model's first) and
 /// put the verdict, its reasons and `dof` into it; with duplicated rows, the standard
-/// deviations and `residual_std` are recounted over distinct configurations first.
+/// deviations and `residual_std` are recounted over distinct configurations first. With the
+/// `calibrated` chain of point measurements, the validation's `coverage` is added too.
 pub fn judge(
     inp: &IdentifyInputs,
     sol: &Solution,
     unknowns: &[Unknown],
     nuisance: &[usize],
     prior_weight: Option<f64>,
+    calibrated: Option<&Chain>,
     r: &mut SerialCalibration,
 ) {
     let dup = inp.duplicates();
@@ -111,11 +113,13 @@ pub fn judge(
     let equations = per_row(inp) * n_rows;
     let free = sol.free.len();
     let mut dof = verdict::dof(equations, free);
+    let mut variance_factor = 1.0;
     if dup.repeated() > 0 {
         let ssr: f64 = sol.residuals.iter().take(equations).map(|v| v * v).sum();
         let e = dup.effective(equations, free, ssr, sol.uncertainty.sigma);
         dof = e.dof;
         r.residual_std.value = e.sigma;
+        variance_factor = e.std_factor.map_or(f64::NAN, |f| f * f);
         for p in &mut r.parameters {
             p.std = match (p.std, e.std_factor) {
                 (Some(s), Some(f)) => Some(s * f),
@@ -128,6 +132,9 @@ pub fn judge(
     }
     r.residual_std.dof = dof;
     r.dof = dof;
+    r.coverage = calibrated.and_then(|c| {
+        super::coverage::point_coverage(inp, sol, c, variance_factor, r.residual_std.value)
+    });
     // Validation rows beyond the training range, per joint.
     let train: Vec<&[f64]> = inp.rows().into_iter().map(|(q, _)| q).collect();
     let val: Vec<&[f64]> = match (&inp.validation, &inp.validation_distances) {
@@ -183,6 +190,7 @@ pub fn judge(
         moved,
         prior_dominated,
         units,
+        coverage: r.coverage.clone(),
     };
     r.assessment = verdict::assess(&facts);
 }
