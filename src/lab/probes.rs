@@ -128,6 +128,8 @@ pub async fn camera_folder(
             "frames": frames.len(),
             "latest": latest.map(|(n, p)| serde_json::json!({"number": n, "file": p})),
         }),
+        // The folder is the unit: the same folder readable again is the same camera source.
+        fingerprint: format!("frame folder {}", f.dir().display()),
     })
 }
 

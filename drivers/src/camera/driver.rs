@@ -162,6 +162,13 @@ pub struct CameraIdentity {
 impl crate::identity::Identity for CameraIdentity {
     const DEVICE_KIND: &'static str = DEVICE;
 
+    /// The camera's identification line (never a frame's counter or exposure, which change
+    /// while the same camera runs, nor whether a frame came: a camera between acquisitions
+    /// is the same unit).
+    fn fingerprint(&self) -> String {
+        self.id.clone()
+    }
+
     fn summary(&self) -> String {
         match (&self.frame, &self.frame_error) {
             (Some(f), _) => format!(
