@@ -6,6 +6,7 @@
 pub mod compensate;
 pub mod compensate_program;
 pub mod design;
+mod design_report;
 pub mod dispersion;
 pub mod fk;
 pub mod identify;
