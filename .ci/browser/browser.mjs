@@ -164,6 +164,31 @@ try {
   const hist = await checkSeries(page, "design", "design_history.svg", "history");
   const design = await page.evaluate(async ([t, id]) => (await fetch(`/v1/jobs/${id}/result`, { headers: { Authorization: "Bearer " + t } })).json(), [token, jobIds.design]);
   if (hist.n !== design.history.steps.length || hist.values[hist.n - 1] !== design.observability.selection.o1) fail(`design history ${JSON.stringify(hist.values)} does not end at O1 ${design.observability.selection.o1}`);
+  // The design view: the selected configurations are the result's rows, O1..O5 of the
+  // selection and of the pool are the result's, and there is no parameter table.
+  await page.waitForSelector("#design-selected", { timeout: 20000 });
+  const view = await page.evaluate(() => ({
+    selected: [...document.querySelectorAll("#design-selected tbody tr")].map((tr) => [...tr.children].map((td) => td.textContent)),
+    obs: [...document.querySelectorAll("#design-observability tbody tr")].map((tr) => [...tr.children].map((td) => td.textContent)),
+    params: !!document.querySelector("table.params"),
+    identified: /parameters identified/.test(document.querySelector("#detail").textContent),
+    download: !!document.querySelector("#design-download"),
+  }));
+  const near = (text, v) => Math.abs(Number(text) - v) <= 5e-5 + 1e-3 * Math.abs(v);
+  if (view.selected.length !== design.rows.length || view.selected.length !== design.selected.length) fail(`design: ${view.selected.length} selected rows shown, the result has ${design.rows.length}`);
+  view.selected.forEach((row, i) => {
+    if (Number(row[1]) !== design.selected[i] + 1) fail(`design row ${i + 1}: pool row ${row[1]}, the result selected ${design.selected[i]} (from 0)`);
+    const cols = Object.keys(design.rows[i]);
+    cols.forEach((c, k) => { if (!near(row[2 + k], design.rows[i][c])) fail(`design row ${i + 1} ${c}: shown ${row[2 + k]}, result ${design.rows[i][c]}`); });
+  });
+  if (view.obs.length !== 5) fail(`design: ${view.obs.length} observability rows, want O1..O5`);
+  view.obs.forEach((row, k) => {
+    const key = `o${k + 1}`;
+    if (row[0] !== key.toUpperCase() || !near(row[2], design.observability.selection[key]) || !near(row[3], design.observability.pool[key])) fail(`design ${key}: shown ${row}, result ${design.observability.selection[key]} / ${design.observability.pool[key]}`);
+  });
+  if (view.params || view.identified) fail("the design view shows a parameter table or an identified count");
+  if (!view.download) fail("the design view has no download of the selected configurations");
+  console.log(`design view: ${view.selected.length} selected configurations; ${view.obs.map((r) => `${r[0]} ${r[2]} (pool ${r[3]})`).join(", ")}`);
   await page.screenshot({ path: `${dir}/serial-design.png`, fullPage: true });
   console.log(`design: ${hist.n} DETMAX steps, O1 ${hist.values[0].toPrecision(4)} -> ${hist.values[hist.n - 1].toPrecision(4)}; screenshot: ${dir}/serial-design.png`);
   // A dispersion study: a box per set size on a log error axis.

@@ -6,6 +6,7 @@
 pub mod centre;
 pub mod commission;
 pub mod engine;
+pub mod instruments;
 pub mod jog;
 pub mod mocap;
 pub mod operator;

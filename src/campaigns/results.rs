@@ -4,6 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::instruments::{Instrument, ToleranceCheck};
 use crate::jobs::humanoid::identify::HumanoidCalibration;
 use crate::jobs::pcr::accuracy::PcrAccuracy;
 use crate::jobs::pcr::identify::PcrCalibration;
@@ -47,10 +48,21 @@ pub struct TricalCampaign {
     pub calibration: SerialCalibration,
     /// The cell.
     pub cell: String,
+    /// What the "before" figures were computed with: the model the campaign started from
+    /// (`nominal (the lab file's model)`, `calibration #k of DATE (job J)`, or the job's).
+    #[serde(default)]
+    pub started_from: String,
     /// Measuring figures.
     pub campaign: TricalStats,
     /// The model the campaign started from.
     pub start_model: crate::model::dh::DhFile,
+    /// The cell's devices as they identified themselves at the start (controller,
+    /// receivers).
+    #[serde(default)]
+    pub instruments: Vec<Instrument>,
+    /// The held-out maximum error against `options.tolerance_mm`, when the job declared one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerance: Option<ToleranceCheck>,
     /// The centred configurations (rows of the main table).
     #[serde(serialize_with = "crate::report::json_rows", skip_deserializing)]
     pub measurements: Table,
@@ -94,6 +106,10 @@ pub struct PcrCampaign {
     pub accuracy: Option<PcrAccuracy>,
     /// The cell.
     pub cell: String,
+    /// What the "before" figures were computed with: the model the campaign started from
+    /// (`nominal (the lab file's model)`, `calibration #k of DATE (job J)`, or the job's).
+    #[serde(default)]
+    pub started_from: String,
     /// Measuring figures.
     pub campaign: PcrStats,
     /// The calibration and validation joint sets (rows of the main table).
@@ -134,6 +150,10 @@ pub struct MocapCampaign {
     pub calibration: HumanoidCalibration,
     /// The cell.
     pub cell: String,
+    /// What the "before" figures were computed with: the model the campaign started from
+    /// (`nominal (the lab file's model)`, `calibration #k of DATE (job J)`, or the job's).
+    #[serde(default)]
+    pub started_from: String,
     /// Campaign figures.
     pub campaign: MocapStats,
     /// The averaged postures (rows of the main table).

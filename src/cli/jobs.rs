@@ -25,6 +25,14 @@ pub(crate) struct Remote {
 
 impl Remote {
     fn client(&self) -> Client {
+        if token_on_command_line(std::env::args()) {
+            eprintln!(
+                "warning: a token given with --token is visible to every user of this machine \
+                 (in `ps`, /proc/PID/cmdline) and lands in the shell history: set CALIBD_TOKEN, \
+                 or let calibd read {} (the daemon's operator token)",
+                self.data.join("operator.token").display()
+            );
+        }
         let token = Client::find_token(self.token.clone(), &self.data);
         let found = token.is_some();
         let c = Client::new(&self.server, token);
@@ -34,6 +42,12 @@ impl Remote {
             c.with_token_search(Client::token_places(&self.data))
         }
     }
+}
+
+/// Whether the arguments carry `--token` (rather than CALIBD_TOKEN or the token file).
+fn token_on_command_line(args: impl Iterator<Item = String>) -> bool {
+    args.take_while(|a| a != "--")
+        .any(|a| a == "--token" || a.starts_with("--token="))
 }
 
 /// Run `f` with a client of `r` on a fresh runtime.
@@ -146,7 +160,7 @@ pub(crate) struct ReportArgs {
     /// Job id.
     id: i64,
     /// The HTML file to write.
-    #[arg(long, value_name = "FILE", default_value = "report.html")]
+    #[arg(short = 'o', long, value_name = "FILE", default_value = "report.html")]
     out: PathBuf,
     #[command(flatten)]
     remote: Remote,

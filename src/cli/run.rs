@@ -110,6 +110,7 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<i
         calibd::offline::write_main_csv(&prepared, p, &monitor)?;
         return Ok(0);
     }
+    let mut decision = None;
     let done = if prepared.devices().is_empty() {
         prepared.run(&monitor)?
     } else {
@@ -133,7 +134,9 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<i
             &monitor,
         );
         rt.block_on(lab.stop());
-        r?
+        let done = r?;
+        decision = done.candidate.as_ref().map(|c| lab.decide(c));
+        done
     };
     match out {
         Some(p) if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) => {
@@ -149,11 +152,6 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<i
             .with_context(|| format!("writing {}", p.display()))?,
         None => println!("{}", serde_json::to_string_pretty(&done.result)?),
     }
-    // Warnings of the result (e.g. unused table columns) also on stderr, never only buried
-    // in the JSON.
-    for w in done.result["warnings"].as_array().into_iter().flatten() {
-        eprintln!("warning: {}", w.as_str().unwrap_or_default());
-    }
     if let Some(dir) = artefacts {
         std::fs::create_dir_all(dir)?;
         for a in &done.artefacts {
@@ -161,24 +159,29 @@ fn run_job(job: &Path, out: Option<&Path>, artefacts: Option<&Path>) -> Result<i
                 .with_context(|| format!("writing artefact {}", a.name))?;
         }
     }
-    Ok(report_verdict(&done.result))
+    // The summary on stderr (stdout may be the result JSON): headline figures, the
+    // verdict with its reasons, warnings (never only buried in the JSON) and, for a
+    // campaign, what its cell would decide.
+    for l in calibd::client::commands::summary_lines(&done.result) {
+        eprintln!("{l}");
+    }
+    if let Some(d) = &decision {
+        eprintln!(
+            "decision (offline run, not stored; no cell changes its model): cell {}: model {}: {}",
+            d.cell,
+            if d.accepted { "accepted" } else { "rejected" },
+            d.reason
+        );
+    }
+    Ok(exit_code(&done.result))
 }
 
-/// Print an identification's verdict and reasons on stderr; its exit code (0 without one).
-fn report_verdict(result: &serde_json::Value) -> i32 {
+/// An identification's exit code (0 without a verdict); says what a rejection leaves.
+fn exit_code(result: &serde_json::Value) -> i32 {
     use calibd::identify::Verdict;
     let Some(v) = Verdict::of_result(result) else {
         return 0;
     };
-    eprintln!("verdict: {}", v.as_str());
-    for r in result["reasons"].as_array().into_iter().flatten() {
-        eprintln!(
-            "  {} ({}): {}",
-            r["code"].as_str().unwrap_or_default(),
-            r["severity"].as_str().unwrap_or_default(),
-            r["message"].as_str().unwrap_or_default()
-        );
-    }
     if v == Verdict::Rejected {
         eprintln!("  no calibrated model was written (rejected_model* holds it for inspection)");
     }

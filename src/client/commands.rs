@@ -7,6 +7,7 @@ use std::path::Path;
 
 use serde_json::Value;
 
+pub use super::summary::{print_summary, summary_lines};
 use super::{Client, ClientError, progress_line};
 
 /// Submit a job file; with `watch`, follow it and print the result summary.
@@ -78,10 +79,13 @@ pub fn dry_run_summary(v: &Value) -> String {
     out
 }
 
-/// Follow a job with a progress bar on stderr until it ends; print its summary.
+/// Follow a job with a progress bar on stderr until it ends; print its summary, the
+/// verdict and, for a campaign, what its cell decided about the model.
 pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
     let mut err = std::io::stderr();
-    let tty = std::io::IsTerminal::is_terminal(&err);
+    // On a terminal: one bar redrawn in place, the message cut to the terminal's width
+    // (the ETA first, so it is never what is cut); otherwise a line per stage or message.
+    let bar = std::io::IsTerminal::is_terminal(&err).then(progress_bar);
     let mut last_stage = String::new();
     let job = c
         .watch(id, |m| {
@@ -92,42 +96,91 @@ pub async fn watch(c: &Client, id: i64) -> Result<Value, ClientError> {
                 "progress" => {
                     let f = v["fraction"].as_f64().unwrap_or(0.0);
                     let stage = v["stage"].as_str().unwrap_or("");
-                    let line = match v["message"].as_str() {
-                        Some(m) => format!("{}: {m}", progress_line(f, stage)),
-                        None => progress_line(f, stage),
-                    };
-                    if tty {
-                        // One line, redrawn: cut to the terminal's width, asked at each
-                        // redraw (a wrapped line cannot be returned to with `\r`), and
-                        // clear what was there.
-                        let _ = write!(err, "\r\x1b[2K{}", fit(&line, terminal_width()));
-                        let _ = err.flush();
-                    } else if stage != last_stage || v["message"].is_string() {
-                        let _ = writeln!(err, "{line}");
+                    match &bar {
+                        Some(b) => {
+                            b.set_position(bar_position(f));
+                            b.set_message(bar_message(stage, v["message"].as_str()));
+                        }
+                        None if stage != last_stage || v["message"].is_string() => {
+                            let line = match v["message"].as_str() {
+                                Some(m) => format!("{}: {m}", progress_line(f, stage)),
+                                None => progress_line(f, stage),
+                            };
+                            let _ = writeln!(err, "{line}");
+                        }
+                        None => {}
                     }
                     last_stage = stage.to_string();
                 }
                 "state" => {
-                    if tty {
-                        let _ = writeln!(err);
+                    let line = format!("job {id}: {}", v["state"].as_str().unwrap_or("?"));
+                    match &bar {
+                        Some(b) => b.println(line),
+                        None => {
+                            let _ = writeln!(err, "{line}");
+                        }
                     }
-                    let _ = writeln!(err, "job {id}: {}", v["state"].as_str().unwrap_or("?"));
                 }
                 _ => {}
             }
         })
-        .await?;
+        .await;
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    let job = job?;
     let state = job["state"].as_str().unwrap_or("?");
     if state == "succeeded" {
         let r = c.get(&format!("/v1/jobs/{id}/result")).await?;
         print_summary(&r);
-        if let Some(line) = cell_decision(c, id).await? {
-            println!("{line}");
+        match cell_decision(c, id).await? {
+            Some(line) => println!("{line}"),
+            None if r["cell"].is_string() => println!(
+                "decision: none recorded for cell {}",
+                r["cell"].as_str().unwrap_or("?")
+            ),
+            None => {}
         }
     } else if let Some(e) = job["error"].as_str() {
         println!("job {id} {state}: {e}");
     }
     Ok(job)
+}
+
+/// Steps of the progress bar (a fraction of 1 in thousandths).
+const BAR_STEPS: u64 = 1000;
+
+/// The `--watch` bar on stderr: `[#####.....]  50% ETA 40 s · centring: configuration ...`.
+fn progress_bar() -> indicatif::ProgressBar {
+    let b = indicatif::ProgressBar::new(BAR_STEPS);
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("[{bar:30}] {percent:>3}% {wide_msg}")
+    {
+        b.set_style(style.progress_chars("#>."));
+    }
+    b
+}
+
+/// A fraction as a position of the bar.
+fn bar_position(fraction: f64) -> u64 {
+    let f = if fraction.is_finite() {
+        fraction.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (f * BAR_STEPS as f64).round() as u64
+}
+
+/// The bar's message: the job's ETA first (a campaign ends its message with `, ETA 40 s`),
+/// then the stage and the rest, so a narrow terminal cuts the detail, not the ETA.
+pub fn bar_message(stage: &str, message: Option<&str>) -> String {
+    let Some(m) = message else {
+        return stage.to_string();
+    };
+    match m.rsplit_once(", ETA ") {
+        Some((rest, eta)) => format!("ETA {eta} · {stage}: {rest}"),
+        None => format!("{stage}: {m}"),
+    }
 }
 
 /// What the cell decided about the model a campaign proposed (`cell NAME: model accepted:
@@ -141,107 +194,6 @@ pub async fn cell_decision(c: &Client, id: i64) -> Result<Option<String>, Client
         .filter_map(|l| l["message"].as_str())
         .find(|m| m.starts_with("cell ") && m.contains(": model "))
         .map(|m| format!("decision: {m}")))
-}
-
-/// The width in columns of the terminal stderr writes to, asked of the terminal itself
-/// (at each redraw, so a resized window is followed); 80 when it does not say.
-fn terminal_width() -> usize {
-    terminal_size::terminal_size_of(std::io::stderr())
-        .map(|(terminal_size::Width(w), _)| usize::from(w))
-        .filter(|w| *w >= 20)
-        .unwrap_or(80)
-}
-
-/// `line` cut to fit in `width - 1` columns (characters), with an ellipsis when cut.
-pub fn fit(line: &str, width: usize) -> String {
-    let max = width.saturating_sub(1).max(1);
-    if line.chars().count() <= max {
-        return line.to_string();
-    }
-    let mut s: String = line.chars().take(max.saturating_sub(1)).collect();
-    s.push('…');
-    s
-}
-
-fn stats_line(name: &str, v: &Value) -> Option<String> {
-    let b = v.get("before")?;
-    let a = v.get("after")?;
-    let unit = a.get("unit").and_then(Value::as_str).unwrap_or("");
-    let f = |x: &Value, k: &str| {
-        x.get(k)
-            .and_then(Value::as_f64)
-            .map_or("-".into(), |v| format!("{v:.4}"))
-    };
-    Some(format!(
-        "{name:<11} mean {} -> {} {unit}, max {} -> {} {unit}",
-        f(b, "mean"),
-        f(a, "mean"),
-        f(b, "max"),
-        f(a, "max")
-    ))
-}
-
-/// Print the headline figures of a result.
-pub fn print_summary(r: &Value) {
-    println!(
-        "{} finished in {:.2} s",
-        r["kind"].as_str().unwrap_or("?"),
-        r["duration_s"].as_f64().unwrap_or(0.0)
-    );
-    if let Some(p) = r["parameters"].as_array() {
-        let identified = p
-            .iter()
-            .filter(|x| x["identifiable"].as_bool().unwrap_or(true))
-            .count();
-        println!(
-            "{identified} of {} parameters identified ({} held)",
-            p.len(),
-            p.len() - identified
-        );
-    }
-    let mm = |k: &str| r[k].as_f64().map(|v| format!("{v:.4}"));
-    if let (Some(b), Some(a)) = (mm("rmse_before_mm"), mm("rmse_after_mm")) {
-        println!("marker RMSE {b} -> {a} mm");
-    }
-    let cv = &r["cross_validation"];
-    if let (Some(b), Some(a)) = (
-        cv["rmse_nominal_mm"].as_f64(),
-        cv["rmse_calibrated_mm"].as_f64(),
-    ) {
-        println!("held-out marker RMSE (cross-validation) {b:.4} -> {a:.4} mm");
-    }
-    for set in ["calibration", "validation"] {
-        let e = &r["model_error"][set]["e_P"];
-        if let (Some(b), Some(a)) = (
-            e["nominal"]["mean"].as_f64(),
-            e["identified"]["mean"].as_f64(),
-        ) {
-            println!(
-                "{set} e_P mean {b:.2} -> {a:.2} {}",
-                e["unit"].as_str().unwrap_or("um")
-            );
-        }
-    }
-    if let Some(u) = r["unidentifiable"].as_array().filter(|u| !u.is_empty()) {
-        println!(
-            "unidentifiable: {}",
-            u.iter()
-                .filter_map(Value::as_str)
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-    }
-    for key in ["residuals", "validation"] {
-        if let Some(l) = stats_line(key, &r[key]) {
-            println!("{l}");
-        }
-    }
-    if let Some(rows) = r["poses"].as_array() {
-        println!("{} poses", rows.len());
-    }
-    for w in r["warnings"].as_array().into_iter().flatten() {
-        println!("warning: {}", w.as_str().unwrap_or_default());
-    }
 }
 
 /// `GET /v1/health` (no token needed) within `timeout`, straight to the daemon (no proxy):

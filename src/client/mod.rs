@@ -6,6 +6,7 @@
 pub mod commands;
 pub mod job_file;
 pub mod sse;
+pub mod summary;
 
 use std::path::{Path, PathBuf};
 
@@ -47,8 +48,9 @@ pub enum ClientError {
     Protocol(String),
 }
 
-/// Why a request got no answer, with the cause and, when nothing listens, the likely fix.
-fn connect_message(e: &reqwest::Error) -> String {
+/// Why a request to `base` got no answer, with the cause and, when nothing listens, the
+/// likely fix.
+fn connect_message(base: &str, e: &reqwest::Error) -> String {
     let mut text = e.to_string();
     let mut source = std::error::Error::source(e);
     while let Some(s) = source {
@@ -60,7 +62,9 @@ fn connect_message(e: &reqwest::Error) -> String {
         source = s.source();
     }
     if e.is_connect() {
-        format!("is `calibd serve` running there? ({text})")
+        format!(
+            "is `calibd serve` running at {base}? (start it, or point --server / CALIBD_URL at it; {text})"
+        )
     } else {
         text
     }
@@ -146,7 +150,7 @@ impl Client {
     ) -> Result<reqwest::Response, ClientError> {
         let res = r.send().await.map_err(|e| ClientError::Connect {
             url: self.base.clone(),
-            message: connect_message(&e),
+            message: connect_message(&self.base, &e),
         })?;
         if res.status().is_success() {
             return Ok(res);
@@ -382,7 +386,9 @@ mod tests {
         let e = c.get("/v1/health").await.unwrap_err().to_string();
         assert!(
             e.contains(&format!("cannot reach http://127.0.0.1:{port}"))
-                && e.contains("is `calibd serve` running there?")
+                && e.contains(&format!(
+                    "is `calibd serve` running at http://127.0.0.1:{port}?"
+                ))
                 && e.to_ascii_lowercase().contains("refused"),
             "{e}"
         );
@@ -395,6 +401,27 @@ mod tests {
             format!("[{}{}]  50.0 % lm", "#".repeat(15), ".".repeat(15))
         );
         assert!(progress_line(f64::NAN, "x").contains("  0.0 %"));
+    }
+
+    #[test]
+    fn the_watch_message_puts_the_eta_first() {
+        let m = commands::bar_message(
+            "centring",
+            Some("configuration 12/45 (ball 2): 11 recorded, 0 skipped, ETA 40 s"),
+        );
+        assert_eq!(
+            m,
+            "ETA 40 s · centring: configuration 12/45 (ball 2): 11 recorded, 0 skipped"
+        );
+        // Bar (32 columns), percentage (5) and the ETA fit well inside 80 columns: a
+        // narrow terminal cuts the detail after them.
+        let head = format!("[{}] 100% {}", "#".repeat(30), &m[..m.find('·').unwrap()]);
+        assert!(head.chars().count() < 60, "{head}");
+        assert_eq!(commands::bar_message("lm", None), "lm");
+        assert_eq!(
+            commands::bar_message("lm", Some("iteration 3")),
+            "lm: iteration 3"
+        );
     }
 
     #[test]

@@ -2,10 +2,10 @@
 //! on the Jacobian with columns scaled to unit norm.
 
 use nalgebra::DMatrix;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// The five indices of a set of configurations.
-#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
 pub struct Indices {
     /// (s1 ... sm)^(1/m) / sqrt(n).
     pub o1: f64,

@@ -22,6 +22,18 @@ pub const EXAMPLES: &[(&str, &str)] = &[
         "serial.dispersion: IRB 120 twin, sizes 20/40/60, 10 repetitions each",
     ),
     (
+        "irb120-design",
+        "serial.design: DETMAX picks 45 of 120 IRB 120 twin ball centrings by observability (O1..O5 of the selection against the pool)",
+    ),
+    (
+        "pcr-identify",
+        "pcr.identify: 3-PF twin, 99 calibration and 56 validation poses under the microscope, staged identification (Table 3)",
+    ),
+    (
+        "humanoid-design",
+        "humanoid.design: TALOS left arm, up to 20 postures chosen by NOCP for two marker clusters",
+    ),
+    (
         "trical-campaign",
         "cell.trical_campaign: the IRB 120 cell measures 3 x 15 centrings (designed) and 15 validation centrings, identifies, decides the cell's model",
     ),
@@ -57,6 +69,9 @@ pub fn example(name: &str) -> Option<Value> {
         "irb120-identify" => Some(twin_identify(40, 60)),
         "irb120-fk" => Some(twin_fk(20)),
         "irb120-dispersion" => Some(twin_dispersion(&[20, 40, 60], 10)),
+        "irb120-design" => Some(twin_design(40, 45)),
+        "pcr-identify" => twin_pcr_identify(1),
+        "humanoid-design" => Some(talos_design()),
         other => CAMPAIGNS
             .iter()
             .find(|(n, _)| *n == other)
@@ -133,6 +148,63 @@ pub fn twin_dispersion(sizes: &[usize], repetitions: usize) -> Value {
         "sizes": sizes,
         "repetitions": repetitions,
         "options": {"seed": 7}
+    })
+}
+
+/// A `serial.design` job: DETMAX chooses `n` of the twin's `3 * per_ball` centrings.
+pub fn twin_design(per_ball: usize, n: usize) -> Value {
+    let twin = SerialTwin::irb120(1);
+    json!({
+        "kind": "serial.design",
+        "model": serde_json::to_value(&twin.file).unwrap_or_default(),
+        "pool": measurement_rows(&twin.centring(per_ball, 2)),
+        "ball_plate": {"d12": twin.ballbar[0], "d13": twin.ballbar[1], "d23": twin.ballbar[2]},
+        "n": n,
+        "options": {"seed": 1}
+    })
+}
+
+/// A `pcr.identify` job over the 3-PF twin's data set (`calibd twin pcr`), inline, with
+/// the staged identification of `examples/pcr_identify.json`; none if the twin fails.
+pub fn twin_pcr_identify(seed: u64) -> Option<Value> {
+    let files = crate::jobs::pcr::twin_files(seed).ok()?;
+    let file = |name: &str| {
+        files
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, text)| text.as_str())
+    };
+    let rows = |name: &str| {
+        crate::run::Table::from_csv(name, file(name)?)
+            .ok()
+            .map(|t| t.to_json_rows())
+    };
+    Some(json!({
+        "kind": "pcr.identify",
+        "model": serde_json::from_str::<Value>(file("pcr3pf.json")?).ok()?,
+        "measurements": rows("calibration.csv")?,
+        "validation": rows("validation.csv")?,
+        "options": {"steps": [
+            ["extrinsics"],
+            ["extrinsics", "l", "gamma", "alpha", "Ax", "Ay", "Bx", "By"],
+            ["all"]
+        ]}
+    }))
+}
+
+/// A `humanoid.design` job: NOCP postures of TALOS's left arm for two marker clusters.
+pub fn talos_design() -> Value {
+    json!({
+        "kind": "humanoid.design",
+        "urdf": crate::twin::humanoid::TALOS_URDF,
+        "root_link": "torso_2_link",
+        "joints": (1..=7).map(|k| format!("arm_left_{k}_joint")).collect::<Vec<_>>(),
+        "clusters": [
+            {"link": "arm_left_4_link", "centre": [0.05, 0.0, -0.12]},
+            {"link": "arm_left_7_link", "centre": [0.04, 0.0, -0.10]}
+        ],
+        "seed": 3,
+        "options": {"base_pool": 150, "max_postures": 20}
     })
 }
 

@@ -16,6 +16,7 @@ pub fn typed_result(result: &Value) -> Box<dyn Reportable + '_> {
     let kind = result.get("kind").and_then(Value::as_str).unwrap_or("");
     match kind {
         "serial.identify" => typed::<serial::identify::SerialCalibration>(kind, result),
+        "serial.design" => typed::<serial::design::SerialDesign>(kind, result),
         "pcr.identify" => typed::<pcr::identify::PcrCalibration>(kind, result),
         "humanoid.identify" => typed::<humanoid::identify::HumanoidCalibration>(kind, result),
         "tree.identify" => typed::<tree::TreeCalibration>(kind, result),

@@ -11,6 +11,7 @@ pub mod decision;
 pub mod devices;
 pub mod probes;
 pub mod resume;
+pub mod source;
 
 use std::collections::BTreeMap;
 use std::future::Future;
@@ -23,6 +24,7 @@ pub use connect::{
 };
 pub use decision::{Acceptance, Candidate, Decision, Evidence};
 pub use devices::{DeviceLink, DeviceReport, DeviceStatus, Identity};
+pub use source::ModelSource;
 
 fn no_cell_message(name: &str, what: &str, have: &[String]) -> String {
     if have.is_empty() {
@@ -89,6 +91,8 @@ pub struct Lab {
     cells: BTreeMap<String, Cell>,
     /// Each cell's resume setting (absent: the default).
     resume: BTreeMap<String, resume::ResumePolicy>,
+    /// Where each cell's current model comes from (absent: nominal).
+    sources: std::sync::Mutex<BTreeMap<String, ModelSource>>,
     attached: std::sync::Mutex<Vec<Box<dyn Attached>>>,
 }
 
@@ -162,6 +166,18 @@ impl Lab {
     /// The cells' names, sorted.
     pub fn cell_names(&self) -> Vec<String> {
         self.cells.keys().cloned().collect()
+    }
+
+    /// Where cell `name`'s current model comes from (nominal until one is recorded).
+    pub fn model_source(&self, name: &str) -> ModelSource {
+        let s = self.sources.lock().unwrap_or_else(|p| p.into_inner());
+        s.get(name).cloned().unwrap_or_default()
+    }
+
+    /// Record where cell `name`'s current model comes from (with [`Cell::set_model`]).
+    pub fn set_model_source(&self, name: &str, source: ModelSource) {
+        let mut s = self.sources.lock().unwrap_or_else(|p| p.into_inner());
+        s.insert(name.to_string(), source);
     }
 
     /// The cell `name`.

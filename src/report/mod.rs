@@ -13,7 +13,7 @@ pub mod studies;
 pub mod svg;
 pub mod view;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::run::{Artefact, Table};
 pub use json_result::JsonResult;
@@ -24,6 +24,13 @@ pub use view::Reportable;
 /// `serialize_with` helper for typed results that carry a table.
 pub fn json_rows<S: serde::Serializer>(t: &Table, s: S) -> Result<S::Ok, S::Error> {
     t.to_json_rows().serialize(s)
+}
+
+/// Read a table serialised by [`json_rows`] back (null as a missing value, NaN): a
+/// `deserialize_with` helper for typed results the report reads.
+pub fn table_of_json_rows<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Table, D::Error> {
+    let v = serde_json::Value::deserialize(d)?;
+    Table::from_json_rows_with_gaps("rows", &v, &|_: &str| true).map_err(serde::de::Error::custom)
 }
 
 /// The error plots of a calibration as SVG artefacts: per configuration, histogram and

@@ -278,6 +278,20 @@ impl Facts {
     }
 }
 
+/// A design of experiments (`serial.design`): the configurations chosen and how well they
+/// observe the parameters, shown instead of before/after errors and a parameter table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DesignView {
+    /// What was chosen from what, by which search (one sentence).
+    pub summary: String,
+    /// The selected configurations, one row each (the job's main table).
+    pub selected: NumTable,
+    /// O1..O5 of the selection against the pool.
+    pub observability: NumTable,
+    /// The search's history (criterion after each improving step).
+    pub history: NumTable,
+}
+
 /// A result as the report reads it. Every method defaults to the embedded result's (a
 /// campaign embeds its identification), else to nothing: a kind implements what it has.
 pub trait Reportable: std::fmt::Debug {
@@ -320,6 +334,15 @@ pub trait Reportable: std::fmt::Debug {
     /// The gauge freedom the data leave, if any.
     fn gauge_freedom(&self) -> Option<String> {
         self.embedded().and_then(|e| e.gauge_freedom())
+    }
+    /// A design of experiments' view (designs only).
+    fn design(&self) -> Option<DesignView> {
+        self.embedded().and_then(|e| e.design())
+    }
+    /// What the "before" column is, when not the nominal model the job started from (a
+    /// campaign that started from the cell's current calibration).
+    fn before_label(&self) -> Option<String> {
+        self.embedded().and_then(|e| e.before_label())
     }
 }
 

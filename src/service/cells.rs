@@ -7,7 +7,7 @@
 use serde_json::{Value, json};
 
 use super::{Entry, Event, Service, ServiceError, StoreResolver, blocking, lock};
-use crate::lab::Decision;
+use crate::lab::{Decision, ModelSource};
 use crate::store::{CellModel, JobState, Store};
 
 /// Whether stored job `id` is a campaign that can continue from its journal.
@@ -28,13 +28,21 @@ pub(super) async fn resumable(store: &Store, id: i64) -> bool {
 pub(super) async fn load_current_models(svc: &Service) {
     for cell in svc.shared.lab.cells() {
         let name = cell.name().to_string();
-        let current =
-            super::storage::call(&svc.shared.store, move |st| st.current_cell_model(&name)).await;
-        let Ok(Some(m)) = current else {
+        let history =
+            super::storage::call(&svc.shared.store, move |st| st.cell_models(&name)).await;
+        let Ok(history) = history else {
+            continue;
+        };
+        let Some(m) = history.iter().find(|m| m.state == "current") else {
             continue;
         };
         match cell.parse_model(&m.model).and_then(|f| cell.set_model(f)) {
-            Ok(()) => tracing::info!(cell = cell.name(), model = m.id, "current model loaded"),
+            Ok(()) => {
+                svc.shared
+                    .lab
+                    .set_model_source(cell.name(), source_of(&history));
+                tracing::info!(cell = cell.name(), model = m.id, "current model loaded")
+            }
             Err(e) => {
                 tracing::error!(cell = cell.name(), error = %e, "stored current model unreadable; using the nominal model")
             }
@@ -42,9 +50,27 @@ pub(super) async fn load_current_models(svc: &Service) {
     }
 }
 
+/// Where the current model of a cell with model history `history` (newest first) comes
+/// from: the accepted calibration marked current, numbered among the accepted ones.
+pub(super) fn source_of(history: &[CellModel]) -> ModelSource {
+    let accepted = |m: &&CellModel| matches!(m.state.as_str(), "current" | "superseded");
+    match history.iter().find(|m| m.state == "current") {
+        Some(c) => ModelSource::Calibration {
+            number: history
+                .iter()
+                .filter(accepted)
+                .filter(|m| m.id <= c.id)
+                .count(),
+            job_id: c.job_id,
+            at: c.at.clone(),
+        },
+        None => ModelSource::Nominal,
+    }
+}
+
 /// After a campaign's decision is stored with its result: an accepted model becomes the
-/// cell's current model in memory too.
-pub(super) fn adopt(svc: &Service, id: i64, d: &Decision) {
+/// cell's current model in memory too, and its source the stored calibration.
+pub(super) async fn adopt(svc: &Service, id: i64, d: &Decision) {
     tracing::info!(job = id, cell = %d.cell, accepted = d.accepted, reason = %d.reason, "campaign model decision");
     if !d.accepted {
         return;
@@ -54,6 +80,17 @@ pub(super) fn adopt(svc: &Service, id: i64, d: &Decision) {
     };
     if let Err(e) = cell.parse_model(&d.model).and_then(|m| cell.set_model(m)) {
         tracing::error!(job = id, cell = %d.cell, error = %e, "the accepted model could not be applied");
+        return;
+    }
+    let name = d.cell.clone();
+    match super::storage::call(&svc.shared.store, move |st| st.cell_models(&name)).await {
+        Ok(history) => svc
+            .shared
+            .lab
+            .set_model_source(&d.cell, source_of(&history)),
+        Err(e) => {
+            tracing::error!(job = id, cell = %d.cell, error = %e, "the cell's model history could not be read")
+        }
     }
 }
 

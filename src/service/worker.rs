@@ -256,7 +256,7 @@ async fn run_one(svc: &Service, entry: Entry, claimed: Option<Run>) {
     let (state, error) = match outcome {
         Outcome::Succeeded(decision) => {
             if let Some(d) = decision {
-                super::cells::adopt(svc, id, &d);
+                super::cells::adopt(svc, id, &d).await;
             }
             (JobState::Succeeded, None)
         }

@@ -179,6 +179,29 @@ async fn faults_are_retried_a_stall_pauses_and_resume_ends_with_the_uninterrupte
     d.stop.cancel();
 }
 
+/// The printable report of stored job `id` (result `r`) with its cell's history.
+fn report_of_stored(store: &Store, id: i64, r: &Value) -> String {
+    use calibd::report::html::{Envelope, ReportInput, render};
+    let job = json!({"id": id, "kind": r["kind"], "state": "succeeded", "devices": []});
+    let history: Vec<Value> = store
+        .cell_models("irb120")
+        .unwrap()
+        .iter()
+        .map(|m| serde_json::to_value(m).unwrap())
+        .collect();
+    let envelope = Envelope::read(r);
+    render(&ReportInput {
+        job: &job,
+        envelope: &envelope,
+        result: calibd::jobs::report_view::typed_result(r).as_ref(),
+        artefacts: &[],
+        cell_history: &history,
+        journal: &[],
+        generator_version: "test",
+        generated_at: "2026-01-10T03:00:00Z",
+    })
+}
+
 /// The TriCal cell's model history once it holds `n` entries (the decision on a campaign's
 /// model is recorded just after the job is stored as succeeded).
 async fn history(svc: &Service, n: usize) -> Vec<Value> {
@@ -260,6 +283,24 @@ async fn the_overnight_schedule_calibrates_and_only_an_improvement_replaces_the_
     until_state(&d.svc, night2, &[JobState::Succeeded]).await;
     let r2 = store.result(night2).unwrap().unwrap();
     assert!(r2["validation"]["before"]["mean"].as_f64().unwrap() < 0.010);
+    // The first campaign's "before" was the lab file's model; the second's is the cell's
+    // calibration #1 (from night 1, at the time the cell's history records), and says so.
+    let r1 = store.result(night1).unwrap().unwrap();
+    assert_eq!(r1["started_from"], "nominal (the lab file's model)");
+    let at = models[0]["at"].as_str().unwrap();
+    let label = format!(
+        "calibration #1 of {} {} UTC (job {night1})",
+        &at[..10],
+        &at[11..16]
+    );
+    assert_eq!(r2["started_from"], label.as_str());
+    let html = report_of_stored(&store, night2, &r2);
+    assert!(
+        html.contains(&format!("<th data-before>before: {label}</th>")),
+        "{}",
+        &html[html.find("<h2>Result").unwrap_or(0)..][..400]
+    );
+    assert!(!html.contains("before calibration</th>"));
     let models = history(&d.svc, 2).await;
     assert_eq!(models[0]["state"], "rejected");
     assert!(

@@ -67,7 +67,51 @@ fn submit_rerun_and_report_from_the_command_line() {
         "{page:.300}"
     );
 
-    // A wrong token: the message says where a valid one comes from.
+    // `report -o FILE`: the same report of the same job.
+    let short = data.path().join("short.html");
+    let o = calibd(
+        &d,
+        data.path(),
+        &["report", "2", "-o", &short.display().to_string()],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let again = std::fs::read_to_string(&short).unwrap();
+    assert_eq!(strip_written_at(&again), strip_written_at(&page));
+
+    // An identification: `--watch` ends with the verdict the result holds, and its reasons.
+    let ident = data.path().join("identify.json");
+    std::fs::write(
+        &ident,
+        calibd::jobs::examples::twin_identify(12, 20).to_string(),
+    )
+    .unwrap();
+    let o = calibd(
+        &d,
+        data.path(),
+        &["submit", &ident.display().to_string(), "--watch"],
+    );
+    let out = text(&o);
+    assert!(o.status.success(), "{out}");
+    let r = result_json(&d, data.path(), "3");
+    let verdict = r["verdict"].as_str().expect("a verdict");
+    assert!(out.contains(&format!("\nverdict: {verdict}\n")), "{out}");
+    for reason in r["reasons"].as_array().unwrap() {
+        assert!(out.contains(reason["code"].as_str().unwrap()), "{out}");
+    }
+
+    // An unknown kind: the daemon's refusal lists the kinds.
+    let bad = data.path().join("bad.json");
+    std::fs::write(&bad, r#"{"kind": "serial.identfy"}"#).unwrap();
+    let o = calibd(&d, data.path(), &["submit", &bad.display().to_string()]);
+    let out = text(&o);
+    assert!(!o.status.success());
+    for k in calibd::jobs::KINDS {
+        assert!(out.contains(k.name), "{} not listed: {out}", k.name);
+    }
+    assert!(out.contains("unknown job kind `serial.identfy`"), "{out}");
+
+    // A wrong token: the message says where a valid one comes from, and a token on the
+    // command line is called out as visible in `ps`.
     let o = Command::new(BIN)
         .args(["jobs", "--server", &d.url, "--token", "not-a-token"])
         .output()
@@ -76,6 +120,48 @@ fn submit_rerun_and_report_from_the_command_line() {
     assert!(!o.status.success());
     assert!(
         out.contains("refused the token") && out.contains("operator.token"),
+        "{out}"
+    );
+    assert!(
+        out.contains("visible to every user of this machine") && out.contains("CALIBD_TOKEN"),
+        "{out}"
+    );
+    // The same token from the variable: no such warning.
+    let o = Command::new(BIN)
+        .args(["jobs", "--server", &d.url])
+        .env("CALIBD_TOKEN", "not-a-token")
+        .output()
+        .unwrap();
+    let out = text(&o);
+    assert!(out.contains("refused the token") && !out.contains("visible to every user"));
+}
+
+/// A report without its "Written ... by" line (the time it was written).
+fn strip_written_at(html: &str) -> String {
+    html.lines()
+        .map(|l| match (l.find("Written "), l.find(" by calibd")) {
+            (Some(a), Some(b)) if a < b => format!("{}{}", &l[..a], &l[b..]),
+            _ => l.to_string(),
+        })
+        .collect()
+}
+
+#[test]
+fn a_closed_port_asks_whether_the_daemon_runs_there() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .unwrap();
+    let url = format!("http://127.0.0.1:{port}");
+    let o = Command::new(BIN)
+        .args(["jobs", "--server", &url])
+        .env_remove("CALIBD_TOKEN")
+        .output()
+        .unwrap();
+    let out = text(&o);
+    assert!(!o.status.success());
+    assert!(
+        out.contains(&format!("is `calibd serve` running at {url}?")),
         "{out}"
     );
 }

@@ -120,6 +120,64 @@ fn design_report_plots_the_detmax_o1_history() {
     assert!((b.extent / a.extent - b.value / a.value).abs() < 0.02 * b.value / a.value);
     assert!(svg.contains("O1 of the selection (dimensionless)"));
     assert!(svg.contains("75 of 360 pool configurations"), "{svg}");
+    design_view_is_the_result(&html, r);
+}
+
+/// The design section: the selected configurations table holds the result's rows (pool
+/// rows counted from 1, every column), O1..O5 of the selection and the pool are the
+/// result's, and nothing of an identification (parameter table, identified count,
+/// before/after headline, "no validation" warning) is shown.
+fn design_view_is_the_result(html: &str, r: &Value) {
+    let section = &html[html
+        .find("<section id=\"design\">")
+        .expect("a design section")..];
+    let section = &section[..section.find("</section>").expect("its end")];
+    let rows = r["rows"].as_array().expect("rows");
+    let selected = r["selected"].as_array().expect("selected");
+    assert_eq!(rows.len(), 75);
+    let table = &section[section
+        .find("Selected configurations (75)")
+        .expect("the table")..];
+    let body = &table[table.find("<tbody>").unwrap()..table.find("</tbody>").unwrap()];
+    let trs: Vec<&str> = body.split("<tr>").skip(1).collect();
+    assert_eq!(
+        trs.len(),
+        rows.len(),
+        "one table row per selected configuration"
+    );
+    for (i, (tr, row)) in trs.iter().zip(rows).enumerate() {
+        let pool_row = selected[i].as_u64().unwrap() + 1;
+        assert!(
+            tr.starts_with(&format!("<th>{}</th><td>{pool_row}</td>", i + 1)),
+            "{tr}"
+        );
+        for (c, v) in row.as_object().unwrap() {
+            let cell = format!(
+                "data-pointer=\"/rows/{i}/{c}\">{}<",
+                number(v.as_f64().unwrap())
+            );
+            assert!(tr.contains(&cell), "row {i} column {c}: {tr}");
+        }
+    }
+    for k in ["o1", "o2", "o3", "o4", "o5"] {
+        for set in ["selection", "pool"] {
+            let v = r["observability"][set][k].as_f64().unwrap();
+            let cell = format!("data-pointer=\"/observability/{set}/{k}\">{}<", number(v));
+            assert!(section.contains(&cell), "{set} {k}");
+        }
+    }
+    // DETMAX improved on its random start.
+    assert!(
+        r["observability"]["selection"]["o1"].as_f64() > r["history"]["steps"][0]["o1"].as_f64()
+    );
+    for absent in [
+        "class=\"params\"",
+        "data-count=\"identified\"",
+        "before calibration",
+        "No held-out validation",
+    ] {
+        assert!(!html.contains(absent), "the design report shows {absent}");
+    }
 }
 
 fn humanoid_design(n: Option<usize>) -> Completed {

@@ -25,7 +25,9 @@ async function api(path, opts = {}) {
   if (!res.ok) throw new Error((body && body.error && body.error.message) || res.status + " " + res.statusText);
   return body;
 }
-const fmt = (x, d = 4) => (typeof x === "number" ? (Math.abs(x) >= 1e5 || (x !== 0 && Math.abs(x) < 1e-3) ? x.toExponential(3) : x.toFixed(d)) : x ?? "");
+// Integers (counts, indices, ids) as written; other numbers with `d` decimals or in
+// exponent form when very small or large.
+const fmt = (x, d = 4) => (typeof x === "number" ? (Number.isInteger(x) && Math.abs(x) < 1e15 ? String(x) : Math.abs(x) >= 1e5 || (x !== 0 && Math.abs(x) < 1e-3) ? x.toExponential(3) : x.toFixed(d)) : x ?? "");
 const time = (s) => (s ? new Date(s).toLocaleString() : "");
 
 function row(j) {
@@ -168,12 +170,14 @@ async function showJob(id) {
     const plots = el("div", { class: "plots" });
     parts.push(plots);
     inlinePlots(id, a.artefacts, plots);
-    if (Array.isArray(r.parameters)) parts.push(...paramTable(r));
+    if (paramRows(r)) parts.push(...paramTable(r));
+    parts.push(...designView(id, r));
     for (const [t, k] of [["Validation errors", "validation"], ["Residuals", "residuals"]]) {
       const s = statsTable(t, r[k]);
       if (s) parts.push(...s);
     }
     parts.push(...commissioning(r));
+    parts.push(...instrumentsView(r));
     if (Array.isArray(r.sizes)) {
       parts.push(el("h3", {}, "Dispersion (mean validation error)"),
         table(["n", "min", "q1", "median", "q3", "max"], r.sizes.map((s) => [s.n, s.mean_error.min, s.mean_error.q1, s.mean_error.median, s.mean_error.q3, s.mean_error.max])));
@@ -325,7 +329,10 @@ async function init() {
 async function loadAll() {
   try {
     const ex = await api("/v1/examples");
-    $("#example-select").replaceChildren(...ex.examples.map((e) => el("option", { value: e.name, title: e.description }, e.name)));
+    // Keep the operator's choice when the list is loaded again (a token change, a submit).
+    const chosen = $("#example-select").value;
+    $("#example-select").replaceChildren(...ex.examples.map((e) => el("option", { value: e.name, title: e.description }, `${e.name}: ${e.description.split(":")[0]}`)));
+    if (chosen && ex.examples.some((e) => e.name === chosen)) $("#example-select").value = chosen;
     await loadJobs();
     if ($("#submit-msg").dataset.token === "missing") { $("#submit-msg").className = "msg"; $("#submit-msg").textContent = ""; delete $("#submit-msg").dataset.token; }
   } catch (e) {

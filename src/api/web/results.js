@@ -19,10 +19,16 @@ const HEADLINES = [
 ];
 const ptr = (o, p) => p.split("/").slice(1).reduce((a, k) => (a == null ? undefined : a[k]), o);
 
+/** The parameter rows of an identification (null for kinds whose `parameters` are names). */
+const paramRows = (r) => (Array.isArray(r.parameters) && r.parameters.length && r.parameters.every((p) => p && typeof p === "object") ? r.parameters : null);
+
 /** The before/after numbers of a result, first thing in its view (null when none). */
 function headline(r) {
   const rows = [];
+  // PCR: the held-out errors are Table 3's validation e_P (in m, not um): shown once.
+  const table3 = ptr(r, "/model_error/validation/e_P/nominal/mean") !== undefined;
   for (const [label, b, a, u] of HEADLINES) {
+    if (table3 && b.startsWith("/validation/")) continue;
     const before = ptr(r, b), after = ptr(r, a);
     if (typeof before !== "number" || typeof after !== "number") continue;
     const unit = u.startsWith("/") ? ptr(r, u) || "" : u;
@@ -30,11 +36,13 @@ function headline(r) {
       el("th", {}, label), el("td", { class: "num" }, fmt(before)), el("td", { class: "num after" }, fmt(after)),
       el("td", {}, unit), el("td", { class: "num" }, after > 0 ? fmt(before / after, 1) + "×" : "")));
   }
-  const ps = Array.isArray(r.parameters) ? r.parameters : null;
+  const ps = paramRows(r);
   const ident = ps ? ps.filter((p) => p.identifiable !== false).length : 0;
   if (!rows.length && !ps) return null;
+  // A campaign says what its "before" model is (nominal, or the cell's calibration #k).
+  const before = r.started_from ? `before: ${r.started_from}` : "before";
   return el("div", { class: "headline", id: "headline" },
-    rows.length ? el("table", {}, el("thead", {}, el("tr", {}, ...["", "before", "after", "unit", "before / after"].map((c) => el("th", {}, c)))), el("tbody", {}, ...rows)) : "",
+    rows.length ? el("table", {}, el("thead", {}, el("tr", {}, ...["", before, "after", "unit", "before / after"].map((c) => el("th", c === before ? { "data-before": "" } : {}, c)))), el("tbody", {}, ...rows)) : "",
     ps ? el("p", {}, `${ident} of ${ps.length} parameters identified (${ps.length - ident} held at nominal)`) : "");
 }
 
@@ -72,6 +80,47 @@ function paramTable(r) {
   if (ps.length <= 40) return [el("h3", {}, "Parameters"), note, t];
   const ident = ps.filter((p) => p.identifiable !== false).length;
   return [el("details", {}, el("summary", {}, `Parameters: ${ident} of ${ps.length} identified (show the table)`), note, t)];
+}
+
+/** A design (`serial.design`): what was chosen from the pool, O1..O5 of the selection
+ * against the pool, the selected configurations (with their download) and the DETMAX
+ * history; empty for other kinds. */
+function designView(id, r) {
+  const o = r.observability;
+  if (!o || !o.selection || !o.pool || !Array.isArray(r.selected)) return [];
+  const out = [el("div", { class: "design", id: "design" },
+    el("p", {}, `${r.n} of ${o.pool.configurations} pool configurations chosen by DETMAX (seed ${r.seed}, ${r.exchanges} exchanges) for ${(r.parameters || []).length} identifiable parameters` +
+      ((r.unidentifiable || []).length ? `; the pool cannot identify ${r.unidentifiable.join(", ")}` : "")))];
+  const defs = { o1: "(s1 … sm)^(1/m) / √n", o2: "sm / s1", o3: "sm", o4: "sm² / s1", o5: "1 / Σ(1 / si)" };
+  const obs = table(["index", "definition", "selection", "pool"], Object.entries(defs).map(([k, d]) => [k.toUpperCase(), d, o.selection[k], o.pool[k]]));
+  obs.id = "design-observability";
+  out.push(el("h3", {}, "Observability: selection against pool (dimensionless)"), obs);
+  const rows = Array.isArray(r.rows) ? r.rows : [];
+  const cols = rows.length ? Object.keys(rows[0]) : [];
+  const sel = table(["#", "pool row", ...cols], rows.map((x, i) => [i + 1, r.selected[i] + 1 - (r.row_index_base || 0), ...cols.map((c) => x[c])]));
+  sel.id = "design-selected";
+  out.push(el("h3", {}, `Selected configurations (${rows.length})`),
+    el("p", {}, el("a", { href: "#", id: "design-download", onclick: (e) => { e.preventDefault(); download(`/v1/jobs/${id}/table`, `job-${id}-selected.csv`); } }, "download the selected configurations (CSV)"),
+      " — pool rows counted from 1, the pool's own columns and units"),
+    el("details", { open: "" }, el("summary", {}, "table"), sel));
+  const steps = (r.history && r.history.steps) || [];
+  out.push(el("h3", {}, "DETMAX history"), table(["improving excursions", "O1", "log det(JᵀJ)"], steps.map((s) => [s.exchanges, s.o1, s.log_det])));
+  return out;
+}
+
+/** A campaign's instruments (as they identified themselves) and its declared tolerance. */
+function instrumentsView(r) {
+  const out = [];
+  if (r.tolerance) {
+    const t = r.tolerance;
+    out.push(el("p", { class: `tolerance ${t.outcome === "pass" ? "pass" : t.outcome === "fail" ? "fail" : ""}`, id: "tolerance" },
+      `Tolerance: ${t.outcome} — held-out max error after calibration ${fmt(t.held_out_max)} ${t.unit} against the declared ${fmt(t.declared)} ${t.unit}`));
+  }
+  if (Array.isArray(r.instruments) && r.instruments.length) {
+    out.push(el("h3", {}, "Instruments (as they identified themselves at the start)"),
+      table(["device", "what", "address", "identity"], r.instruments.map((i) => [i.device, i.kind, i.address, i.identity])));
+  }
+  return out;
 }
 
 const PLOT_ORDER = ["errors_per_configuration.svg", "validation_errors.svg", "marker_rmse.svg", "rmse_by_model.svg", "posture_rmse.svg", "design_history.svg", "dispersion_mean_error.svg", "dispersion_std_error.svg", "errors_per_axis.svg", "sensitivity_position.svg", "sensitivity_orientation.svg", "error_cdf.svg", "validation_cdf.svg", "error_histogram.svg"];
@@ -116,8 +165,10 @@ function journalView(entries) {
     parts.push(svg);
   }
   const cols = [...new Set(entries.flatMap((e) => (e.data && typeof e.data === "object" ? Object.keys(e.data).filter((k) => typeof e.data[k] !== "object") : [])))].slice(0, 6);
+  // Journals store balls from 0; the page counts them from 1, as results and reports do.
+  const shown = (d, c) => (c === "ball" && typeof d[c] === "number" ? d[c] + 1 : d[c]);
   parts.push(el("details", { open: "" }, el("summary", {}, "journal table"),
-    table(["index", "status", ...cols], entries.map((e) => [e.index, e.status, ...cols.map((c) => (e.data || {})[c])]))));
+    table(["index", "status", ...cols], entries.map((e) => [e.index, e.status, ...cols.map((c) => shown(e.data || {}, c))]))));
   return parts;
 }
 

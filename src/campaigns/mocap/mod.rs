@@ -169,6 +169,7 @@ pub async fn run(
 pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, JobError> {
     let t0 = Instant::now();
     let cell = cx.lab().mocap(&job.cell)?;
+    let started_from = cx.lab().model_source(&job.cell).label();
     let setup = Arc::new(job.setup(cell));
     let plan = {
         let (job, setup) = (job.clone(), setup.clone());
@@ -225,6 +226,7 @@ pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, Jo
     let result = MocapCampaign {
         calibration: identified.result,
         cell: job.cell.clone(),
+        started_from,
         campaign: MocapStats {
             planned: plan.len(),
             recorded: sum.recorded,

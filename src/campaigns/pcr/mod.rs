@@ -118,6 +118,10 @@ fn table(rec: &[PcrRecorded]) -> Table {
 pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobError> {
     let t0 = Instant::now();
     let cell = cx.lab().pcr(&job.cell)?;
+    let started_from = match job.start_model() {
+        Some(_) => "the model named in the job document".to_string(),
+        None => cx.lab().model_source(&job.cell).label(),
+    };
     let file = job.start_model().unwrap_or_else(|| cell.current_model());
     let plan = job.plan(&file)?;
     let n_cal = job.calibration_count(plan.len());
@@ -215,6 +219,7 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
         calibration: identified.result,
         accuracy,
         cell: job.cell.clone(),
+        started_from,
         campaign: PcrStats {
             planned: plan.len(),
             calibration: cal.len(),

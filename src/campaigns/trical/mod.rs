@@ -6,11 +6,12 @@
 pub mod plan;
 
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
 use super::engine::{self, CampaignError, Retry, Step, StepError, Summary};
+use super::instruments::{ToleranceCheck, identify as identify_instruments};
 use super::results::{TricalCampaign, TricalStats};
 use crate::campaigns::trical::plan::CampaignJob;
 use crate::lab::{Candidate, CellModel, Evidence};
@@ -152,6 +153,10 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
     let t0 = Instant::now();
     let cell = cx.lab().trical(&job.cell)?;
     let file = job.model.clone().unwrap_or_else(|| cell.current_model());
+    let started_from = match &job.model {
+        Some(_) => "the model named in the job document".to_string(),
+        None => cx.lab().model_source(&job.cell).label(),
+    };
     let copts = job.options.centring.options("options.centring", cell)?;
     let retry = job.options.retry.retry();
     let (plan, vplan) = {
@@ -179,6 +184,7 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
     {
         return Err(refused);
     }
+    let instruments = identify_instruments(&cell.links, Duration::from_secs(2)).await;
     let total = (plan.len() + vplan.len()).max(1) as f64;
     let split = 0.02 + 0.9 * plan.len() as f64 / total;
     let journal = cx.journal();
@@ -251,10 +257,17 @@ pub async fn campaign(job: Arc<CampaignJob>, cx: Cx) -> Result<Produced, JobErro
         validation: serde_json::to_value(&run.result.validation).unwrap_or_default(),
         assessment: Some(run.result.assessment.clone()),
     };
+    let tolerance = job.options.tolerance_mm.map(|t| {
+        let max = run.result.validation.as_ref().map(|v| v.after.max);
+        ToleranceCheck::new(t, max, "mm")
+    });
     let result = TricalCampaign {
         calibration: run.result,
         cell: job.cell.clone(),
+        started_from,
         campaign: stats,
+        tolerance,
+        instruments,
         start_model: file,
         measurements: measurements.clone(),
     };

@@ -60,6 +60,9 @@ pub(crate) struct Options {
     pub(crate) centring: CentringSpec,
     pub(crate) retry: RetrySpec,
     identify: IdentifyOptions,
+    /// The largest held-out position error the calibrated model may leave (mm): the
+    /// result's and the report's pass/fail (none declared: no pass/fail).
+    pub(crate) tolerance_mm: Option<f64>,
 }
 
 #[derive(Debug, Deserialize, schemars::JsonSchema)]
@@ -167,6 +170,14 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CampaignJob, JobError
         ));
     }
     s.options.centring.validate("options.centring")?;
+    if let Some(t) = s.options.tolerance_mm
+        && !(t.is_finite() && t > 0.0)
+    {
+        return Err(JobError::invalid(
+            "options.tolerance_mm",
+            format!("{t} must be a positive length (mm)"),
+        ));
+    }
     if s.options.retry.attempts == 0 {
         return Err(JobError::invalid(
             "options.retry.attempts",

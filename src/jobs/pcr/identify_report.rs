@@ -47,7 +47,13 @@ impl Reportable for PcrCalibration {
                 ));
             }
         }
-        if let Some(v) = &self.validation {
+        // The held-out errors are Table 3's validation e_P (in m rather than um): shown
+        // once, from Table 3, when it has the validation set.
+        if let Some(v) = self
+            .validation
+            .as_ref()
+            .filter(|_| self.model_error.validation.is_none())
+        {
             out.extend(HeadlineRow::mean_max(
                 "Held-out error",
                 "validation set",

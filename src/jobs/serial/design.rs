@@ -160,7 +160,7 @@ fn identify_options(o: &DesignOptions) -> IdentifyOptions {
 }
 
 /// O1..O5 of the selection and of the whole pool.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct DesignObservability {
     /// Of the selection.
     pub selection: Indices,
@@ -169,7 +169,7 @@ pub struct DesignObservability {
 }
 
 /// log det of the information matrix at DETMAX's start and end.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LogDet {
     /// Random start.
     pub start: f64,
@@ -178,7 +178,7 @@ pub struct LogDet {
 }
 
 /// One design on DETMAX's path, as the result reports it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct DesignStep {
     /// Improving excursions made before it (0: the random start).
     pub exchanges: usize,
@@ -190,20 +190,20 @@ pub struct DesignStep {
 
 /// `history` of `serial.design`: the observability of the design after each improving
 /// DETMAX excursion; the last step is the selection.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct DesignHistory {
     /// The search.
-    pub method: &'static str,
+    pub method: String,
     /// What `o1` is.
-    pub index: &'static str,
+    pub index: String,
     /// What `log_det` is.
-    pub criterion: &'static str,
+    pub criterion: String,
     /// From the random start to the selection.
     pub steps: Vec<DesignStep>,
 }
 
 /// The result of `serial.design`: serialises to the job's result fields.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SerialDesign {
     /// Selected pool rows (0-based).
     pub selected: Vec<usize>,
@@ -226,7 +226,10 @@ pub struct SerialDesign {
     /// Parameters the whole pool cannot identify.
     pub unidentifiable: Vec<String>,
     /// The selected pool rows (also the main table).
-    #[serde(serialize_with = "crate::report::json_rows")]
+    #[serde(
+        serialize_with = "crate::report::json_rows",
+        deserialize_with = "crate::report::table_of_json_rows"
+    )]
     pub rows: Table,
 }
 
@@ -314,9 +317,9 @@ impl DesignJob {
             rows.push(self.pool_table.rows[i].clone());
         }
         let history = DesignHistory {
-            method: "DETMAX (exchanges with excursions from a seeded random start)",
-            index: "O1 = (s1 ... sm)^(1/m) / sqrt(n) of the design's Jacobian, columns scaled to unit norm (dimensionless), as observability.selection.o1",
-            criterion: "log det(J^T J), J the pool's identification Jacobian with columns scaled to unit norm over the pool (dimensionless), as log_det.selection",
+            method: "DETMAX (exchanges with excursions from a seeded random start)".into(),
+            index: "O1 = (s1 ... sm)^(1/m) / sqrt(n) of the design's Jacobian, columns scaled to unit norm (dimensionless), as observability.selection.o1".into(),
+            criterion: "log det(J^T J), J the pool's identification Jacobian with columns scaled to unit norm over the pool (dimensionless), as log_det.selection".into(),
             steps: sel
                 .history
                 .iter()

@@ -7,6 +7,7 @@ pub mod compensate;
 pub mod compensate_program;
 mod coverage;
 pub mod design;
+mod design_report;
 pub mod dispersion;
 pub mod fk;
 mod gauge;

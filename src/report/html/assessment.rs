@@ -10,7 +10,8 @@ use super::{ReportInput, cell_html, opt_text, text};
 use crate::report::svg::escape;
 use crate::report::view::{NumTable, Reportable};
 
-fn num_table(t: &NumTable) -> String {
+/// A table of numbers with its title and note.
+pub(super) fn num_table(t: &NumTable) -> String {
     let mut h = format!("<h3>{}</h3><table><thead><tr>", escape(&t.title));
     for k in &t.head {
         let _ = write!(h, "<th>{}</th>", escape(k));

@@ -192,13 +192,19 @@ pub fn render(input: &ReportInput<'_>) -> String {
         opt_text(env.calibd_version.as_deref()),
     );
     h.push_str(&assessment::verdict(result));
-    h.push_str(&sections::headline(result));
+    let design = result.design();
+    match &design {
+        Some(d) => h.push_str(&sections::design(d)),
+        None => h.push_str(&sections::headline(result)),
+    }
     h.push_str(&job_section(input));
     h.push_str(&sections::datasets(job, env, result));
     h.push_str(&journal::journal(input.journal));
     h.push_str(&model_section(env));
     h.push_str(&sections::parameters(input));
-    h.push_str(&assessment::validation(result));
+    if design.is_none() {
+        h.push_str(&assessment::validation(result));
+    }
     h.push_str(&plots_section(input.artefacts));
     h.push_str(&assessment::warnings(result));
     h.push_str(&assessment::sign_off(input, cell.as_deref()));

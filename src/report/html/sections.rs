@@ -5,14 +5,19 @@ use std::fmt::Write;
 
 use serde_json::Value;
 
+use super::assessment::num_table;
 use super::{Envelope, ReportInput, cell_html, num_cell, number, text};
 use crate::report::svg::escape;
-use crate::report::view::Reportable;
+use crate::report::view::{DesignView, Reportable};
 
 /// The headline numbers: before and after calibration, first thing in the report.
 pub(super) fn headline(r: &dyn Reportable) -> String {
-    let mut h = String::from(
-        "<section><h2>Result</h2><table class=\"headline\"><thead><tr><th></th><th>before calibration</th><th>after calibration</th><th>unit</th><th>ratio before / after</th></tr></thead><tbody>",
+    let before = match r.before_label() {
+        Some(l) => format!("before: {}", escape(&l)),
+        None => "before calibration".into(),
+    };
+    let mut h = format!(
+        "<section><h2>Result</h2><table class=\"headline\"><thead><tr><th></th><th data-before>{before}</th><th>after calibration</th><th>unit</th><th>ratio before / after</th></tr></thead><tbody>",
     );
     let ls = r.headline();
     for l in &ls {
@@ -63,6 +68,18 @@ pub(super) fn headline(r: &dyn Reportable) -> String {
     }
     h.push_str("</section>");
     h
+}
+
+/// A design of experiments: what was chosen, O1..O5 against the pool, the search's
+/// history (in place of before/after errors, which a design has none of).
+pub(super) fn design(d: &DesignView) -> String {
+    format!(
+        "<section id=\"design\"><h2>Design</h2><p>{}</p>{}{}{}</section>",
+        escape(&d.summary),
+        num_table(&d.observability),
+        num_table(&d.selected),
+        num_table(&d.history)
+    )
 }
 
 /// Inputs and their SHA-256, and the campaign's measurement counts.
