@@ -181,7 +181,7 @@ pub struct Solution {
     /// What a robust loss did (`None` for plain least squares).
     pub robust: Option<super::RobustReport>,
     /// A gauge held by its structure ([`super::gauge_orbit::hold_orbit`]), if any.
-    pub held_gauge: Option<super::gauge_orbit::HeldGauge>,
+    pub held_gauge: Option<HeldGauge>,
 }
 
 impl Solution {
@@ -200,4 +200,22 @@ impl Solution {
             "not_converged"
         }
     }
+}
+
+/// A gauge held by [`super::gauge_orbit::hold_orbit`] (the result field `gauge_held`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct HeldGauge {
+    /// What the freedom is.
+    pub freedom: String,
+    /// The held combination: its largest components (unknown name, component of the unit
+    /// direction in physically scaled unknowns), largest first.
+    pub combination: Vec<(String, f64)>,
+    /// How far the free fit's solution was moved along the freedom to the held point (the
+    /// orbit's unit, e.g. deg).
+    pub moved: f64,
+    /// Unit of `moved`.
+    pub unit: String,
+    /// Cost of the held fit minus that of the free fit (squared residual unit): zero to
+    /// rounding when the freedom is a true gauge (the predictions are the free fit's).
+    pub cost_change: f64,
 }

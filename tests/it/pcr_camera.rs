@@ -102,6 +102,7 @@ fn num(v: &Value) -> f64 {
 
 #[test]
 fn the_campaign_from_rendered_images_identifies_as_well_as_from_the_pose_server() {
+    let _one = crate::hil::OUT_OF_PROCESS.blocking_lock();
     let doc = json!({
         "kind": "cell.pcr_campaign", "cell": "pcr3pf", "poses": 48, "seed": 1,
         "validation_fraction": 0.25, "options": {"settle_ms": 0},
@@ -168,6 +169,7 @@ fn the_campaign_from_rendered_images_identifies_as_well_as_from_the_pose_server(
 /// computes from them (printed for the report; not a timed assertion).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn frames_are_served_and_measured_at_a_printed_rate() {
+    let _one = crate::hil::OUT_OF_PROCESS.lock().await;
     use calibd_drivers::camera::{CameraConfig, CameraHandle, FrameSource};
     let dir = tempfile::tempdir().expect("dir");
     let port = free_port();

@@ -79,6 +79,7 @@ fn near(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_commissioning_examples_run_in_order_on_the_example_lab() {
+    let _one = crate::hil::OUT_OF_PROCESS.lock().await;
     let dir = tempfile::tempdir().expect("temp dir");
     let lab = scratch_lab(dir.path());
     let mut mock = Proc::spawn(

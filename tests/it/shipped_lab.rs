@@ -92,6 +92,7 @@ fn error_against_truth(twin: &calibd::twin::SerialTwin, model: &calibd::model::C
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_example_campaigns_run_unchanged_on_the_example_lab() {
+    let _one = crate::hil::OUT_OF_PROCESS.lock().await;
     const SEED: u64 = 11;
     let dir = tempfile::tempdir().expect("temp dir");
     let lab = scratch_lab(dir.path());

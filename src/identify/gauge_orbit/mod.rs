@@ -5,8 +5,6 @@
 //! combination held ([`super::Gauged`]), so the fit neither wanders along the freedom nor
 //! pushes it into a link's parameters, and the covariance has no infinite direction.
 
-use serde::{Deserialize, Serialize};
-
 use super::trust::physical_scales;
 use super::{Gauge, Gauged, IdentifyError, Problem, Solution, SolveOptions, Unknown, solve};
 use crate::util::Monitor;
@@ -14,23 +12,7 @@ use crate::util::Monitor;
 /// Samples of the coarse search for the closest orbit point over one turn.
 const SEARCH_SAMPLES: usize = 720;
 
-/// A gauge held by [`hold_orbit`] (the result field `gauge_held`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct HeldGauge {
-    /// What the freedom is.
-    pub freedom: String,
-    /// The held combination: its largest components (unknown name, component of the unit
-    /// direction in physically scaled unknowns), largest first.
-    pub combination: Vec<(String, f64)>,
-    /// How far the free fit's solution was moved along the freedom to the held point (the
-    /// orbit's unit, e.g. deg).
-    pub moved: f64,
-    /// Unit of `moved`.
-    pub unit: String,
-    /// Cost of the held fit minus that of the free fit (squared residual unit): zero to
-    /// rounding when the freedom is a true gauge (the predictions are the free fit's).
-    pub cost_change: f64,
-}
+pub use super::solution::HeldGauge;
 
 /// A one-parameter gauge of a problem: `map(x, t)` moves `x` by `t` along it.
 pub struct Orbit<'a> {

@@ -6,19 +6,18 @@
 
 use nalgebra::Vector3;
 
-use super::identify_inputs::IdentifyInputs;
 use crate::geometry::Frame;
 use crate::identify::gauge_orbit::{HeldGauge, Orbit, hold_orbit};
 use crate::identify::{Solution, SolveOptions};
-use crate::measure::PointProblem;
+use crate::measure::{BallPlate, PointProblem};
 use crate::model::ParamId;
 use crate::run::JobError;
 use crate::util::Monitor;
 
 /// Where the six base parameters are among the unknowns, if all six are identified.
-fn base_columns(inp: &IdentifyInputs) -> Option<[usize; 6]> {
+fn base_columns(ids: &[ParamId]) -> Option<[usize; 6]> {
     let mut out = [usize::MAX; 6];
-    for (k, id) in inp.ids.iter().enumerate() {
+    for (k, id) in ids.iter().enumerate() {
         if let ParamId::Base(c) = id {
             out[*c as usize] = k;
         }
@@ -59,28 +58,28 @@ fn turned(
 }
 
 /// Hold the plate's free rotation of the least-squares solution `sol` of `problem` (from
-/// `x0`), when the plate leaves one (two balls) and the base frame is identified; `None`
-/// leaves `sol` as it is.
+/// `x0`, unknowns `ids` then the plate's unknown balls), when the plate leaves one (two
+/// balls) and the base frame is identified; `None` leaves `sol` as it is.
 pub(crate) fn hold_plate_gauge(
-    inp: &IdentifyInputs,
+    ids: &[ParamId],
+    plate: &BallPlate,
     problem: &PointProblem,
     x0: &[f64],
     sol: &Solution,
     opts: &SolveOptions,
     monitor: &dyn Monitor,
 ) -> Result<Option<(Solution, HeldGauge)>, JobError> {
-    let (Some(freedom), Some(base)) = (inp.plate.gauge.as_ref(), base_columns(inp)) else {
+    let (Some(freedom), Some(base)) = (plate.gauge.as_ref(), base_columns(ids)) else {
         return Ok(None);
     };
-    let (Some(Some(a)), Some(Some(b))) = (inp.plate.centres.first(), inp.plate.centres.get(1))
-    else {
+    let (Some(Some(a)), Some(Some(b))) = (plate.centres.first(), plate.centres.get(1)) else {
         return Ok(None);
     };
     let Some(axis) = (b - a).try_normalize(0.0) else {
         return Ok(None);
     };
-    let n = inp.ids.len();
-    let balls: Vec<usize> = (0..inp.plate.unknown_balls().len())
+    let n = ids.len();
+    let balls: Vec<usize> = (0..plate.unknown_balls().len())
         .map(|k| n + 3 * k)
         .collect();
     let map = |x: &[f64], t: f64| turned(x, t, base, &balls, a, &axis);

@@ -90,7 +90,7 @@ impl SerialFit for PointProblem {
         opts: &SolveOptions,
         monitor: &dyn Monitor,
     ) -> Result<Solution, JobError> {
-        match super::gauge::hold_plate_gauge(inp, self, x0, &sol, opts, monitor)? {
+        match super::gauge::hold_plate_gauge(&inp.ids, &inp.plate, self, x0, &sol, opts, monitor)? {
             Some((mut held, gauge)) => {
                 held.held_gauge = Some(gauge);
                 Ok(held)

@@ -12,6 +12,7 @@ use super::{Daemon, WAIT, free_port, lab_check, lab_dir, mock, trical_doc};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_unplugged_receiver_takes_down_only_its_cell() {
+    let _one = crate::hil::OUT_OF_PROCESS.lock().await;
     let dir = tempfile::tempdir().expect("temp dir");
     let lab = lab_dir(dir.path(), free_port());
     let _trical_mock = mock(&lab, "irb120");

@@ -12,6 +12,7 @@ use super::{Daemon, WAIT, free_port, lab_dir, mock, trical_doc};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_campaign_paused_by_a_controller_reboot_resumes_by_itself() {
+    let _one = crate::hil::OUT_OF_PROCESS.lock().await;
     let dir = tempfile::tempdir().expect("temp dir");
     let lab = lab_dir(dir.path(), free_port());
     let text = std::fs::read_to_string(&lab).expect("lab file");

@@ -89,6 +89,11 @@ pub(crate) fn free_port() -> u16 {
 }
 
 /// The lab folder: the twins' nominal models, the RWS password file and the lab file.
+/// Out-of-process campaigns run one at a time: each starts a daemon and mock processes whose
+/// device timeouts are real time, and two of them (or the camera campaign's rendering) at
+/// once on a 2-core machine starve each other's drivers into timeouts.
+pub(crate) static OUT_OF_PROCESS: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 fn lab_dir(dir: &Path, microscope_port: u16) -> PathBuf {
     let (dh, ballbar) = calibd::sim::trical::twin_cell(7);
     std::fs::write(
@@ -324,6 +329,7 @@ fn trical_doc() -> Value {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn campaigns_run_over_mock_processes_and_a_killed_device_pauses_and_resumes() {
+    let _one = OUT_OF_PROCESS.lock().await;
     let dir = tempfile::tempdir().expect("temp dir");
     let lab = lab_dir(dir.path(), free_port());
     let trical_mock = mock(&lab, "irb120");
@@ -500,6 +506,7 @@ fn lab_check_fails_clearly_where_nothing_listens() {
 /// kinematic model error (about a millimetre) and the spread improves.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn commissioning_the_tcp_over_mock_processes() {
+    let _one = OUT_OF_PROCESS.lock().await;
     let dir = tempfile::tempdir().expect("temp dir");
     let lab = lab_dir(dir.path(), free_port());
     let _trical_mock = mock(&lab, "irb120");
