@@ -131,17 +131,7 @@ pub fn cumulative_robust(
         }
     }
     let e = errors_mm(&c.last.model, &feats);
-    let ids: Vec<(usize, usize)> = obs
-        .iter()
-        .enumerate()
-        .flat_map(|(i, o)| {
-            o.points
-                .iter()
-                .enumerate()
-                .filter(|(_, p)| p.is_some())
-                .map(move |(m, _)| (i, m))
-        })
-        .collect();
+    let ids = super::tree_markers::observed_points(&obs);
     let mut downweighted: Vec<Downweighted> = ids
         .iter()
         .zip(w.iter().zip(&e))

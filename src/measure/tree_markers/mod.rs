@@ -35,20 +35,25 @@ pub struct TreeProblem {
     sqrt_w: Option<Vec<f64>>,
 }
 
+/// (observation, marker) of every measured marker, in observation then marker order: the
+/// rows of a [`TreeProblem`]'s residual, three each.
+pub fn observed_points(obs: &[TreeObservation]) -> Vec<(usize, usize)> {
+    obs.iter()
+        .enumerate()
+        .flat_map(|(i, o)| {
+            o.points
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| p.is_some())
+                .map(move |(m, _)| (i, m))
+        })
+        .collect()
+}
+
 impl TreeProblem {
     /// The problem with unknowns `free`, starting from the model's current values.
     pub fn new(model: ElasticTree, free: Vec<usize>, obs: Vec<TreeObservation>) -> Self {
-        let rows = obs
-            .iter()
-            .enumerate()
-            .flat_map(|(i, o)| {
-                o.points
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, p)| p.is_some())
-                    .map(move |(m, _)| (i, m))
-            })
-            .collect();
+        let rows = observed_points(&obs);
         Self {
             model,
             free,
