@@ -3,6 +3,7 @@
 
 pub mod api;
 pub mod compare;
+pub mod fleet;
 pub mod humanoid;
 pub mod identify;
 pub mod kernels;

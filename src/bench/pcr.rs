@@ -136,6 +136,7 @@ pub fn run() -> Vec<Figure> {
     }
     figs.extend(lu_12(&mut sink));
     figs.push(pattern_pose(&mut sink));
+    figs.push(camera_pose(&mut sink));
     std::hint::black_box(sink);
     figs
 }
@@ -178,6 +179,58 @@ fn pattern_pose(sink: &mut f64) -> Figure {
     fig.cpu_target = Some(Duration::from_millis(10));
     fig.name = format!(
         "pattern_pose 1024x1024: {:.0} images/s (one core)",
+        1.0 / fig.cpu.unwrap_or(fig.per_op).as_secs_f64()
+    );
+    fig
+}
+
+/// The microscope camera's path on the encoded pattern (what the mock camera serves and a
+/// lab's camera frames go through): phase fit, absolute decode and the code-bias
+/// correction (a noiseless render and fit per pass), one thread; the name carries the rate.
+fn camera_pose(sink: &mut f64) -> Figure {
+    use crate::measure::pattern::{
+        PatternKind, PatternPose, PatternSetup, PoseReader, RenderSpec, render,
+    };
+    let frames: Vec<_> = (0..4)
+        .map(|k| {
+            let k = k as f64;
+            render(&RenderSpec {
+                kind: PatternKind::Encoded,
+                pose: PatternPose {
+                    x: 13.0 + 17.1 * k,
+                    y: -8.0 + 9.3 * k,
+                    theta_rad: 0.02 + 1e-3 * k,
+                },
+                period_um: 10.0,
+                pixel_um: 1.0,
+                width: 1024,
+                height: 1024,
+                bit_depth: 16,
+                noise_frac: 0.01,
+                seed: 40 + k as u64,
+            })
+            .expect("a valid render spec")
+        })
+        .collect();
+    let mut reader = PoseReader::new(PatternSetup {
+        kind: PatternKind::Encoded,
+        period_um: 10.0,
+        pixel_um: 1.0,
+    })
+    .expect("a valid setup");
+    let mut fig = time(
+        "camera pose 1024x1024 encoded",
+        5,
+        frames.len(),
+        None,
+        || {
+            for f in &frames {
+                *sink += reader.read(f).expect("a rendered frame has its pattern").x;
+            }
+        },
+    );
+    fig.name = format!(
+        "camera pose 1024x1024 encoded, bias-corrected: {:.0} poses/s (one core)",
         1.0 / fig.cpu.unwrap_or(fig.per_op).as_secs_f64()
     );
     fig

@@ -112,6 +112,12 @@ pub struct PcrCampaign {
     pub started_from: String,
     /// Measuring figures.
     pub campaign: PcrStats,
+    /// The cell's devices as they identified themselves at the start.
+    #[serde(default)]
+    pub instruments: Vec<Instrument>,
+    /// The held-out error against `options.tolerance_um`, when the job declared one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerance: Option<ToleranceCheck>,
     /// The calibration and validation joint sets (rows of the main table).
     #[serde(serialize_with = "crate::report::json_rows", skip_deserializing)]
     pub measurements: Table,
@@ -156,6 +162,12 @@ pub struct MocapCampaign {
     pub started_from: String,
     /// Campaign figures.
     pub campaign: MocapStats,
+    /// The cell's devices as they identified themselves at the start.
+    #[serde(default)]
+    pub instruments: Vec<Instrument>,
+    /// The held-out error against `options.tolerance_mm`, when the job declared one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerance: Option<ToleranceCheck>,
     /// The averaged postures (rows of the main table).
     #[serde(serialize_with = "crate::report::json_rows", skip_deserializing)]
     pub measurements: Table,

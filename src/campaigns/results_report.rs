@@ -1,8 +1,9 @@
 //! What the report shows of a campaign's result: its identification's (embedded) and the
 //! campaign's own figures (`campaign`: counts and times).
 
+use super::instruments::{Instrument, ToleranceCheck, instrument_facts};
 use super::results::{MocapCampaign, PcrCampaign, TricalCampaign};
-use crate::report::view::{Cell, Facts, Num, Reportable};
+use crate::report::view::{Facts, Reportable};
 
 impl Reportable for TricalCampaign {
     fn embedded(&self) -> Option<&dyn Reportable> {
@@ -15,38 +16,11 @@ impl Reportable for TricalCampaign {
 
     /// The campaign's figures, the instruments that measured and the declared tolerance.
     fn facts(&self) -> Vec<Facts> {
-        let mut out: Vec<Facts> = Facts::of("campaign", &self.campaign).into_iter().collect();
-        if !self.instruments.is_empty() {
-            out.push(Facts {
-                name: "instruments (robot controller and measuring devices, as they identified themselves)".into(),
-                rows: self
-                    .instruments
-                    .iter()
-                    .map(|i| {
-                        let text = format!("{} at {}: {}", i.kind, i.address, i.identity);
-                        (i.device.clone(), Cell::Text(text))
-                    })
-                    .collect(),
-            });
-        }
-        if let Some(t) = &self.tolerance {
-            let held = match t.held_out_max {
-                Some(m) => Cell::Num(Num::at(m, "/tolerance/held_out_max")),
-                None => Cell::Missing,
-            };
-            out.push(Facts {
-                name: "tolerance".into(),
-                rows: vec![
-                    (
-                        format!("declared ({})", t.unit),
-                        Cell::Num(Num::at(t.declared, "/tolerance/declared")),
-                    ),
-                    (format!("held-out max error after ({})", t.unit), held),
-                    ("outcome".into(), Cell::Text(t.outcome.clone())),
-                ],
-            });
-        }
-        out
+        campaign_facts(
+            Facts::of("campaign", &self.campaign),
+            &self.instruments,
+            self.tolerance.as_ref(),
+        )
     }
 }
 
@@ -59,8 +33,13 @@ impl Reportable for PcrCampaign {
         started_from(&self.started_from)
     }
 
+    /// The campaign's figures, the instruments that measured and the declared tolerance.
     fn facts(&self) -> Vec<Facts> {
-        Facts::of("campaign", &self.campaign).into_iter().collect()
+        campaign_facts(
+            Facts::of("campaign", &self.campaign),
+            &self.instruments,
+            self.tolerance.as_ref(),
+        )
     }
 }
 
@@ -73,13 +52,29 @@ impl Reportable for MocapCampaign {
         started_from(&self.started_from)
     }
 
-    /// The campaign's figures, then the identification's samples (the order the result
-    /// stores them in).
+    /// The campaign's figures, instruments and tolerance, then the identification's samples
+    /// (the order the result stores them in).
     fn facts(&self) -> Vec<Facts> {
-        let mut out: Vec<Facts> = Facts::of("campaign", &self.campaign).into_iter().collect();
+        let mut out = campaign_facts(
+            Facts::of("campaign", &self.campaign),
+            &self.instruments,
+            self.tolerance.as_ref(),
+        );
         out.extend(self.calibration.facts());
         out
     }
+}
+
+/// A campaign's own figures, then who measured, then the declared tolerance's outcome.
+fn campaign_facts(
+    campaign: Option<Facts>,
+    instruments: &[Instrument],
+    tolerance: Option<&ToleranceCheck>,
+) -> Vec<Facts> {
+    let mut out: Vec<Facts> = campaign.into_iter().collect();
+    out.extend(instrument_facts(instruments));
+    out.extend(tolerance.map(ToleranceCheck::facts));
+    out
 }
 
 /// A campaign's "before" label (none from a result stored before campaigns said it).

@@ -22,6 +22,13 @@ pub(crate) struct BenchArgs {
     /// `humanoid`, `identify` or `all` to this JSON file, to compare a run with an earlier one.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// For `fleet`: the PostgreSQL URL the daemons share (default: a throw-away cluster,
+    /// when PostgreSQL's binaries are installed).
+    #[arg(long)]
+    store: Option<String>,
+    /// For `fleet`: the fleet sizes, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2, 4])]
+    daemons: Vec<usize>,
 }
 
 /// The figures of a numerical area; `None` for an unknown one.
@@ -43,7 +50,13 @@ fn numerical(a: &str) -> Option<Vec<calibd::bench::Figure>> {
 
 /// `calibd bench`: print each area's figures; write them as JSON with `--json`.
 pub(crate) fn bench(a: BenchArgs) -> Result<()> {
-    let BenchArgs { area, files, json } = a;
+    let BenchArgs {
+        area,
+        files,
+        json,
+        store,
+        daemons,
+    } = a;
     let areas: Vec<&str> = match area.as_str() {
         "compare" => return compare(&files),
         other if !files.is_empty() => {
@@ -57,13 +70,26 @@ pub(crate) fn bench(a: BenchArgs) -> Result<()> {
             println!("{report}");
             return Ok(());
         }
+        "fleet" => {
+            let mut o = calibd::bench::fleet::FleetBenchOptions::new(
+                std::env::current_exe().context("cannot find calibd's own executable")?,
+            );
+            o.store = store;
+            o.daemons = daemons;
+            if o.daemons.is_empty() || o.daemons.contains(&0) {
+                bail!("--daemons takes fleet sizes of at least 1, e.g. 1,2,4");
+            }
+            let figures = calibd::bench::fleet::run(&o)?;
+            print!("{}", calibd::bench::fleet::render(&o, &figures));
+            return Ok(());
+        }
         "drivers" => {
             return Ok(calibd_drivers::bench::run_and_print(&mut std::io::stdout())?);
         }
         other if numerical_area(other) => vec![other],
         other => {
             bail!(
-                "unknown benchmark area `{other}` (known: serial, serial.fk, serial.compensate, pcr, humanoid, identify, identify:N, kernels, all, drivers, api)"
+                "unknown benchmark area `{other}` (known: serial, serial.fk, serial.compensate, pcr, humanoid, identify, identify:N, kernels, all, drivers, api, fleet)"
             )
         }
     };

@@ -58,7 +58,7 @@ fn nocp_campaign_identifies_to_the_mocap_noise_level() {
             "seed": 3,
             "options": {"base_pool": 200, "max_postures": 40}
         }},
-        "options": {"settle_s": 0.05, "record_s": RECORD_S}
+        "options": {"settle_s": 0.05, "record_s": RECORD_S, "tolerance_mm": 5.0}
     });
     let job = calibd::jobs::prepare(&doc, &NoReferences).expect("valid job");
     assert_eq!(job.devices(), vec!["talos.joints", "talos.qtm"]);
@@ -81,6 +81,28 @@ fn nocp_campaign_identifies_to_the_mocap_noise_level() {
     let before = r["rmse_before_mm"].as_f64().unwrap();
     let after = r["rmse_after_mm"].as_f64().unwrap();
     let p = r["base_parameter_count"].as_f64().unwrap();
+    // Who measured; no held-out postures without cross-validation: the tolerance is not
+    // checked, and says how to check it.
+    let names: Vec<&str> = r["instruments"]
+        .as_array()
+        .expect("instruments")
+        .iter()
+        .filter_map(|i| i["device"].as_str())
+        .collect();
+    assert_eq!(names, ["talos.joints", "talos.qtm"], "{}", r["instruments"]);
+    let t = &r["tolerance"];
+    assert!(t["held_out_max"].is_null(), "{t}");
+    assert!(
+        t["outcome"]
+            .as_str()
+            .unwrap_or("")
+            .starts_with("not checked")
+            && t["compared"]
+                .as_str()
+                .unwrap_or("")
+                .contains("cross_validation"),
+        "{t}"
+    );
     // Independent expectation from the twin's noise: each marker coordinate of a frame has
     // sigma; a posture's position is a mean of low-pass filtered samples, whose variance
     // lies between sigma^2 / W (all W frames of the window averaged) and sigma^2 (unity-gain

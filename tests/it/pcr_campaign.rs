@@ -49,6 +49,7 @@ fn campaign_identifies_the_twin_to_its_noise_level_and_measures_accuracy() {
     let doc = json!({
         "kind": "cell.pcr_campaign", "poses": 48, "seed": 1, "validation_fraction": 0.25,
         "accuracy": {"trajectory": {"square": 0.002, "points_per_side": 3}, "repetitions": 3},
+        "options": {"tolerance_um": 0.05},
     });
     let journal = Arc::new(MemoryJournal::default());
     let t0 = std::time::Instant::now();
@@ -77,6 +78,28 @@ fn campaign_identifies_the_twin_to_its_noise_level_and_measures_accuracy() {
         (sigma / NOISE_M - 1.0).abs() < 0.35,
         "residual std {sigma:e} m against {NOISE_M:e} m"
     );
+    // Who measured, and the declared tolerance against the held-out maximum (um).
+    let names: Vec<&str> = r["instruments"]
+        .as_array()
+        .expect("instruments")
+        .iter()
+        .filter_map(|i| i["device"].as_str())
+        .collect();
+    assert_eq!(
+        names,
+        ["pcr3pf.stages", "pcr3pf.microscope"],
+        "{}",
+        r["instruments"]
+    );
+    let t = &r["tolerance"];
+    let max_um = num(&v["after"]["max"]) * 1e6;
+    assert!(
+        (num(&t["held_out_max"]) - max_um).abs() <= 1e-12 * max_um,
+        "{t}"
+    );
+    assert_eq!(t["unit"], "um");
+    let expected = if max_um <= 0.05 { "pass" } else { "fail" };
+    assert_eq!(t["outcome"], expected, "{t}");
     // ISO 9283 on the robot with the identified model: AP_P at the tens-of-nm level.
     let ap = num(&r["accuracy"]["summary"]["ap_p_um"]["mean"]);
     assert!(ap < 0.05, "AP_P mean {ap} um");

@@ -295,6 +295,8 @@ fn campaign_report_lists_the_measurement_journal() {
     let mut numbers = 0;
     for part in section.split("data-journal=\"").skip(1) {
         let (pointer, rest) = part.split_once('"').expect("pointer");
+        let from_one = rest.starts_with(" data-from-one=\"\"");
+        let rest = rest.trim_start_matches(" data-from-one=\"\"");
         let text = rest[1..].split('<').next().unwrap_or("");
         let v = all
             .pointer(pointer)
@@ -303,7 +305,15 @@ fn campaign_report_lists_the_measurement_journal() {
         // Integers as written; others to 4 significant digits, reading back as the value.
         let x = v.as_f64().unwrap_or(f64::NAN);
         let back: f64 = text.parse().unwrap_or(f64::NAN);
-        if v.is_i64() || v.is_u64() {
+        if from_one {
+            // A ball: stored from 0, shown from 1.
+            assert!(pointer.ends_with("/ball"), "{pointer}");
+            assert_eq!(
+                text,
+                (v.as_u64().unwrap_or(u64::MAX) + 1).to_string(),
+                "{pointer}"
+            );
+        } else if v.is_i64() || v.is_u64() {
             assert_eq!(text, v.to_string(), "{pointer}");
         } else {
             assert_eq!(text, number(x), "{pointer}");

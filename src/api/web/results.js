@@ -114,7 +114,7 @@ function instrumentsView(r) {
   if (r.tolerance) {
     const t = r.tolerance;
     out.push(el("p", { class: `tolerance ${t.outcome === "pass" ? "pass" : t.outcome === "fail" ? "fail" : ""}`, id: "tolerance" },
-      `Tolerance: ${t.outcome} — held-out max error after calibration ${fmt(t.held_out_max)} ${t.unit} against the declared ${fmt(t.declared)} ${t.unit}`));
+      `Tolerance: ${t.outcome} — ${t.compared || "held-out max error after calibration"} ${fmt(t.held_out_max)} ${t.unit} against the declared ${fmt(t.declared)} ${t.unit}`));
   }
   if (Array.isArray(r.instruments) && r.instruments.length) {
     out.push(el("h3", {}, "Instruments (as they identified themselves at the start)"),

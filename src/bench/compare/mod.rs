@@ -146,8 +146,13 @@ fn spread(f: &SavedFigure) -> f64 {
 /// Compare every figure of `old` and `new` (matched by area and name), in the new run's
 /// order, then the figures that are gone. A change counts when the ratio of the medians
 /// leaves 1 by more than the larger spread of the two runs (at least [`MIN_NOISE`]).
+/// A name is matched up to its first `": "`: what follows (a rate some figures carry in
+/// their name, e.g. `pattern_pose 1024x1024: 198 images/s`) changes from run to run.
 pub fn compare(old: &SavedReport, new: &SavedReport) -> Vec<Row> {
-    let key = |a: &str, n: &str| (a.to_string(), n.to_string());
+    let key = |a: &str, n: &str| {
+        let stem = n.split_once(": ").map_or(n, |(stem, _)| stem);
+        (a.to_string(), stem.to_string())
+    };
     let olds: BTreeMap<(String, String), &SavedFigure> = old
         .areas
         .iter()

@@ -91,3 +91,21 @@ fn a_file_that_is_not_a_saved_run_is_refused_with_its_name() {
     let e = SavedReport::parse("new.json", bad).unwrap_err();
     assert!(e.to_string().contains("figure `fk` of area `pcr`"), "{e}");
 }
+
+#[test]
+fn a_rate_carried_in_the_name_does_not_split_a_figure() {
+    let old = saved(vec![figure(
+        "pattern_pose 1024x1024: 198 images/s",
+        5050,
+        100,
+    )]);
+    let new = saved(vec![figure(
+        "pattern_pose 1024x1024: 99 images/s",
+        10100,
+        100,
+    )]);
+    let rows = compare(&old, &new);
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert_eq!(rows[0].change, Change::Regression);
+    assert!((rows[0].ratio.expect("ratio") - 2.0).abs() < 1e-9);
+}

@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use super::engine::{self, CampaignError, Retry, Step, StepError, Summary};
+use super::instruments::{ToleranceCheck, identify as identify_instruments};
 use super::results::{MeanErrors, MocapCampaign, MocapStats};
 use crate::campaigns::mocap::plan::{MocapCampaignJob, samples_table};
 use crate::lab::{Candidate, CellModel, Evidence};
@@ -171,6 +172,7 @@ pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, Jo
     let cell = cx.lab().mocap(&job.cell)?;
     let started_from = cx.lab().model_source(&job.cell).label();
     let setup = Arc::new(job.setup(cell));
+    let instruments = identify_instruments(&cell.links, Duration::from_secs(2)).await;
     let plan = {
         let (job, setup) = (job.clone(), setup.clone());
         cx.phase(0.0, 0.05)
@@ -223,7 +225,26 @@ pub async fn campaign(job: Arc<MocapCampaignJob>, cx: Cx) -> Result<Produced, Jo
         validation: serde_json::to_value(&means).unwrap_or_default(),
         assessment: Some(fit.assessment.clone()),
     };
+    let tolerance = job.tolerance_mm().map(|t| match &fit.cross_validation {
+        Some(cv) => ToleranceCheck::of(
+            t,
+            Some(cv.rmse_calibrated_mm),
+            "mm",
+            &format!(
+                "held-out marker RMSE after calibration ({}-fold cross-validation)",
+                cv.folds
+            ),
+        ),
+        None => ToleranceCheck::of(
+            t,
+            None,
+            "mm",
+            "held-out marker RMSE after calibration (set options.identify.cross_validation to check it)",
+        ),
+    });
     let result = MocapCampaign {
+        instruments,
+        tolerance,
         calibration: identified.result,
         cell: job.cell.clone(),
         started_from,

@@ -11,6 +11,7 @@ use serde::Deserialize;
 use serde_json::Value;
 
 use crate::campaigns::engine::Retry;
+use crate::campaigns::instruments::check_tolerance;
 use crate::campaigns::mocap::{PostureSample, RecordOptions};
 use crate::campaigns::preflight;
 use crate::jobs::humanoid::design::{ConstraintSpec, DesignJob, DesignOptions};
@@ -48,6 +49,9 @@ struct Options {
     retry_attempts: usize,
     retry_backoff_ms: u64,
     identify: FitSpec,
+    /// The largest cross-validated held-out marker RMSE the calibrated model may leave
+    /// (mm; needs `identify.cross_validation`): the result's and the report's pass/fail.
+    pub(crate) tolerance_mm: Option<f64>,
 }
 
 impl Default for Options {
@@ -60,6 +64,7 @@ impl Default for Options {
             retry_attempts: r.attempts,
             retry_backoff_ms: r.backoff.as_millis() as u64,
             identify: FitSpec::default(),
+            tolerance_mm: None,
         }
     }
 }
@@ -149,6 +154,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<MocapCampaignJob, Job
             "must be at least 1",
         ));
     }
+    check_tolerance("options.tolerance_mm", o.tolerance_mm, "mm")?;
     Ok(MocapCampaignJob {
         cell: s.cell,
         postures,
@@ -199,6 +205,11 @@ impl MocapCampaignJob {
     }
 
     /// Device-fault retries.
+    /// The declared tolerance (mm), if any.
+    pub(crate) fn tolerance_mm(&self) -> Option<f64> {
+        self.options.tolerance_mm
+    }
+
     pub(crate) fn retry(&self) -> Retry {
         Retry {
             attempts: self.options.retry_attempts,

@@ -14,6 +14,7 @@ use crate::lab::{Candidate, CellModel, Evidence};
 use crate::run::{Cx, JobError, Produced, Table};
 
 use super::engine::{self, Retry, Step, StepError};
+use super::instruments::{ToleranceCheck, identify as identify_instruments};
 use super::results::{PcrCampaign, PcrStats};
 use crate::procedures::{DeviceError, LinearStages, PoseSensor};
 use crate::util::Monitor;
@@ -123,6 +124,7 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
         None => cx.lab().model_source(&job.cell).label(),
     };
     let file = job.start_model().unwrap_or_else(|| cell.current_model());
+    let instruments = identify_instruments(&cell.links, Duration::from_secs(2)).await;
     let plan = job.plan(&file)?;
     let n_cal = job.calibration_count(plan.len());
     let opts = PcrOptions {
@@ -215,7 +217,22 @@ pub async fn campaign(job: Arc<PcrCampaignJob>, cx: Cx) -> Result<Produced, JobE
         validation: serde_json::to_value(&identified.result.validation).unwrap_or_default(),
         assessment: Some(identified.result.assessment.clone()),
     };
+    let tolerance = job.options.tolerance_um.map(|t| {
+        let max_um = identified
+            .result
+            .validation
+            .as_ref()
+            .map(|v| v.after.max * 1e6);
+        ToleranceCheck::of(
+            t,
+            max_um,
+            "um",
+            "largest held-out position error after calibration",
+        )
+    });
     let result = PcrCampaign {
+        instruments,
+        tolerance,
         calibration: identified.result,
         accuracy,
         cell: job.cell.clone(),

@@ -10,6 +10,7 @@ use std::sync::Arc;
 use serde::Deserialize;
 use serde_json::Value;
 
+use crate::campaigns::instruments::check_tolerance;
 use crate::campaigns::pcr::PcrRecorded;
 use crate::campaigns::spec::RetrySpec;
 use crate::geometry::Pose2;
@@ -30,6 +31,9 @@ pub(crate) struct Options {
     pub(crate) settle_ms: u64,
     pub(crate) retry: RetrySpec,
     identify: IdentifyOptions,
+    /// The largest held-out position error the calibrated model may leave (um): the
+    /// result's and the report's pass/fail (none declared: no pass/fail).
+    pub(crate) tolerance_um: Option<f64>,
 }
 
 /// `accuracy` as given: the `pcr.accuracy` trajectory and repetitions.
@@ -142,6 +146,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<PcrCampaignJob, JobEr
             "must be at least 1",
         ));
     }
+    check_tolerance("options.tolerance_um", s.options.tolerance_um, "um")?;
     crate::jobs::pcr::identify::calibration_options(&s.options.identify)?;
     Ok(PcrCampaignJob {
         cell: s.cell,

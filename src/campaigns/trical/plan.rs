@@ -9,6 +9,7 @@ use std::sync::Arc;
 use serde::Deserialize;
 use serde_json::Value;
 
+use crate::campaigns::instruments::check_tolerance;
 use crate::campaigns::preflight::{self, check, travel};
 use crate::campaigns::spec::{CentringSpec, RetrySpec, default_cell, trical_devices};
 use crate::campaigns::trical::{Planned, Recorded};
@@ -170,14 +171,7 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<CampaignJob, JobError
         ));
     }
     s.options.centring.validate("options.centring")?;
-    if let Some(t) = s.options.tolerance_mm
-        && !(t.is_finite() && t > 0.0)
-    {
-        return Err(JobError::invalid(
-            "options.tolerance_mm",
-            format!("{t} must be a positive length (mm)"),
-        ));
-    }
+    check_tolerance("options.tolerance_mm", s.options.tolerance_mm, "mm")?;
     if s.options.retry.attempts == 0 {
         return Err(JobError::invalid(
             "options.retry.attempts",

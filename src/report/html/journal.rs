@@ -19,9 +19,15 @@ pub fn journal_number(n: &serde_json::Number) -> String {
 }
 
 /// A journal value as a table cell: numbers formatted (with their pointer), arrays of
-/// numbers joined, anything else as compact JSON.
-fn cell(v: &Value, pointer: &str) -> String {
+/// numbers joined, anything else as compact JSON. A `ball` is stored from 0 and shown from
+/// 1, as the results and the page count balls (`data-from-one` marks the shifted cell).
+fn cell(column: &str, v: &Value, pointer: &str) -> String {
     match v {
+        Value::Number(n) if column == "ball" && n.is_u64() => format!(
+            r#"<td class="num" data-journal="{}" data-from-one="">{}</td>"#,
+            escape(pointer),
+            n.as_u64().unwrap_or(0) + 1
+        ),
         Value::Number(n) => match n.as_f64() {
             Some(_) => format!(
                 r#"<td class="num" data-journal="{}">{}</td>"#,
@@ -88,7 +94,7 @@ pub(super) fn journal(entries: &[Value]) -> String {
             Some(Value::Object(o)) => {
                 for c in &columns {
                     match o.get(c) {
-                        Some(v) => h.push_str(&cell(v, &format!("/{i}/data/{c}"))),
+                        Some(v) => h.push_str(&cell(c, v, &format!("/{i}/data/{c}"))),
                         None => h.push_str("<td></td>"),
                     }
                 }
@@ -128,7 +134,10 @@ mod tests {
             "{h}"
         );
         assert!(h.contains(r#"data-journal="/2/data/residual_mm">2.500<"#));
-        assert!(h.contains(r#"data-journal="/2/data/ball">3<"#));
+        assert!(
+            h.contains(r#"data-journal="/2/data/ball" data-from-one="">4<"#),
+            "ball 3 as stored is ball 4 counted from 1: {h}"
+        );
         assert!(h.contains("ball &lt;lost&gt;") && h.contains("<td>0.1000, 0.2000</td>"));
         assert!(h.contains(r#"data-count="journal-measured">2<"#));
         assert!(journal(&[]).is_empty());
