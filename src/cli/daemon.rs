@@ -27,6 +27,10 @@ pub(crate) struct ServeArgs {
     /// then leaves the terminal to `calibd submit --watch`).
     #[arg(long, env = "CALIBD_LOG_FILE", value_name = "FILE")]
     log_file: Option<PathBuf>,
+    /// Record every device's traffic to DIR as replayable transcripts
+    /// (`DIR/<start time>/<cell>.<device>.jsonl`; the setting `record`).
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
 }
 
 /// Options of `calibd health`.
@@ -129,6 +133,7 @@ pub(crate) fn serve(a: ServeArgs) -> Result<()> {
         config,
         workers_only,
         log_file,
+        record,
     } = a;
     let mut cfg = calibd::config::Config::load(config.as_deref(), &|k| std::env::var(k).ok())?;
     if let Some(l) = listen {
@@ -136,6 +141,9 @@ pub(crate) fn serve(a: ServeArgs) -> Result<()> {
     }
     if let Some(d) = data {
         cfg.data = d;
+    }
+    if record.is_some() {
+        cfg.record = record;
     }
     let json = cfg.log_format == calibd::config::LogFormat::Json;
     match &log_file {

@@ -11,6 +11,8 @@ use super::{init_tracing, runtime};
 
 /// `calibd mock DEVICE ...`: one mock device server until Ctrl-C.
 pub(crate) fn device(args: calibd_drivers::mock::MockArgs) -> Result<()> {
+    // The log on stderr: requests at debug level, a replay's mismatches as errors.
+    init_tracing(false);
     let rt = tokio::runtime::Runtime::new()?;
     let shutdown = async {
         let _ = tokio::signal::ctrl_c().await;
