@@ -151,7 +151,7 @@ pub enum TranscriptError {
 }
 
 impl Transcript {
-    /// Parses transcript text. A last line without its newline that does not parse is
+    /// Parses transcript text. A last line without its newline whose JSON ends early is
     /// dropped: it is what a recorder killed mid-write leaves.
     pub fn parse(text: &str) -> Result<Self, TranscriptError> {
         let mut header = None;
@@ -159,7 +159,11 @@ impl Transcript {
         let lines: Vec<&str> = text.lines().collect();
         let cut = !text.is_empty() && !text.ends_with('\n');
         for (i, line) in lines.iter().enumerate() {
-            if cut && i + 1 == lines.len() && Self::parse_line(line, i).is_err() {
+            let unfinished = || {
+                serde_json::from_str::<serde_json::Value>(line.trim())
+                    .is_err_and(|e| e.is_eof())
+            };
+            if cut && i + 1 == lines.len() && unfinished() {
                 break;
             }
             match Self::parse_line(line, i)? {

@@ -251,6 +251,7 @@ impl Daemon {
     pub(crate) fn start_with(dir: &Path, lab: &Path, settings: &str, args: &[&str]) -> Daemon {
         let data = dir.join("data");
         let cfg = dir.join("calibd.toml");
+        std::fs::create_dir_all(dir).expect("daemon folder");
         std::fs::write(
             &cfg,
             format!("workers = 2\nlab = \"{}\"\n{settings}", lab.display()),

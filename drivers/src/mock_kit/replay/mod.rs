@@ -189,3 +189,6 @@ fn describe(label: &str, c: &Chunk, recorded: &[u8], got: &[u8], at: usize) -> S
         window(got)
     )
 }
+
+#[cfg(test)]
+mod tests;
