@@ -130,7 +130,8 @@ pub struct Config {
     pub lab: String,
     /// Seed of the simulated lab's twins.
     pub lab_seed: u64,
-    /// Seconds between two background checks of the lab's devices (`GET /v1/lab`).
+    /// Seconds between two background checks of the lab's devices (`GET /v1/lab`) while all
+    /// answer (a failing device is checked again after 2 s).
     pub lab_check_interval_s: u64,
     /// Folder to record every device's traffic to (`calibd-transcript/1`, one file per cell
     /// and device in a subfolder per start; `calibd serve --record`). Unset: no recording.

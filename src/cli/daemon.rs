@@ -105,26 +105,6 @@ fn init_tracing_to_file(json: bool, path: &std::path::Path) -> Result<()> {
     Ok(())
 }
 
-/// Resolves on Ctrl-C or SIGTERM: the daemon's signal to shut down.
-async fn shutdown_signal() {
-    let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
-    #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending::<()>().await,
-        }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
-    tracing::info!("shutting down");
-}
-
 /// `calibd serve`: the daemon (or its workers only) until Ctrl-C or SIGTERM.
 pub(crate) fn serve(a: ServeArgs) -> Result<()> {
     let ServeArgs {
@@ -152,7 +132,7 @@ pub(crate) fn serve(a: ServeArgs) -> Result<()> {
     }
     if workers_only {
         return runtime()?.block_on(async move {
-            calibd::server::run_workers(&cfg, shutdown_signal(), |_| {
+            calibd::server::run_workers(&cfg, super::shutdown_signal(), |_| {
                 tracing::info!(
                     workers = cfg.worker_count(),
                     "calibd {} workers ready",
@@ -169,7 +149,7 @@ pub(crate) fn serve(a: ServeArgs) -> Result<()> {
             .await
             .with_context(|| format!("binding {}", cfg.listen))?;
         let addr = listener.local_addr()?;
-        calibd::server::run(listener, &cfg, shutdown_signal(), |s| {
+        calibd::server::run(listener, &cfg, super::shutdown_signal(), |s| {
             if let Some(p) = &s.operator_token_file {
                 tracing::info!(file = %p.display(), "no token configured: the operator token is in this file");
             }

@@ -672,7 +672,10 @@ impl Lab {
             };
             lab.set_resume_policy(&name, policy);
             // The cell's own folder (lab file `record`) before the lab-wide one.
-            let rec = &Rec(c.record_mut().clone().or_else(|| dir.map(Path::to_path_buf)));
+            let rec = &Rec(c
+                .record_mut()
+                .clone()
+                .or_else(|| dir.map(Path::to_path_buf)));
             let cell = match c {
                 CellLink::BallCentring(d) => Cell::BallCentring(ball_centring(d, rec)?),
                 CellLink::Pcr(d) => Cell::Pcr(pcr(d, rec)?),

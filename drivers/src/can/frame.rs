@@ -129,7 +129,11 @@ impl CanConnect for SocketcandConnector {
             let s = TcpStream::connect(&self.addr).await?;
             s.set_nodelay(true)?;
             Socketcand::open(
-                Tee::new(s, self.recorder.as_ref().map(Recorder::connection), Side::Client),
+                Tee::new(
+                    s,
+                    self.recorder.as_ref().map(Recorder::connection),
+                    Side::Client,
+                ),
                 &self.bus,
             )
             .await

@@ -160,8 +160,7 @@ impl Transcript {
         let cut = !text.is_empty() && !text.ends_with('\n');
         for (i, line) in lines.iter().enumerate() {
             let unfinished = || {
-                serde_json::from_str::<serde_json::Value>(line.trim())
-                    .is_err_and(|e| e.is_eof())
+                serde_json::from_str::<serde_json::Value>(line.trim()).is_err_and(|e| e.is_eof())
             };
             if cut && i + 1 == lines.len() && unfinished() {
                 break;

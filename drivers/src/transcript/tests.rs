@@ -40,7 +40,8 @@ fn authorization_values_are_masked_and_connections_numbered() {
     let r = Recorder::to_writer(buf.clone(), "abb", "unit test").unwrap();
     let secret = "Digest username=\"calibd\", response=\"0123456789abcdef\"";
     let req = format!("GET /rw/system HTTP/1.1\r\nHost: rc\r\nAuthorization: {secret}\r\n\r\n");
-    r.connection().record(Direction::ToDevice, req.as_bytes(), false);
+    r.connection()
+        .record(Direction::ToDevice, req.as_bytes(), false);
     let second = r.connection();
     second.record(Direction::FromDevice, b"HTTP/1.1 200 OK\r\n\r\n", false);
     second.record(Direction::ToDevice, req.as_bytes(), false);
@@ -81,8 +82,7 @@ fn a_line_cut_by_a_crash_is_dropped() {
 
 #[test]
 fn bad_lines_are_reported_with_line_number() {
-    let e =
-        Transcript::parse("# c\n{\"t_us\":0,\"dir\":\"c2d\",\"hex\":\"abc\"}\n").unwrap_err();
+    let e = Transcript::parse("# c\n{\"t_us\":0,\"dir\":\"c2d\",\"hex\":\"abc\"}\n").unwrap_err();
     assert!(e.to_string().contains("line 2"), "{e}");
     let e = Transcript::parse("{\"t_us\":0,\"dir\":\"up\",\"hex\":\"00\"}").unwrap_err();
     assert!(e.to_string().contains("line 1"), "{e}");

@@ -33,13 +33,17 @@ impl Proc {
     }
 
     fn spawn_with(cmd: &mut Command, log: bool) -> Proc {
-        let mut child = cmd
-            .stdin(Stdio::piped())
+        cmd.stdin(Stdio::piped())
             .stdout(Stdio::piped())
-            .stderr(if log { Stdio::piped() } else { Stdio::inherit() })
-            .env("RUST_LOG", "warn")
-            .spawn()
-            .expect("process starts");
+            .stderr(if log {
+                Stdio::piped()
+            } else {
+                Stdio::inherit()
+            });
+        if !cmd.get_envs().any(|(k, _)| k == "RUST_LOG") {
+            cmd.env("RUST_LOG", "warn");
+        }
+        let mut child = cmd.spawn().expect("process starts");
         let out = child.stdout.take().expect("stdout");
         let stdin = child.stdin.take();
         let (tx, lines) = mpsc::channel();
@@ -606,4 +610,5 @@ async fn commissioning_the_tcp_over_mock_processes() {
 
 mod absent;
 mod auto_resume;
+mod mock_process;
 mod record;

@@ -24,7 +24,9 @@ const SETTINGS: &str = "lab_check_interval_s = 3600\n";
 fn trical_lab(dir: &Path) -> PathBuf {
     let lab = lab_dir(dir, free_port());
     let text = std::fs::read_to_string(&lab).expect("lab file");
-    let cut = text.find("\n[[cell]]\nname = \"pcr3pf\"").expect("pcr cell");
+    let cut = text
+        .find("\n[[cell]]\nname = \"pcr3pf\"")
+        .expect("pcr cell");
     let trical = text[..cut].replacen(
         "[cell.indicators]\n",
         "[cell.indicators]\nrequest = \"RQ{cc}{gg}\"\n",
@@ -37,8 +39,7 @@ fn trical_lab(dir: &Path) -> PathBuf {
 
 /// The RWS address and U-WAVE port the lab file names.
 fn addresses(lab: &Path) -> (String, String) {
-    let cells =
-        calibd::lab::config::load(lab, &calibd::lab::config::ProcessEnv).expect("lab file");
+    let cells = calibd::lab::config::load(lab, &calibd::lab::config::ProcessEnv).expect("lab file");
     match &cells[0] {
         CellLink::BallCentring(c) => (c.rws.address.clone(), c.uwave.path.clone()),
         _ => panic!("the first cell is the TriCal cell"),
@@ -106,7 +107,10 @@ async fn a_recorded_campaign_replays_to_the_same_journal_and_a_changed_target_fa
         until_lab_ok(&d).await;
         let (id, _, t) = d.run(&trical_doc()).await;
         let journal = d.journal(id).await;
-        eprintln!("live, recording: {} measurements in {t:.1} s", journal.len());
+        eprintln!(
+            "live, recording: {} measurements in {t:.1} s",
+            journal.len()
+        );
         journal
     };
     assert_eq!(recorded.len(), 24);
@@ -157,7 +161,10 @@ async fn a_recorded_campaign_replays_to_the_same_journal_and_a_changed_target_fa
         journal
     };
     assert_eq!(strip(&replayed), strip(&recorded));
-    eprintln!("first measurement, live and replayed: {}", recorded[0]["data"]);
+    eprintln!(
+        "first measurement, live and replayed: {}",
+        recorded[0]["data"]
+    );
 
     // Another design seed: other targets; the replay stops at the first one with an error
     // naming the recorded request and both versions of its bytes.
@@ -171,7 +178,47 @@ async fn a_recorded_campaign_replays_to_the_same_journal_and_a_changed_target_fa
     eprintln!("{line}");
     assert!(line.contains("irb120.abb.jsonl"), "{line}");
     assert!(line.contains("calib_q"), "{line}");
-    assert!(line.contains("recorded \"") && line.contains("the client sent \""), "{line}");
+    assert!(
+        line.contains("recorded \"") && line.contains("the client sent \""),
+        "{line}"
+    );
     let j = d.until_state(id, &["paused", "failed", "succeeded"]).await;
     assert_ne!(j["state"], "succeeded", "{j}");
+}
+
+/// A cell's own `record` folder (relative to the lab file) takes its traffic, before the
+/// lab-wide folder; files are named by cell and device and start with their header.
+#[tokio::test]
+async fn a_cells_record_setting_takes_its_traffic() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let lab = trical_lab(dir.path());
+    let text = std::fs::read_to_string(&lab).expect("lab file");
+    let with = text.replacen(
+        "kind = \"ball_centring\"\n",
+        "kind = \"ball_centring\"\nrecord = \"cell-recordings\"\n",
+        1,
+    );
+    std::fs::write(&lab, with).expect("write");
+    let cells =
+        calibd::lab::config::load(&lab, &calibd::lab::config::ProcessEnv).expect("lab file");
+    let own = dir.path().join("cell-recordings");
+    match &cells[0] {
+        CellLink::BallCentring(c) => assert_eq!(c.record.as_deref(), Some(own.as_path())),
+        _ => panic!("the first cell is the TriCal cell"),
+    }
+    let everyone = dir.path().join("lab-wide");
+    let l = calibd::lab::Lab::connect_recording(cells, Some(&everyone)).expect("lab");
+    for device in ["abb", "uwave"] {
+        let t = Transcript::load(&own.join(format!("irb120.{device}.jsonl"))).expect("transcript");
+        let h = t.header.expect("header");
+        assert_eq!(
+            (h.format.as_str(), h.device.as_str()),
+            ("calibd-transcript/1", device)
+        );
+    }
+    assert!(
+        !everyone.exists(),
+        "the cell's own folder is used, not the lab-wide one"
+    );
+    l.stop().await;
 }
