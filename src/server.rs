@@ -90,6 +90,13 @@ pub async fn start(
     let lab = match config.lab.as_str() {
         "none" => None,
         "sim" => {
+            if config.record.is_some() {
+                // Its devices listen on ports picked at each start: nothing to replay at.
+                tracing::warn!(
+                    "record: the simulated lab is not recorded; record a lab file's cells \
+                     served by `calibd mock lab` instead"
+                );
+            }
             let opts = crate::sim::SimOptions {
                 seed: config.lab_seed,
                 ..Default::default()

@@ -658,24 +658,22 @@ impl Lab {
     }
 
     /// [`Lab::connect`], teeing every device's traffic to `<dir>/<cell>.<device>.jsonl`
-    /// (`calibd-transcript/1`) when `dir` is given: a session becomes replayable fixtures.
+    /// (`calibd-transcript/1`; a cell's own `record` folder before `dir`): a session becomes
+    /// replayable fixtures.
     pub fn connect_recording(
         cells: Vec<CellLink>,
         dir: Option<&Path>,
     ) -> Result<Lab, super::LabError> {
         let mut lab = Lab::empty();
-        for mut c in cells {
-            let (name, policy) = match &c {
-                CellLink::BallCentring(d) => (d.name.clone(), d.resume),
-                CellLink::Pcr(d) => (d.name.clone(), d.resume),
-                CellLink::Mocap(d) => (d.name.clone(), d.resume),
+        for c in cells {
+            let (name, policy, record) = match &c {
+                CellLink::BallCentring(d) => (d.name.clone(), d.resume, d.record.clone()),
+                CellLink::Pcr(d) => (d.name.clone(), d.resume, d.record.clone()),
+                CellLink::Mocap(d) => (d.name.clone(), d.resume, d.record.clone()),
             };
             lab.set_resume_policy(&name, policy);
             // The cell's own folder (lab file `record`) before the lab-wide one.
-            let rec = &Rec(c
-                .record_mut()
-                .clone()
-                .or_else(|| dir.map(Path::to_path_buf)));
+            let rec = &Rec(record.or_else(|| dir.map(Path::to_path_buf)));
             let cell = match c {
                 CellLink::BallCentring(d) => Cell::BallCentring(ball_centring(d, rec)?),
                 CellLink::Pcr(d) => Cell::Pcr(pcr(d, rec)?),
