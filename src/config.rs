@@ -130,6 +130,13 @@ pub struct Config {
     pub lab: String,
     /// Seed of the simulated lab's twins.
     pub lab_seed: u64,
+    /// Seconds between two background checks of the lab's devices (`GET /v1/lab`) while all
+    /// answer (a failing device is checked again after 2 s).
+    pub lab_check_interval_s: u64,
+    /// Folder to record every device's traffic to (`calibd-transcript/1`, one file per cell
+    /// and device in a subfolder per start; `calibd serve --record`). Unset: no recording.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub record: Option<PathBuf>,
     /// Where jobs and results are stored: unset (the SQLite file in `data`, the default),
     /// `sqlite:FOLDER`, or a `postgres://USER@HOST:PORT/DB` URL (several daemons on one
     /// database). The URL carries no password: see `password_file`.
@@ -173,6 +180,8 @@ impl Default for Config {
             auth: AuthConfig::default(),
             lab: "sim".into(),
             lab_seed: 7,
+            lab_check_interval_s: 30,
+            record: None,
             store: None,
             password_file: None,
             name: None,
@@ -224,6 +233,11 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ("CALIBD_DEVICES", "devices: comma-separated names"),
     ("CALIBD_LAB", "lab: sim, none or a lab file path"),
     ("CALIBD_LAB_SEED", "lab_seed: integer"),
+    (
+        "CALIBD_LAB_CHECK_INTERVAL_S",
+        "lab_check_interval_s: integer",
+    ),
+    ("CALIBD_RECORD", "record: folder for device transcripts"),
     (
         "CALIBD_STORE",
         "store: sqlite:FOLDER or postgres://USER@HOST:PORT/DB",
@@ -391,6 +405,8 @@ impl Config {
                     self.lab = v.trim().into();
                 }
                 "CALIBD_LAB_SEED" => self.lab_seed = parse(name, &v)?,
+                "CALIBD_LAB_CHECK_INTERVAL_S" => self.lab_check_interval_s = parse(name, &v)?,
+                "CALIBD_RECORD" => self.record = Some(PathBuf::from(v.trim())),
                 "CALIBD_NAME" => self.name = Some(v.trim().to_string()),
                 "CALIBD_FLEET_LEASE_S" => self.fleet_lease_s = parse(name, &v)?,
                 "CALIBD_FLEET_SCHEDULER" => self.fleet_scheduler = parse(name, &v)?,

@@ -90,6 +90,13 @@ pub async fn start(
     let lab = match config.lab.as_str() {
         "none" => None,
         "sim" => {
+            if config.record.is_some() {
+                // Its devices listen on ports picked at each start: nothing to replay at.
+                tracing::warn!(
+                    "record: the simulated lab is not recorded; record a lab file's cells \
+                     served by `calibd mock lab` instead"
+                );
+            }
             let opts = crate::sim::SimOptions {
                 seed: config.lab_seed,
                 ..Default::default()
@@ -107,12 +114,13 @@ pub async fn start(
                      on the simulated lab, lab = \"none\" to run numerical jobs only"
                 )));
             }
-            let cells = crate::lab::config::load(
+            let mut cells = crate::lab::config::load(
                 std::path::Path::new(file),
                 &crate::lab::config::ProcessEnv,
             )
             .map_err(|e| ServeError::Lab(e.to_string()))?;
-            let lab = crate::lab::Lab::connect(cells)?;
+            let record = recording_session(config.record.as_deref(), &mut cells);
+            let lab = crate::lab::Lab::connect_recording(cells, record.as_deref())?;
             // Addresses only: the lab file's secrets never reach the log.
             tracing::info!(file, devices = ?lab.device_names(), "lab connecting in the background");
             Some(Arc::new(lab))
@@ -121,7 +129,7 @@ pub async fn start(
     if let Some(lab) = &lab {
         // The background lab check: availability of every cell, `GET /v1/lab`.
         tokio::spawn(lab.clone().watch(
-            Duration::from_secs(30),
+            Duration::from_secs(config.lab_check_interval_s.max(1)),
             Duration::from_secs(2),
             shutdown.clone(),
         ));
@@ -179,6 +187,27 @@ pub async fn start(
         shutdown,
     };
     Ok((state, workers, startup))
+}
+
+/// This start's recording folders: a subfolder named by the start time (UTC) in `record`
+/// (`--record`) and in each cell's own `record` folder, so a restart never overwrites the
+/// previous session's transcripts. Returns the lab-wide one.
+fn recording_session(
+    record: Option<&std::path::Path>,
+    cells: &mut [crate::lab::CellLink],
+) -> Option<PathBuf> {
+    let session = chrono::Utc::now().format("%Y%m%dT%H%M%SZ").to_string();
+    for c in cells.iter_mut() {
+        if let Some(dir) = c.record_mut() {
+            *dir = dir.join(&session);
+            tracing::info!(folder = %dir.display(), "recording this cell's device traffic");
+        }
+    }
+    let dir = record.map(|r| r.join(&session));
+    if let Some(d) = &dir {
+        tracing::info!(folder = %d.display(), "recording every device's traffic");
+    }
+    dir
 }
 
 /// Run a workers-only daemon (`calibd serve --workers-only`): no HTTP listener, no lab,

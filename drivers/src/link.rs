@@ -88,7 +88,11 @@ impl Connect for TcpConnector {
         Box::pin(async move {
             let s = TcpStream::connect(&self.addr).await?;
             s.set_nodelay(true)?;
-            Ok(Tee::new(s, self.recorder.clone(), Side::Client))
+            Ok(Tee::new(
+                s,
+                self.recorder.as_ref().map(Recorder::connection),
+                Side::Client,
+            ))
         })
     }
 }

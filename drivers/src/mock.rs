@@ -78,11 +78,16 @@ pub struct MockArgs {
     /// Replay this transcript to every client instead of simulating.
     #[arg(long)]
     pub replay: Option<PathBuf>,
+    /// With `--replay`: a client that sends other bytes than recorded ends the replay with
+    /// an error naming the line and both versions (default: logged as a warning).
+    #[arg(long, requires = "replay")]
+    pub strict: bool,
     /// Inject a fault: KIND@N with KIND drop|stall|garbage|truncate|device-error|delay and N the
     /// reply number (1-based) it replaces. Repeatable.
     #[arg(long = "fault")]
     pub faults: Vec<FaultSpec>,
-    /// Streaming rate of simulated data (QTM frames, U-WAVE readings), per second.
+    /// Streaming rate of simulated data (QTM frames, U-WAVE readings), per second; for
+    /// `uwave` 0 streams none (readings on request only).
     #[arg(long, default_value_t = 100.0)]
     pub rate_hz: f64,
     /// RWS user name accepted by the `abb` mock.
@@ -112,6 +117,7 @@ impl MockArgs {
             listen: "127.0.0.1:0".into(),
             pty: false,
             replay: None,
+            strict: false,
             faults: Vec::new(),
             rate_hz: 100.0,
             user: "Default User".into(),
@@ -167,7 +173,13 @@ pub async fn start(args: MockArgs) -> Result<RunningMock, MockError> {
     let faults = Faults::new(args.faults.clone());
     let tasks = MockTasks::new();
     let handler: Handler = match &args.replay {
-        Some(path) => replay::handler(Transcript::load(path)?),
+        Some(path) => replay::handler(
+            Transcript::load(path)?,
+            replay::ReplayOptions {
+                label: path.display().to_string(),
+                strict: args.strict,
+            },
+        ),
         None => match args.device {
             MockDevice::Uwave => uwave::mock::handler(&args, faults),
             MockDevice::Qtm => qtm::mock::handler(&args, faults),

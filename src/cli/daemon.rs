@@ -27,6 +27,10 @@ pub(crate) struct ServeArgs {
     /// then leaves the terminal to `calibd submit --watch`).
     #[arg(long, env = "CALIBD_LOG_FILE", value_name = "FILE")]
     log_file: Option<PathBuf>,
+    /// Record every device's traffic to DIR as replayable transcripts
+    /// (`DIR/<start time>/<cell>.<device>.jsonl`; the setting `record`).
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
 }
 
 /// Options of `calibd health`.
@@ -101,26 +105,6 @@ fn init_tracing_to_file(json: bool, path: &std::path::Path) -> Result<()> {
     Ok(())
 }
 
-/// Resolves on Ctrl-C or SIGTERM: the daemon's signal to shut down.
-async fn shutdown_signal() {
-    let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
-    #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending::<()>().await,
-        }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! { _ = ctrl_c => {}, _ = term => {} }
-    tracing::info!("shutting down");
-}
-
 /// `calibd serve`: the daemon (or its workers only) until Ctrl-C or SIGTERM.
 pub(crate) fn serve(a: ServeArgs) -> Result<()> {
     let ServeArgs {
@@ -129,6 +113,7 @@ pub(crate) fn serve(a: ServeArgs) -> Result<()> {
         config,
         workers_only,
         log_file,
+        record,
     } = a;
     let mut cfg = calibd::config::Config::load(config.as_deref(), &|k| std::env::var(k).ok())?;
     if let Some(l) = listen {
@@ -137,6 +122,9 @@ pub(crate) fn serve(a: ServeArgs) -> Result<()> {
     if let Some(d) = data {
         cfg.data = d;
     }
+    if record.is_some() {
+        cfg.record = record;
+    }
     let json = cfg.log_format == calibd::config::LogFormat::Json;
     match &log_file {
         Some(p) => init_tracing_to_file(json, p)?,
@@ -144,7 +132,7 @@ pub(crate) fn serve(a: ServeArgs) -> Result<()> {
     }
     if workers_only {
         return runtime()?.block_on(async move {
-            calibd::server::run_workers(&cfg, shutdown_signal(), |_| {
+            calibd::server::run_workers(&cfg, super::shutdown_signal(), |_| {
                 tracing::info!(
                     workers = cfg.worker_count(),
                     "calibd {} workers ready",
@@ -161,7 +149,7 @@ pub(crate) fn serve(a: ServeArgs) -> Result<()> {
             .await
             .with_context(|| format!("binding {}", cfg.listen))?;
         let addr = listener.local_addr()?;
-        calibd::server::run(listener, &cfg, shutdown_signal(), |s| {
+        calibd::server::run(listener, &cfg, super::shutdown_signal(), |s| {
             if let Some(p) = &s.operator_token_file {
                 tracing::info!(file = %p.display(), "no token configured: the operator token is in this file");
             }

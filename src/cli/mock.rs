@@ -11,11 +11,10 @@ use super::{init_tracing, runtime};
 
 /// `calibd mock DEVICE ...`: one mock device server until Ctrl-C.
 pub(crate) fn device(args: calibd_drivers::mock::MockArgs) -> Result<()> {
+    // The log on stderr: requests at debug level, a replay's mismatches as errors.
+    init_tracing(false);
     let rt = tokio::runtime::Runtime::new()?;
-    let shutdown = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
-    Ok(rt.block_on(calibd_drivers::mock::run(args, shutdown))?)
+    Ok(rt.block_on(async { calibd_drivers::mock::run(args, super::shutdown_signal()).await })?)
 }
 
 /// The arguments of `calibd mock lab ...` when `argv` is that command (it takes a lab file
@@ -51,6 +50,9 @@ pub(crate) fn lab(args: MockLabCli) -> Result<()> {
     init_tracing(false);
     let rt = runtime()?;
     rt.block_on(async move {
+        // Ctrl-C or SIGTERM: stop the servers, which removes the pty symlinks.
+        let stop = super::shutdown_signal();
+        tokio::pin!(stop);
         let lab = calibd::sim::lab::serve(
             &args.config,
             &args.cells,
@@ -67,7 +69,7 @@ pub(crate) fn lab(args: MockLabCli) -> Result<()> {
         let mut open = true;
         loop {
             tokio::select! {
-                _ = tokio::signal::ctrl_c() => break,
+                _ = &mut stop => break,
                 l = lines.next_line(), if open => match l {
                     Ok(Some(l)) if l.trim().is_empty() => {}
                     Ok(Some(l)) => match lab.command(&l) {

@@ -32,3 +32,28 @@ pub(crate) fn init_tracing(json: bool) {
         b.init();
     }
 }
+
+/// Resolves on Ctrl-C or SIGTERM: the daemon's and the mocks' signal to shut down (a mock
+/// then removes its pty symlinks). SIGTERM is caught from the call on (inside a runtime).
+pub(crate) fn shutdown_signal() -> impl std::future::Future<Output = ()> {
+    #[cfg(unix)]
+    let term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+    async move {
+        let ctrl_c = async {
+            let _ = tokio::signal::ctrl_c().await;
+        };
+        #[cfg(unix)]
+        let term = async move {
+            match term {
+                Some(mut s) => {
+                    s.recv().await;
+                }
+                None => std::future::pending::<()>().await,
+            }
+        };
+        #[cfg(not(unix))]
+        let term = std::future::pending::<()>();
+        tokio::select! { _ = ctrl_c => {}, _ = term => {} }
+        tracing::info!("shutting down");
+    }
+}

@@ -81,6 +81,8 @@ pub struct BallCentringCell {
     pub joint_speed_deg_s: f64,
     /// Who resumes a campaign paused on a device fault.
     pub resume: super::resume::ResumePolicy,
+    /// Folder this cell's device traffic is recorded to (lab file `record`), if any.
+    pub record: Option<PathBuf>,
 }
 
 /// How the 3-PF cell's stage controller is reached.
@@ -199,6 +201,8 @@ pub struct PcrCellLink {
     pub model: PcrFile,
     /// Who resumes a campaign paused on a device fault.
     pub resume: super::resume::ResumePolicy,
+    /// Folder this cell's device traffic is recorded to (lab file `record`), if any.
+    pub record: Option<PathBuf>,
 }
 
 /// A humanoid's joint interface (`calibd-joints/1` over TCP).
@@ -235,6 +239,8 @@ pub struct MocapCellLink {
     pub markers: Vec<MarkerDef>,
     /// Who resumes a campaign paused on a device fault.
     pub resume: super::resume::ResumePolicy,
+    /// Folder this cell's device traffic is recorded to (lab file `record`), if any.
+    pub record: Option<PathBuf>,
 }
 
 /// One cell's description.
@@ -246,6 +252,17 @@ pub enum CellLink {
     Pcr(PcrCellLink),
     /// Motion-capture cell.
     Mocap(MocapCellLink),
+}
+
+impl CellLink {
+    /// The cell's recording folder (lab file `record`), to read or move into a session.
+    pub fn record_mut(&mut self) -> &mut Option<PathBuf> {
+        match self {
+            CellLink::BallCentring(d) => &mut d.record,
+            CellLink::Pcr(d) => &mut d.record,
+            CellLink::Mocap(d) => &mut d.record,
+        }
+    }
 }
 
 fn backoff() -> Backoff {
@@ -380,6 +397,10 @@ impl Rec {
             return Ok(None);
         };
         let path = dir.join(format!("{cell}.{device}.jsonl"));
+        std::fs::create_dir_all(dir).map_err(|e| LabError::Cell {
+            cell: cell.into(),
+            message: format!("recording: cannot create the folder {}: {e}", dir.display()),
+        })?;
         Recorder::create(
             &path,
             device,
@@ -637,20 +658,22 @@ impl Lab {
     }
 
     /// [`Lab::connect`], teeing every device's traffic to `<dir>/<cell>.<device>.jsonl`
-    /// (`calibd-transcript/1`) when `dir` is given: a session becomes replayable fixtures.
+    /// (`calibd-transcript/1`; a cell's own `record` folder before `dir`): a session becomes
+    /// replayable fixtures.
     pub fn connect_recording(
         cells: Vec<CellLink>,
         dir: Option<&Path>,
     ) -> Result<Lab, super::LabError> {
-        let rec = &Rec(dir.map(Path::to_path_buf));
         let mut lab = Lab::empty();
         for c in cells {
-            let (name, policy) = match &c {
-                CellLink::BallCentring(d) => (d.name.clone(), d.resume),
-                CellLink::Pcr(d) => (d.name.clone(), d.resume),
-                CellLink::Mocap(d) => (d.name.clone(), d.resume),
+            let (name, policy, record) = match &c {
+                CellLink::BallCentring(d) => (d.name.clone(), d.resume, d.record.clone()),
+                CellLink::Pcr(d) => (d.name.clone(), d.resume, d.record.clone()),
+                CellLink::Mocap(d) => (d.name.clone(), d.resume, d.record.clone()),
             };
             lab.set_resume_policy(&name, policy);
+            // The cell's own folder (lab file `record`) before the lab-wide one.
+            let rec = &Rec(record.or_else(|| dir.map(Path::to_path_buf)));
             let cell = match c {
                 CellLink::BallCentring(d) => Cell::BallCentring(ball_centring(d, rec)?),
                 CellLink::Pcr(d) => Cell::Pcr(pcr(d, rec)?),

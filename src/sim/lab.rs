@@ -7,7 +7,8 @@
 //! (DH file, 3-PF file, URDF with the cell's joints and markers), its truth is drawn around
 //! that nominal from the seed, the ball plate has the file's ballbar distances, the
 //! indicators report on the file's channels with its signs and zeros, and QTM streams the
-//! markers under the file's labels. So the shipped example lab runs as written, and a
+//! markers under the file's labels; with the indicators' `request` template the receiver
+//! answers requests and streams nothing. So the shipped example lab runs as written, and a
 //! daemon pointed at the same file calibrates a robot it does not know exactly.
 
 use std::path::Path;
@@ -170,8 +171,17 @@ async fn trical(
         user: d.rws.user.clone(),
         password: d.rws.password.clone(),
     };
+    // A lab file that requests readings gets a receiver that answers requests and streams
+    // nothing (a recorded session then replays exactly; see docs/lab.md, recording).
+    let requested = !d.uwave.request_template.is_empty();
     let o = SimTricalOptions {
         max_joint_step_deg: d.max_joint_step_deg,
+        uwave_request: d.uwave.request_template.clone(),
+        indicator_rate_hz: if requested {
+            0.0
+        } else {
+            SimTricalOptions::default().indicator_rate_hz
+        },
         ..SimTricalOptions::default()
     };
     let (link, mocks) = super::trical::start_twin_at(twin, seed, &o, &at, d.uwave.axes).await?;

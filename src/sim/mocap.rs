@@ -263,6 +263,7 @@ pub async fn start_twin_at(
     };
     let link = MocapCellLink {
         resume: Default::default(),
+        record: None,
         name: "talos".into(),
         joints: JointsLink {
             address: joints_mock.addr.clone(),

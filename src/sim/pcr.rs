@@ -292,6 +292,7 @@ pub async fn start_twin_at(
     };
     let link = PcrCellLink {
         resume: Default::default(),
+        record: None,
         name: "pcr3pf".into(),
         stages: StagesLink {
             backend: StageBackend::Mcs2(stage_mock.addr.clone()),

@@ -300,6 +300,7 @@ pub async fn start_twin_at(
     .map_err(|e| mock_err("uwave", e))?;
     let link = BallCentringCell {
         resume: Default::default(),
+        record: None,
         name: "irb120".into(),
         rws: RwsLink {
             address: rws_mock.addr.clone(),

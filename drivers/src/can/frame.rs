@@ -128,7 +128,15 @@ impl CanConnect for SocketcandConnector {
         Box::pin(async move {
             let s = TcpStream::connect(&self.addr).await?;
             s.set_nodelay(true)?;
-            Socketcand::open(Tee::new(s, self.recorder.clone(), Side::Client), &self.bus).await
+            Socketcand::open(
+                Tee::new(
+                    s,
+                    self.recorder.as_ref().map(Recorder::connection),
+                    Side::Client,
+                ),
+                &self.bus,
+            )
+            .await
         })
     }
 }

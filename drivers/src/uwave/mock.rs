@@ -42,7 +42,7 @@ impl IndicatorModel for DriftingIndicators {
 /// Options of the U-WAVE mock (`calibd mock uwave --rate-hz --uwave-request`).
 #[derive(Debug, Clone)]
 pub struct UwaveOptions {
-    /// Readings per second and channel.
+    /// Readings per second and channel; 0 streams none (readings on request only).
     pub rate_hz: f64,
     /// Data-request template answered with a reading (`{cc}`, `{gg}` placeholders); empty:
     /// readings only stream.
@@ -63,7 +63,8 @@ pub fn handler_with(
     faults: Faults,
 ) -> Handler {
     let UwaveOptions { rate_hz, request } = opts.into();
-    let period = Duration::from_secs_f64(1.0 / rate_hz.clamp(0.1, 1000.0));
+    // A rate of 0 streams nothing: the receiver only answers requests.
+    let period = (rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / rate_hz.clamp(0.1, 1000.0)));
     let start = tokio::time::Instant::now();
     Arc::new(move |io, conn| {
         let s = Session {
@@ -80,7 +81,7 @@ pub fn handler_with(
 struct Session {
     model: Arc<Mutex<dyn IndicatorModel>>,
     faults: Faults,
-    period: Duration,
+    period: Option<Duration>,
     request: String,
     start: tokio::time::Instant,
 }
@@ -92,13 +93,14 @@ enum Next {
 
 impl Session {
     async fn run(self, mut io: BoxIo, conn: Conn) {
-        let mut tick = tokio::time::interval(self.period);
+        let streams = self.period.is_some();
+        let mut tick = tokio::time::interval(self.period.unwrap_or(Duration::from_secs(3600)));
         let mut inbuf: Vec<u8> = Vec::new();
         loop {
             let mut buf = [0u8; 256];
             let next = tokio::select! {
                 _ = conn.token.cancelled() => return,
-                _ = tick.tick() => {
+                _ = tick.tick(), if streams => {
                     let channels = self.model.lock().map(|m| m.channels()).unwrap_or_default();
                     let mut n = Next::Go;
                     for c in channels {

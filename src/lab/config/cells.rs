@@ -140,6 +140,7 @@ impl Reader<'_> {
                 }
             },
             resume: ResumePolicy::default(),
+            record: None,
         })
     }
 
@@ -200,6 +201,7 @@ impl Reader<'_> {
             max_stage_step_m: positive(self, c, env.max_stage_step_m, 0.01, "max_stage_step_m")?,
             model,
             resume: ResumePolicy::default(),
+            record: None,
         })
     }
 
@@ -341,6 +343,7 @@ impl Reader<'_> {
             limits,
             markers,
             resume: ResumePolicy::default(),
+            record: None,
         })
     }
 }

@@ -86,6 +86,9 @@ struct CellSpec {
     /// Automatic resumes allowed per job (with `resume = "auto"`).
     #[serde(default)]
     max_auto_resumes: Option<Spanned<i64>>,
+    /// Folder (relative to the lab file) to record this cell's device traffic to.
+    #[serde(default)]
+    record: Option<Spanned<PathBuf>>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -511,16 +514,29 @@ impl Reader<'_> {
     fn cell(&self, c: &Spanned<CellSpec>) -> Result<CellLink, LabConfigError> {
         let s = c.get_ref();
         let resume = self.resume_policy(s)?;
+        let record = s.record.as_ref().map(|r| self.resolve(r.get_ref()));
         match s.kind {
-            Kind::BallCentring => self
-                .ball_centring(c)
-                .map(|d| CellLink::BallCentring(BallCentringCell { resume, ..d })),
-            Kind::Pcr => self
-                .pcr(c)
-                .map(|d| CellLink::Pcr(PcrCellLink { resume, ..d })),
-            Kind::Humanoid => self
-                .humanoid(c)
-                .map(|d| CellLink::Mocap(MocapCellLink { resume, ..d })),
+            Kind::BallCentring => self.ball_centring(c).map(|d| {
+                CellLink::BallCentring(BallCentringCell {
+                    resume,
+                    record,
+                    ..d
+                })
+            }),
+            Kind::Pcr => self.pcr(c).map(|d| {
+                CellLink::Pcr(PcrCellLink {
+                    resume,
+                    record,
+                    ..d
+                })
+            }),
+            Kind::Humanoid => self.humanoid(c).map(|d| {
+                CellLink::Mocap(MocapCellLink {
+                    resume,
+                    record,
+                    ..d
+                })
+            }),
         }
     }
 

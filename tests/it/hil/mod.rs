@@ -24,24 +24,43 @@ pub(crate) struct Proc {
 
 impl Proc {
     pub(crate) fn spawn(cmd: &mut Command) -> Proc {
-        let mut child = cmd
-            .stdin(Stdio::piped())
+        Proc::spawn_with(cmd, false)
+    }
+
+    /// [`Proc::spawn`] with the process's log (stderr) on the same channel as its stdout.
+    pub(crate) fn spawn_logged(cmd: &mut Command) -> Proc {
+        Proc::spawn_with(cmd, true)
+    }
+
+    fn spawn_with(cmd: &mut Command, log: bool) -> Proc {
+        cmd.stdin(Stdio::piped())
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .env("RUST_LOG", "warn")
-            .spawn()
-            .expect("process starts");
+            .stderr(if log {
+                Stdio::piped()
+            } else {
+                Stdio::inherit()
+            });
+        if !cmd.get_envs().any(|(k, _)| k == "RUST_LOG") {
+            cmd.env("RUST_LOG", "warn");
+        }
+        let mut child = cmd.spawn().expect("process starts");
         let out = child.stdout.take().expect("stdout");
         let stdin = child.stdin.take();
         let (tx, lines) = mpsc::channel();
-        std::thread::spawn(move || {
-            for l in BufReader::new(out).lines() {
-                let Ok(l) = l else { break };
-                if tx.send(l).is_err() {
-                    break;
+        let forward = |r: Box<dyn std::io::Read + Send>, tx: mpsc::Sender<String>| {
+            std::thread::spawn(move || {
+                for l in BufReader::new(r).lines() {
+                    let Ok(l) = l else { break };
+                    if tx.send(l).is_err() {
+                        break;
+                    }
                 }
-            }
-        });
+            });
+        };
+        if let Some(err) = child.stderr.take() {
+            forward(Box::new(err), tx.clone());
+        }
+        forward(Box::new(out), tx);
         Proc {
             child,
             stdin,
@@ -58,13 +77,22 @@ impl Proc {
 
     /// Lines until one starts with `prefix` (that line), or panic after `WAIT`.
     pub(crate) fn until(&self, prefix: &str) -> String {
+        self.until_line(prefix, |l| l.starts_with(prefix))
+    }
+
+    /// Lines until one contains `part` (that line), or panic after `WAIT`.
+    pub(crate) fn until_containing(&self, part: &str) -> String {
+        self.until_line(part, |l| l.contains(part))
+    }
+
+    fn until_line(&self, what: &str, found: impl Fn(&str) -> bool) -> String {
         let t0 = Instant::now();
         loop {
             let left = WAIT.saturating_sub(t0.elapsed());
             match self.lines.recv_timeout(left) {
-                Ok(l) if l.starts_with(prefix) => return l,
+                Ok(l) if found(&l) => return l,
                 Ok(_) => {}
-                Err(e) => panic!("no line starting with {prefix:?}: {e}"),
+                Err(e) => panic!("no line with {what:?}: {e}"),
             }
         }
     }
@@ -220,15 +248,26 @@ pub(crate) struct Daemon {
 
 impl Daemon {
     pub(crate) fn start(dir: &Path, lab: &Path) -> Daemon {
+        Daemon::start_with(dir, lab, "", &[])
+    }
+
+    /// [`Daemon::start`] with more settings lines and `calibd serve` arguments.
+    pub(crate) fn start_with(dir: &Path, lab: &Path, settings: &str, args: &[&str]) -> Daemon {
         let data = dir.join("data");
         let cfg = dir.join("calibd.toml");
-        std::fs::write(&cfg, format!("workers = 2\nlab = \"{}\"\n", lab.display())).expect("write");
+        std::fs::create_dir_all(dir).expect("daemon folder");
+        std::fs::write(
+            &cfg,
+            format!("workers = 2\nlab = \"{}\"\n{settings}", lab.display()),
+        )
+        .expect("write");
         let p = Proc::spawn(
             Command::new(BIN)
                 .args(["serve", "--listen", "127.0.0.1:0", "--config"])
                 .arg(&cfg)
                 .arg("--data")
-                .arg(&data),
+                .arg(&data)
+                .args(args),
         );
         let url = p
             .until("calibd listening on ")
@@ -571,3 +610,5 @@ async fn commissioning_the_tcp_over_mock_processes() {
 
 mod absent;
 mod auto_resume;
+mod mock_process;
+mod record;

@@ -156,7 +156,11 @@ impl Connect for SerialConnector {
                     tracing::debug!(device = DEVICE, error = %e, "cannot clear the input buffer");
                 }
             }
-            Ok(Tee::new(s, self.recorder.clone(), Side::Client))
+            Ok(Tee::new(
+                s,
+                self.recorder.as_ref().map(Recorder::connection),
+                Side::Client,
+            ))
         })
     }
 }

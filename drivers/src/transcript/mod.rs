@@ -6,9 +6,12 @@
 //! line is a chunk `{"t_us":1200,"dir":"d2c","hex":"0900000006000000 01"}` with `dir` `c2d`
 //! (client to device) or `d2c` (device to client), an optional `"udp":true` for datagrams and
 //! an optional `"text"` (ignored, for reading). Chunks keep the TCP splitting as recorded.
+//! A lab recording also tags each chunk with its connection (`"conn":0`, `1`, ... in the order
+//! the driver opened them) and masks HTTP `Authorization` values (`"redacted":[[from,to]]`,
+//! the bytes replaced by `*`), so no credential is written and replay skips those bytes.
 
 use std::fs::File;
-use std::io::{self, BufRead, BufReader, BufWriter, Write};
+use std::io::{self, BufWriter, Write};
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -44,6 +47,17 @@ pub struct Chunk {
     /// Printable rendering of the bytes, for humans only (ignored when reading).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub text: Option<String>,
+    /// Connection the chunk belongs to (0 = the first the recorder saw); absent in
+    /// transcripts of one connection.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub conn: Option<u32>,
+    /// Byte ranges `[from, to)` of the payload masked when recording (credentials): their
+    /// bytes are `*` and replay does not compare them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub redacted: Vec<[usize; 2]>,
+    /// 1-based line of the file the chunk was read from (0 when not read from a file).
+    #[serde(skip)]
+    pub line: usize,
 }
 
 impl Chunk {
@@ -61,7 +75,21 @@ impl Chunk {
             hex: to_hex(bytes),
             udp,
             text,
+            conn: None,
+            redacted: Vec::new(),
+            line: 0,
         }
+    }
+
+    /// True when `got` is what this chunk recorded: ASCII case ignored, redacted bytes
+    /// skipped. `None` when equal, else the first differing byte offset.
+    pub fn first_difference(&self, recorded: &[u8], got: &[u8]) -> Option<usize> {
+        let masked = |i: usize| self.redacted.iter().any(|[a, b]| (*a..*b).contains(&i));
+        let n = recorded.len().max(got.len());
+        (0..n).find(|&i| match (recorded.get(i), got.get(i)) {
+            (Some(r), Some(g)) => !masked(i) && !r.eq_ignore_ascii_case(g),
+            _ => true,
+        })
     }
 
     /// Decodes the hex payload.
@@ -93,6 +121,12 @@ pub struct Transcript {
     pub chunks: Vec<Chunk>,
 }
 
+/// One parsed line.
+enum Line {
+    Header(Header),
+    Chunk(Box<Chunk>),
+}
+
 /// Error reading a transcript.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -117,46 +151,60 @@ pub enum TranscriptError {
 }
 
 impl Transcript {
-    /// Parses transcript text.
+    /// Parses transcript text. A last line without its newline whose JSON ends early is
+    /// dropped: it is what a recorder killed mid-write leaves.
     pub fn parse(text: &str) -> Result<Self, TranscriptError> {
         let mut header = None;
         let mut chunks = Vec::new();
-        for (i, line) in text.lines().enumerate() {
-            let l = line.trim();
-            if l.is_empty() || l.starts_with('#') {
-                continue;
-            }
-            let v: serde_json::Value =
-                serde_json::from_str(l).map_err(|e| TranscriptError::Line {
-                    line: i + 1,
-                    detail: e.to_string(),
-                })?;
-            let bad = |e: serde_json::Error| TranscriptError::Line {
-                line: i + 1,
-                detail: e.to_string(),
+        let lines: Vec<&str> = text.lines().collect();
+        let cut = !text.is_empty() && !text.ends_with('\n');
+        for (i, line) in lines.iter().enumerate() {
+            let unfinished = || {
+                serde_json::from_str::<serde_json::Value>(line.trim()).is_err_and(|e| e.is_eof())
             };
-            if v.get("format").is_some() {
-                header = Some(serde_json::from_value(v).map_err(bad)?);
-            } else {
-                let c: Chunk = serde_json::from_value(v).map_err(bad)?;
-                c.bytes().map_err(|_| TranscriptError::Line {
-                    line: i + 1,
-                    detail: "field hex is not an even number of hex digits".into(),
-                })?;
-                chunks.push(c);
+            if cut && i + 1 == lines.len() && unfinished() {
+                break;
+            }
+            match Self::parse_line(line, i)? {
+                Some(Line::Header(h)) => header = Some(h),
+                Some(Line::Chunk(c)) => chunks.push(*c),
+                None => {}
             }
         }
         Ok(Transcript { header, chunks })
     }
 
+    /// One line of a transcript (`i` 0-based): nothing for blanks and comments.
+    fn parse_line(line: &str, i: usize) -> Result<Option<Line>, TranscriptError> {
+        let l = line.trim();
+        if l.is_empty() || l.starts_with('#') {
+            return Ok(None);
+        }
+        let bad = |e: serde_json::Error| TranscriptError::Line {
+            line: i + 1,
+            detail: e.to_string(),
+        };
+        let v: serde_json::Value = serde_json::from_str(l).map_err(bad)?;
+        if v.get("format").is_some() {
+            return Ok(Some(Line::Header(serde_json::from_value(v).map_err(bad)?)));
+        }
+        let mut c: Chunk = serde_json::from_value(v).map_err(bad)?;
+        c.bytes().map_err(|_| TranscriptError::Line {
+            line: i + 1,
+            detail: "field hex is not an even number of hex digits".into(),
+        })?;
+        c.line = i + 1;
+        Ok(Some(Line::Chunk(Box::new(c))))
+    }
+
     /// Reads and parses a transcript file.
     pub fn load(path: &Path) -> Result<Self, TranscriptError> {
-        let mut text = String::new();
-        for line in BufReader::new(File::open(path)?).lines() {
-            text.push_str(&line?);
-            text.push('\n');
-        }
-        Self::parse(&text)
+        Self::parse(&std::fs::read_to_string(path)?)
+    }
+
+    /// True when the chunks carry connection numbers (a lab recording).
+    pub fn has_connections(&self) -> bool {
+        self.chunks.iter().any(|c| c.conn.is_some())
     }
 
     /// All bytes in one direction (TCP only), concatenated.
@@ -173,12 +221,16 @@ impl Transcript {
 #[derive(Debug, Clone)]
 pub struct Recorder {
     inner: Arc<Mutex<RecorderInner>>,
+    /// The connection this handle records (see [`Recorder::connection`]).
+    conn: Option<u32>,
 }
 
 #[derive(Debug)]
 struct RecorderInner {
     out: Box<dyn WriteDebug>,
     start: Instant,
+    /// Connections handed out so far.
+    connections: u32,
 }
 
 trait WriteDebug: Write + Send + std::fmt::Debug {}
@@ -212,8 +264,23 @@ impl Recorder {
             inner: Arc::new(Mutex::new(RecorderInner {
                 out: Box::new(out),
                 start: Instant::now(),
+                connections: 0,
             })),
+            conn: None,
         })
+    }
+
+    /// A handle for the next connection to the device: its chunks carry that connection's
+    /// number (0, 1, ...), so replay serves each reconnection what it got when recorded.
+    pub fn connection(&self) -> Recorder {
+        let conn = self.inner.lock().ok().map(|mut g| {
+            g.connections += 1;
+            g.connections - 1
+        });
+        Recorder {
+            inner: self.inner.clone(),
+            conn,
+        }
     }
 
     /// Appends one chunk, stamped with the time since the recorder was created.
@@ -223,12 +290,50 @@ impl Recorder {
         }
         let Ok(mut g) = self.inner.lock() else { return };
         let t_us = g.start.elapsed().as_micros() as u64;
-        let c = Chunk::new(t_us, dir, bytes, udp);
+        let mut c = if dir == Direction::ToDevice {
+            let (masked, redacted) = redact(bytes);
+            let mut c = Chunk::new(t_us, dir, &masked, udp);
+            c.redacted = redacted;
+            c
+        } else {
+            Chunk::new(t_us, dir, bytes, udp)
+        };
+        c.conn = self.conn;
         if let Ok(line) = serde_json::to_string(&c) {
             // Recording is best effort: a full disk must not stop the instrument.
             let _ = writeln!(g.out, "{line}").and_then(|_| g.out.flush());
         }
     }
+}
+
+/// The bytes with every HTTP `Authorization` header value replaced by `*` (same length,
+/// so replay still counts bytes), and the masked ranges.
+fn redact(bytes: &[u8]) -> (Vec<u8>, Vec<[usize; 2]>) {
+    const NAME: &[u8] = b"authorization:";
+    let mut out = bytes.to_vec();
+    let mut ranges = Vec::new();
+    let mut i = 0;
+    while i + NAME.len() <= bytes.len() {
+        let line_start = i == 0 || bytes[i - 1] == b'\n';
+        if line_start && bytes[i..i + NAME.len()].eq_ignore_ascii_case(NAME) {
+            let mut from = i + NAME.len();
+            while bytes.get(from) == Some(&b' ') {
+                from += 1;
+            }
+            let to = bytes[from..]
+                .iter()
+                .position(|b| *b == b'\r' || *b == b'\n')
+                .map_or(bytes.len(), |p| from + p);
+            out[from..to].fill(b'*');
+            if to > from {
+                ranges.push([from, to]);
+            }
+            i = to;
+        } else {
+            i += 1;
+        }
+    }
+    (out, ranges)
 }
 
 /// Lower-case hex without separators.
@@ -256,49 +361,4 @@ pub fn from_hex(s: &str) -> Option<Vec<u8>> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[derive(Debug, Clone, Default)]
-    struct Shared(Arc<Mutex<Vec<u8>>>);
-    impl Write for Shared {
-        fn write(&mut self, b: &[u8]) -> io::Result<usize> {
-            self.0
-                .lock()
-                .map_err(|_| io::Error::other("poisoned"))?
-                .extend_from_slice(b);
-            Ok(b.len())
-        }
-        fn flush(&mut self) -> io::Result<()> {
-            Ok(())
-        }
-    }
-
-    #[test]
-    fn record_then_parse_round_trips() {
-        let buf = Shared::default();
-        let r = Recorder::to_writer(buf.clone(), "uwave", "unit test").unwrap();
-        r.record(Direction::FromDevice, b"DT10000+00000011.88M\r", false);
-        r.record(Direction::ToDevice, &[0, 1, 0xff], true);
-        let text = String::from_utf8(buf.0.lock().unwrap().clone()).unwrap();
-        let t = Transcript::parse(&text).unwrap();
-        assert_eq!(t.header.unwrap().device, "uwave");
-        assert_eq!(t.chunks.len(), 2);
-        assert_eq!(t.chunks[0].bytes().unwrap(), b"DT10000+00000011.88M\r");
-        assert_eq!(t.chunks[0].text.as_deref(), Some("DT10000+00000011.88M\\r"));
-        assert!(t.chunks[1].udp);
-        assert_eq!(t.chunks[1].bytes().unwrap(), vec![0, 1, 0xff]);
-        assert!(t.chunks[1].t_us >= t.chunks[0].t_us);
-    }
-
-    #[test]
-    fn bad_lines_are_reported_with_line_number() {
-        let e =
-            Transcript::parse("# c\n{\"t_us\":0,\"dir\":\"c2d\",\"hex\":\"abc\"}\n").unwrap_err();
-        assert!(e.to_string().contains("line 2"), "{e}");
-        let e = Transcript::parse("{\"t_us\":0,\"dir\":\"up\",\"hex\":\"00\"}").unwrap_err();
-        assert!(e.to_string().contains("line 1"), "{e}");
-        assert_eq!(from_hex("0a 0B"), Some(vec![10, 11]));
-        assert_eq!(from_hex("0g"), None);
-    }
-}
+mod tests;
