@@ -197,29 +197,8 @@ pub fn run() -> Vec<Figure> {
         history.join(" ")
     );
     figs.push(f);
-    let mut rng = Rng::new(99);
-    let pool = pm
-        .random_postures(1000, &mut rng, 100_000)
-        .expect("feasible postures exist");
-    let mut d = 0.0;
-    // The pool takes the blocks one at a time, as `compare_baselines` gives them (their
-    // Jacobians are part of the figure).
-    let mut f = time("", 1, 1, Some(Duration::from_millis(300)), || {
-        let sel = detmax(
-            &Pool::from_blocks(pool.iter().map(|q| pm.block(q))),
-            &DetmaxOptions {
-                n,
-                seed: 1,
-                max_excursion: 6,
-                path: true,
-            },
-            &NoMonitor,
-        )
-        .expect("not cancelled");
-        let chosen: Vec<Vec<f64>> = sel.selected.iter().map(|&i| pool[i].clone()).collect();
-        d = o1_of_postures(&pm, &chosen);
-    });
-    f.name = format!("DETMAX {n} of 1000 random feasible postures: O1 {d:.4}");
+    let pool = detmax_pool(&pm);
+    let (f, d) = detmax_figure(&pm, &pool, n);
     figs.push(f);
     let mut starts = Vec::new();
     let mut f = time("", 1, 1, Some(Duration::from_secs(60)), || {
@@ -239,4 +218,47 @@ pub fn run() -> Vec<Figure> {
     sink += d;
     std::hint::black_box(sink);
     figs
+}
+
+/// The 1,000 random feasible postures DETMAX chooses from (seeded).
+fn detmax_pool(pm: &HumanoidPostures) -> Vec<Vec<f64>> {
+    let mut rng = Rng::new(99);
+    pm.random_postures(1000, &mut rng, 100_000)
+        .expect("feasible postures exist")
+}
+
+/// DETMAX `n` of the pool for the left arm with 6 clusters: the figure (the pool's
+/// Jacobians are part of it) and the O1 of the selection.
+fn detmax_figure(pm: &HumanoidPostures, pool: &[Vec<f64>], n: usize) -> (Figure, f64) {
+    let mut d = 0.0;
+    // The pool takes the blocks as `compare_baselines` gives them.
+    let mut f = time("", 3, 1, Some(Duration::from_millis(300)), || {
+        let sel = detmax(
+            &Pool::from_block_fn(pool.len(), |i| pm.block(&pool[i])),
+            &DetmaxOptions {
+                n,
+                seed: 1,
+                max_excursion: 6,
+                path: true,
+            },
+            &NoMonitor,
+        )
+        .expect("not cancelled");
+        let chosen: Vec<Vec<f64>> = sel.selected.iter().map(|&i| pool[i].clone()).collect();
+        d = o1_of_postures(pm, &chosen);
+    });
+    f.name = format!(
+        "DETMAX {n} of {} random feasible postures: O1 {d:.4}",
+        pool.len()
+    );
+    (f, d)
+}
+
+/// `calibd bench humanoid.detmax`: only the DETMAX figure, 12 of 1,000 postures (the size
+/// NOCP reaches on this layout in `calibd bench humanoid`).
+pub fn detmax_only() -> Vec<Figure> {
+    let mut pm = layout("torso_2_link", arm_joints(false), &ARM_CLUSTERS);
+    base_count(&mut pm, 1000, 5);
+    let pool = detmax_pool(&pm);
+    vec![detmax_figure(&pm, &pool, 12).0]
 }

@@ -11,7 +11,8 @@ use super::runtime;
 pub(crate) struct BenchArgs {
     /// Area: `serial`, `pcr`, `humanoid`, `identify` (identification from 90 to 100,000
     /// measurements), `all` (those four), `serial.fk` (only the `serial.fk` table
-    /// figures of `serial`), `identify:N` (one size), `kernels` (nalgebra against faer
+    /// figures of `serial`), `humanoid.detmax` (only its DETMAX 12 of 1,000 figure),
+    /// `identify:N` (one size), `kernels` (nalgebra against faer
     /// and the crossovers), `drivers` or `api` (the daemon under many concurrent
     /// clients), or `compare OLD.json NEW.json` (two saved runs side by side; exits 1 when
     /// a figure got slower beyond the noise of the runs).
@@ -38,6 +39,7 @@ fn numerical(a: &str) -> Option<Vec<calibd::bench::Figure>> {
         "serial.fk" => Some(calibd::bench::serial::fk_tables()),
         "serial.compensate" => Some(calibd::bench::serial::compensate_figures()),
         "humanoid" => Some(calibd::bench::humanoid::run()),
+        "humanoid.detmax" => Some(calibd::bench::humanoid::detmax_only()),
         "pcr" => Some(calibd::bench::pcr::run()),
         "identify" => Some(calibd::bench::identify::run()),
         "kernels" => Some(calibd::bench::kernels::run()),
@@ -89,7 +91,7 @@ pub(crate) fn bench(a: BenchArgs) -> Result<()> {
         other if numerical_area(other) => vec![other],
         other => {
             bail!(
-                "unknown benchmark area `{other}` (known: serial, serial.fk, serial.compensate, pcr, humanoid, identify, identify:N, kernels, all, drivers, api, fleet)"
+                "unknown benchmark area `{other}` (known: serial, serial.fk, serial.compensate, pcr, humanoid, humanoid.detmax, identify, identify:N, kernels, all, drivers, api, fleet)"
             )
         }
     };
@@ -142,7 +144,14 @@ fn compare(files: &[PathBuf]) -> Result<()> {
 fn numerical_area(a: &str) -> bool {
     matches!(
         a,
-        "serial" | "serial.fk" | "serial.compensate" | "pcr" | "humanoid" | "identify" | "kernels"
+        "serial"
+            | "serial.fk"
+            | "serial.compensate"
+            | "pcr"
+            | "humanoid"
+            | "humanoid.detmax"
+            | "identify"
+            | "kernels"
     ) || a
         .strip_prefix("identify:")
         .is_some_and(|n| n.parse::<usize>().is_ok())

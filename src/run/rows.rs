@@ -20,7 +20,7 @@ pub struct CsvRows<R: Read> {
     reader: csv::Reader<R>,
     columns: Vec<String>,
     gaps: Vec<bool>,
-    record: csv::StringRecord,
+    record: csv::ByteRecord,
     row: usize,
 }
 
@@ -40,8 +40,9 @@ impl<R: Read> CsvRows<R> {
     pub fn new(field: &str, input: R, gaps: &dyn Fn(&str) -> bool) -> Result<Self, JobError> {
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
-            .trim(csv::Trim::All)
+            .trim(csv::Trim::Headers)
             .flexible(true)
+            .buffer_capacity(1 << 16)
             .from_reader(input);
         let columns: Vec<String> = reader
             .headers()
@@ -74,7 +75,7 @@ impl<R: Read> CsvRows<R> {
             reader,
             columns,
             gaps,
-            record: csv::StringRecord::new(),
+            record: csv::ByteRecord::new(),
             row: 0,
         })
     }
@@ -96,7 +97,7 @@ impl<R: Read> CsvRows<R> {
         let row = self.row + 1;
         let more = self
             .reader
-            .read_record(&mut self.record)
+            .read_byte_record(&mut self.record)
             .map_err(|e| JobError::row(field, row, format!("CSV: {e}")))?;
         if !more {
             return Ok(None);
@@ -115,15 +116,26 @@ impl<R: Read> CsvRows<R> {
         }
         values.clear();
         for (c, cell) in self.record.iter().enumerate() {
-            if self.gaps[c] && (cell.is_empty() || cell.eq_ignore_ascii_case("nan")) {
+            let cell = trim(cell);
+            if self.gaps[c] && (cell.is_empty() || cell.eq_ignore_ascii_case(b"nan")) {
                 values.push(f64::NAN);
                 continue;
             }
-            let v: f64 = cell.parse().map_err(|_| {
+            // Cells are parsed from the record's bytes (no per-row text copy); a cell that
+            // is not UTF-8 is not a number either.
+            let parsed = std::str::from_utf8(cell)
+                .ok()
+                .and_then(|t| t.parse::<f64>().ok());
+            let cell_text = || String::from_utf8_lossy(cell);
+            let v = parsed.ok_or_else(|| {
                 JobError::row(
                     field,
                     row,
-                    format!("column `{}`: `{cell}` is not a number", self.columns[c]),
+                    format!(
+                        "column `{}`: `{}` is not a number",
+                        self.columns[c],
+                        cell_text()
+                    ),
                 )
             })?;
             if !v.is_finite() {
@@ -131,8 +143,9 @@ impl<R: Read> CsvRows<R> {
                     field,
                     row,
                     format!(
-                        "column `{}`: {cell} is not a finite number",
-                        self.columns[c]
+                        "column `{}`: {} is not a finite number",
+                        self.columns[c],
+                        cell_text()
                     ),
                 ));
             }
@@ -142,39 +155,78 @@ impl<R: Read> CsvRows<R> {
     }
 }
 
-/// CSV written one row at a time through `csv::Writer` (header names quoted where they
-/// need it, output buffered): a header row, then each number as Rust's shortest round-trip
-/// decimal (the text of `{}`), one `\n`-terminated line per row.
-#[derive(Debug)]
-pub struct CsvSink<W: Write> {
-    out: csv::Writer<W>,
-    rows: usize,
-    cell: String,
+/// A cell without its leading and trailing whitespace (Unicode's, as `str::trim`: the
+/// ASCII fast path, and the full trim only where a non-ASCII byte or a vertical tab is at an
+/// end). Trimming the borrowed bytes here saves the csv reader's copy of every record.
+fn trim(cell: &[u8]) -> &[u8] {
+    let t = cell.trim_ascii();
+    let odd = |b: Option<&u8>| b.is_some_and(|&b| b >= 0x80 || b == 0x0b);
+    if !odd(t.first()) && !odd(t.last()) {
+        return t;
+    }
+    match std::str::from_utf8(t) {
+        Ok(s) => s.trim().as_bytes(),
+        Err(_) => t,
+    }
 }
 
+/// CSV written one row at a time: a header row (names quoted by `csv::Writer` where they
+/// need it), then each number as Rust's shortest round-trip decimal (the text of `{}`), one
+/// `\n`-terminated line per row. Rows are formatted into one buffer and handed to `out` in
+/// blocks of about [`BLOCK`] bytes (numbers never need quoting).
+#[derive(Debug)]
+pub struct CsvSink<W: Write> {
+    out: W,
+    columns: usize,
+    rows: usize,
+    buf: Vec<u8>,
+}
+
+/// Bytes gathered before a write to the sink.
+const BLOCK: usize = 1 << 16;
+
 impl<W: Write> CsvSink<W> {
-    /// Start a table with `columns` on `out` (writes the header row).
+    /// Start a table with `columns` on `out` (the header row is written with the first block).
     pub fn new<S: AsRef<str>>(out: W, columns: &[S]) -> std::io::Result<Self> {
-        let mut out = csv::WriterBuilder::new()
+        let mut header = csv::WriterBuilder::new()
             .terminator(csv::Terminator::Any(b'\n'))
-            .from_writer(out);
-        out.write_record(columns.iter().map(|c| c.as_ref()))?;
+            .from_writer(Vec::new());
+        header.write_record(columns.iter().map(|c| c.as_ref()))?;
+        let mut buf = header.into_inner().map_err(|e| e.into_error())?;
+        buf.reserve(BLOCK + 1024);
         Ok(Self {
             out,
+            columns: columns.len(),
             rows: 0,
-            cell: String::with_capacity(32),
+            buf,
         })
     }
 
-    /// Append one row.
+    /// Append one row; a row as wide as the header, or an `InvalidInput` error.
     pub fn row(&mut self, values: &[f64]) -> std::io::Result<()> {
-        for v in values {
-            self.cell.clear();
-            crate::util::decimal::push_f64(&mut self.cell, *v);
-            self.out.write_field(self.cell.as_bytes())?;
+        if values.len() != self.columns {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!(
+                    "CSV row {} has {} values for {} columns",
+                    self.rows + 1,
+                    values.len(),
+                    self.columns
+                ),
+            ));
         }
-        self.out.write_record(None::<&[u8]>)?;
+        for (k, v) in values.iter().enumerate() {
+            if k > 0 {
+                self.buf.push(b',');
+            }
+            crate::util::decimal::push_f64_bytes(&mut self.buf, *v);
+        }
+        self.buf.push(b'\n');
         self.rows += 1;
+        if self.buf.len() >= BLOCK {
+            self.out.write_all(&self.buf)?;
+            self.buf.clear();
+        }
         Ok(())
     }
 
@@ -183,10 +235,12 @@ impl<W: Write> CsvSink<W> {
         self.rows
     }
 
-    /// The sink, flushed.
+    /// The sink, with every row written and flushed.
     pub fn finish(mut self) -> std::io::Result<W> {
+        self.out.write_all(&self.buf)?;
+        self.buf.clear();
         self.out.flush()?;
-        self.out.into_inner().map_err(|e| e.into_error())
+        Ok(self.out)
     }
 }
 
@@ -269,6 +323,40 @@ mod tests {
         assert_eq!(String::from_utf8(bytes).unwrap(), joined(&cols, rows));
     }
 
+    /// A row narrower or wider than the header is refused, naming its number and widths,
+    /// and rows are gathered past the block size without losing or reordering any.
+    #[test]
+    fn rows_of_another_width_are_refused_and_blocks_keep_every_row() {
+        let mut sink = CsvSink::new(Vec::new(), &["a", "b"]).unwrap();
+        sink.row(&[1.0, 2.0]).unwrap();
+        let e = sink.row(&[1.0]).unwrap_err();
+        assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput);
+        assert!(
+            e.to_string().contains("row 2 has 1 values for 2 columns"),
+            "{e}"
+        );
+        let rows: Vec<Vec<f64>> = (0..20_000)
+            .map(|k| vec![k as f64 * 0.37, -(k as f64) / 7.0])
+            .collect();
+        for r in &rows {
+            sink.row(r).unwrap();
+        }
+        let text = String::from_utf8(sink.finish().unwrap()).unwrap();
+        let mut all = vec![vec![1.0, 2.0]];
+        all.extend(rows);
+        assert!(text.len() > 2 * BLOCK);
+        // Read back by the csv reader (the second method): every number, bit for bit.
+        let mut back = CsvRows::new("t", text.as_bytes(), &|_: &str| false).unwrap();
+        assert_eq!(back.columns(), ["a", "b"]);
+        let mut v = Vec::new();
+        for want in &all {
+            back.next_into(&mut v).unwrap().unwrap();
+            let bits = |x: &[f64]| x.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&v), bits(want));
+        }
+        assert_eq!(back.next_into(&mut v).unwrap(), None);
+    }
+
     /// A column name with a comma, quote or space is quoted as RFC 4180 says, so the header
     /// reads back (through the csv reader, the second method) as the names written.
     #[test]
@@ -300,6 +388,23 @@ mod tests {
         let mut r = CsvRows::new("joints", "q1\n1\n".as_bytes(), &|_: &str| false).unwrap();
         assert_eq!(r.next_into(&mut v).unwrap(), Some(1));
         assert_eq!(r.next_into(&mut v).unwrap(), None);
+    }
+
+    /// Cells are trimmed as `str::trim` trims them (ASCII and Unicode whitespace, vertical
+    /// tab included); header names too.
+    #[test]
+    fn cells_are_trimmed_of_unicode_whitespace() {
+        let text = " q1 ,q2\n \t1.5\u{a0}, \u{b}-2 \r\n\u{2003}3,4e1\u{3000}\n";
+        let mut r = CsvRows::new("t", text.as_bytes(), &|_: &str| false).unwrap();
+        assert_eq!(r.columns(), ["q1", "q2"]);
+        let mut v = Vec::new();
+        r.next_into(&mut v).unwrap();
+        assert_eq!(v, [1.5, -2.0]);
+        r.next_into(&mut v).unwrap();
+        assert_eq!(v, [3.0, 40.0]);
+        for cell in [" 1 ", "\u{a0}\u{a0}", "\u{b}x\u{85}", "a\u{a0}b", ""] {
+            assert_eq!(trim(cell.as_bytes()), cell.trim().as_bytes(), "{cell:?}");
+        }
     }
 
     #[test]

@@ -5,18 +5,50 @@
 
 /// Append the shortest round-trip positional decimal of `v` to `out`.
 pub fn push_f64(out: &mut String, v: f64) {
+    let mut buf = ryu::Buffer::new();
+    match positional(&mut buf, v) {
+        Ok(text) => out.push_str(text),
+        Err(s) => {
+            let mut b = Vec::with_capacity(64);
+            exponent_form(&mut b, s);
+            // Only ASCII digits, `-`, `0.` are written.
+            out.push_str(std::str::from_utf8(&b).unwrap_or("NaN"));
+        }
+    }
+}
+
+/// Append the text of [`push_f64`] to a byte buffer (a CSV line being built).
+pub fn push_f64_bytes(out: &mut Vec<u8>, v: f64) {
+    let mut buf = ryu::Buffer::new();
+    match positional(&mut buf, v) {
+        Ok(text) => out.extend_from_slice(text.as_bytes()),
+        Err(s) => exponent_form(out, s),
+    }
+}
+
+/// The final text of `v` when ryu writes it positionally (1e-5 <= |v| < 1e16 with its
+/// shortest digits: std's text but for the `.0` of a whole number) or it is not finite;
+/// else ryu's `d.ddde±x` text to rewrite.
+fn positional(buf: &mut ryu::Buffer, v: f64) -> Result<&str, &str> {
     if !v.is_finite() {
-        out.push_str(if v.is_nan() {
+        return Ok(if v.is_nan() {
             "NaN"
         } else if v > 0.0 {
             "inf"
         } else {
             "-inf"
         });
-        return;
     }
-    let mut buf = ryu::Buffer::new();
     let s = buf.format_finite(v);
+    if s.contains('e') {
+        Err(s)
+    } else {
+        Ok(s.strip_suffix(".0").unwrap_or(s))
+    }
+}
+
+/// ryu's `d.ddde±x` text of a finite number, appended positionally.
+fn exponent_form(out: &mut Vec<u8>, s: &str) {
     let (neg, s) = match s.strip_prefix('-') {
         Some(rest) => (true, rest),
         None => (false, s),
@@ -43,40 +75,39 @@ pub fn push_f64(out: &mut String, v: f64) {
     let end = digits.len() - digits.iter().rev().take_while(|&&b| b == b'0').count();
     let digits = &digits[..end];
     if neg {
-        out.push('-');
+        out.push(b'-');
     }
     if digits.is_empty() {
-        out.push('0');
+        out.push(b'0');
         return;
     }
     if point <= 0 {
-        out.push_str("0.");
-        out.extend(std::iter::repeat_n('0', (-point) as usize));
-        push_ascii(out, digits);
+        out.extend_from_slice(b"0.");
+        out.extend(std::iter::repeat_n(b'0', (-point) as usize));
+        out.extend_from_slice(digits);
     } else if point as usize >= digits.len() {
-        push_ascii(out, digits);
-        out.extend(std::iter::repeat_n('0', point as usize - digits.len()));
+        out.extend_from_slice(digits);
+        out.extend(std::iter::repeat_n(b'0', point as usize - digits.len()));
     } else {
         let (a, b) = digits.split_at(point as usize);
-        push_ascii(out, a);
-        out.push('.');
-        push_ascii(out, b);
+        out.extend_from_slice(a);
+        out.push(b'.');
+        out.extend_from_slice(b);
     }
-}
-
-/// Append ASCII digits.
-fn push_ascii(out: &mut String, digits: &[u8]) {
-    out.extend(digits.iter().map(|&b| b as char));
 }
 
 #[cfg(test)]
 mod tests {
-    use super::push_f64;
+    use super::{push_f64, push_f64_bytes};
     use crate::util::Rng;
 
+    /// The text of `v`, checked to be the same through both entry points.
     fn text(v: f64) -> String {
         let mut s = String::new();
         push_f64(&mut s, v);
+        let mut b = b"x".to_vec();
+        push_f64_bytes(&mut b, v);
+        assert_eq!(&b[1..], s.as_bytes());
         s
     }
 

@@ -32,18 +32,26 @@ impl GramPool {
         m: usize,
         blocks: impl IntoIterator<Item = B>,
     ) -> (Self, Vec<usize>, f64) {
+        Self::from_products(
+            m,
+            blocks
+                .into_iter()
+                .map(|b| (b.borrow().nrows(), product(b.borrow()))),
+        )
+    }
+
+    /// [`GramPool::build`] from each block's row count and B_i^T B_i (row-major m x m).
+    pub(super) fn from_products<A: AsRef<[f64]>>(
+        m: usize,
+        products: impl IntoIterator<Item = (usize, A)>,
+    ) -> (Self, Vec<usize>, f64) {
         let pk = m * (m + 1) / 2;
         let mut data: Vec<f64> = Vec::new();
         let mut rows = Vec::new();
         let mut nz = vec![false; m * m];
         let mut frobenius2 = 0.0;
-        let mut a = vec![0.0; m * m];
-        for (i, b) in blocks.into_iter().enumerate() {
-            let b = b.borrow();
-            // A = B^T B (row-major) through matrixmultiply; B is column-major.
-            let (r, bs) = (b.nrows(), b.as_slice());
-            let op = |rs, cs| Strided { data: bs, rs, cs };
-            gemm((m, r, m), 1.0, op(r, 1), op(1, r), 0.0, &mut a, m, 1);
+        for (i, (r, a)) in products.into_iter().enumerate() {
+            let a = a.as_ref();
             frobenius2 += (0..m).map(|k| a[k * m + k]).sum::<f64>();
             rows.push(r);
             if i % LANES == 0 {
@@ -123,6 +131,15 @@ impl GramPool {
         log_dets(&self.env, mk, &zero, 0.0, work, &mut out);
         out[0]
     }
+}
+
+/// B^T B (row-major m x m) of a column-major block, through matrixmultiply.
+pub(super) fn product(b: &DMatrix<f64>) -> Vec<f64> {
+    let (r, m, bs) = (b.nrows(), b.ncols(), b.as_slice());
+    let mut a = vec![0.0; m * m];
+    let op = |rs, cs| Strided { data: bs, rs, cs };
+    gemm((m, r, m), 1.0, op(r, 1), op(1, r), 0.0, &mut a, m, 1);
+    a
 }
 
 /// Candidates times envelope entries from which a scan for the best addition runs on two
