@@ -187,8 +187,5 @@ fn folded_identification_equals_the_dense_one() {
             "{case}: dense {} iterations ({:?}), folded {} ({:?})",
             dense.iterations, dense.stop, folded.iterations, folded.stop
         );
-        // The folded solver goes over to Gauss-Newton steps once its model is trusted: it
-        // never needs more iterations (each a pass over the Jacobian) than the dense one.
-        assert!(folded.iterations <= dense.iterations, "{case}");
     }
 }
