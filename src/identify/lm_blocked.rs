@@ -177,6 +177,17 @@ pub(crate) fn levenberg_marquardt_blocked(
                 x = xn;
                 std::mem::swap(&mut r, &mut r_new);
                 cost = cost_new;
+                if reduction <= opts.ftol {
+                    stop = StopReason::SmallCostReduction;
+                } else if step_norm <= opts.xtol * (xnorm + opts.xtol)
+                    || step_norm <= STEP_RTOL * xnorm
+                {
+                    stop = StopReason::SmallStep;
+                }
+                if stop != StopReason::MaxIterations {
+                    // Converged: the final fold below is the only pass still needed at x.
+                    break;
+                }
                 let Some((gn, g_new)) = normal(problem, &x, &r)? else {
                     return Ok(None);
                 };
@@ -187,13 +198,6 @@ pub(crate) fn levenberg_marquardt_blocked(
                 }
                 mu *= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0);
                 nu = 2.0;
-                if reduction <= opts.ftol {
-                    stop = StopReason::SmallCostReduction;
-                } else if step_norm <= opts.xtol * (xnorm + opts.xtol)
-                    || step_norm <= STEP_RTOL * xnorm
-                {
-                    stop = StopReason::SmallStep;
-                }
                 break;
             }
             if step_norm <= opts.xtol * (xnorm + opts.xtol) {

@@ -181,6 +181,11 @@ fn folded_identification_equals_the_dense_one() {
             dense.uncertainty.sigma,
             1e-9
         ));
+        let rms = |s: &Solution| (s.cost_after / s.residuals.len() as f64).sqrt();
+        assert!(
+            close(rms(&folded), rms(&dense), rms(&dense), 1e-9),
+            "{case}"
+        );
         eprintln!(
             "{case}: dense {} iterations ({:?}), folded {} ({:?})",
             dense.iterations, dense.stop, folded.iterations, folded.stop
