@@ -132,12 +132,10 @@ pub fn hold_orbit(
     // gauge null in the data at the start (a linear one) needs its row there.
     let mut j0 = nalgebra::DMatrix::zeros(problem.residual_count(), problem.unknown_count());
     problem.jacobian(x0, &mut j0)?;
-    let seen = (&j0
-        * nalgebra::DVector::from_iterator(
-            gauge.coefficients.len(),
-            gauge.coefficients.iter().copied(),
-        ))
-    .norm();
+    // The orbit's tangent in unknown units (the unit direction times the scales).
+    let tangent =
+        nalgebra::DVector::from_iterator(v.len(), v.iter().zip(&scale).map(|(d, s)| d * s));
+    let seen = (&j0 * tangent).norm();
     let gauged = Gauged::new(problem, vec![gauge], x_held, weight);
     let gauged = if seen > 1e-6 * weight {
         gauged.outside_rank()
