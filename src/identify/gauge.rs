@@ -76,6 +76,8 @@ pub struct Gauged<'a> {
     gauges: Vec<Gauge>,
     x_ref: Vec<f64>,
     weight: f64,
+    /// Whether rank detection leaves the gauge rows out ([`Gauged::outside_rank`]).
+    outside_rank: bool,
 }
 
 impl std::fmt::Debug for Gauged<'_> {
@@ -95,7 +97,16 @@ impl<'a> Gauged<'a> {
             gauges,
             x_ref,
             weight,
+            outside_rank: false,
         }
+    }
+
+    /// Rank detection sees the data rows only: a gauge given by its structure (a row on the
+    /// base frame) must not make a column that duplicates the base in the data look
+    /// identifiable (issue 30 item 7: joint 2's `dz` along joint 1's axis).
+    pub fn outside_rank(mut self) -> Self {
+        self.outside_rank = true;
+        self
     }
 }
 
@@ -105,6 +116,13 @@ impl Problem for Gauged<'_> {
     }
     fn unknown_count(&self) -> usize {
         self.inner.unknown_count()
+    }
+    fn gauge_rows(&self) -> usize {
+        if self.outside_rank {
+            self.gauges.len()
+        } else {
+            0
+        }
     }
     fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError> {
         let n = self.inner.residual_count();

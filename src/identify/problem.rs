@@ -53,6 +53,12 @@ pub trait Problem: Sync {
     fn held(&self, _x: &[f64], _free: &[usize]) -> Option<Box<dyn Problem + '_>> {
         None
     }
+
+    /// Trailing residual rows that only fix a gauge (no data): rank detection leaves them
+    /// out, so a column duplicating others in the data stays dropped (default none).
+    fn gauge_rows(&self) -> usize {
+        0
+    }
 }
 
 /// Central-difference Jacobian of any problem (used as default and to check analytic ones).

@@ -200,7 +200,7 @@ fn faer_pivoted(j: &DMatrix<f64>, a: &DMatrix<f64>, norms: &[f64], tol: f64) -> 
 
 /// Least-squares expression of column `c` of `j` in the kept columns, coefficients sorted
 /// by decreasing magnitude and truncated to the significant ones.
-fn dependency(j: &DMatrix<f64>, kept: &[usize], c: usize) -> Vec<(usize, f64)> {
+pub(crate) fn dependency(j: &DMatrix<f64>, kept: &[usize], c: usize) -> Vec<(usize, f64)> {
     if kept.is_empty() {
         return Vec::new();
     }

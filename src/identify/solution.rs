@@ -70,6 +70,10 @@ pub struct SolveOptions {
     /// cheap certificate shows nothing is to be held: the same identified values, free set
     /// and convergence.
     pub near_dependent: bool,
+    /// Unknowns held at their start values whatever the data say, each with why (e.g. a
+    /// joint placement that duplicates the base frame): reported not identifiable, with the
+    /// reason and the combination of identified unknowns they duplicate in `dependencies`.
+    pub hold: Vec<(usize, String)>,
 }
 
 impl Default for SolveOptions {
@@ -85,6 +89,7 @@ impl Default for SolveOptions {
             degenerate_factor: 1000.0,
             uncertainty: true,
             near_dependent: true,
+            hold: Vec::new(),
         }
     }
 }
@@ -121,6 +126,9 @@ pub struct Dependency {
     pub name: String,
     /// Its column as a combination of kept columns: (name, coefficient in internal units).
     pub combination: Vec<(String, f64)>,
+    /// Why it is held when not by rank detection alone (e.g. `duplicates the base frame`).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub reason: Option<String>,
 }
 
 /// An unknown held at its start value because its whole effect is below the noise.

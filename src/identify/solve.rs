@@ -320,11 +320,32 @@ pub fn solve_with(
         Start0::Dense(j) => reduced(j),
         Start0::Folded(f) => f.r.clone(),
     };
-    let rank = if opts.physical_rank {
-        rank_revealing_scaled(&rq0, &scale, &opts.pivoting, opts.rank_tolerance)
-    } else {
-        rank_revealing(&rq0, &opts.pivoting, opts.rank_tolerance)
+    // Unknowns held by the caller enter the rank detection as zero columns (so no other
+    // column is dropped for them); their dependencies are those of their real columns.
+    let held_cols: Vec<usize> = opts.hold.iter().map(|h| h.0).filter(|&k| k < m).collect();
+    // Rows that only fix a gauge are left out of the rank detection.
+    let data_rows = n.saturating_sub(problem.gauge_rows());
+    let data_only = match &j0 {
+        Start0::Dense(j) if data_rows < n => Some(reduced(&j.rows(0, data_rows).into_owned())),
+        _ => None,
     };
+    let rq_data = data_only.as_ref().unwrap_or(&rq0);
+    let zeroed = (!held_cols.is_empty()).then(|| {
+        let mut z = rq_data.clone();
+        held_cols.iter().for_each(|&k| z.column_mut(k).fill(0.0));
+        z
+    });
+    let rq_rank = zeroed.as_ref().unwrap_or(rq_data);
+    let mut rank = if opts.physical_rank {
+        rank_revealing_scaled(rq_rank, &scale, &opts.pivoting, opts.rank_tolerance)
+    } else {
+        rank_revealing(rq_rank, &opts.pivoting, opts.rank_tolerance)
+    };
+    for (c, dep) in rank.dropped.iter().zip(rank.dependencies.iter_mut()) {
+        if held_cols.contains(c) {
+            *dep = super::rank::dependency(rq_data, &rank.kept, *c);
+        }
+    }
     let rf0 = match &j0 {
         Start0::Dense(j) if n < super::dense::QR_FAER_MIN_ROWS => j.clone(),
         _ => rq0,
@@ -495,6 +516,7 @@ pub fn solve_with(
                 .take(6)
                 .map(|&(k, v)| (unknowns[k].name.clone(), v))
                 .collect(),
+            reason: opts.hold.iter().find(|h| h.0 == c).map(|h| h.1.clone()),
         })
         .collect();
     let unobservable = pl

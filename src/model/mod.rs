@@ -1,5 +1,6 @@
 //! Robot models: pure, `Send + Sync`, no I/O beyond parsing text handed to them.
 
+pub mod base_duplicates;
 pub mod chain;
 pub mod compensate;
 pub mod dh;

@@ -52,4 +52,5 @@ mod serial_stream;
 mod serial_twin;
 mod shipped_commission;
 mod shipped_lab;
+mod talos_coverage;
 mod talos_prior;

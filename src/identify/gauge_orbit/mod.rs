@@ -126,7 +126,22 @@ pub fn hold_orbit(
         direction: v.clone(),
         coefficients,
     };
+    // A gauge the data see at the start (only the cost is invariant along it, as for a
+    // rotation about the sockets with large start residuals) is left out of the rank
+    // detection, so that no column duplicating the base in the data is freed by its row; a
+    // gauge null in the data at the start (a linear one) needs its row there.
+    let mut j0 = nalgebra::DMatrix::zeros(problem.residual_count(), problem.unknown_count());
+    problem.jacobian(x0, &mut j0)?;
+    // The orbit's tangent in unknown units (the unit direction times the scales).
+    let tangent =
+        nalgebra::DVector::from_iterator(v.len(), v.iter().zip(&scale).map(|(d, s)| d * s));
+    let seen = (&j0 * tangent).norm();
     let gauged = Gauged::new(problem, vec![gauge], x_held, weight);
+    let gauged = if seen > 1e-6 * weight {
+        gauged.outside_rank()
+    } else {
+        gauged
+    };
     let mut sol = solve(&gauged, unknowns, x0, opts, monitor)?;
     let n = problem.residual_count();
     sol.residuals_before = sol.residuals_before.rows(0, n).into_owned();

@@ -53,7 +53,22 @@ pub(crate) struct Spec {
     #[serde(default)]
     base: BaseSpec,
     #[serde(default)]
+    validation: Option<ValidationSpec>,
+    #[serde(default)]
     options: FitSpec,
+}
+
+/// `validation` of `humanoid.identify`: a held-out session for the `coverage` of the
+/// predicted accuracy (its base frame and markers refitted, joints held).
+#[derive(Debug, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct ValidationSpec {
+    /// The session's samples (the columns of `samples`, renamed by `column_map`).
+    #[schemars(schema_with = "crate::run::schema::table_with_gaps")]
+    samples: Value,
+    /// Column renames of this table (default: the job's `column_map`).
+    #[serde(default)]
+    column_map: Option<ColumnMap>,
 }
 
 /// A validated `humanoid.identify` job.
@@ -64,6 +79,8 @@ pub struct IdentifyJob {
     pub(super) options: FitSpec,
     pub(super) groups: Groups,
     pub(super) fit: FitOptions,
+    /// A held-out session for the coverage, if given.
+    pub(super) validation: Option<SampleSet>,
 }
 
 /// Validate a `humanoid.identify` job.
@@ -86,7 +103,18 @@ pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<IdentifyJob, JobError
         &loaded,
         s.options.preprocess.as_ref(),
     )?;
-    IdentifyJob::from_samples(loaded, set, s.options)
+    let validation = match &s.validation {
+        Some(v) => Some(load_samples(
+            inputs,
+            "validation.samples",
+            &v.samples,
+            v.column_map.as_ref().unwrap_or(&s.column_map),
+            &loaded,
+            s.options.preprocess.as_ref(),
+        )?),
+        None => None,
+    };
+    IdentifyJob::from_samples(loaded, set, s.options, validation)
 }
 
 impl IdentifyJob {
@@ -112,7 +140,7 @@ impl IdentifyJob {
             &loaded,
             options.preprocess.as_ref(),
         )?;
-        IdentifyJob::from_samples(loaded, set, options)
+        IdentifyJob::from_samples(loaded, set, options, None)
     }
 
     /// The last validation step shared by the JSON and the typed constructors.
@@ -120,6 +148,7 @@ impl IdentifyJob {
         loaded: LoadedModel,
         set: SampleSet,
         options: FitSpec,
+        validation: Option<SampleSet>,
     ) -> Result<IdentifyJob, JobError> {
         if let Some(cv) = &options.cross_validation
             && (cv.folds < 2 || cv.folds > set.samples.len())
@@ -153,6 +182,7 @@ impl IdentifyJob {
             loaded,
             set,
             options,
+            validation,
         })
     }
 }
@@ -486,12 +516,34 @@ impl IdentifyJob {
             geometric_only: cal.geometric.as_ref().map(fit_report),
             samples: self.set.report(),
             cross_validation,
+            coverage: None,
             calibrated_urdf: text.clone(),
             calibrated_model: text.clone(),
             calibrated_urdf_note: "placement errors and offsets are folded into each joint's <origin>; compliances, the base frame and the marker positions are in `parameters`",
         };
         let cv = result.cross_validation.clone();
-        super::verdict::judge(samples, full, &fit_opts, cv.as_ref(), &mut result);
+        let held_out = |variance_factor: f64, noise_m: Option<f64>| {
+            let (Some(v), Some(noise_m)) = (&self.validation, noise_m) else {
+                return Ok(None);
+            };
+            super::coverage::held_out_coverage(
+                full,
+                &v.samples,
+                &fit_opts,
+                variance_factor,
+                noise_m,
+                monitor,
+            )
+            .map_err(JobError::from)
+        };
+        super::verdict::judge(
+            samples,
+            full,
+            &fit_opts,
+            cv.as_ref(),
+            &held_out,
+            &mut result,
+        )?;
         let mut artefacts = vec![
             Artefact {
                 name: "calibrated_model.urdf".into(),
@@ -505,6 +557,12 @@ impl IdentifyJob {
             },
         ];
         artefacts.extend(humanoid_plots(&result, &observations));
+        if let Some(c) = &result.coverage {
+            artefacts.push(crate::report::svg_artefact(
+                "predicted_accuracy.svg",
+                crate::report::coverage::predicted_accuracy(c),
+            ));
+        }
         Ok(Run {
             result,
             main_table: None,

@@ -190,6 +190,9 @@ pub struct HumanoidCalibration {
     /// Cross-validation.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cross_validation: Option<CrossValidation>,
+    /// Predicted accuracy on the held-out `validation` session and its coverage (mm).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub coverage: Option<crate::identify::coverage::Coverage>,
     /// The calibrated URDF text (`rejected_urdf` when the verdict is `rejected`).
     #[serde(alias = "rejected_urdf")]
     pub calibrated_urdf: String,

@@ -5,6 +5,7 @@
 //! `column_map`, optional mocap pre-processing of a raw recording).
 
 mod auto_prior;
+mod coverage;
 pub mod design;
 pub mod identify;
 mod identify_report;

@@ -4,22 +4,29 @@
 //! std recounted over distinct postures.
 
 use super::identify_result::{CrossValidation, HumanoidCalibration};
+use crate::identify::coverage::Coverage;
 use crate::identify::duplicates::duplicate_configurations;
 use crate::identify::verdict::{self, Facts, HeldOut};
 use crate::measure::marker_fit::{FitOptions, MarkerFit};
 use crate::measure::markers::MarkerSample;
 use crate::model::humanoid::HParam;
+use crate::run::JobError;
 
-/// Judge the calibration `r` of `full` on `samples` and put the verdict, its reasons and
-/// `dof` into it (standard deviations and `residual_std_mm` recounted over distinct
-/// postures when some repeat).
+/// The held-out coverage given the parameter covariance's factor (duplicated postures
+/// recounted) and the per-axis noise (m, `None` with zero degrees of freedom).
+pub type HeldOutCoverage<'a> = dyn Fn(f64, Option<f64>) -> Result<Option<Coverage>, JobError> + 'a;
+
+/// Judge the calibration `r` of `full` on `samples` and put the verdict, its reasons, `dof`
+/// and the held-out `coverage` into it (standard deviations and `residual_std_mm` recounted
+/// over distinct postures when some repeat).
 pub fn judge(
     samples: &[MarkerSample],
     full: &MarkerFit,
     opts: &FitOptions,
     cv: Option<&CrossValidation>,
+    coverage: &HeldOutCoverage<'_>,
     r: &mut HumanoidCalibration,
-) {
+) -> Result<(), JobError> {
     let sol = &full.solution;
     let equations: usize = 3 * samples
         .iter()
@@ -29,6 +36,7 @@ pub fn judge(
     let dup = duplicate_configurations(samples.iter().map(|s| s.state.q.as_slice()));
     let mut dof = verdict::dof(equations, free);
     let mut sigma_m = Some(sol.uncertainty.sigma).filter(|s| s.is_finite());
+    let mut variance_factor = 1.0;
     if dup.repeated() > 0 {
         let ssr: f64 = sol.residuals.iter().take(equations).map(|v| v * v).sum();
         let e = dup.effective(equations, free, ssr, sol.uncertainty.sigma);
@@ -37,11 +45,17 @@ pub fn judge(
         for p in &mut r.parameters {
             p.std = p.std.zip(e.std_factor).map(|(s, f)| s * f);
         }
+        variance_factor = e.std_factor.map_or(f64::NAN, |f| f * f);
     }
     if dof == 0 {
         sigma_m = None;
     }
     r.residual_std_mm = sigma_m.map(|s| s * 1e3);
+    r.coverage = if variance_factor.is_finite() {
+        coverage(variance_factor, sigma_m)?
+    } else {
+        None
+    };
     r.dof = dof;
     let is_model = |k: usize| {
         full.problem.free().get(k).is_some_and(|&i| {
@@ -91,7 +105,8 @@ pub fn judge(
         moved,
         prior_dominated,
         units: Vec::new(),
-        coverage: None,
+        coverage: r.coverage.clone(),
     };
     r.assessment = verdict::assess(&facts);
+    Ok(())
 }

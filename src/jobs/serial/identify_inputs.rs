@@ -423,6 +423,7 @@ impl IdentifyInputs {
             pivoting: self.pivoting(problem),
             noise: self.options.noise,
             nuisance: Some(problem.nuisance()),
+            hold: self.base_duplicates(),
             ..Default::default()
         };
         if let Some(t) = self.options.rank_tolerance {
@@ -435,6 +436,21 @@ impl IdentifyInputs {
             o.lm.max_iterations = n;
         }
         o
+    }
+
+    /// For a URDF chain whose base frame is identified in full, joint 1's placement (and
+    /// the fixed ones before it) and its offset, held with why: they duplicate the base
+    /// frame, and a gauge row on the base (the plate's free rotation) would otherwise let
+    /// them take the robot's pose ([`crate::model::base_duplicates`]).
+    fn base_duplicates(&self) -> Vec<(usize, String)> {
+        use crate::model::base_duplicates::{DUPLICATES_BASE, base_duplicates};
+        match self.model.source {
+            super::Source::Dh(_) => Vec::new(),
+            super::Source::Urdf { .. } => base_duplicates(&self.model.chain, &self.ids)
+                .into_iter()
+                .map(|k| (k, DUPLICATES_BASE.to_string()))
+                .collect(),
+        }
     }
 
     /// Column order of rank detection: norm pivoting for DH models (whose parameter lists

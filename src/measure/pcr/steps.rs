@@ -302,6 +302,7 @@ fn run_step(
                     .take(8)
                     .map(|&(k, v)| (unknown_name(free[k]), v))
                     .collect(),
+                reason: None,
             })
             .collect(),
         stop_reason: rep.stop,
