@@ -193,9 +193,11 @@ fn microscope_faults_are_retried_and_a_dead_microscope_pauses_the_campaign() {
     // Each joint set is journalled once despite the retries.
     assert_eq!(j.entries().expect("entries").len(), 16);
     rt.block_on(lab.stop());
-    // Every reply from reply 3 on is a device error: the campaign pauses at the first unmeasured index.
+    // Every reply from reply 5 on is a device error: replies 1 and 2 answer the campaign's
+    // instrument check at its start (the identity and one pose), 3 and 4 measure indices 0
+    // and 1; the campaign pauses at the first unmeasured index.
     let mut opts = SimOptions::default();
-    opts.pcr.microscope_faults = (3..40)
+    opts.pcr.microscope_faults = (5..40)
         .map(|at| FaultSpec {
             kind: FaultKind::DeviceError,
             at,
