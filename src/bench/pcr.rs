@@ -141,33 +141,45 @@ pub fn run() -> Vec<Figure> {
     figs
 }
 
-/// `pcr.pattern_pose`'s phase method on rendered 1024 x 1024 16-bit frames (periodic
-/// pattern, 10 px period, 1 % noise), one thread; the name carries the rate.
-fn pattern_pose(sink: &mut f64) -> Figure {
-    use crate::measure::pattern::{
-        PatternKind, PatternPose, PhaseEstimator, RenderSpec, Track, render,
+/// `n` rendered 1024 x 1024 16-bit frames of `kind` (10 um period at 1 um per pixel, 1 %
+/// noise) at the poses `pose(k)` for k = 0, 1, ...
+fn frames(
+    kind: crate::measure::pattern::PatternKind,
+    n: usize,
+    pose: impl Fn(f64) -> crate::measure::pattern::PatternPose,
+) -> Vec<crate::measure::pattern::GrayImage> {
+    use crate::measure::pattern::{PatternKind, RenderSpec, render};
+    let seed0 = match kind {
+        PatternKind::Periodic => 0,
+        PatternKind::Encoded => 40,
     };
-    let frames: Vec<_> = (0..8)
+    (0..n)
         .map(|k| {
-            let k = k as f64;
             render(&RenderSpec {
-                kind: PatternKind::Periodic,
-                pose: PatternPose {
-                    x: 0.3 + 1.7 * k,
-                    y: -0.2 + 0.9 * k,
-                    theta_rad: 0.05 + 1e-4 * k,
-                },
+                kind,
+                pose: pose(k as f64),
                 period_um: 10.0,
                 pixel_um: 1.0,
                 width: 1024,
                 height: 1024,
                 bit_depth: 16,
                 noise_frac: 0.01,
-                seed: k as u64,
+                seed: seed0 + k as u64,
             })
             .expect("a valid render spec")
         })
-        .collect();
+        .collect()
+}
+
+/// `pcr.pattern_pose`'s phase method on rendered 1024 x 1024 16-bit frames (periodic
+/// pattern, 10 px period, 1 % noise), one thread; the name carries the rate.
+fn pattern_pose(sink: &mut f64) -> Figure {
+    use crate::measure::pattern::{PatternKind, PatternPose, PhaseEstimator, Track};
+    let frames = frames(PatternKind::Periodic, 8, |k| PatternPose {
+        x: 0.3 + 1.7 * k,
+        y: -0.2 + 0.9 * k,
+        theta_rad: 0.05 + 1e-4 * k,
+    });
     let mut est = PhaseEstimator::new(1024, 1024, 10.0).expect("a valid estimator");
     let mut fig = time("pattern_pose 1024x1024", 7, frames.len(), None, || {
         let mut track = Track::new();
@@ -188,30 +200,12 @@ fn pattern_pose(sink: &mut f64) -> Figure {
 /// lab's camera frames go through): phase fit, absolute decode and the code-bias
 /// correction (a noiseless render and fit per pass), one thread; the name carries the rate.
 fn camera_pose(sink: &mut f64) -> Figure {
-    use crate::measure::pattern::{
-        PatternKind, PatternPose, PatternSetup, PoseReader, RenderSpec, render,
-    };
-    let frames: Vec<_> = (0..4)
-        .map(|k| {
-            let k = k as f64;
-            render(&RenderSpec {
-                kind: PatternKind::Encoded,
-                pose: PatternPose {
-                    x: 13.0 + 17.1 * k,
-                    y: -8.0 + 9.3 * k,
-                    theta_rad: 0.02 + 1e-3 * k,
-                },
-                period_um: 10.0,
-                pixel_um: 1.0,
-                width: 1024,
-                height: 1024,
-                bit_depth: 16,
-                noise_frac: 0.01,
-                seed: 40 + k as u64,
-            })
-            .expect("a valid render spec")
-        })
-        .collect();
+    use crate::measure::pattern::{PatternKind, PatternPose, PatternSetup, PoseReader};
+    let frames = frames(PatternKind::Encoded, 4, |k| PatternPose {
+        x: 13.0 + 17.1 * k,
+        y: -8.0 + 9.3 * k,
+        theta_rad: 0.02 + 1e-3 * k,
+    });
     let mut reader = PoseReader::new(PatternSetup {
         kind: PatternKind::Encoded,
         period_um: 10.0,

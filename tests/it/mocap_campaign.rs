@@ -83,12 +83,7 @@ fn nocp_campaign_identifies_to_the_mocap_noise_level() {
     let p = r["base_parameter_count"].as_f64().unwrap();
     // Who measured; no held-out postures without cross-validation: the tolerance is not
     // checked, and says how to check it.
-    let names: Vec<&str> = r["instruments"]
-        .as_array()
-        .expect("instruments")
-        .iter()
-        .filter_map(|i| i["device"].as_str())
-        .collect();
+    let names = crate::common::instrument_names(r);
     assert_eq!(names, ["talos.joints", "talos.qtm"], "{}", r["instruments"]);
     let t = &r["tolerance"];
     assert!(t["held_out_max"].is_null(), "{t}");

@@ -79,12 +79,7 @@ fn campaign_identifies_the_twin_to_its_noise_level_and_measures_accuracy() {
         "residual std {sigma:e} m against {NOISE_M:e} m"
     );
     // Who measured, and the declared tolerance against the held-out maximum (um).
-    let names: Vec<&str> = r["instruments"]
-        .as_array()
-        .expect("instruments")
-        .iter()
-        .filter_map(|i| i["device"].as_str())
-        .collect();
+    let names = crate::common::instrument_names(&r);
     assert_eq!(
         names,
         ["pcr3pf.stages", "pcr3pf.microscope"],

@@ -10,6 +10,16 @@ use calibd::jobs::{Completed, DirResolver, Job, JobError, prepare};
 use calibd::util::NoMonitor;
 use serde_json::Value;
 
+/// The device names of a campaign result's `instruments`, in order.
+pub fn instrument_names(result: &Value) -> Vec<&str> {
+    result["instruments"]
+        .as_array()
+        .expect("instruments")
+        .iter()
+        .filter_map(|i| i["device"].as_str())
+        .collect()
+}
+
 /// The repository's examples folder.
 pub fn examples() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("examples")
