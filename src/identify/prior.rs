@@ -509,30 +509,7 @@ pub fn choose_weight_grouped(
     let parts = grouped_folds(group, k, seed);
     let mut errors = Vec::with_capacity(weights.len());
     for &w in weights {
-        let (mut sum, mut cnt) = (0.0, 0usize);
-        for (f, test) in parts.iter().enumerate() {
-            let train: Vec<usize> = parts
-                .iter()
-                .enumerate()
-                .filter(|(g, _)| *g != f)
-                .flat_map(|(_, p)| p.iter().copied())
-                .collect();
-            match score(w, &train, test) {
-                Ok((s, c)) => {
-                    sum += s;
-                    cnt += c;
-                }
-                Err(IdentifyError::Cancelled) => return Err(IdentifyError::Cancelled),
-                Err(_) => {
-                    sum = f64::INFINITY;
-                }
-            }
-        }
-        let rms = if cnt > 0 {
-            (sum / cnt as f64).sqrt()
-        } else {
-            f64::INFINITY
-        };
+        let rms = held_out_rms(&parts, |train, test| score(w, train, test))?;
         errors.push(FoldError { weight: w, rms });
     }
     let best = errors
@@ -542,6 +519,36 @@ pub fn choose_weight_grouped(
         .map(|e| e.weight)
         .ok_or_else(|| IdentifyError::Model("every fold fit failed for every weight".into()))?;
     Ok((best, errors))
+}
+
+/// Held-out RMS over the folds `parts` (each fold held out once, the others trained on);
+/// infinite when a fold's fit fails (a cancel is passed on).
+pub(super) fn held_out_rms(
+    parts: &[Vec<usize>],
+    mut score: impl FnMut(&[usize], &[usize]) -> Result<(f64, usize), IdentifyError>,
+) -> Result<f64, IdentifyError> {
+    let (mut sum, mut cnt) = (0.0, 0usize);
+    for (f, test) in parts.iter().enumerate() {
+        let train: Vec<usize> = parts
+            .iter()
+            .enumerate()
+            .filter(|(g, _)| *g != f)
+            .flat_map(|(_, p)| p.iter().copied())
+            .collect();
+        match score(&train, test) {
+            Ok((s, c)) => {
+                sum += s;
+                cnt += c;
+            }
+            Err(IdentifyError::Cancelled) => return Err(IdentifyError::Cancelled),
+            Err(_) => return Ok(f64::INFINITY),
+        }
+    }
+    Ok(if cnt > 0 {
+        (sum / cnt as f64).sqrt()
+    } else {
+        f64::INFINITY
+    })
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::IdentifyError;
-use super::prior::grouped_folds;
+use super::prior::{grouped_folds, held_out_rms};
 
 /// One log-spaced axis: value `i` is `base * ratio^i`; cells `start..=end` are tried first,
 /// the grid may grow to `min..=max`.
@@ -116,7 +116,7 @@ pub fn choose_grid(
      -> Result<(), IdentifyError> {
         if !cells.contains_key(&(h, g)) {
             let (a, b) = (axes[0].half(h), axes[1].half(g));
-            let rms = cell_rms(&parts, |tr, te| score(a, b, tr, te))?;
+            let rms = held_out_rms(&parts, |tr, te| score(a, b, tr, te))?;
             cells.insert((h, g), rms);
         }
         Ok(())
@@ -272,35 +272,6 @@ impl AutoPrior {
                 .collect(),
         }
     }
-}
-
-/// Held-out RMS of one cell over the folds `parts`.
-fn cell_rms(
-    parts: &[Vec<usize>],
-    mut score: impl FnMut(&[usize], &[usize]) -> Result<(f64, usize), IdentifyError>,
-) -> Result<f64, IdentifyError> {
-    let (mut sum, mut cnt) = (0.0, 0usize);
-    for (f, test) in parts.iter().enumerate() {
-        let train: Vec<usize> = parts
-            .iter()
-            .enumerate()
-            .filter(|(g, _)| *g != f)
-            .flat_map(|(_, p)| p.iter().copied())
-            .collect();
-        match score(&train, test) {
-            Ok((s, c)) => {
-                sum += s;
-                cnt += c;
-            }
-            Err(IdentifyError::Cancelled) => return Err(IdentifyError::Cancelled),
-            Err(_) => return Ok(f64::INFINITY),
-        }
-    }
-    Ok(if cnt > 0 {
-        (sum / cnt as f64).sqrt()
-    } else {
-        f64::INFINITY
-    })
 }
 
 #[cfg(test)]
