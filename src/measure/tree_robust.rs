@@ -5,11 +5,11 @@
 use serde::{Deserialize, Serialize};
 
 use super::tree_markers::{
-    Cumulative, STEPS, Step, TreeObservation, cumulative, errors_mm, fit_weighted, with_features,
+    Cumulative, STEPS, Step, TreeObservation, cumulative, errors_mm, fit_weighted, k_fold_with,
+    with_features,
 };
 use super::tree_prior::TreePrior;
 use crate::identify::IdentifyError;
-use crate::identify::duplicates::{duplicate_configurations, shuffled_groups};
 use crate::identify::robust::RobustKind;
 use crate::model::elastic::ElasticTree;
 use crate::util::{Monitor, Summary};
@@ -179,20 +179,10 @@ pub fn k_fold_robust(
     robust: Option<&TreeRobust>,
     monitor: &dyn Monitor,
 ) -> Result<Vec<f64>, IdentifyError> {
-    let dup = duplicate_configurations(obs.iter().map(|o| o.sample.q.as_slice()));
-    let groups = shuffled_groups(&dup.group, seed);
-    let mut held_out = Vec::new();
-    for f in 0..k {
-        let (mut train, mut test) = (Vec::new(), Vec::new());
-        for (n, members) in groups.iter().enumerate() {
-            let side = if n % k == f { &mut test } else { &mut train };
-            side.extend(members.iter().map(|&i| obs[i].clone()));
-        }
-        let (c, _) =
-            cumulative_robust(model, &train, last, max_iterations, prior, robust, monitor)?;
-        held_out.extend(errors_mm(&c.last.model, &with_features(&c.start, &test)));
-    }
-    Ok(held_out)
+    k_fold_with(obs, k, seed, |train| {
+        cumulative_robust(model, train, last, max_iterations, prior, robust, monitor)
+            .map(|(c, _)| c)
+    })
 }
 
 fn median(v: &[f64]) -> f64 {

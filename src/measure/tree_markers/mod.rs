@@ -466,7 +466,20 @@ pub fn k_fold(
     prior: &TreePrior,
     monitor: &dyn Monitor,
 ) -> Result<Vec<f64>, IdentifyError> {
-    // Copies of one configuration stay in one fold.
+    k_fold_with(obs, k, seed, |train| {
+        cumulative(model, train, last, max_iterations, prior, monitor)
+    })
+}
+
+/// K-fold held-out errors (mm) with `fit` calibrating each fold's training part: seeded
+/// split, copies of one configuration in one fold, each fold evaluated with its training
+/// root pose and markers.
+pub fn k_fold_with(
+    obs: &[TreeObservation],
+    k: usize,
+    seed: u64,
+    mut fit: impl FnMut(&[TreeObservation]) -> Result<Cumulative, IdentifyError>,
+) -> Result<Vec<f64>, IdentifyError> {
     let dup = duplicate_configurations(obs.iter().map(|o| o.sample.q.as_slice()));
     let groups = shuffled_groups(&dup.group, seed);
     let mut held_out = Vec::new();
@@ -476,7 +489,7 @@ pub fn k_fold(
             let side = if n % k == f { &mut test } else { &mut train };
             side.extend(members.iter().map(|&i| obs[i].clone()));
         }
-        let c = cumulative(model, &train, last, max_iterations, prior, monitor)?;
+        let c = fit(&train)?;
         held_out.extend(errors_mm(&c.last.model, &with_features(&c.start, &test)));
     }
     Ok(held_out)
