@@ -92,6 +92,59 @@ fn small_job() -> Value {
     doc
 }
 
+/// Latencies of the successful reads, the number of failed ones, and the client thread's
+/// CPU time.
+type Phase1 = (Vec<Duration>, usize, Option<Duration>);
+
+/// Phase 1's client: `n` status reads of job `id` at `rate` per second (open loop), on a
+/// single-threaded runtime owned by the calling thread.
+fn open_loop_reads(
+    base: &str,
+    token: Option<String>,
+    id: i64,
+    rate: u32,
+    n: u64,
+) -> Result<Phase1, ApiBenchError> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let cpu0 = super::thread_cpu_time();
+    let client = Client::new(base, token);
+    let (lat, errors) = rt.block_on(async move {
+        let period = Duration::from_secs_f64(1.0 / rate.max(1) as f64);
+        let lat = Arc::new(Mutex::new(Vec::with_capacity(n as usize)));
+        let errors = Arc::new(Mutex::new(0usize));
+        let mut tasks = Vec::new();
+        let mut tick = tokio::time::interval(period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
+        for _ in 0..n {
+            tick.tick().await;
+            let (c, lat, errors) = (client.clone(), lat.clone(), errors.clone());
+            tasks.push(tokio::spawn(async move {
+                let t = Instant::now();
+                let ok = c.get(&format!("/v1/jobs/{id}")).await.is_ok();
+                let d = t.elapsed();
+                if ok {
+                    lat.lock().map(|mut v| v.push(d)).ok();
+                } else {
+                    errors.lock().map(|mut e| *e += 1).ok();
+                }
+            }));
+        }
+        for t in tasks {
+            let _ = t.await;
+        }
+        let l = lat.lock().map(|v| v.clone()).unwrap_or_default();
+        let e = errors.lock().map(|e| *e).unwrap_or(0);
+        (l, e)
+    });
+    let cpu = match (cpu0, super::thread_cpu_time()) {
+        (Some(a), Some(b)) => Some(b.saturating_sub(a)),
+        _ => None,
+    };
+    Ok((lat, errors, cpu))
+}
+
 /// Run the benchmark against a fresh daemon in a temporary folder; returns the report.
 pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
     let dir = std::env::temp_dir().join(format!("calibd-bench-{}", std::process::id()));
@@ -136,46 +189,42 @@ pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
         cpu_per(cpu0, u64::from(reads)),
     ));
 
-    // Phase 1: open loop, fixed rate of status reads.
+    // Phase 1: open loop, fixed rate of status reads, the client on a thread of its own so
+    // that the server's CPU (the process's less the client thread's) can be told apart.
     let n = o.rate as u64 * o.seconds;
-    let period = Duration::from_secs_f64(1.0 / o.rate.max(1) as f64);
-    let lat = Arc::new(Mutex::new(Vec::with_capacity(n as usize)));
-    let errors = Arc::new(Mutex::new(0usize));
+    let (base, token) = (format!("http://{addr}"), Client::find_token(None, &dir));
+    let rate = o.rate;
     let cpu0 = super::cpu_time();
     let t0 = Instant::now();
-    let mut tasks = Vec::new();
-    let mut tick = tokio::time::interval(period);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
-    for _ in 0..n {
-        tick.tick().await;
-        let (c, lat, errors) = (client.clone(), lat.clone(), errors.clone());
-        tasks.push(tokio::spawn(async move {
-            let t = Instant::now();
-            let ok = c.get(&format!("/v1/jobs/{first}")).await.is_ok();
-            let d = t.elapsed();
-            if ok {
-                lat.lock().map(|mut v| v.push(d)).ok();
-            } else {
-                errors.lock().map(|mut e| *e += 1).ok();
-            }
-        }));
-    }
-    for t in tasks {
-        let _ = t.await;
-    }
+    let phase1 = tokio::task::spawn_blocking(move || open_loop_reads(&base, token, first, rate, n));
+    let (l, e, client_cpu) = phase1
+        .await
+        .map_err(|e| ApiBenchError::Service(format!("the phase-1 client thread: {e}")))??;
     let wall = t0.elapsed();
-    let l = lat.lock().map(|v| v.clone()).unwrap_or_default();
-    let e = errors.lock().map(|e| *e).unwrap_or(0);
+    let whole = match (cpu0, super::cpu_time()) {
+        (Some(a), Some(b)) => Some(b.saturating_sub(a)),
+        _ => None,
+    };
     report.push(line(
         &format!("phase 1: status reads at {} req/s (open loop)", o.rate),
         l,
         e,
         wall,
     ));
-    report.push(format!(
-        "  CPU per status read (whole process: HTTP client and server): {}",
-        cpu_per(cpu0, n)
-    ));
+    let per = |d: Duration| format!("{:.1} us", d.as_secs_f64() * 1e6 / n.max(1) as f64);
+    report.push(match (whole, client_cpu) {
+        (Some(w), Some(c)) => format!(
+            "  CPU per status read: server {} (the process less the client thread), client {}, both {}",
+            per(w.saturating_sub(c)),
+            per(c),
+            per(w)
+        ),
+        (Some(w), None) => format!(
+            "  CPU per status read (whole process: HTTP client and server): {}",
+            per(w)
+        ),
+        _ => "  CPU per status read: n/a".into(),
+    });
 
     // Phase 2: closed loop, mixed submissions and reads.
     let reads = Arc::new(Mutex::new(Vec::new()));

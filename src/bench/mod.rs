@@ -86,23 +86,38 @@ pub fn peak_rss_bytes() -> Option<u64> {
 pub fn cpu_time() -> Option<Duration> {
     #[cfg(unix)]
     {
-        let mut usage = std::mem::MaybeUninit::<libc::rusage>::zeroed();
-        // SAFETY: getrusage fills the rusage it is given a pointer to; it was zeroed, and is
-        // read only if the call succeeded.
-        let usage = unsafe {
-            if libc::getrusage(libc::RUSAGE_SELF, usage.as_mut_ptr()) != 0 {
-                return None;
-            }
-            usage.assume_init()
-        };
-        let tv = |t: libc::timeval| {
-            Duration::from_secs(t.tv_sec.max(0) as u64)
-                + Duration::from_micros(t.tv_usec.max(0) as u64)
-        };
-        Some(tv(usage.ru_utime) + tv(usage.ru_stime))
+        rusage_cpu(libc::RUSAGE_SELF)
     }
     #[cfg(not(unix))]
     None
+}
+
+/// CPU time (user + system) the calling thread has used so far (Linux); None elsewhere.
+pub fn thread_cpu_time() -> Option<Duration> {
+    #[cfg(target_os = "linux")]
+    {
+        rusage_cpu(libc::RUSAGE_THREAD)
+    }
+    #[cfg(not(target_os = "linux"))]
+    None
+}
+
+/// getrusage's user + system time for `who`.
+#[cfg(unix)]
+fn rusage_cpu(who: libc::c_int) -> Option<Duration> {
+    let mut usage = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+    // SAFETY: getrusage fills the rusage it is given a pointer to; it was zeroed, and is
+    // read only if the call succeeded.
+    let usage = unsafe {
+        if libc::getrusage(who, usage.as_mut_ptr()) != 0 {
+            return None;
+        }
+        usage.assume_init()
+    };
+    let tv = |t: libc::timeval| {
+        Duration::from_secs(t.tv_sec.max(0) as u64) + Duration::from_micros(t.tv_usec.max(0) as u64)
+    };
+    Some(tv(usage.ru_utime) + tv(usage.ru_stime))
 }
 
 /// Median, min and max over `runs` of the time of `f`, divided by `ops` operations per

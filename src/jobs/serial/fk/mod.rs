@@ -2,9 +2,10 @@
 //! with the static deflection of the model's compliances.
 //!
 //! A joints table given as a CSV file is streamed: validated row by row when the job is
-//! prepared (only its hash and row count are kept), then read again row by row when it runs,
-//! so that `calibd run --out poses.csv` holds one row at a time whatever the table's length
-//! ([`FkJob::write_csv`]). A file that changed between the two readings fails the job.
+//! prepared (its hash kept, and its rows too while they are few, see [`KEPT_VALUES`]), then
+//! read again row by row when it runs, so that `calibd run --out poses.csv` holds one row at
+//! a time whatever the table's length ([`FkJob::write_csv`]). A file that changed between
+//! the two readings fails the job (kept rows are checked by hashing the file again).
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -55,8 +56,17 @@ enum Joints {
         path: PathBuf,
         /// Hex SHA-256 of its bytes at validation.
         sha256: String,
+        /// The validated rows (internal units, one row after another), when they are at
+        /// most [`KEPT_VALUES`] values: the run then hashes the file instead of parsing it
+        /// again.
+        kept: Option<Vec<f64>>,
     },
 }
+
+/// The most joint values a file's validation keeps for the run (8 MB): below it, a run
+/// reads the file once to check its hash instead of parsing it a second time; above it,
+/// memory stays flat in the number of rows.
+const KEPT_VALUES: usize = 1 << 20;
 
 /// A validated `serial.fk` job.
 #[derive(Debug)]
@@ -67,17 +77,35 @@ pub struct FkJob {
 
 /// Validate a `serial.fk` job.
 pub fn prepare(doc: &Value, inputs: &Inputs<'_>) -> Result<FkJob, JobError> {
+    prepare_keeping(doc, inputs, KEPT_VALUES)
+}
+
+/// Validate a `serial.fk` job, keeping a joints file's rows when they are at most
+/// `kept_values` values.
+fn prepare_keeping(
+    doc: &Value,
+    inputs: &Inputs<'_>,
+    kept_values: usize,
+) -> Result<FkJob, JobError> {
     let spec: Spec = parse_spec(doc)?;
     let mut model = load_model(inputs, &spec.model, spec.chain.as_ref())?;
     let (joints, first) = match inputs.table_file(&spec.joints) {
         Some(path) => {
             let mut first = None;
+            let mut kept = Some(Vec::new());
             let sha256 = each_file_row(&model, &path, None, &mut |_, q| {
                 first.get_or_insert_with(|| q.to_vec());
+                if let Some(v) = &mut kept {
+                    if v.len() + q.len() > kept_values {
+                        kept = None;
+                    } else {
+                        v.extend_from_slice(q);
+                    }
+                }
                 Ok(())
             })?;
             inputs.record_sha256("joints", sha256.clone());
-            (Joints::File { path, sha256 }, first)
+            (Joints::File { path, sha256, kept }, first)
         }
         None => {
             let table = inputs.table("joints", &spec.joints)?;
@@ -143,6 +171,24 @@ fn each_file_row(
     }
 }
 
+/// Fail unless the file at `path` still hashes to `expected` (hex SHA-256).
+fn file_unchanged(path: &Path, expected: &str) -> Result<(), JobError> {
+    let input_err = |message: String| JobError::Input {
+        field: "joints".into(),
+        reference: path.display().to_string(),
+        message,
+    };
+    let file = File::open(path).map_err(|e| input_err(e.to_string()))?;
+    let mut hashed = HashingReader::new(file);
+    std::io::copy(&mut hashed, &mut std::io::sink()).map_err(|e| input_err(e.to_string()))?;
+    if hashed.hex() != expected {
+        return Err(input_err(
+            "the file changed after the job was validated".into(),
+        ));
+    }
+    Ok(())
+}
+
 /// The elasto-geometric TCP pose (x, y, z, a, b, c in the chain's internal units).
 fn pose(c: &crate::model::Chain, q: &[f64]) -> [f64; 6] {
     let tau = c.static_torques(q);
@@ -193,7 +239,22 @@ impl FkJob {
                     one(i + 1, q)?;
                 }
             }
-            Joints::File { path, sha256 } => {
+            Joints::File {
+                path,
+                sha256,
+                kept: Some(values),
+            } => {
+                file_unchanged(path, sha256)?;
+                let width = self.model.joint_columns().len().max(1);
+                for (i, q) in values.chunks_exact(width).enumerate() {
+                    one(i + 1, q)?;
+                }
+            }
+            Joints::File {
+                path,
+                sha256,
+                kept: None,
+            } => {
                 each_file_row(&self.model, path, Some(sha256), &mut one)?;
             }
         }
@@ -282,3 +343,6 @@ impl Kind for FkJob {
         Ok(m)
     }
 }
+
+#[cfg(test)]
+mod tests;
