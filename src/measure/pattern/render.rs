@@ -63,21 +63,36 @@ pub fn render(spec: &RenderSpec) -> Result<GrayImage, PatternError> {
     let gy = sinc(-k * s / 2.0) * sinc(k * c / 2.0);
     let mut rng = Rng::new(spec.seed);
     let fs = full_scale as f64;
+    let tau = std::f64::consts::TAU;
+    // Along a row the pattern coordinates advance by (c, -s) / p_px per column, so the
+    // cosines of 2 pi xp and 2 pi yp advance by a fixed rotation: two products per pixel
+    // instead of two `cos` calls (each row starts from exact values; the drift over a row
+    // is ~1e-13, far below the 16-bit quantum).
+    let (dx, dy) = (c / p_px, -s / p_px);
+    let (step_x, step_y) = (Turn::at(tau * dx), Turn::at(tau * dy));
     let mut pixels = Vec::with_capacity(spec.width * spec.height);
     for row in 0..spec.height {
         let dv = row as f64 - cv - ty;
+        let du0 = -cu - tx;
+        let (xp0, yp0) = ((c * du0 + s * dv) / p_px, (-s * du0 + c * dv) / p_px);
+        let (mut wx, mut wy) = (Turn::at(tau * xp0), Turn::at(tau * yp0));
         for col in 0..spec.width {
             let du = col as f64 - cu - tx;
             let xp = (c * du + s * dv) / p_px;
             let yp = (-s * du + c * dv) / p_px;
             let i = match &seq {
-                None => {
-                    0.5 + 0.25 * gx * (std::f64::consts::TAU * xp).cos()
-                        + 0.25 * gy * (std::f64::consts::TAU * yp).cos()
-                }
-                Some(seq) => dot(seq, xp, yp),
+                None => 0.5 + 0.25 * gx * wx.cos + 0.25 * gy * wy.cos,
+                Some(seq) => dot(seq, xp, yp, wx.cos, wy.cos),
             };
-            let noisy = i * fs + spec.noise_frac * fs * rng.normal();
+            wx = wx.then(step_x);
+            wy = wy.then(step_y);
+            // A noiseless frame (the reader's bias correction renders them) draws nothing.
+            let noise = if spec.noise_frac > 0.0 {
+                spec.noise_frac * fs * rng.normal()
+            } else {
+                0.0
+            };
+            let noisy = i * fs + noise;
             pixels.push(noisy.round().clamp(0.0, fs) as u16);
         }
     }
@@ -89,16 +104,83 @@ pub fn render(spec: &RenderSpec) -> Result<GrayImage, PatternError> {
     })
 }
 
-/// Intensity of the encoded pattern at (xp, yp) periods: the nearest dot's raised-cosine
-/// bump (zero with zero slope at the cell's border) if that dot is present.
-fn dot(seq: &[bool], xp: f64, yp: f64) -> f64 {
-    let (i, j) = (xp.round(), yp.round());
-    if !code::dot_present(seq, i as i64, j as i64) {
+/// A point on the unit circle: the cosine and sine of an angle, turned by products.
+#[derive(Debug, Clone, Copy)]
+struct Turn {
+    cos: f64,
+    sin: f64,
+}
+
+impl Turn {
+    fn at(angle: f64) -> Self {
+        let (sin, cos) = angle.sin_cos();
+        Self { cos, sin }
+    }
+
+    /// This angle plus `step`'s.
+    fn then(self, step: Turn) -> Self {
+        Self {
+            cos: self.cos * step.cos - self.sin * step.sin,
+            sin: self.sin * step.cos + self.cos * step.sin,
+        }
+    }
+}
+
+/// Intensity of the encoded pattern at (xp, yp) periods, given cos(2 pi xp) and
+/// cos(2 pi yp): the nearest dot's raised-cosine bump (zero with zero slope at the cell's
+/// border) if that dot is present. The bump of the offset d = xp - i from the dot is
+/// (1 + cos 2 pi d)^2 / 4, and cos 2 pi d = cos 2 pi xp for the integer i.
+fn dot(seq: &[bool], xp: f64, yp: f64, cos_x: f64, cos_y: f64) -> f64 {
+    if !code::dot_present(seq, nearest(xp), nearest(yp)) {
         return DOT_GROUND;
     }
-    let bump = |d: f64| {
-        let h = 0.5 * (1.0 + (std::f64::consts::TAU * d).cos());
+    let bump = |c: f64| {
+        let h = 0.5 * (1.0 + c);
         h * h
     };
-    DOT_GROUND + (DOT_PEAK - DOT_GROUND) * bump(xp - i) * bump(yp - j)
+    DOT_GROUND + (DOT_PEAK - DOT_GROUND) * bump(cos_x) * bump(cos_y)
+}
+
+/// The integer nearest `x` (halves away from zero, as `f64::round`), without a libm call.
+fn nearest(x: f64) -> i64 {
+    let t = x.abs() + 0.5;
+    let n = t as i64;
+    if x < 0.0 { -n } else { n }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nearest_rounds_as_f64_round() {
+        for x in [
+            -2.5,
+            -1.5,
+            -0.5,
+            -0.49,
+            0.0,
+            0.49,
+            0.5,
+            1.5,
+            2.5,
+            3.7,
+            -3.7,
+            1e9 + 0.5,
+        ] {
+            assert_eq!(nearest(x), x.round() as i64, "{x}");
+        }
+    }
+
+    #[test]
+    fn turned_cosines_match_direct_ones_over_a_row() {
+        let (x0, dx) = (-123.456_f64, 0.123_456_7_f64);
+        let tau = std::f64::consts::TAU;
+        let (mut w, step) = (Turn::at(tau * x0), Turn::at(tau * dx));
+        for k in 0..4096 {
+            let direct = (tau * (x0 + k as f64 * dx)).cos();
+            assert!((w.cos - direct).abs() < 1e-11, "{k}: {} vs {direct}", w.cos);
+            w = w.then(step);
+        }
+    }
 }
