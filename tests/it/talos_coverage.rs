@@ -61,9 +61,14 @@ fn talos_f1_reports_the_coverage_of_the_held_out_crane_session() {
         .map(|p| p["predicted_rms"].as_f64().unwrap())
         .sum::<f64>()
         / n as f64;
+    let (rms_err, rms_pred) = (
+        c["rms_error"].as_f64().unwrap(),
+        c["rms_predicted"].as_f64().unwrap(),
+    );
     println!(
         "F2 coverage {fraction:.3} ({within} of {n} within 2 sigma), mean error {mean_err:.3} mm, \
-         mean predicted rms {mean_pred:.3} mm, noise {} mm, verdict {}",
+         mean predicted rms {mean_pred:.3} mm, rms error {rms_err:.3} mm, rms predicted \
+         {rms_pred:.3} mm, noise {} mm, verdict {}",
         c["noise_std"], r["verdict"]
     );
     assert_eq!(c["unit"], "mm");
