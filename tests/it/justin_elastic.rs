@@ -158,6 +158,11 @@ fn justin_runs_through_the_front_door_as_a_tree_identify_job() {
         c["noise_std"].as_f64().unwrap_or(f64::NAN)
     );
     assert_eq!(c["n"], held["count"]);
+    let ratio = c["rms_predicted"].as_f64().expect("rms") / c["rms_error"].as_f64().expect("rms");
+    assert!(
+        (0.5..2.0).contains(&ratio),
+        "predicted / observed RMS {ratio:.2}"
+    );
     let optimistic = r["reasons"]
         .as_array()
         .expect("reasons")
