@@ -5,8 +5,8 @@
 use serde::{Deserialize, Serialize};
 
 use super::tree_markers::{
-    Cumulative, STEPS, Step, TreeObservation, cumulative, errors_mm, fit_weighted, k_fold_with,
-    with_features,
+    Cumulative, KFold, STEPS, Step, TreeObservation, cumulative, errors_mm, fit_weighted,
+    k_fold_with, with_features,
 };
 use super::tree_prior::TreePrior;
 use crate::identify::IdentifyError;
@@ -165,8 +165,8 @@ pub fn cumulative_robust(
     ))
 }
 
-/// K-fold held-out errors (mm) as [`super::tree_markers::k_fold`], each fold calibrated by
-/// [`cumulative_robust`].
+/// K-fold held-out errors (mm) and their coverage as [`super::tree_markers::k_fold_with`],
+/// each fold calibrated by [`cumulative_robust`].
 #[allow(clippy::too_many_arguments)]
 pub fn k_fold_robust(
     model: &ElasticTree,
@@ -178,8 +178,8 @@ pub fn k_fold_robust(
     prior: &TreePrior,
     robust: Option<&TreeRobust>,
     monitor: &dyn Monitor,
-) -> Result<Vec<f64>, IdentifyError> {
-    k_fold_with(obs, k, seed, |train| {
+) -> Result<KFold, IdentifyError> {
+    k_fold_with(obs, k, seed, prior.noise_m, |train| {
         cumulative_robust(model, train, last, max_iterations, prior, robust, monitor)
             .map(|(c, _)| c)
     })

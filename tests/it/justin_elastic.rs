@@ -147,6 +147,28 @@ fn justin_runs_through_the_front_door_as_a_tree_identify_job() {
         held["max"].as_f64().unwrap_or(f64::NAN)
     );
     assert_eq!(r["held_out"]["folds"], 5);
+    // Issue 30, item 6: the K-fold's coverage by each fold's predicted covariance.
+    let c = &r["coverage"];
+    let fraction = c["fraction_within_2sigma"].as_f64().expect("coverage");
+    println!(
+        "5-fold coverage {fraction:.3} of {}: rms error {:.3} mm, rms predicted {:.3} mm, noise {:.3} mm",
+        c["n"],
+        c["rms_error"].as_f64().unwrap_or(f64::NAN),
+        c["rms_predicted"].as_f64().unwrap_or(f64::NAN),
+        c["noise_std"].as_f64().unwrap_or(f64::NAN)
+    );
+    assert_eq!(c["n"], held["count"]);
+    let ratio = c["rms_predicted"].as_f64().expect("rms") / c["rms_error"].as_f64().expect("rms");
+    assert!(
+        (0.5..2.0).contains(&ratio),
+        "predicted / observed RMS {ratio:.2}"
+    );
+    let optimistic = r["reasons"]
+        .as_array()
+        .expect("reasons")
+        .iter()
+        .any(|x| x["code"] == "noise_model_optimistic");
+    assert_eq!(optimistic, fraction < 0.90, "coverage {fraction:.3}");
 }
 
 /// The largest Justin errors under a robust loss: the same job with `options.robust`

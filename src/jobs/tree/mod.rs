@@ -107,6 +107,10 @@ pub struct TreeCalibration {
     pub error_after_mean_mm: f64,
     /// K-fold held-out errors of the last model, when asked for.
     pub held_out: Option<HeldOut>,
+    /// The K-fold's predicted accuracy: per held-out marker, its error against the fold
+    /// fit's predicted covariance, and the fraction within 2 sigma (mm; with `folds`).
+    #[serde(default)]
+    pub coverage: Option<crate::identify::coverage::Coverage>,
     /// What the lumped coefficients mean (not read back).
     #[serde(skip_deserializing)]
     pub elasticity_note: &'static str,
@@ -134,6 +138,7 @@ impl TreeIdentifyJob {
     fn judge(
         &self,
         sol: &crate::identify::Solution,
+        coverage: Option<&crate::identify::coverage::Coverage>,
     ) -> (Assessment, usize, (Option<f64>, Option<f64>)) {
         let equations: usize = 3 * self
             .obs
@@ -160,6 +165,7 @@ impl TreeIdentifyJob {
             unknowns: free,
             dof,
             duplicates: Some(dup),
+            coverage: coverage.cloned(),
             ..Default::default()
         };
         (verdict::assess(&facts), dof, sigma)
@@ -221,9 +227,9 @@ impl TreeIdentifyJob {
             monitor,
         )
         .map_err(fail)?;
-        let held_out = match self.folds {
+        let (held_out, coverage) = match self.folds {
             Some(k) => {
-                let e = k_fold_robust(
+                let kf = k_fold_robust(
                     &self.model,
                     &self.obs,
                     self.last,
@@ -235,22 +241,32 @@ impl TreeIdentifyJob {
                     monitor,
                 )
                 .map_err(fail)?;
-                Some(HeldOut {
+                let h = HeldOut {
                     folds: k,
                     seed: self.seed,
-                    error_mm: Summary::of(&e, "mm"),
-                })
+                    error_mm: Summary::of(&kf.errors_mm, "mm"),
+                };
+                (Some(h), kf.coverage)
             }
-            None => None,
+            None => (None, None),
         };
         let sol = &c.last.solution;
-        let (assessment, dof, sigma) = self.judge(sol);
+        let (assessment, dof, sigma) = self.judge(sol, coverage.as_ref());
         let mut parameters = sol.params.clone();
         if let Some(f) = sigma.1 {
             for p in &mut parameters {
                 p.std = p.std.filter(|_| f.is_finite()).map(|s| s * f);
             }
         }
+        let artefacts = coverage
+            .iter()
+            .map(|c| {
+                crate::report::svg_artefact(
+                    "predicted_accuracy.svg",
+                    crate::report::coverage::predicted_accuracy(c),
+                )
+            })
+            .collect();
         Ok(Run {
             result: TreeCalibration {
                 assessment,
@@ -263,6 +279,7 @@ impl TreeIdentifyJob {
                 status: sol.status().into(),
                 condition_number: sol.condition_number,
                 held_out,
+                coverage,
                 elasticity_note: NOTE,
                 warnings: self.warnings.clone(),
                 prior: match c.last.prior.clone() {
@@ -281,7 +298,7 @@ impl TreeIdentifyJob {
                 published: self.justin.then(justin::published),
             },
             main_table: None,
-            artefacts: Vec::new(),
+            artefacts,
         })
     }
 }

@@ -7,7 +7,6 @@ use nalgebra::{DMatrix, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::tree_prior::TreePrior;
-use crate::identify::duplicates::{duplicate_configurations, shuffled_groups};
 use crate::identify::prior::PriorReport;
 use crate::identify::{
     IdentifyError, Pivoting, Prior, Problem, Solution, SolveOptions, Unknown, solve, solve_map,
@@ -212,6 +211,8 @@ pub struct TreeFit {
     pub solution: Solution,
     /// Unknown names in solution order.
     pub names: Vec<String>,
+    /// The unknowns as indices into the model's params, in solution order.
+    pub free: Vec<usize>,
     /// The MAP report when the user's prior took part (its weight and noise, the objective
     /// with the internal elastic rows included).
     pub prior: Option<PriorReport>,
@@ -326,6 +327,7 @@ pub fn fit_weighted(
     Ok(TreeFit {
         model: problem.model(&solution.x),
         names: unknowns.into_iter().map(|u| u.name).collect(),
+        free: problem.free.clone(),
         solution,
         prior: report,
     })
@@ -453,47 +455,8 @@ pub fn cumulative(
     }
 }
 
-/// K-fold held-out errors (mm) of the cumulative steps `0..=last` from `model`: seeded
-/// split, each fold calibrated on the others and evaluated on itself (root pose and
-/// markers from the training folds: one session).
-pub fn k_fold(
-    model: &ElasticTree,
-    obs: &[TreeObservation],
-    last: usize,
-    k: usize,
-    seed: u64,
-    max_iterations: usize,
-    prior: &TreePrior,
-    monitor: &dyn Monitor,
-) -> Result<Vec<f64>, IdentifyError> {
-    k_fold_with(obs, k, seed, |train| {
-        cumulative(model, train, last, max_iterations, prior, monitor)
-    })
-}
-
-/// K-fold held-out errors (mm) with `fit` calibrating each fold's training part: seeded
-/// split, copies of one configuration in one fold, each fold evaluated with its training
-/// root pose and markers.
-pub fn k_fold_with(
-    obs: &[TreeObservation],
-    k: usize,
-    seed: u64,
-    mut fit: impl FnMut(&[TreeObservation]) -> Result<Cumulative, IdentifyError>,
-) -> Result<Vec<f64>, IdentifyError> {
-    let dup = duplicate_configurations(obs.iter().map(|o| o.sample.q.as_slice()));
-    let groups = shuffled_groups(&dup.group, seed);
-    let mut held_out = Vec::new();
-    for f in 0..k {
-        let (mut train, mut test) = (Vec::new(), Vec::new());
-        for (n, members) in groups.iter().enumerate() {
-            let side = if n % k == f { &mut test } else { &mut train };
-            side.extend(members.iter().map(|&i| obs[i].clone()));
-        }
-        let c = fit(&train)?;
-        held_out.extend(errors_mm(&c.last.model, &with_features(&c.start, &test)));
-    }
-    Ok(held_out)
-}
+mod kfold;
+pub use kfold::{KFold, k_fold, k_fold_with};
 
 #[cfg(test)]
 mod tests;

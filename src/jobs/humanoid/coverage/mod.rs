@@ -1,12 +1,13 @@
 //! `coverage` of `humanoid.identify` on a held-out session (`validation`): the base frame and
 //! marker positions refitted there with the joints held (markers are re-mounted between
-//! sessions), then per visible marker the predicted covariance of its 3-D error,
-//! `J Sigma_p J^T + sigma^2 I`, and the fraction within 2 sigma ([`crate::identify::coverage`]).
+//! sessions), then per visible marker the predicted covariance of its 3-D error after that
+//! refit, `P (J Sigma_p J^T + sigma^2 I) P`, and the fraction within 2 sigma
+//! ([`crate::identify::coverage`]).
 
 use nalgebra::{DMatrix, Vector3};
 
 use crate::identify::IdentifyError;
-use crate::identify::coverage::{Coverage, coverage};
+use crate::identify::coverage::{Coverage, coverage_after_refit};
 use crate::measure::marker_fit::{FitOptions, MarkerFit, refit_frames};
 use crate::measure::markers::MarkerSample;
 use crate::model::humanoid::{HParam, Humanoid};
@@ -40,9 +41,10 @@ pub(crate) fn marker_errors_and_jacobians(
 
 /// The coverage of the held-out `validation` samples by the calibration `full`: frames
 /// refitted on them (joints held), `Sigma_p` the covariance of the identified joint
-/// parameters times `variance_factor` (duplicated postures recounted; the frames' share is
-/// left out, they are refitted), `noise_m` the per-axis noise (m). `None` without a
-/// covariance or when a predicted covariance is not positive definite.
+/// parameters times `variance_factor` (duplicated postures recounted), projected past the
+/// refit's directions (the frames absorb what of it looks like a frame),
+/// `noise_m` the per-axis noise (m). `None` without a covariance or when a predicted
+/// covariance is not positive semi-definite.
 pub(crate) fn held_out_coverage(
     full: &MarkerFit,
     validation: &[MarkerSample],
@@ -70,12 +72,23 @@ pub(crate) fn held_out_coverage(
             .then_some(g)
         })
         .collect();
-    let (errors, jacobians) = marker_errors_and_jacobians(&refit.model, &params, validation);
+    // The frame unknowns the refit moved, after them.
+    let refitted = refit.problem.free();
+    let mut all = params.clone();
+    all.extend(refit.solution.free.iter().map(|&k| Some(refitted[k])));
+    let (errors, jacobians) = marker_errors_and_jacobians(&refit.model, &all, validation);
     let errors: Vec<Vector3<f64>> = errors.iter().map(|e| e * MM_PER_M).collect();
-    let jacobians: Vec<DMatrix<f64>> = jacobians.iter().map(|j| j * MM_PER_M).collect();
-    Ok(coverage(
+    let held = params.len();
+    let split = |cols: std::ops::Range<usize>| -> Vec<DMatrix<f64>> {
+        jacobians
+            .iter()
+            .map(|j| j.columns(cols.start, cols.len()) * MM_PER_M)
+            .collect()
+    };
+    Ok(coverage_after_refit(
         &errors,
-        &jacobians,
+        &split(0..held),
+        &split(held..all.len()),
         &(cov * variance_factor),
         noise_m * MM_PER_M,
         "training residual",
