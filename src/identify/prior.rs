@@ -235,10 +235,21 @@ pub fn solve_map(
         None => vec![f64::NAN; jf.ncols()],
     };
     let dof = n.saturating_sub(sol.free.len());
+    // A parameter the prior holds spends less than one degree of freedom: the residual std
+    // divides by n - tr(H), H the data's hat matrix J_d C J_d^T (C the posterior covariance
+    // in the stacked problem's units), not by n - (free unknowns).
+    let dof_effective = covariance
+        .as_ref()
+        .map(|c| {
+            let jd = jf.rows(0, n);
+            n as f64 - c.component_mul(&jd.tr_mul(&jd)).sum()
+        })
+        .filter(|d| d.is_finite())
+        .unwrap_or(dof as f64);
     sol.uncertainty.std = std.clone();
     sol.uncertainty.covariance = covariance;
     sol.uncertainty.dof = dof;
-    sol.uncertainty.sigma = (sol.cost_after / dof.max(1) as f64).sqrt();
+    sol.uncertainty.sigma = (sol.cost_after / dof_effective.max(1.0)).sqrt();
     // Effect sizes of the data alone, at the start.
     let mut j0 = DMatrix::zeros(n, m);
     problem.jacobian(x0, &mut j0)?;
@@ -665,6 +676,17 @@ mod tests {
             // Residuals and costs are the data's.
             let r = &j * DVector::from_column_slice(&sol.x) - &b;
             assert!((sol.cost_after - r.norm_squared()).abs() < 1e-12);
+            // The residual std counts the degrees of freedom the prior leaves: n - tr(H),
+            // H = J A^-1 J^T / s^2 (the unknown without a prior spends ~1, the invisible
+            // column ~0, the held ones between).
+            let p_eff = (&j * &inv * j.transpose()).trace() / s2;
+            assert!(p_eff > 1.0 && p_eff < m as f64 - 1.0, "{p_eff}");
+            let sigma_expected = (r.norm_squared() / (n as f64 - p_eff)).sqrt();
+            let got = sol.uncertainty.sigma;
+            assert!(
+                (got - sigma_expected).abs() < 1e-9 * sigma_expected,
+                "sigma {got} vs {sigma_expected} (p_eff {p_eff})"
+            );
         }
     }
 
