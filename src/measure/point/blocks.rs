@@ -180,3 +180,79 @@ impl PointProblem {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::DMatrix;
+
+    use crate::identify::Problem;
+    use crate::measure::PointProblem;
+    use crate::twin::SerialTwin;
+
+    /// The blocks handed to the visitors are the rows of the whole Jacobian bit for bit:
+    /// every column or some picked ones, one part or three (a measurement's rows split
+    /// between parts), blocks of 7 rows (not a multiple of three) and of 384.
+    #[test]
+    fn blocks_are_the_rows_of_the_whole_jacobian() {
+        let twin = SerialTwin::irb120(1);
+        let p = PointProblem::new(
+            twin.nominal.clone(),
+            twin.nominal.param_ids(),
+            twin.plate.clone(),
+            twin.centring(40, 2),
+        )
+        .expect("twin data are consistent");
+        let x = p.initial();
+        let (n, m) = (p.residual_count(), p.unknown_count());
+        let mut whole = DMatrix::zeros(n, m);
+        p.jacobian(&x, &mut whole).unwrap();
+        let picked = [m - 1, 0, 5, 17, m - 3];
+        for cols in [None, Some(&picked[..])] {
+            let width = cols.map_or(m, <[usize]>::len);
+            for parts in [1, 3] {
+                for block_rows in [7, 384] {
+                    let mut got: Vec<DMatrix<f64>> =
+                        vec![DMatrix::from_element(n, width, f64::NAN); parts];
+                    let mut seen = vec![0usize; parts];
+                    {
+                        let mut visits: Vec<_> = got
+                            .iter_mut()
+                            .zip(seen.iter_mut())
+                            .map(|(g, s)| {
+                                move |rows: std::ops::Range<usize>, j: &DMatrix<f64>| {
+                                    *s += rows.len();
+                                    g.rows_mut(rows.start, rows.len()).copy_from(j);
+                                }
+                            })
+                            .collect();
+                        let mut visitors: Vec<
+                            &mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send),
+                        > = visits
+                            .iter_mut()
+                            .map(|v| {
+                                v as &mut (dyn FnMut(std::ops::Range<usize>, &DMatrix<f64>) + Send)
+                            })
+                            .collect();
+                        assert!(
+                            p.jacobian_blocks(&x, cols, block_rows, &mut visitors)
+                                .unwrap()
+                        );
+                    }
+                    assert_eq!(seen.iter().sum::<usize>(), n, "every row once");
+                    let chunk = n.div_ceil(parts);
+                    for i in 0..n {
+                        let g = &got[i / chunk];
+                        for c in 0..width {
+                            let k = cols.map_or(c, |cs| cs[c]);
+                            assert_eq!(
+                                g[(i, c)].to_bits(),
+                                whole[(i, k)].to_bits(),
+                                "row {i} unknown {k} ({parts} parts, blocks of {block_rows})"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
