@@ -11,7 +11,8 @@ use super::runtime;
 pub(crate) struct BenchArgs {
     /// Area: `serial`, `pcr`, `humanoid`, `identify` (identification from 90 to 100,000
     /// measurements), `all` (those four), `serial.fk` (only the `serial.fk` table
-    /// figures of `serial`), `humanoid.detmax` (only its DETMAX 12 of 1,000 figure),
+    /// figures of `serial`), `serial.dispersion` (only its dispersion study figure),
+    /// `humanoid.detmax` (only its DETMAX 12 of 1,000 figure),
     /// `identify:N` (one size), `kernels` (nalgebra against faer
     /// and the crossovers), `drivers` or `api` (the daemon under many concurrent
     /// clients), or `compare OLD.json NEW.json` (two saved runs side by side; exits 1 when
@@ -38,6 +39,7 @@ fn numerical(a: &str) -> Option<Vec<calibd::bench::Figure>> {
         "serial" => Some(calibd::bench::serial::run()),
         "serial.fk" => Some(calibd::bench::serial::fk_tables()),
         "serial.compensate" => Some(calibd::bench::serial::compensate_figures()),
+        "serial.dispersion" => Some(calibd::bench::serial::dispersion_figures()),
         "humanoid" => Some(calibd::bench::humanoid::run()),
         "humanoid.detmax" => Some(calibd::bench::humanoid::detmax_only()),
         "pcr" => Some(calibd::bench::pcr::run()),
@@ -91,7 +93,7 @@ pub(crate) fn bench(a: BenchArgs) -> Result<()> {
         other if numerical_area(other) => vec![other],
         other => {
             bail!(
-                "unknown benchmark area `{other}` (known: serial, serial.fk, serial.compensate, pcr, humanoid, humanoid.detmax, identify, identify:N, kernels, all, drivers, api, fleet)"
+                "unknown benchmark area `{other}` (known: serial, serial.fk, serial.compensate, serial.dispersion, pcr, humanoid, humanoid.detmax, identify, identify:N, kernels, all, drivers, api, fleet)"
             )
         }
     };
@@ -147,6 +149,7 @@ fn numerical_area(a: &str) -> bool {
         "serial"
             | "serial.fk"
             | "serial.compensate"
+            | "serial.dispersion"
             | "pcr"
             | "humanoid"
             | "humanoid.detmax"
