@@ -4,7 +4,8 @@
 //! When a block's rank is close to the parameter count, keeping D_i = B_i M^-1 B_i^T up to
 //! date for every candidate costs more per toggle than evaluating log det(M + A_i) afresh for
 //! every candidate, which the lane kernel does eight candidates at a time over the envelope
-//! of the A_i. A design is its member set: M is summed from the members in index order, so
+//! of the A_i; a cheap upper bound per candidate (from tr(M^-1 A_i)) skips the candidates
+//! that cannot win the scan for the best addition. A design is its member set: M is summed from the members in index order, so
 //! every value is a function of the set and a scan done once (on an excursion's way) is reused
 //! from the memo when DETMAX comes back to the same design.
 
@@ -12,7 +13,7 @@ use std::collections::HashMap;
 
 use nalgebra::DMatrix;
 
-use super::kernels::{Strided, gemm};
+use super::kernels::{Info, Strided, gemm};
 use super::lanes::{Envelope, LANES, Work, log_dets};
 
 /// Information matrices of the candidates, lane-interleaved in groups of [`LANES`] (entry k
@@ -22,6 +23,8 @@ pub(super) struct GramPool {
     pub(super) env: Envelope,
     pub(super) n: usize,
     data: Vec<f64>,
+    /// Each block's row count capped at m: a bound on the rank of its A_i.
+    rank: Vec<usize>,
 }
 
 impl GramPool {
@@ -92,7 +95,8 @@ impl GramPool {
         data.truncate(groups * env.len * LANES);
         data.shrink_to_fit();
         let n = rows.len();
-        (Self { env, n, data }, rows, frobenius2)
+        let rank = rows.iter().map(|&r| r.min(m)).collect();
+        (Self { env, n, data, rank }, rows, frobenius2)
     }
 
     /// The lanes of group g.
@@ -212,6 +216,94 @@ impl<'a> Design<'a> {
     }
 
     fn best_add(&mut self) -> Option<(usize, f64)> {
+        if let Some(found) = self.best_add_bounded() {
+            return found;
+        }
+        self.best_add_full()
+    }
+
+    /// [`Design::best_add`] evaluating only the candidates that can win: with t_i =
+    /// tr(M^-1 A_i) and r_i >= rank A_i, log det(M + A_i) <= log det M + r_i ln(1 + t_i / r_i)
+    /// (Jensen on the eigenvalues of M^-1 A_i), so candidates are evaluated by the lane
+    /// kernel in order of decreasing bound until the best value found exceeds every bound
+    /// left. The same values (lanes are independent) and the same winner (the first of a
+    /// tie) as the full scan; None when M cannot be factored densely (then scan all).
+    pub(super) fn best_add_bounded(&mut self) -> Option<Option<(usize, f64)>> {
+        let pool = self.pool;
+        let env = &pool.env;
+        let m = env.m;
+        // M (positions in envelope order) densely, its log det and inverse.
+        let mut dense = vec![0.0; m * m];
+        for i in 0..m {
+            for j in env.first[i]..=i {
+                let v = self.mk[env.off[i] + j - env.first[i]];
+                dense[i * m + j] = v;
+                dense[j * m + i] = v;
+            }
+        }
+        let factor = Info { m, a: dense }.factor()?;
+        let (base, inv) = (factor.log_det(), factor.inverse());
+        // tr(M^-1 A) = sum over the envelope of P_ij A_ij, off-diagonal entries twice.
+        let mut w = vec![0.0; env.len];
+        for i in 0..m {
+            for j in env.first[i]..=i {
+                let f = if i == j { 1.0 } else { 2.0 };
+                w[env.off[i] + j - env.first[i]] = f * inv[i * m + j];
+            }
+        }
+        let mut bounds: Vec<(f64, usize)> = Vec::with_capacity(pool.n);
+        for g in 0..pool.n.div_ceil(LANES) {
+            let mut t = [0.0f64; LANES];
+            for (wk, a) in w.iter().zip(pool.group(g).chunks_exact(LANES)) {
+                for l in 0..LANES {
+                    t[l] += wk * a[l];
+                }
+            }
+            for (l, &tl) in t.iter().enumerate() {
+                let i = g * LANES + l;
+                if i < pool.n && !self.member[i] {
+                    let r = pool.rank[i].max(1) as f64;
+                    bounds.push((base + r * (tl.max(0.0) / r).ln_1p(), i));
+                }
+            }
+        }
+        bounds.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        let mut best: Option<(usize, f64)> = None;
+        let mut out = [0.0; LANES];
+        for chunk in bounds.chunks(LANES) {
+            if let Some((_, v)) = best {
+                // Rounding of the kernel's values and of the bound: a relative margin.
+                let margin = 1e-9 * v.abs().max(1.0);
+                if chunk[0].0 + margin < v {
+                    break;
+                }
+            }
+            for (l, &(_, i)) in chunk.iter().enumerate() {
+                let (g, li) = (i / LANES, i % LANES);
+                for (d, s) in self
+                    .lanes
+                    .chunks_exact_mut(LANES)
+                    .zip(pool.group(g).chunks_exact(LANES))
+                {
+                    d[l] = s[li];
+                }
+            }
+            log_dets(env, &self.mk, &self.lanes, 1.0, &mut self.work, &mut out);
+            for (&(_, i), &v) in chunk.iter().zip(&out) {
+                let wins = match best {
+                    None => true,
+                    Some((bi, bv)) => v > bv || (v == bv && i < bi),
+                };
+                if wins {
+                    best = Some((i, v));
+                }
+            }
+        }
+        Some(best)
+    }
+
+    /// Every outside candidate evaluated (on two cores for large pools).
+    pub(super) fn best_add_full(&mut self) -> Option<(usize, f64)> {
         let pool = self.pool;
         let (member, mk) = (&self.member, &self.mk);
         // The first outside candidate with the largest log det among the groups `range`.

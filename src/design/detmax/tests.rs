@@ -426,3 +426,36 @@ fn the_two_core_scan_picks_the_dense_argmax() {
         design.log_det
     );
 }
+
+/// The bounded scan for the best addition (candidates evaluated in order of an upper bound
+/// on their log det, stopping when none left can beat the best found) picks the full scan's
+/// candidate with its value bit for bit, on designs of several sizes of a marker-cluster
+/// pool, and the first of a tie: block 41 repeated as block 251 must win over its copy.
+#[test]
+fn the_bounded_scan_equals_the_full_scan() {
+    let mut rng = Rng::new(12);
+    let mut blocks = cluster_blocks(&mut rng, 300, (4, 2, 10, 20));
+    blocks[41] *= 3.0;
+    blocks[251] = blocks[41].clone();
+    let pool = Pool::from_blocks(&blocks);
+    let g = pool.gram.as_ref().expect("kept as information matrices");
+    let trace: f64 = blocks.iter().map(|b| b.norm_squared()).sum();
+    let ridge = 1e-9 * trace / (blocks.len() * pool.m) as f64;
+    let tie: Vec<usize> = (0..8).map(|k| 37 * k + 3).collect();
+    let mut starts = vec![tie];
+    starts
+        .extend((0..5).map(|s| Rng::new(100 + s).sample_indices(blocks.len(), 8 + 3 * s as usize)));
+    for (k, start) in starts.iter().enumerate() {
+        let mut design = gram::Design::new(g, start, ridge).expect("regular start");
+        let full = design.best_add_full().expect("a candidate");
+        let bounded = design
+            .best_add_bounded()
+            .expect("M factors densely")
+            .expect("a candidate");
+        assert_eq!(full.0, bounded.0, "start {k}");
+        assert_eq!(full.1.to_bits(), bounded.1.to_bits(), "start {k}");
+        if k == 0 {
+            assert_eq!(full.0, 41);
+        }
+    }
+}

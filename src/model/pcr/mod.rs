@@ -205,5 +205,5 @@ pub struct Equilibrium {
     /// Scaled proximal wrenches (n_x, n_y, m per limb), kept for warm starts.
     scaled: [f64; 9],
     /// The last factorised shooting Jacobian, reused by warm starts of the same kind.
-    warm: Option<std::sync::Arc<track::Warm>>,
+    warm: Option<track::Warm>,
 }

@@ -53,8 +53,6 @@ pub(crate) struct Solved {
     pub(crate) z: Vec12,
     /// Iterations spent (integrations after the start's residual).
     pub(crate) iterations: usize,
-    /// Approximate inverse Jacobian at the solution (reusable by the next solve).
-    pub(crate) inverse: Mat12,
     /// The last integrated point: `z` itself, or the point one chord step before it when
     /// the solution was accepted on its predicted residual (see [`newton`]).
     pub(crate) integrated: Vec12,
@@ -70,8 +68,15 @@ pub(crate) struct Start<'a> {
     /// Relative distal states at `z` with this setup's rods (then no integration is needed
     /// for the first residual).
     pub(crate) tips: Option<&'a Tips>,
-    /// Approximate inverse Jacobian near `z`.
-    pub(crate) inverse: Option<&'a Mat12>,
+}
+
+/// The approximate inverse Jacobian a [`newton`] solve starts from and leaves behind: read
+/// when `known`, written only when the solve converges (a failed try leaves it as it was).
+pub(crate) struct Inverse<'a> {
+    /// The matrix, in and out.
+    pub(crate) h: &'a mut Mat12,
+    /// Whether `h` holds an inverse to start from (else a fresh one is computed).
+    pub(crate) known: bool,
 }
 
 /// Sign of the determinant of the (coarse) shooting Jacobian at `z`, if it is regular.
@@ -96,18 +101,21 @@ pub(crate) fn fresh_inverse(setup: &Setup, mode: &Mode, z: &Vec12) -> Result<Mat
     Ok(lu.inverse())
 }
 
-/// `h v`, each row's dot product in four interleaved partial sums (vector lanes).
+/// `h v`, each row's dot product in four interleaved partial sums (vector lanes). Plain
+/// loops, no closure: it is inlined into the AVX2 body and compiled with its features.
 #[inline(always)]
 fn mat_vec(h: &Mat12, v: &Vec12) -> Vec12 {
-    std::array::from_fn(|i| {
+    let mut out = [0.0; N];
+    for (o, row) in out.iter_mut().zip(h) {
         let mut acc = [0.0; 4];
-        for (row, vs) in h[i].chunks_exact(4).zip(v.chunks_exact(4)) {
-            for ((a, x), y) in acc.iter_mut().zip(row).zip(vs) {
+        for (r4, v4) in row.chunks_exact(4).zip(v.chunks_exact(4)) {
+            for ((a, x), y) in acc.iter_mut().zip(r4).zip(v4) {
                 *a += x * y;
             }
         }
-        (acc[0] + acc[2]) + (acc[1] + acc[3])
-    })
+        *o = (acc[0] + acc[2]) + (acc[1] + acc[3]);
+    }
+    out
 }
 
 /// Safety factor on the predicted residual of a solution accepted without integrating at
@@ -164,14 +172,15 @@ pub(crate) fn newton(
     setup: &Setup,
     mode: &Mode,
     start: &Start<'_>,
+    inverse: Inverse<'_>,
     opts: &SolverOptions,
 ) -> Result<Solved, (Failure, usize)> {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the processor has AVX2, the feature the function is compiled for.
-        return unsafe { newton_avx2(setup, mode, start, opts) };
+        return unsafe { newton_avx2(setup, mode, start, inverse, opts) };
     }
-    newton_body(setup, mode, start, opts)
+    newton_body(setup, mode, start, inverse, opts)
 }
 
 /// [`newton`] compiled for AVX2: the 12 x 12 products and Broyden updates in 256-bit
@@ -182,9 +191,10 @@ unsafe fn newton_avx2(
     setup: &Setup,
     mode: &Mode,
     start: &Start<'_>,
+    inverse: Inverse<'_>,
     opts: &SolverOptions,
 ) -> Result<Solved, (Failure, usize)> {
-    newton_body(setup, mode, start, opts)
+    newton_body(setup, mode, start, inverse, opts)
 }
 
 /// The body of [`newton`].
@@ -193,6 +203,7 @@ fn newton_body(
     setup: &Setup,
     mode: &Mode,
     start: &Start<'_>,
+    inverse: Inverse<'_>,
     opts: &SolverOptions,
 ) -> Result<Solved, (Failure, usize)> {
     let coarse = Setup {
@@ -204,7 +215,7 @@ fn newton_body(
         Some(t) => (assemble(setup, mode, &z, t), *t),
         None => residual_tips(setup, mode, &z),
     };
-    let mut h: Option<Mat12> = start.inverse.copied();
+    let mut h: Option<Mat12> = inverse.known.then(|| *inverse.h);
     let mut ratio = residual_ratio(setup, opts, &z, &r);
     let mut prev_ratio = f64::INFINITY;
     let mut prev_step = f64::INFINITY;
@@ -224,20 +235,20 @@ fn newton_body(
             }
         };
         if ratio <= 1.0 {
+            *inverse.h = *hm;
             return Ok(Solved {
                 z,
                 iterations: it,
-                inverse: *hm,
                 integrated: z,
                 tips,
             });
         }
         let dz = mat_vec(hm, &r.map(|v| -v));
         if opts.accept_predicted && prev_ratio.is_finite() && SAFETY * ratio * ratio <= prev_ratio {
+            *inverse.h = *hm;
             return Ok(Solved {
                 z: std::array::from_fn(|k| z[k] + dz[k]),
                 iterations: it,
-                inverse: *hm,
                 integrated: z,
                 tips,
             });

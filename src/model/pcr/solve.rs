@@ -3,11 +3,11 @@
 //! parameters.
 
 use super::lu::Lu;
-use super::newton::{self, Start};
+use super::newton::{self, Inverse, Start};
 use super::params::{PcrParams, ROBOT_PARAMS};
 use super::setup::{Mode, Setup};
 use super::shooting::{self, N};
-use super::track::{equilibrium, fingerprint, track, unknowns};
+use super::track::{Warm, equilibrium, fingerprint, track, unknowns};
 use super::{Equilibrium, Load, PcrError, SolverOptions};
 use crate::geometry::Pose2;
 
@@ -89,10 +89,14 @@ impl Pcr {
         let start = Start {
             z: [0.0; N],
             tips: None,
-            inverse: None,
         };
-        let solved = track(&relaxed, &mode, start, &setup, &mode, &options)?;
-        let home = equilibrium(&setup, key, &mode, solved);
+        let mut warm = Warm::new(key, None);
+        let inverse = Inverse {
+            h: &mut warm.inverse,
+            known: false,
+        };
+        let solved = track(&relaxed, &mode, start, inverse, &setup, &mode, &options)?;
+        let home = equilibrium(&setup, &mode, solved, warm);
         Ok(Self {
             params,
             limits,
@@ -195,15 +199,7 @@ impl Pcr {
         let lr = self.setup.l_ref;
         let from = Mode::Fk(start.q.map(|v| v / lr));
         let to = Mode::Fk(q.map(|v| v / lr));
-        let solved = track(
-            &self.setup,
-            &from,
-            self.start(start, &from),
-            &self.setup,
-            &to,
-            &self.options,
-        )?;
-        Ok(equilibrium(&self.setup, self.key, &to, solved))
+        self.solve_from(start, &from, &to)
     }
 
     /// Inverse kinematics, cold: continuation from the home configuration.
@@ -240,16 +236,9 @@ impl Pcr {
         let lr = self.setup.l_ref;
         let from = Mode::Ik([start.pose.x / lr, start.pose.y / lr, start.pose.theta]);
         let to = Mode::Ik([pose.x / lr, pose.y / lr, pose.theta]);
-        let solved = track(
-            &self.setup,
-            &from,
-            self.start(start, &from),
-            &self.setup,
-            &to,
-            &self.options,
-        )
-        .map_err(|e| unreachable(format!("no equilibrium connected to the start: {e}")))?;
-        let eq = equilibrium(&self.setup, self.key, &to, solved);
+        let eq = self
+            .solve_from(start, &from, &to)
+            .map_err(|e| unreachable(format!("no equilibrium connected to the start: {e}")))?;
         self.check_joints(&eq.q)
             .map_err(|e| unreachable(e.to_string()))?;
         Ok(eq)
@@ -272,19 +261,32 @@ impl Pcr {
         self.solution_jacobian(eq, &mode, [lr; 3])
     }
 
-    /// The Newton start of a solve from a solved configuration: its unknowns, and what it
-    /// left behind when it was solved the same way with these rods.
-    fn start<'a>(&self, eq: &'a Equilibrium, mode: &Mode) -> Start<'a> {
-        let fk = matches!(mode, Mode::Fk(_));
-        let warm = eq.warm.as_deref().filter(|w| w.fk == fk);
-        let same_rods = warm.filter(|w| w.key == self.key);
-        Start {
+    /// Continuation from a solved configuration `eq` (inputs `from`) to the inputs `to`,
+    /// starting from what `eq` left behind when it was solved the same way: its inverse
+    /// Jacobian and, with these rods, its last integrated point and distal states.
+    fn solve_from(
+        &self,
+        eq: &Equilibrium,
+        from: &Mode,
+        to: &Mode,
+    ) -> Result<Equilibrium, PcrError> {
+        let fk = matches!(from, Mode::Fk(_));
+        let prior = eq.warm.as_ref().filter(|w| w.fk == fk);
+        let same_rods = prior.filter(|w| w.key == self.key);
+        let start = Start {
             // With the same rods, start from the point integrated last (the solution or one
             // chord step before it): its distal states are known, its first residual free.
-            z: same_rods.map_or_else(|| unknowns(eq, mode, self.setup.l_ref), |w| w.integrated),
+            z: same_rods.map_or_else(|| unknowns(eq, from, self.setup.l_ref), |w| w.integrated),
             tips: same_rods.map(|w| &w.tips),
-            inverse: warm.map(|w| &w.inverse),
-        }
+        };
+        let mut warm = Warm::new(self.key, prior.map(|w| &w.inverse));
+        let inverse = Inverse {
+            h: &mut warm.inverse,
+            known: prior.is_some(),
+        };
+        let setup = &self.setup;
+        let solved = track(setup, from, start, inverse, setup, to, &self.options)?;
+        Ok(equilibrium(setup, to, solved, warm))
     }
 
     fn solution_jacobian(

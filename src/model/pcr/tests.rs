@@ -222,3 +222,52 @@ fn robots_and_solutions_are_send_and_sync() {
     check::<super::Equilibrium>();
     check::<super::PcrFile>();
 }
+
+/// A warm solve (from the previous configuration's inverse Jacobian and distal states) finds
+/// the equilibrium a cold solve from home finds, to the solver's tolerance: forward
+/// kinematics along a joint path of 3 um steps and inverse kinematics along a circle.
+#[test]
+fn warm_solves_equal_cold_solves() {
+    let robot = robot();
+    let path: Vec<[f64; 3]> = (0..200)
+        .map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / 2000.0;
+            [0.001 * a.cos(), 0.001 * a.sin(), 0.0005 * (2.0 * a).sin()]
+        })
+        .collect();
+    let mut warm = robot.fk(&path[0]).expect("fk");
+    let (mut worst_p, mut worst_t, mut compared) = (0.0_f64, 0.0_f64, 0);
+    for (k, q) in path.iter().enumerate().skip(1) {
+        warm = robot.fk_from(&warm, q).expect("warm fk");
+        if k % 10 == 0 {
+            let cold = robot.fk(q).expect("cold fk");
+            worst_p = worst_p.max((warm.pose.x - cold.pose.x).hypot(warm.pose.y - cold.pose.y));
+            worst_t = worst_t.max((warm.pose.theta - cold.pose.theta).abs());
+            compared += 1;
+        }
+    }
+    let poses: Vec<crate::geometry::Pose2> = (0..100)
+        .map(|k| {
+            let t = std::f64::consts::TAU * k as f64 / 400.0;
+            crate::geometry::Pose2::new(0.0015 * t.cos(), 0.0015 * t.sin(), 0.0)
+        })
+        .collect();
+    let mut warm = robot.ik(&poses[0]).expect("ik");
+    let mut worst_q = 0.0_f64;
+    for (k, p) in poses.iter().enumerate().skip(1) {
+        warm = robot.ik_from(&warm, p).expect("warm ik");
+        if k % 10 == 0 {
+            let cold = robot.ik(p).expect("cold ik");
+            worst_q = (0..3).fold(worst_q, |m, j| m.max((warm.q[j] - cold.q[j]).abs()));
+            compared += 1;
+        }
+    }
+    println!("warm vs cold: FK {worst_p:.3e} m, {worst_t:.3e} rad; IK {worst_q:.3e} m");
+    assert_eq!(compared, 19 + 9);
+    // Residuals within 1e-12 m and 1e-12 rad leave the solution within about 10x that.
+    assert!(
+        worst_p < 1e-11 && worst_t < 1e-10,
+        "FK: {worst_p:e} m, {worst_t:e} rad"
+    );
+    assert!(worst_q < 1e-11, "IK: {worst_q:e} m");
+}

@@ -7,9 +7,7 @@
 //! (a fold, a bifurcation, a snap to another branch) and a [`PcrError::BranchJump`] is
 //! returned instead of a pose.
 
-use std::sync::Arc;
-
-use super::newton::{self, Failure, Solved, Start};
+use super::newton::{self, Failure, Inverse, Solved, Start};
 use super::params::PcrParams;
 use super::setup::{Mode, Setup};
 use super::shooting::{Mat12, N, Tips, Vec12};
@@ -17,8 +15,8 @@ use super::{Equilibrium, PcrError, SolverOptions};
 use crate::geometry::Pose2;
 
 /// What a solve leaves for the next one: an approximate inverse Jacobian and the distal
-/// states of the rods.
-#[derive(Debug)]
+/// states of the rods (held in the solution itself: no allocation per solve).
+#[derive(Debug, Clone)]
 pub(crate) struct Warm {
     /// True for a forward-kinematics solve (pose unknowns), false for inverse (joints).
     pub(crate) fk: bool,
@@ -30,6 +28,20 @@ pub(crate) struct Warm {
     pub(crate) integrated: Vec12,
     /// Relative distal states at `integrated`.
     pub(crate) tips: Tips,
+}
+
+impl Warm {
+    /// Warm-start data of the rods `key`, to be filled by a solve: its inverse Jacobian
+    /// starts as `inverse` (zero when none is known).
+    pub(crate) fn new(key: u64, inverse: Option<&Mat12>) -> Self {
+        Self {
+            fk: false,
+            key,
+            inverse: inverse.copied().unwrap_or([[0.0; N]; N]),
+            integrated: [0.0; N],
+            tips: [[0.0; 4]; 3],
+        }
+    }
 }
 
 /// Scaled unknowns of a solved configuration for a given mode.
@@ -57,12 +69,17 @@ pub(crate) fn fingerprint(p: &PcrParams, l_ref: f64, opts: &SolverOptions) -> u6
     h.finish()
 }
 
-/// The equilibrium described by a converged solve.
-pub(crate) fn equilibrium(setup: &Setup, key: u64, mode: &Mode, solved: Solved) -> Equilibrium {
+/// The equilibrium described by a converged solve; `warm` holds the approximate inverse
+/// Jacobian the solve left behind (its other fields are filled here).
+pub(crate) fn equilibrium(
+    setup: &Setup,
+    mode: &Mode,
+    solved: Solved,
+    mut warm: Warm,
+) -> Equilibrium {
     let Solved {
         z,
         iterations,
-        inverse,
         integrated,
         tips,
     } = solved;
@@ -78,29 +95,27 @@ pub(crate) fn equilibrium(setup: &Setup, key: u64, mode: &Mode, solved: Solved) 
     let wrenches = std::array::from_fn(|i| [z[3 * i] * fs, z[3 * i + 1] * fs, z[3 * i + 2] * ms]);
     let mut scaled = [0.0; 9];
     scaled.copy_from_slice(&z[..9]);
-    let warm = Some(Arc::new(Warm {
-        fk: matches!(mode, Mode::Fk(_)),
-        key,
-        inverse,
-        integrated,
-        tips,
-    }));
+    warm.fk = matches!(mode, Mode::Fk(_));
+    warm.integrated = integrated;
+    warm.tips = tips;
     Equilibrium {
         q,
         pose,
         wrenches,
         iterations,
         scaled,
-        warm,
+        warm: Some(warm),
     }
 }
 
 /// Continuation from a solved `(setup0, mode0, z0)` to `(setup1, mode1)` along straight
-/// blends; returns the solution and the Newton iterations spent.
+/// blends; returns the solution and the Newton iterations spent, and leaves the solution's
+/// approximate inverse Jacobian in `inverse` (which holds the start's when `known`).
 pub(crate) fn track(
     setup0: &Setup,
     mode0: &Mode,
     start: Start<'_>,
+    inverse: Inverse<'_>,
     setup1: &Setup,
     mode1: &Mode,
     opts: &SolverOptions,
@@ -108,8 +123,8 @@ pub(crate) fn track(
     let (mut t, mut dt) = (0.0_f64, 1.0_f64);
     let mut z = start.z;
     let mut tips = start.tips.copied();
-    // The start's inverse until a step is solved (not copied: 1 KB per solve).
-    let mut inverse: Option<Mat12> = None;
+    // The start's inverse, then the last solved step's: a failed try leaves it unchanged.
+    let Inverse { h, mut known } = inverse;
     let mut iterations = 0;
     let mut last = String::new();
     let mut branch_signal: Option<String> = None;
@@ -121,25 +136,34 @@ pub(crate) fn track(
         let guess = Start {
             z,
             tips: tips.as_ref(),
-            inverse: inverse.as_ref().or(start.inverse),
         };
         // Where the setup changes along the way (the load or the clamps are blended in) or
         // the path had to be subdivided, every solution is checked against a fresh Jacobian:
         // the warm solves' reused, Broyden-updated inverses never see the determinant's sign,
-        // and a bifurcation (buckling) may lie on the way.
-        let checked = newton::newton(&setup, &mode, &guess, opts).and_then(|s| {
-            if setup0 == setup1 && !subdivided {
-                return Ok(s);
-            }
-            let coarse = Setup {
-                steps: opts.jacobian_steps,
-                ..setup
+        // and a bifurcation (buckling) may lie on the way. That solve's own inverse is then
+        // left in a scratch copy, so a failed check leaves `h` as it was.
+        let checked = if setup0 == setup1 && !subdivided {
+            newton::newton(&setup, &mode, &guess, Inverse { h: &mut *h, known }, opts)
+        } else {
+            let mut scratch = *h;
+            let inv = Inverse {
+                h: &mut scratch,
+                known,
             };
-            match newton::fresh_inverse(&coarse, &mode, &s.z) {
-                Ok(inverse) => Ok(Solved { inverse, ..s }),
-                Err(f) => Err((f, s.iterations)),
-            }
-        });
+            newton::newton(&setup, &mode, &guess, inv, opts).and_then(|s| {
+                let coarse = Setup {
+                    steps: opts.jacobian_steps,
+                    ..setup
+                };
+                match newton::fresh_inverse(&coarse, &mode, &s.z) {
+                    Ok(fresh) => {
+                        *h = fresh;
+                        Ok(s)
+                    }
+                    Err(f) => Err((f, s.iterations)),
+                }
+            })
+        };
         match checked {
             Ok(s) => {
                 iterations += s.iterations;
@@ -149,7 +173,7 @@ pub(crate) fn track(
                 }
                 z = s.integrated;
                 tips = Some(s.tips);
-                inverse = Some(s.inverse);
+                known = true;
                 dt = (2.0 * dt).min(1.0);
             }
             Err((failure, it)) => {
