@@ -85,23 +85,14 @@ impl PointProblem {
                             }
                             _ => None,
                         };
-                        match memo_i {
-                            Some(mm) => chain.point_jacobian_memo(
-                                &m.q,
-                                Some(tau),
-                                &Vector3::zeros(),
-                                &mut buf,
-                                &mut scratch,
-                                mm,
-                            ),
-                            None => chain.point_jacobian_with(
-                                &m.q,
-                                Some(tau),
-                                &Vector3::zeros(),
-                                &mut buf,
-                                &mut scratch,
-                            ),
-                        };
+                        chain.point_jacobian_memo(
+                            &m.q,
+                            Some(tau),
+                            &Vector3::zeros(),
+                            &mut buf,
+                            &mut scratch,
+                            memo_i,
+                        );
                         let ball = match m.target {
                             Target::Ball(b) => self.free_slot(b),
                             Target::Point(_) => None,

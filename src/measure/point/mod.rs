@@ -531,23 +531,15 @@ impl PointProblem {
                 scratch.set_wanted(wanted.clone());
                 for (row, i) in range.clone().enumerate() {
                     let (m, tau) = (&self.meas[i], &self.tau[i]);
-                    match memo.as_deref_mut() {
-                        Some(mm) => chain.point_jacobian_memo(
-                            &m.q,
-                            Some(tau),
-                            &Vector3::zeros(),
-                            &mut buf,
-                            &mut scratch,
-                            &mut mm[nj * row..nj * (row + 1)],
-                        ),
-                        None => chain.point_jacobian_with(
-                            &m.q,
-                            Some(tau),
-                            &Vector3::zeros(),
-                            &mut buf,
-                            &mut scratch,
-                        ),
-                    };
+                    chain.point_jacobian_memo(
+                        &m.q,
+                        Some(tau),
+                        &Vector3::zeros(),
+                        &mut buf,
+                        &mut scratch,
+                        memo.as_deref_mut()
+                            .map(|mm| &mut mm[nj * row..nj * (row + 1)]),
+                    );
                     for (c, &col) in self.cols.iter().enumerate() {
                         if let (Some(v), Some(oc)) = (buf.get(col), at[c]) {
                             for a in 0..3 {

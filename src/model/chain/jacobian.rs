@@ -105,7 +105,7 @@ impl Chain {
     }
 
     /// [`Chain::point_jacobian_with`] with the joint sines and cosines of this configuration
-    /// through `memo` (one per joint): the same values bit for bit.
+    /// through `memo` (one per joint) when there is one: the same values bit for bit.
     pub fn point_jacobian_memo(
         &self,
         q: &[f64],
@@ -113,10 +113,10 @@ impl Chain {
         local: &Vector3<f64>,
         jac: &mut [Vector3<f64>],
         scratch: &mut JacobianScratch,
-        memo: &mut [TrigMemo],
+        memo: Option<&mut [TrigMemo]>,
     ) -> Vector3<f64> {
         let body = self.joints.len();
-        self.body_point_jacobian_memo(q, tau, body, local, jac, scratch, Some(memo))
+        self.body_point_jacobian_memo(q, tau, body, local, jac, scratch, memo)
     }
 
     #[allow(clippy::too_many_arguments)]
