@@ -100,6 +100,17 @@ impl GramPool {
     }
 
     /// The lanes of group g.
+    /// Copy candidate `i`'s packed block into lane `l` of `lanes` (the kernel's layout).
+    fn gather(&self, lanes: &mut [f64], l: usize, i: usize) {
+        let (g, li) = (i / LANES, i % LANES);
+        for (d, s) in lanes
+            .chunks_exact_mut(LANES)
+            .zip(self.group(g).chunks_exact(LANES))
+        {
+            d[l] = s[li];
+        }
+    }
+
     fn group(&self, g: usize) -> &[f64] {
         let len = self.env.len * LANES;
         &self.data[g * len..(g + 1) * len]
@@ -279,14 +290,7 @@ impl<'a> Design<'a> {
                 }
             }
             for (l, &(_, i)) in chunk.iter().enumerate() {
-                let (g, li) = (i / LANES, i % LANES);
-                for (d, s) in self
-                    .lanes
-                    .chunks_exact_mut(LANES)
-                    .zip(pool.group(g).chunks_exact(LANES))
-                {
-                    d[l] = s[li];
-                }
+                pool.gather(&mut self.lanes, l, i);
             }
             log_dets(env, &self.mk, &self.lanes, 1.0, &mut self.work, &mut out);
             for (&(_, i), &v) in chunk.iter().zip(&out) {
@@ -351,14 +355,7 @@ impl<'a> Design<'a> {
         let mut out = [0.0; LANES];
         for chunk in inside.chunks(LANES) {
             for (l, &i) in chunk.iter().enumerate() {
-                let (g, li) = (i / LANES, i % LANES);
-                for (d, s) in self
-                    .lanes
-                    .chunks_exact_mut(LANES)
-                    .zip(pool.group(g).chunks_exact(LANES))
-                {
-                    d[l] = s[li];
-                }
+                pool.gather(&mut self.lanes, l, i);
             }
             log_dets(
                 &pool.env,
