@@ -149,12 +149,7 @@ fn each_file_row(
     expected: Option<&str>,
     f: &mut dyn FnMut(usize, &[f64]) -> Result<(), JobError>,
 ) -> Result<String, JobError> {
-    let input_err = |message: String| JobError::Input {
-        field: "joints".into(),
-        reference: path.display().to_string(),
-        message,
-    };
-    let file = File::open(path).map_err(|e| input_err(e.to_string()))?;
+    let file = File::open(path).map_err(|e| file_error(path, e))?;
     let mut rows = CsvRows::new("joints", HashingReader::new(file), &|_: &str| false)?;
     let cols = JointColumns::new(model, "joints", rows.columns())?;
     let (mut values, mut q) = (Vec::new(), Vec::new());
@@ -163,30 +158,38 @@ fn each_file_row(
         f(row, &q)?;
     }
     let sha256 = rows.into_inner().hex();
-    match expected {
-        Some(h) if h != sha256 => Err(input_err(
-            "the file changed after the job was validated".into(),
-        )),
-        _ => Ok(sha256),
+    if let Some(h) = expected {
+        same_hash(path, &sha256, h)?;
     }
+    Ok(sha256)
 }
 
 /// Fail unless the file at `path` still hashes to `expected` (hex SHA-256).
 fn file_unchanged(path: &Path, expected: &str) -> Result<(), JobError> {
-    let input_err = |message: String| JobError::Input {
+    let file = File::open(path).map_err(|e| file_error(path, e))?;
+    let mut hashed = HashingReader::new(file);
+    std::io::copy(&mut hashed, &mut std::io::sink()).map_err(|e| file_error(path, e))?;
+    same_hash(path, &hashed.hex(), expected)
+}
+
+/// Fail when the joints file's hash `found` is not the `expected` one of its validation.
+fn same_hash(path: &Path, found: &str, expected: &str) -> Result<(), JobError> {
+    if found == expected {
+        return Ok(());
+    }
+    Err(file_error(
+        path,
+        "the file changed after the job was validated",
+    ))
+}
+
+/// An error reading the joints file at `path`.
+fn file_error(path: &Path, message: impl ToString) -> JobError {
+    JobError::Input {
         field: "joints".into(),
         reference: path.display().to_string(),
-        message,
-    };
-    let file = File::open(path).map_err(|e| input_err(e.to_string()))?;
-    let mut hashed = HashingReader::new(file);
-    std::io::copy(&mut hashed, &mut std::io::sink()).map_err(|e| input_err(e.to_string()))?;
-    if hashed.hex() != expected {
-        return Err(input_err(
-            "the file changed after the job was validated".into(),
-        ));
+        message: message.to_string(),
     }
-    Ok(())
 }
 
 /// The elasto-geometric TCP pose (x, y, z, a, b, c in the chain's internal units).
