@@ -460,6 +460,7 @@ pub fn identify_steps(
                 count: p.count(),
                 objective: Some(data + prior_cost),
                 prior_cost: Some(prior_cost),
+                log_evidence: None,
                 k_fold_errors: None,
                 auto: None,
             }
