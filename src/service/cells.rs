@@ -68,18 +68,37 @@ pub(super) fn source_of(history: &[CellModel]) -> ModelSource {
     }
 }
 
-/// After a campaign's decision is stored with its result: an accepted model becomes the
-/// cell's current model in memory too, and its source the stored calibration.
+/// Before a campaign's decision is stored with its result: an accepted model becomes the
+/// cell's current model in memory; the model it replaced, to restore if the store fails.
+pub(super) fn apply(svc: &Service, id: i64, d: &Decision) -> Option<crate::lab::CellModel> {
+    if !d.accepted {
+        return None;
+    }
+    let cell = svc.shared.lab.cell(&d.cell)?;
+    let previous = cell.current_model();
+    match cell.parse_model(&d.model).and_then(|m| cell.set_model(m)) {
+        Ok(()) => Some(previous),
+        Err(e) => {
+            tracing::error!(job = id, cell = %d.cell, error = %e, "the accepted model could not be applied");
+            None
+        }
+    }
+}
+
+/// The store did not take the result: the cell goes back to the model it had.
+pub(super) fn restore(svc: &Service, cell: &str, previous: crate::lab::CellModel) {
+    if let Some(c) = svc.shared.lab.cell(cell)
+        && let Err(e) = c.set_model(previous)
+    {
+        tracing::error!(cell, error = %e, "the previous model could not be restored");
+    }
+}
+
+/// After a campaign's decision is stored with its result: log it, and an accepted model's
+/// source becomes the stored calibration (its number in the cell's history).
 pub(super) async fn adopt(svc: &Service, id: i64, d: &Decision) {
     tracing::info!(job = id, cell = %d.cell, accepted = d.accepted, reason = %d.reason, "campaign model decision");
-    if !d.accepted {
-        return;
-    }
-    let Some(cell) = svc.shared.lab.cell(&d.cell) else {
-        return;
-    };
-    if let Err(e) = cell.parse_model(&d.model).and_then(|m| cell.set_model(m)) {
-        tracing::error!(job = id, cell = %d.cell, error = %e, "the accepted model could not be applied");
+    if !d.accepted || svc.shared.lab.cell(&d.cell).is_none() {
         return;
     }
     let name = d.cell.clone();

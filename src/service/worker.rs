@@ -330,6 +330,12 @@ async fn conclude(svc: &Service, run: Run, ran: Result<jobs::Completed, JobError
             let csv = done.main_table.as_ref().map(|t| t.to_csv());
             let file = done.main_csv_file.clone();
             let d = decision.clone();
+            // An accepted model is the cell's in memory before the job's end is stored, so
+            // whoever sees the job succeeded sees the cell on its new model; undone below if
+            // the store refuses the result.
+            let previous = decision
+                .as_ref()
+                .and_then(|d| super::cells::apply(svc, run.job, d));
             let stored = call(&svc.shared.store, move |st| {
                 let main = match (&csv, &file) {
                     (Some(t), _) => Some(MainTableCsv::Text(t)),
@@ -341,6 +347,11 @@ async fn conclude(svc: &Service, run: Run, ran: Result<jobs::Completed, JobError
             .await;
             if let Some(f) = &done.main_csv_file {
                 let _ = std::fs::remove_file(f);
+            }
+            if !matches!(stored, Ok(true))
+                && let (Some(d), Some(prev)) = (&decision, previous)
+            {
+                super::cells::restore(svc, &d.cell, prev);
             }
             match stored {
                 Ok(true) => Outcome::Succeeded(decision),
