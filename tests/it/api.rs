@@ -439,7 +439,11 @@ fn sample(text: &str, name: &str, labels: &[&str]) -> f64 {
 async fn request_metrics_count_answered_requests_by_route_template_and_status() {
     let s = start(|_| {}).await;
     let metrics = || async {
-        let r = s.req(Method::GET, "/metrics", Some(VIEWER)).send().await.unwrap();
+        let r = s
+            .req(Method::GET, "/metrics", Some(VIEWER))
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status().as_u16(), 200);
         r.text().await.unwrap()
     };
@@ -449,10 +453,17 @@ async fn request_metrics_count_answered_requests_by_route_template_and_status() 
     let count = "calibd_http_requests_total";
     let timed = "calibd_http_request_duration_seconds_count";
     let before = metrics().await;
-    let (n0, t0) = (sample(&before, count, &refused), sample(&before, timed, &route));
+    let (n0, t0) = (
+        sample(&before, count, &refused),
+        sample(&before, timed, &route),
+    );
     for id in [1, 22, 333] {
         let path = format!("/v1/jobs/{id}/measurements");
-        let r = s.req(Method::GET, &path, Some("wrong")).send().await.unwrap();
+        let r = s
+            .req(Method::GET, &path, Some("wrong"))
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status().as_u16(), 401, "{path}");
     }
     // Refused before the route (another host name): not a request of the route.
