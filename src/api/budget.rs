@@ -7,11 +7,13 @@
 
 use std::sync::Arc;
 
-use axum::extract::{Request, State};
+use std::convert::Infallible;
+
+use axum::extract::Request;
 use axum::http::{HeaderValue, Method, header};
-use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use tokio::sync::Semaphore;
+use tower_service::Service;
 
 use super::{ApiError, AppState, Caller, Role};
 use axum::extract::FromRequestParts;
@@ -45,8 +47,12 @@ impl BodyBudget {
     }
 }
 
-/// The middleware: reserve, answer, give back.
-pub(super) async fn limit(State(s): State<AppState>, req: Request, next: Next) -> Response {
+/// Reserve the request's body bytes, let `next` answer, give them back (called by
+/// [`super::guard::Guard`] once the request is admitted).
+pub(super) async fn within<S>(s: &AppState, req: Request, mut next: S) -> Response
+where
+    S: Service<Request, Response = Response, Error = Infallible>,
+{
     let declared = req
         .headers()
         .get(header::CONTENT_LENGTH)
@@ -65,11 +71,11 @@ pub(super) async fn limit(State(s): State<AppState>, req: Request, next: Next) -
         None => s.max_body_bytes as u64,
     };
     if bytes == 0 {
-        return next.run(req).await;
+        return answer(next.call(req).await);
     }
     // Only a submitter may send a body: anyone else is refused before it is read.
     let (mut parts, body) = req.into_parts();
-    match Caller::from_request_parts(&mut parts, &s).await {
+    match Caller::from_request_parts(&mut parts, s).await {
         Ok(c) => {
             if let Err(e) = c.require(Role::Submitter) {
                 return e.into_response();
@@ -95,11 +101,19 @@ pub(super) async fn limit(State(s): State<AppState>, req: Request, next: Next) -
         return r;
     };
     metrics::gauge!("calibd_body_bytes_in_flight").increment(f64::from(units) * UNIT as f64);
-    let r = next.run(req).await;
+    let r = answer(next.call(req).await);
     drop(permit);
     metrics::gauge!("calibd_body_bytes_in_flight").decrement(f64::from(units) * UNIT as f64);
     if bytes >= RELEASE_ABOVE {
         crate::util::release_memory();
     }
     r
+}
+
+/// The response of a service that cannot fail.
+fn answer(r: Result<Response, Infallible>) -> Response {
+    match r {
+        Ok(r) => r,
+        Err(never) => match never {},
+    }
 }

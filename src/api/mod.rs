@@ -9,22 +9,22 @@ mod conn;
 mod datasets;
 mod error;
 pub mod events;
+mod guard;
 mod jobs;
 mod report;
 mod schedules;
 mod system;
+mod track;
 pub mod web;
 
 use std::future::Future;
 use std::sync::{Arc, OnceLock};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use axum::Router;
 use axum::body::Bytes;
+use axum::extract::DefaultBodyLimit;
 use axum::extract::rejection::BytesRejection;
-use axum::extract::{DefaultBodyLimit, MatchedPath, Request};
-use axum::middleware::{self, Next};
-use axum::response::{IntoResponse, Response};
 use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle};
 use tokio::net::TcpListener;
 use tower_http::timeout::TimeoutLayer;
@@ -91,19 +91,17 @@ pub fn app(state: AppState) -> Router {
         .nest("/v1", v1)
         .merge(system::root_router())
         .merge(web::router())
-        .route_layer(middleware::from_fn(track))
+        .route_layer(track::TrackLayer)
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
-        .layer(middleware::from_fn_with_state(state.clone(), budget::limit))
-        .layer(middleware::from_fn_with_state(state.clone(), check_host))
-        .layer(middleware::from_fn_with_state(state.clone(), admit))
-        .layer(middleware::from_fn(security_headers))
-        .layer(DefaultBodyLimit::max(limit))
-        .layer(TimeoutLayer::with_status_code(
-            axum::http::StatusCode::SERVICE_UNAVAILABLE,
-            timeout,
+        // One layer of four (outermost first), so a request clones one boxed stack per
+        // route, not one per layer.
+        .layer((
+            TraceLayer::new_for_http(),
+            TimeoutLayer::with_status_code(axum::http::StatusCode::SERVICE_UNAVAILABLE, timeout),
+            DefaultBodyLimit::max(limit),
+            guard::GuardLayer::new(state.clone()),
         ))
-        .layer(TraceLayer::new_for_http())
         .with_state(state)
 }
 
@@ -132,142 +130,11 @@ pub fn host_name(authority: &str) -> String {
     host.trim_end_matches('.').to_ascii_lowercase()
 }
 
-/// On a connection holding one of the operators' reserved slots (the others are taken),
-/// only a request with an operator token is served; any other is answered 503 and the
-/// connection closed, so the slot is free again for an operator.
-async fn admit(
-    axum::extract::State(s): axum::extract::State<AppState>,
-    req: Request,
-    next: Next,
-) -> Response {
-    let Some(peer) = req.extensions().get::<Peer>().copied() else {
-        return next.run(req).await;
-    };
-    if !peer.reserved {
-        return next.run(req).await;
-    }
-    let operator = req
-        .headers()
-        .get(axum::http::header::AUTHORIZATION)
-        .and_then(|h| h.to_str().ok())
-        .and_then(auth::bearer_token)
-        .and_then(|t| s.auth.check(t))
-        .is_some_and(|(_, role)| role == Role::Operator);
-    if operator {
-        return next.run(req).await;
-    }
-    metrics::counter!("calibd_http_connections_refused_total", "reason" => "reserve").increment(1);
-    tracing::debug!(peer = %peer.addr, "request refused: only operators may use the reserved connections");
-    let mut r = ApiError::Unavailable(format!(
-        "the daemon is at its connection limit ({}); the remaining connections are kept \
-         for operators: try again later",
-        s.limits.max_connections
-    ))
-    .into_response();
-    let h = r.headers_mut();
-    h.insert(
-        axum::http::header::CONNECTION,
-        axum::http::HeaderValue::from_static("close"),
-    );
-    h.insert(
-        axum::http::header::RETRY_AFTER,
-        axum::http::HeaderValue::from_static("5"),
-    );
-    r
-}
-
-/// Refuse requests addressed to a host name this daemon is not configured to be: a page
-/// on another origin that rebinds its DNS name to the lab PC cannot read the API through a
-/// browser, because the browser still sends the page's name.
-async fn check_host(
-    axum::extract::State(s): axum::extract::State<AppState>,
-    req: Request,
-    next: Next,
-) -> Response {
-    // RFC 9112 section 3.2: more than one Host field line is a 400, whatever is allowed.
-    let hosts = req
-        .headers()
-        .get_all(axum::http::header::HOST)
-        .iter()
-        .count();
-    if hosts > 1 {
-        return ApiError::BadRequest(format!(
-            "the request has {hosts} Host headers; HTTP/1.1 allows exactly one"
-        ))
-        .into_response();
-    }
-    if s.allowed_hosts.iter().any(|h| h == "*") {
-        return next.run(req).await;
-    }
-    let given = req
-        .uri()
-        .authority()
-        .map(|a| a.as_str().to_owned())
-        .or_else(|| {
-            req.headers()
-                .get(axum::http::header::HOST)
-                .and_then(|h| h.to_str().ok())
-                .map(str::to_owned)
-        });
-    let Some(given) = given else {
-        return ApiError::BadRequest("the request has no Host header".into()).into_response();
-    };
-    let name = host_name(&given);
-    if s.allowed_hosts.contains(&name) {
-        return next.run(req).await;
-    }
-    let mut shown: String = name.chars().take(100).collect();
-    if shown.len() < name.len() {
-        shown.push_str("...");
-    }
-    ApiError::MisdirectedHost(shown).into_response()
-}
-
-/// Headers on every response: nothing is sniffed into an active type, the page runs only
-/// its own script (no inline code, no framing), and nothing with a token is cached.
-async fn security_headers(req: Request, next: Next) -> Response {
-    use axum::http::{HeaderValue, header};
-    let mut res = next.run(req).await;
-    let h = res.headers_mut();
-    h.insert(
-        header::X_CONTENT_TYPE_OPTIONS,
-        HeaderValue::from_static("nosniff"),
-    );
-    // A handler may set a stricter policy of its own (the report document).
-    h.entry(header::CONTENT_SECURITY_POLICY)
-        .or_insert(HeaderValue::from_static(CSP));
-    h.insert(header::X_FRAME_OPTIONS, HeaderValue::from_static("DENY"));
-    h.insert(
-        header::REFERRER_POLICY,
-        HeaderValue::from_static("no-referrer"),
-    );
-    h.entry(header::CACHE_CONTROL)
-        .or_insert(HeaderValue::from_static("no-store"));
-    res
-}
-
 /// The Content-Security-Policy of every response: the page's own script and style only;
 /// plots are shown from `blob:` URLs the script makes; API calls go to the same origin.
 pub const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; \
 img-src 'self' blob: data:; connect-src 'self'; base-uri 'none'; form-action 'none'; \
 frame-ancestors 'none'";
-
-/// Request metrics by route template (never by raw path).
-async fn track(req: Request, next: Next) -> Response {
-    let t0 = Instant::now();
-    let path = req
-        .extensions()
-        .get::<MatchedPath>()
-        .map(|p| p.as_str().to_owned())
-        .unwrap_or_else(|| "unmatched".into());
-    let method = req.method().to_string();
-    let res = next.run(req).await;
-    let status = res.status().as_u16().to_string();
-    metrics::counter!("calibd_http_requests_total", "method" => method.clone(), "path" => path.clone(), "status" => status).increment(1);
-    metrics::histogram!("calibd_http_request_duration_seconds", "method" => method, "path" => path)
-        .record(t0.elapsed().as_secs_f64());
-    res
-}
 
 /// The per-token event stream counts for `limits`.
 pub(crate) fn event_stream_shares(limits: &ServeLimits) -> Arc<conn::Shares<String>> {

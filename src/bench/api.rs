@@ -1,8 +1,9 @@
 //! `calibd bench api`: the daemon under many concurrent HTTP clients, in one process on
-//! loopback. Phase 1 sends status reads (`GET /v1/jobs/{id}`) at a fixed rate (open loop,
-//! the issue's target: p99 under 5 ms at 1,000 requests per second); phase 2 runs closed
-//! loop clients that mix small job submissions (`serial.fk`, 1 configuration) with status
-//! reads, for throughput. Clients and server share the machine's cores.
+//! loopback, without a lab. Phase 1 sends status reads (`GET /v1/jobs/{id}`) at a fixed
+//! rate (open loop, the issue's target: p99 under 2 ms at 1,000 requests per second), with
+//! the server's CPU and context switches per read beside the process's at rest; phase 2
+//! runs closed-loop clients that mix small job submissions (`serial.fk`, 1 configuration)
+//! with status reads, for throughput. Clients and server share the machine's cores.
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -10,6 +11,7 @@ use std::time::{Duration, Instant};
 use serde_json::{Value, json};
 use tokio_util::sync::CancellationToken;
 
+use super::Switches;
 use crate::client::{Client, ClientError};
 use crate::config::Config;
 
@@ -92,9 +94,27 @@ fn small_job() -> Value {
     doc
 }
 
-/// Latencies of the successful reads, the number of failed ones, and the client thread's
-/// CPU time.
-type Phase1 = (Vec<Duration>, usize, Option<Duration>);
+/// What phase 1's client saw and spent.
+struct Phase1 {
+    /// Latencies of the successful reads.
+    latencies: Vec<Duration>,
+    /// Reads that failed.
+    errors: usize,
+    /// The client thread's CPU time.
+    cpu: Option<Duration>,
+    /// The client thread's context switches.
+    switches: Option<Switches>,
+}
+
+/// The CPU time between two readings, when both were taken.
+fn delta(a: Option<Duration>, b: Option<Duration>) -> Option<Duration> {
+    Some(b?.saturating_sub(a?))
+}
+
+/// The context switches between two readings, when both were taken.
+fn switched(a: Option<Switches>, b: Option<Switches>) -> Option<Switches> {
+    Some(b?.since(a?))
+}
 
 /// Phase 1's client: `n` status reads of job `id` at `rate` per second (open loop), on a
 /// single-threaded runtime owned by the calling thread.
@@ -108,7 +128,7 @@ fn open_loop_reads(
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
-    let cpu0 = super::thread_cpu_time();
+    let (cpu0, switches0) = (super::thread_cpu_time(), super::thread_context_switches());
     let client = Client::new(base, token);
     let (lat, errors) = rt.block_on(async move {
         let period = Duration::from_secs_f64(1.0 / rate.max(1) as f64);
@@ -138,19 +158,23 @@ fn open_loop_reads(
         let e = errors.lock().map(|e| *e).unwrap_or(0);
         (l, e)
     });
-    let cpu = match (cpu0, super::thread_cpu_time()) {
-        (Some(a), Some(b)) => Some(b.saturating_sub(a)),
-        _ => None,
-    };
-    Ok((lat, errors, cpu))
+    Ok(Phase1 {
+        latencies: lat,
+        errors,
+        cpu: delta(cpu0, super::thread_cpu_time()),
+        switches: switched(switches0, super::thread_context_switches()),
+    })
 }
 
 /// Run the benchmark against a fresh daemon in a temporary folder; returns the report.
 pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
     let dir = std::env::temp_dir().join(format!("calibd-bench-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
+    // No simulated lab: its device servers would run in this process, and their CPU
+    // would be counted as the API's.
     let config = Config {
         data: dir.clone(),
+        lab: "none".into(),
         ..Config::default()
     };
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
@@ -189,30 +213,45 @@ pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
         cpu_per(cpu0, u64::from(reads)),
     ));
 
+    // The daemon at rest: what the process spends with no request, to read beside phase 1.
+    let quiet = Duration::from_millis(500);
+    let (cpu0, switches0) = (super::cpu_time(), super::context_switches());
+    tokio::time::sleep(quiet).await;
+    report.push(format!(
+        "at rest: {} CPU per second, {} context switches per second",
+        delta(cpu0, super::cpu_time()).map_or("n/a".into(), |c| format!(
+            "{:.0} us",
+            c.as_secs_f64() * 1e6 / quiet.as_secs_f64()
+        )),
+        switched(switches0, super::context_switches()).map_or("n/a".into(), |n| format!(
+            "{:.0}",
+            (n.voluntary + n.involuntary) as f64 / quiet.as_secs_f64()
+        )),
+    ));
+
     // Phase 1: open loop, fixed rate of status reads, the client on a thread of its own so
-    // that the server's CPU (the process's less the client thread's) can be told apart.
+    // that the server's CPU and context switches (the process's less the client thread's)
+    // can be told apart.
     let n = o.rate as u64 * o.seconds;
     let (base, token) = (format!("http://{addr}"), Client::find_token(None, &dir));
     let rate = o.rate;
-    let cpu0 = super::cpu_time();
+    let (cpu0, switches0) = (super::cpu_time(), super::context_switches());
     let t0 = Instant::now();
     let phase1 = tokio::task::spawn_blocking(move || open_loop_reads(&base, token, first, rate, n));
-    let (l, e, client_cpu) = phase1
+    let p1 = phase1
         .await
         .map_err(|e| ApiBenchError::Service(format!("the phase-1 client thread: {e}")))??;
     let wall = t0.elapsed();
-    let whole = match (cpu0, super::cpu_time()) {
-        (Some(a), Some(b)) => Some(b.saturating_sub(a)),
-        _ => None,
-    };
+    let whole = delta(cpu0, super::cpu_time());
+    let whole_switches = switched(switches0, super::context_switches());
     report.push(line(
         &format!("phase 1: status reads at {} req/s (open loop)", o.rate),
-        l,
-        e,
+        p1.latencies,
+        p1.errors,
         wall,
     ));
     let per = |d: Duration| format!("{:.1} us", d.as_secs_f64() * 1e6 / n.max(1) as f64);
-    report.push(match (whole, client_cpu) {
+    report.push(match (whole, p1.cpu) {
         (Some(w), Some(c)) => format!(
             "  CPU per status read: server {} (the process less the client thread), client {}, both {}",
             per(w.saturating_sub(c)),
@@ -224,6 +263,21 @@ pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
             per(w)
         ),
         _ => "  CPU per status read: n/a".into(),
+    });
+    let per_read = |k: u64| k as f64 / n.max(1) as f64;
+    report.push(match (whole_switches, p1.switches) {
+        (Some(w), Some(c)) => {
+            let server = w.since(c);
+            format!(
+                "  context switches per status read: server {:.2} waiting + {:.2} preempted, \
+                 client {:.2} + {:.2}",
+                per_read(server.voluntary),
+                per_read(server.involuntary),
+                per_read(c.voluntary),
+                per_read(c.involuntary)
+            )
+        }
+        _ => "  context switches per status read: n/a".into(),
     });
 
     // Phase 2: closed loop, mixed submissions and reads.

@@ -102,18 +102,72 @@ pub fn thread_cpu_time() -> Option<Duration> {
     None
 }
 
-/// getrusage's user + system time for `who`.
+/// Context switches of the process so far, voluntary (it waited) and involuntary (it was
+/// preempted), from getrusage (Linux); None elsewhere.
+pub fn context_switches() -> Option<Switches> {
+    #[cfg(target_os = "linux")]
+    {
+        rusage(libc::RUSAGE_SELF).map(Switches::of)
+    }
+    #[cfg(not(target_os = "linux"))]
+    None
+}
+
+/// Context switches of the calling thread so far (Linux); None elsewhere.
+pub fn thread_context_switches() -> Option<Switches> {
+    #[cfg(target_os = "linux")]
+    {
+        rusage(libc::RUSAGE_THREAD).map(Switches::of)
+    }
+    #[cfg(not(target_os = "linux"))]
+    None
+}
+
+/// Context switch counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Default)]
+pub struct Switches {
+    /// The thread gave up the CPU to wait (for a socket, a lock, a timer).
+    pub voluntary: u64,
+    /// The thread was preempted (another thread's turn: a loaded machine).
+    pub involuntary: u64,
+}
+
+impl Switches {
+    #[cfg(target_os = "linux")]
+    fn of(u: libc::rusage) -> Switches {
+        Switches {
+            voluntary: u.ru_nvcsw.max(0) as u64,
+            involuntary: u.ru_nivcsw.max(0) as u64,
+        }
+    }
+
+    /// `self - earlier`, counter by counter (0 where a counter did not grow).
+    pub fn since(self, earlier: Switches) -> Switches {
+        Switches {
+            voluntary: self.voluntary.saturating_sub(earlier.voluntary),
+            involuntary: self.involuntary.saturating_sub(earlier.involuntary),
+        }
+    }
+}
+
+/// getrusage's figures for `who`.
 #[cfg(unix)]
-fn rusage_cpu(who: libc::c_int) -> Option<Duration> {
+fn rusage(who: libc::c_int) -> Option<libc::rusage> {
     let mut usage = std::mem::MaybeUninit::<libc::rusage>::zeroed();
     // SAFETY: getrusage fills the rusage it is given a pointer to; it was zeroed, and is
     // read only if the call succeeded.
-    let usage = unsafe {
+    unsafe {
         if libc::getrusage(who, usage.as_mut_ptr()) != 0 {
             return None;
         }
-        usage.assume_init()
-    };
+        Some(usage.assume_init())
+    }
+}
+
+/// getrusage's user + system time for `who`.
+#[cfg(unix)]
+fn rusage_cpu(who: libc::c_int) -> Option<Duration> {
+    let usage = rusage(who)?;
     let tv = |t: libc::timeval| {
         Duration::from_secs(t.tv_sec.max(0) as u64) + Duration::from_micros(t.tv_usec.max(0) as u64)
     };

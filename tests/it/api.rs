@@ -424,3 +424,61 @@ fn the_example_config_generates_the_operator_token() {
     assert!(c.auth.tokens.is_empty(), "{:?}", c.auth.tokens);
     assert!(!c.auth.anonymous_read);
 }
+
+/// The value of the `/metrics` sample `name` whose labels include every one of `labels`
+/// (0 when there is none yet).
+fn sample(text: &str, name: &str, labels: &[&str]) -> f64 {
+    text.lines()
+        .filter(|l| l.starts_with(&format!("{name}{{")))
+        .find(|l| labels.iter().all(|want| l.contains(want)))
+        .and_then(|l| l.rsplit(' ').next())
+        .map_or(0.0, |v| v.parse().unwrap())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn request_metrics_count_answered_requests_by_route_template_and_status() {
+    let s = start(|_| {}).await;
+    let metrics = || async {
+        let r = s
+            .req(Method::GET, "/metrics", Some(VIEWER))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 200);
+        r.text().await.unwrap()
+    };
+    // A route and status no other test uses: reads with a wrong token (401 from the handler).
+    let route = [r#"method="GET""#, r#"path="/v1/jobs/{id}/measurements""#];
+    let refused = [route[0], route[1], r#"status="401""#];
+    let count = "calibd_http_requests_total";
+    let timed = "calibd_http_request_duration_seconds_count";
+    let before = metrics().await;
+    let (n0, t0) = (
+        sample(&before, count, &refused),
+        sample(&before, timed, &route),
+    );
+    for id in [1, 22, 333] {
+        let path = format!("/v1/jobs/{id}/measurements");
+        let r = s
+            .req(Method::GET, &path, Some("wrong"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 401, "{path}");
+    }
+    // Refused before the route (another host name): not a request of the route.
+    for _ in 0..2 {
+        let r = s
+            .req(Method::GET, "/v1/jobs/1/measurements", Some("wrong"))
+            .header("host", "attacker.example")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 421);
+        assert_eq!(r.headers()["x-content-type-options"], "nosniff");
+        assert_eq!(r.headers()["cache-control"], "no-store");
+    }
+    let after = metrics().await;
+    assert_eq!(sample(&after, count, &refused) - n0, 3.0, "{after}");
+    assert_eq!(sample(&after, timed, &route) - t0, 3.0, "{after}");
+}
