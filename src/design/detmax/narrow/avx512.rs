@@ -4,8 +4,9 @@
 //! fused operations in the same order as the portable kernel, so the results are identical.
 
 use std::arch::x86_64::{
-    __m512d, _mm512_fmadd_pd, _mm512_loadu_pd, _mm512_mul_pd, _mm512_set1_pd, _mm512_setzero_pd,
-    _mm512_storeu_pd, _mm512_sub_pd,
+    __m512d, _CMP_GT_OQ, _CMP_LT_OQ, _mm512_add_pd, _mm512_cmp_pd_mask, _mm512_fmadd_pd,
+    _mm512_loadu_pd, _mm512_mask_blend_pd, _mm512_maskz_mov_pd, _mm512_mul_pd,
+    _mm512_reduce_max_pd, _mm512_set1_pd, _mm512_setzero_pd, _mm512_storeu_pd, _mm512_sub_pd,
 };
 
 use super::L;
@@ -20,8 +21,65 @@ fn lanes(v: __m512d) -> [f64; L] {
     out
 }
 
-/// D -= sign (B U) S^-1 (B U)^T for the eight candidates of one group, and their
-/// determinants (signs `sg`) into `det` (as `pass::update_group` with eight lanes).
+/// det(I + sign D) of a group's eight candidates (signs `sg`) into `det`, and the group's
+/// largest over its outside candidates and over its members (as `pass::dets_group` and
+/// `pass::group_max`: for 3 rows the closed form's operations lane by lane, unfused).
+///
+/// # Safety
+/// The CPU must have AVX-512F.
+#[target_feature(enable = "avx512f")]
+unsafe fn dets_and_max<const R: usize>(
+    d: &[[__m512d; R]; R],
+    sg: &[f64],
+    det: &mut [f64],
+) -> [f64; 2] {
+    // SAFETY: `sg` and `det` hold a group's eight lanes.
+    let s = unsafe { _mm512_loadu_pd(sg[..L].as_ptr()) };
+    let zero = _mm512_setzero_pd();
+    let v = if R == 3 {
+        use _mm512_mul_pd as mul;
+        let one = _mm512_set1_pd(1.0);
+        let a = _mm512_add_pd(mul(s, d[0][0]), one);
+        let (b, c) = (mul(s, d[0][1]), mul(s, d[0][2]));
+        let e = _mm512_add_pd(mul(s, d[1][1]), one);
+        let f = mul(s, d[1][2]);
+        let h = _mm512_add_pd(mul(s, d[2][2]), one);
+        let m2 = _mm512_sub_pd(mul(a, e), mul(b, b));
+        let t1 = mul(a, _mm512_sub_pd(mul(e, h), mul(f, f)));
+        let t2 = mul(b, _mm512_sub_pd(mul(b, h), mul(f, c)));
+        let t3 = mul(c, _mm512_sub_pd(mul(b, f), mul(e, c)));
+        let dt = _mm512_add_pd(_mm512_sub_pd(t1, t2), t3);
+        let ok = _mm512_cmp_pd_mask::<_CMP_GT_OQ>(a, zero)
+            & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(m2, zero)
+            & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(dt, zero);
+        let v = _mm512_maskz_mov_pd(ok, dt);
+        // SAFETY: as above.
+        unsafe { _mm512_storeu_pd(det[..L].as_mut_ptr(), v) };
+        v
+    } else {
+        let mut out = [[[0.0; L]; R]; R];
+        for x in 0..R {
+            for y in 0..R {
+                out[x][y] = lanes(d[x][y]);
+            }
+        }
+        dets_group::<R, L, 0>(&out, sg, det);
+        // SAFETY: as above.
+        unsafe { _mm512_loadu_pd(det[..L].as_ptr()) }
+    };
+    // Determinants are never NaN (0 where not positive definite), so the largest is exact.
+    let none = _mm512_set1_pd(f64::NEG_INFINITY);
+    let outside = _mm512_cmp_pd_mask::<_CMP_GT_OQ>(s, zero);
+    let member = _mm512_cmp_pd_mask::<_CMP_LT_OQ>(s, zero);
+    [
+        _mm512_reduce_max_pd(_mm512_mask_blend_pd(outside, none, v)),
+        _mm512_reduce_max_pd(_mm512_mask_blend_pd(member, none, v)),
+    ]
+}
+
+/// D -= sign (B U) S^-1 (B U)^T for the eight candidates of one group, their determinants
+/// (signs `sg`) into `det`, and the group's largest outside and member determinant (as
+/// `pass::update_group` with eight lanes, then `pass::group_max`).
 ///
 /// # Safety
 /// The CPU must have AVX-512F and FMA.
@@ -35,7 +93,7 @@ pub(super) unsafe fn update_group<const R: usize>(
     dg: &mut [f64],
     sg: &[f64],
     det: &mut [f64],
-) {
+) -> [f64; 2] {
     let mut e = [[_mm512_setzero_pd(); R]; R];
     for (bc, uc) in bg.chunks_exact(R * L).zip(u.chunks_exact(R)).take(m) {
         let mut bx = [_mm512_setzero_pd(); R];
@@ -59,7 +117,7 @@ pub(super) unsafe fn update_group<const R: usize>(
         }
     }
     let sign = _mm512_set1_pd(sign);
-    let mut out = [[[0.0; L]; R]; R];
+    let mut out = [[_mm512_setzero_pd(); R]; R];
     for x in 0..R {
         for y in 0..R {
             let mut v = _mm512_setzero_pd();
@@ -71,14 +129,16 @@ pub(super) unsafe fn update_group<const R: usize>(
             let dv = unsafe { _mm512_loadu_pd(o.as_ptr()) };
             let dv = _mm512_sub_pd(dv, _mm512_mul_pd(sign, v));
             unsafe { _mm512_storeu_pd(o.as_mut_ptr(), dv) };
-            out[x][y] = lanes(dv);
+            out[x][y] = dv;
         }
     }
-    dets_group::<R, L, 0>(&out, sg, det);
+    // SAFETY: the caller's CPU has AVX-512F.
+    unsafe { dets_and_max::<R>(&out, sg, det) }
 }
 
-/// D = B P B^T for the eight candidates of one group, and their determinants (signs `sg`) into `det`
-/// (as `pass::rebuild_group` with eight lanes).
+/// D = B P B^T for the eight candidates of one group, their determinants (signs `sg`) into
+/// `det`, and the group's largest outside and member determinant (as `pass::rebuild_group`
+/// with eight lanes, then `pass::group_max`).
 ///
 /// # Safety
 /// The CPU must have AVX-512F and FMA.
@@ -90,7 +150,7 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
     dg: &mut [f64],
     sg: &[f64],
     det: &mut [f64],
-) {
+) -> [f64; 2] {
     let mut d = [[_mm512_setzero_pd(); R]; R];
     // Three columns of B P at a time: 3 R independent sums keep both FMA pipes busy (one
     // column at a time, the R sums wait on the FMA latency).
@@ -105,14 +165,15 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
         unsafe { rebuild_columns::<R, 1>(bg, p, m, c2, &mut d) };
         c2 += 1;
     }
-    let mut out = [[[0.0; L]; R]; R];
     for x in 0..R {
         for y in 0..R {
-            out[x][y] = lanes(d[x][y]);
-            dg[(x * R + y) * L..(x * R + y + 1) * L].copy_from_slice(&out[x][y]);
+            let o = &mut dg[(x * R + y) * L..(x * R + y + 1) * L];
+            // SAFETY: `o` holds eight f64.
+            unsafe { _mm512_storeu_pd(o.as_mut_ptr(), d[x][y]) };
         }
     }
-    dets_group::<R, L, 0>(&out, sg, det);
+    // SAFETY: the caller's CPU has AVX-512F.
+    unsafe { dets_and_max::<R>(&d, sg, det) }
 }
 
 /// D += W W' for columns c2..c2 + C of W = B P (w[j][x] = (B P)(x, c2 + j)), each column summed
@@ -152,5 +213,63 @@ unsafe fn rebuild_columns<const R: usize, const C: usize>(
                 d[x][y] = _mm512_fmadd_pd(wj[x], b, d[x][y]);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::pass::{dets_group, group_max};
+    use super::{L, dets_and_max};
+    use crate::util::Rng;
+    use std::arch::x86_64::{__m512d, _mm512_loadu_pd};
+
+    /// The vector determinants and group maxima equal the scalar ones bit for bit, for 2, 3
+    /// and 6 rows, outside candidates, members and padding, positive definite or not.
+    fn same_as_scalar<const R: usize>(rng: &mut Rng) {
+        for _ in 0..200 {
+            let mut d = [[[0.0; L]; R]; R];
+            for l in 0..L {
+                // D = A A^T scaled so that I - D is sometimes not positive definite.
+                let a: Vec<f64> = (0..R * R).map(|_| rng.normal()).collect();
+                let scale = 0.05 + 0.6 * rng.uniform();
+                for x in 0..R {
+                    for y in 0..R {
+                        let v: f64 = (0..R).map(|k| a[x * R + k] * a[y * R + k]).sum();
+                        d[x][y][l] = scale * v;
+                    }
+                }
+            }
+            let sg: Vec<f64> = (0..L)
+                .map(|_| [1.0, -1.0, -1.0, 0.0][(rng.uniform() * 4.0) as usize % 4])
+                .collect();
+            let mut want = [0.0; L];
+            dets_group::<R, L, 0>(&d, &sg, &mut want);
+            let want_max = group_max(&want, &sg);
+            // SAFETY: only where the CPU has AVX-512F (checked by the caller).
+            let v: [[__m512d; R]; R] = std::array::from_fn(|x| {
+                std::array::from_fn(|y| unsafe { _mm512_loadu_pd(d[x][y].as_ptr()) })
+            });
+            let mut got = [0.0; L];
+            // SAFETY: as above.
+            let got_max = unsafe { dets_and_max::<R>(&v, &sg, &mut got) };
+            assert_eq!(got.map(f64::to_bits), want.map(f64::to_bits), "{R} rows");
+            assert_eq!(
+                got_max.map(f64::to_bits),
+                want_max.map(f64::to_bits),
+                "{R} rows"
+            );
+        }
+    }
+
+    #[test]
+    fn vector_determinants_equal_the_scalar_ones() {
+        if !std::arch::is_x86_feature_detected!("avx512f") {
+            eprintln!("no AVX-512F: nothing to compare");
+            return;
+        }
+        let mut rng = Rng::new(3);
+        same_as_scalar::<2>(&mut rng);
+        same_as_scalar::<3>(&mut rng);
+        same_as_scalar::<6>(&mut rng);
     }
 }

@@ -127,8 +127,7 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
-                    unsafe { super::avx512::rebuild_group::<R>(bg, &d.p, m, dg, sg, det) };
-                    *gm = group_max(det, sg);
+                    *gm = unsafe { super::avx512::rebuild_group::<R>(bg, &d.p, m, dg, sg, det) };
                     continue;
                 }
                 let dr = rebuild_group::<R, FMA, W, 0>(bg, &d.p, m, dg);
@@ -144,15 +143,7 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
             // M' = M + sign B_a^T B_a, toggle by toggle in the order they were made.
             for &(a, sign) in &d.info_pending {
                 d.lp.block_into(a, &mut d.ba);
-                for c in 0..m {
-                    let row = &mut d.info[c * m..(c + 1) * m];
-                    for y in 0..R {
-                        let f = sign * d.ba[y * m + c];
-                        for (mv, &bv) in row.iter_mut().zip(&d.ba[y * m..(y + 1) * m]) {
-                            *mv = madd::<FMA>(f, bv, *mv);
-                        }
-                    }
-                }
+                info_update::<R, FMA>(&mut d.info, &d.ba, sign, m);
             }
             d.info_pending.clear();
         }
@@ -163,31 +154,7 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                     s[x][y] = sinv[x * R + y];
                 }
             }
-            // U^T = (P B_a^T)^T, then P' = P - sign (U S^-1) U^T, row by row.
-            for y in 0..R {
-                let bay = &d.ba[y * m..(y + 1) * m];
-                for c in 0..m {
-                    d.ut[y * m + c] = dot::<FMA>(&d.p[c * m..(c + 1) * m], bay);
-                }
-            }
-            for c in 0..m {
-                let mut f = [0.0; R];
-                for (y, v) in f.iter_mut().enumerate() {
-                    for k in 0..R {
-                        *v = madd::<FMA>(d.ut[k * m + c], s[k][y], *v);
-                    }
-                    *v *= -sign;
-                }
-                // Each entry takes its R terms in registers (y in order, as row by row).
-                let row = &mut d.p[c * m..(c + 1) * m];
-                for (k, pv) in row.iter_mut().enumerate() {
-                    let mut v = *pv;
-                    for (y, &fy) in f.iter().enumerate() {
-                        v = madd::<FMA>(fy, d.ut[y * m + k], v);
-                    }
-                    *pv = v;
-                }
-            }
+            inverse_update::<R, FMA>(&mut d.p, &mut d.ut, &d.ba, &s, sign, m);
             for c in 0..m {
                 for y in 0..R {
                     d.u[c * R + y] = d.ut[y * m + c];
@@ -200,8 +167,9 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
-                    unsafe { super::avx512::update_group::<R>(bg, &d.u, m, &s, sign, dg, sg, det) };
-                    *gm = group_max(det, sg);
+                    *gm = unsafe {
+                        super::avx512::update_group::<R>(bg, &d.u, m, &s, sign, dg, sg, det)
+                    };
                     continue;
                 }
                 let dr = update_group::<R, FMA, W, 0>(bg, &d.u, m, &s, sign, dg);
@@ -216,10 +184,62 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
     }
 }
 
+/// M += sign B_a^T B_a (m x m `info`, B_a r x m), row by row, each entry taking its R terms
+/// in order (slices of their own, so the rows vectorise).
+#[inline(always)]
+fn info_update<const R: usize, const FMA: bool>(info: &mut [f64], ba: &[f64], sign: f64, m: usize) {
+    let ba = &ba[..R * m];
+    for (c, row) in info[..m * m].chunks_exact_mut(m).enumerate() {
+        for bay in ba.chunks_exact(m) {
+            let f = sign * bay[c];
+            for (mv, &bv) in row.iter_mut().zip(bay) {
+                *mv = madd::<FMA>(f, bv, *mv);
+            }
+        }
+    }
+}
+
+/// U^T = (P B_a^T)^T into `ut` (r x m), then P' = P - sign (U S^-1) U^T row by row (P m x m,
+/// S^-1 as `s`); slices of their own, so the rows vectorise.
+#[inline(always)]
+fn inverse_update<const R: usize, const FMA: bool>(
+    p: &mut [f64],
+    ut: &mut [f64],
+    ba: &[f64],
+    s: &[[f64; R]; R],
+    sign: f64,
+    m: usize,
+) {
+    let (p, ut, ba) = (&mut p[..m * m], &mut ut[..R * m], &ba[..R * m]);
+    for (uty, bay) in ut.chunks_exact_mut(m).zip(ba.chunks_exact(m)) {
+        for (u, prow) in uty.iter_mut().zip(p.chunks_exact(m)) {
+            *u = dot::<FMA>(prow, bay);
+        }
+    }
+    let rows: [&[f64]; R] = std::array::from_fn(|y| &ut[y * m..(y + 1) * m]);
+    for (c, row) in p.chunks_exact_mut(m).enumerate() {
+        let mut f = [0.0; R];
+        for (y, v) in f.iter_mut().enumerate() {
+            for k in 0..R {
+                *v = madd::<FMA>(rows[k][c], s[k][y], *v);
+            }
+            *v *= -sign;
+        }
+        // Each entry takes its R terms in registers (y in order, as row by row).
+        for (k, pv) in row.iter_mut().enumerate() {
+            let mut v = *pv;
+            for (y, &fy) in f.iter().enumerate() {
+                v = madd::<FMA>(fy, rows[y][k], v);
+            }
+            *pv = v;
+        }
+    }
+}
+
 /// The largest det of a group's outside candidates (sign +1) and of its members (-1); -inf
 /// where it has none (padding has sign 0).
 #[inline(always)]
-fn group_max(det: &[f64], sg: &[f64]) -> [f64; 2] {
+pub(super) fn group_max(det: &[f64], sg: &[f64]) -> [f64; 2] {
     let (mut out, mut ins) = ([f64::NEG_INFINITY; L], [f64::NEG_INFINITY; L]);
     for l in 0..L {
         let v = det[l];
