@@ -297,9 +297,9 @@ fn newton_body(
             prev_ratio = f64::INFINITY;
             continue;
         }
-        // Every step updates, the small last ones too: they carry the Jacobian's change
-        // since the inverse was made, which the next solve along a path needs.
-        if opts.broyden {
+        // Along a path (a prediction was offered) the small last steps update too: they
+        // carry the Jacobian's change since the inverse was made, which the next solve needs.
+        if opts.broyden && (step > 1e-7 || start.predicted.is_some()) {
             let y: Vec12 = std::array::from_fn(|k| r1[k] - r[k]);
             broyden(h, &dz, &y);
         }
