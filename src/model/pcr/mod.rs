@@ -9,6 +9,7 @@
 //! - `shooting`: residuals and Jacobians of the 12 x 12 shooting system.
 //! - `newton`: the guarded chord-Newton solve.
 //! - `track`: continuation between solved configurations, warm-start data.
+//! - `trail`: the last solutions along a path of inputs, predicting the next one.
 //! - [`sensitivity`]: the paper's Table 2 (finite differences per parameter type).
 //! - `solve`: [`Pcr`]: forward and inverse kinematics with continuation and warm starts,
 //!   pose Jacobians with respect to the parameters.
@@ -30,6 +31,7 @@ mod taylor_x86;
 #[cfg(test)]
 mod tests;
 mod track;
+mod trail;
 
 pub use file::PcrFile;
 pub use params::{LimbParams, PcrParams, ROBOT_PARAMS, param_index, param_name, param_unit};
@@ -169,6 +171,9 @@ pub struct SolverOptions {
     /// Broyden updates of the reused inverse Jacobian after every Newton step, so it follows
     /// the solution along a path and fresh Jacobians are needed less often.
     pub broyden: bool,
+    /// Start a warm solve from the solution extrapolated (quadratic) through the last three
+    /// warm solves' when the inputs follow a smooth, evenly stepped path (`trail`).
+    pub predict: bool,
 }
 
 impl Default for SolverOptions {
@@ -187,6 +192,7 @@ impl Default for SolverOptions {
             max_substeps: 400,
             accept_predicted: true,
             broyden: true,
+            predict: true,
         }
     }
 }

@@ -68,10 +68,13 @@ pub(crate) struct Start<'a> {
     /// Relative distal states at `z` with this setup's rods (then no integration is needed
     /// for the first residual).
     pub(crate) tips: Option<&'a Tips>,
+    /// A predicted solution (`trail`), taken instead of the first Newton step when the two
+    /// agree to half the step.
+    pub(crate) predicted: Option<Vec12>,
 }
 
 /// The approximate inverse Jacobian a [`newton`] solve starts from and leaves behind: read
-/// when `known`, written only when the solve converges (a failed try leaves it as it was).
+/// when `known`, updated in place (no copies); after a failed solve it is meaningless.
 pub(crate) struct Inverse<'a> {
     /// The matrix, in and out.
     pub(crate) h: &'a mut Mat12,
@@ -215,7 +218,8 @@ fn newton_body(
         Some(t) => (assemble(setup, mode, &z, t), *t),
         None => residual_tips(setup, mode, &z),
     };
-    let mut h: Option<Mat12> = inverse.known.then(|| *inverse.h);
+    let Inverse { h, known: mut have } = inverse;
+    let mut predicted = start.predicted;
     let mut ratio = residual_ratio(setup, opts, &z, &r);
     let mut prev_ratio = f64::INFINITY;
     let mut prev_step = f64::INFINITY;
@@ -225,17 +229,14 @@ fn newton_body(
         if !ratio.is_finite() {
             return Err((Failure::NotFinite, it));
         }
-        let hm = match h.as_ref() {
-            Some(hm) => hm,
-            None => {
-                fresh = true;
-                // A new Newton sequence starts here.
-                prev_step = f64::INFINITY;
-                h.insert(fresh_inverse(&coarse, mode, &z).map_err(|f| (f, it))?)
-            }
-        };
+        if !have {
+            fresh = true;
+            // A new Newton sequence starts here.
+            prev_step = f64::INFINITY;
+            *h = fresh_inverse(&coarse, mode, &z).map_err(|f| (f, it))?;
+            have = true;
+        }
         if ratio <= 1.0 {
-            *inverse.h = *hm;
             return Ok(Solved {
                 z,
                 iterations: it,
@@ -243,9 +244,8 @@ fn newton_body(
                 tips,
             });
         }
-        let dz = mat_vec(hm, &r.map(|v| -v));
+        let mut dz = mat_vec(h, &r.map(|v| -v));
         if opts.accept_predicted && prev_ratio.is_finite() && SAFETY * ratio * ratio <= prev_ratio {
-            *inverse.h = *hm;
             return Ok(Solved {
                 z: std::array::from_fn(|k| z[k] + dz[k]),
                 iterations: it,
@@ -264,7 +264,7 @@ fn newton_body(
             if !fresh {
                 // A stale inverse: take no step, refresh it here (its convergence rate says
                 // nothing about the new one's).
-                h = None;
+                have = false;
                 prev_ratio = f64::INFINITY;
                 continue;
             }
@@ -275,30 +275,44 @@ fn newton_body(
             };
             return Err((failure, it));
         }
+        // A predicted solution replaces the Newton step when they agree (the prediction's
+        // error is then below the step's own second-order error).
+        let guess = match predicted.take() {
+            Some(p) if (0..N).all(|k| (p[k] - z[k] - dz[k]).abs() <= 0.5 * step) => {
+                dz = std::array::from_fn(|k| p[k] - z[k]);
+                true
+            }
+            _ => false,
+        };
         let z1: Vec12 = std::array::from_fn(|k| z[k] + dz[k]);
         let (r1, t1) = residual_tips(setup, mode, &z1);
         let ratio1 = residual_ratio(setup, opts, &z1, &r1);
+        if guess && !(ratio1 < ratio) {
+            // A poor prediction: take the Newton step instead.
+            continue;
+        }
         if !fresh && !(ratio1 < ratio) {
             // A stale inverse made things worse: reject the step, refresh the inverse.
-            h = None;
+            have = false;
             prev_ratio = f64::INFINITY;
             continue;
         }
-        if opts.broyden
-            && step > 1e-7
-            && let Some(hm) = h.as_mut()
-        {
+        // Along a path (a prediction was offered) the small last steps update too: they
+        // carry the Jacobian's change since the inverse was made, which the next solve needs.
+        if opts.broyden && (step > 1e-7 || start.predicted.is_some()) {
             let y: Vec12 = std::array::from_fn(|k| r1[k] - r[k]);
-            broyden(hm, &dz, &y);
+            broyden(h, &dz, &y);
         }
-        (prev_ratio, z, r, tips, ratio) = (ratio, z1, r1, t1, ratio1);
+        // A prediction's reduction of the residual is no convergence rate of the iteration.
+        let rate_from = if guess { f64::INFINITY } else { ratio };
+        (prev_ratio, z, r, tips, ratio) = (rate_from, z1, r1, t1, ratio1);
         // The second step also corrects the quadratic error of the first (a warm start is
         // one input step away), which a fresh Jacobian would not remove: judge the inverse
         // by the later steps' contraction only.
         taken += 1;
         if !fresh && taken > 2 && step > 1e-9 && step > opts.refresh_rate * prev_step {
             // Converging slowly on an old inverse: refresh it.
-            h = None;
+            have = false;
         }
         fresh = false;
         prev_step = step;

@@ -139,6 +139,14 @@ impl Mode {
         }
     }
 
+    /// The given inputs, scaled.
+    pub(crate) fn input(&self) -> [f64; 3] {
+        match self {
+            Mode::Fk(q) => *q,
+            Mode::Ik(x) => *x,
+        }
+    }
+
     /// Straight-line blend between two inputs of the same kind.
     pub(crate) fn blend(&self, other: &Mode, t: f64) -> Mode {
         let lerp = |a: &[f64; 3], b: &[f64; 3]| std::array::from_fn(|k| a[k] + t * (b[k] - a[k]));

@@ -89,6 +89,7 @@ impl Pcr {
         let start = Start {
             z: [0.0; N],
             tips: None,
+            predicted: None,
         };
         let mut warm = Warm::new(key, None);
         let inverse = Inverse {
@@ -219,11 +220,16 @@ impl Pcr {
         check_finite("pose x", pose.x)?;
         check_finite("pose y", pose.y)?;
         check_finite("pose theta", pose.theta)?;
-        // A rod of length l reaches at most l away from its stage's line.
-        for (i, l) in self.params.limbs.iter().enumerate() {
-            let p = pose.apply(&nalgebra::Vector2::new(l.bx, l.by));
-            let (c, s) = (l.gamma.cos(), l.gamma.sin());
-            let off = -(p.x - l.ax) * s + (p.y - l.ay) * c;
+        // A rod of length l reaches at most l away from its stage's line (`u`: the stage
+        // axis, cos and sin of gamma computed once per robot).
+        let (st, ct) = pose.theta.sin_cos();
+        for (i, (l, ls)) in self.params.limbs.iter().zip(&self.setup.limbs).enumerate() {
+            let p = [
+                pose.x + ct * l.bx - st * l.by,
+                pose.y + st * l.bx + ct * l.by,
+            ];
+            let [c, s] = ls.u;
+            let off = -(p[0] - l.ax) * s + (p[1] - l.ay) * c;
             if off.abs() >= l.l {
                 return Err(unreachable(format!(
                     "the distal clamp of limb {} is {:.6e} m from its stage axis, rod length {:.6e} m",
@@ -278,8 +284,15 @@ impl Pcr {
             // chord step before it): its distal states are known, its first residual free.
             z: same_rods.map_or_else(|| unknowns(eq, from, self.setup.l_ref), |w| w.integrated),
             tips: same_rods.map(|w| &w.tips),
+            // Along a smooth path of inputs, the solution extrapolated from the last ones.
+            predicted: same_rods
+                .filter(|_| self.options.predict)
+                .and_then(|w| w.trail.predict(&to.input())),
         };
         let mut warm = Warm::new(self.key, prior.map(|w| &w.inverse));
+        if let Some(w) = same_rods {
+            warm.trail = w.trail;
+        }
         let inverse = Inverse {
             h: &mut warm.inverse,
             known: prior.is_some(),

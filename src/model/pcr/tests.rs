@@ -271,3 +271,116 @@ fn warm_solves_equal_cold_solves() {
     );
     assert!(worst_q < 1e-11, "IK: {worst_q:e} m");
 }
+
+/// The trail's prediction is exact for unknowns quadratic in the distance along a straight
+/// path of inputs (uneven steps), and there is none off a smooth path, after a much longer
+/// or shorter step, or with fewer than three solutions.
+#[test]
+fn trail_extrapolates_quadratics_exactly_and_only_along_a_path() {
+    use super::trail::Trail;
+    let dir = [0.6, -0.48, 0.64];
+    let at = |s: f64| dir.map(|d| 1e-3 + d * s);
+    let z = |s: f64| -> [f64; 12] {
+        std::array::from_fn(|k| {
+            0.3 - 0.1 * k as f64 + (k as f64 - 5.0) * s + 7.0 * (k % 3) as f64 * s * s
+        })
+    };
+    let mut trail = Trail::EMPTY;
+    for s in [0.0, 1e-4, 2.5e-4] {
+        assert_eq!(trail.predict(&at(s)), None, "fewer than three solutions");
+        trail = trail.push(at(s), z(s));
+    }
+    let s = 3.7e-4;
+    let p = trail.predict(&at(s)).expect("on the path");
+    let worst = (0..12).fold(0.0_f64, |m, k| m.max((p[k] - z(s)[k]).abs()));
+    assert!(worst < 1e-12, "quadratic extrapolated with error {worst:e}");
+    // Off the path: the step turned by 90 degrees.
+    let (base, side) = (at(2.5e-4), [0.625, 0.78125, 0.0]);
+    let off: [f64; 3] = std::array::from_fn(|k| base[k] + 1.2e-4 * side[k]);
+    assert_eq!(trail.predict(&off), None, "off the path");
+    assert_eq!(
+        trail.predict(&at(2.5e-4 + 4e-4)),
+        None,
+        "a step 2.7 times the last"
+    );
+    assert_eq!(
+        trail.predict(&at(2.5e-4 + 0.5e-4)),
+        None,
+        "a step a third of the last"
+    );
+    // Only the newest three count.
+    let newer = trail.push(at(s), z(s));
+    let q = newer.predict(&at(4.9e-4)).expect("on the path");
+    let worst = (0..12).fold(0.0_f64, |m, k| m.max((q[k] - z(4.9e-4)[k]).abs()));
+    assert!(worst < 1e-12, "after a fourth solution: {worst:e}");
+}
+
+/// Warm solves started from the trail's prediction give the answers of warm solves without
+/// it to the solver's tolerance, along the 3 um joint path and the circle of poses of the
+/// benchmark, in fewer Newton iterations.
+#[test]
+fn predicted_warm_solves_equal_unpredicted_ones() {
+    let fast = robot();
+    assert!(fast.options().predict);
+    let plain = fast
+        .with_options(SolverOptions {
+            predict: false,
+            ..*fast.options()
+        })
+        .expect("plain robot");
+    let path: Vec<[f64; 3]> = (0..400)
+        .map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / 2000.0;
+            [0.001 * a.cos(), 0.001 * a.sin(), 0.0005 * (2.0 * a).sin()]
+        })
+        .collect();
+    let (mut a, mut b) = (
+        fast.fk(&path[0]).expect("fk"),
+        plain.fk(&path[0]).expect("fk"),
+    );
+    let (mut worst_p, mut worst_t) = (0.0_f64, 0.0_f64);
+    let (mut its_fk, mut its_fk_plain) = (0, 0);
+    for q in &path[1..] {
+        a = fast.fk_from(&a, q).expect("predicted fk");
+        b = plain.fk_from(&b, q).expect("plain fk");
+        its_fk += a.iterations;
+        its_fk_plain += b.iterations;
+        worst_p = worst_p.max((a.pose.x - b.pose.x).hypot(a.pose.y - b.pose.y));
+        worst_t = worst_t.max((a.pose.theta - b.pose.theta).abs());
+    }
+    let poses: Vec<crate::geometry::Pose2> = (0..400)
+        .map(|k| {
+            let t = std::f64::consts::TAU * k as f64 / 400.0;
+            crate::geometry::Pose2::new(0.0015 * t.cos(), 0.0015 * t.sin(), 0.0)
+        })
+        .collect();
+    let (mut a, mut b) = (
+        fast.ik(&poses[0]).expect("ik"),
+        plain.ik(&poses[0]).expect("ik"),
+    );
+    let mut worst_q = 0.0_f64;
+    let (mut its_ik, mut its_ik_plain) = (0, 0);
+    for p in &poses[1..] {
+        a = fast.ik_from(&a, p).expect("predicted ik");
+        b = plain.ik_from(&b, p).expect("plain ik");
+        its_ik += a.iterations;
+        its_ik_plain += b.iterations;
+        worst_q = (0..3).fold(worst_q, |m, k| m.max((a.q[k] - b.q[k]).abs()));
+    }
+    println!(
+        "predicted vs plain: FK {worst_p:.3e} m, {worst_t:.3e} rad, {its_fk} vs {its_fk_plain} iterations; IK {worst_q:.3e} m, {its_ik} vs {its_ik_plain} iterations"
+    );
+    assert!(
+        worst_p < 1e-11 && worst_t < 1e-10,
+        "FK: {worst_p:e} m, {worst_t:e} rad"
+    );
+    assert!(worst_q < 1e-11, "IK: {worst_q:e} m");
+    assert!(
+        its_fk < its_fk_plain,
+        "FK: {its_fk} vs {its_fk_plain} iterations"
+    );
+    assert!(
+        its_ik < its_ik_plain,
+        "IK: {its_ik} vs {its_ik_plain} iterations"
+    );
+}

@@ -11,6 +11,7 @@ use super::newton::{self, Failure, Inverse, Solved, Start};
 use super::params::PcrParams;
 use super::setup::{Mode, Setup};
 use super::shooting::{Mat12, N, Tips, Vec12};
+use super::trail::Trail;
 use super::{Equilibrium, PcrError, SolverOptions};
 use crate::geometry::Pose2;
 
@@ -28,6 +29,8 @@ pub(crate) struct Warm {
     pub(crate) integrated: Vec12,
     /// Relative distal states at `integrated`.
     pub(crate) tips: Tips,
+    /// The solutions of the last consecutive solves with these rods, this one newest.
+    pub(crate) trail: Trail,
 }
 
 impl Warm {
@@ -40,6 +43,7 @@ impl Warm {
             inverse: inverse.copied().unwrap_or([[0.0; N]; N]),
             integrated: [0.0; N],
             tips: [[0.0; 4]; 3],
+            trail: Trail::EMPTY,
         }
     }
 }
@@ -70,7 +74,7 @@ pub(crate) fn fingerprint(p: &PcrParams, l_ref: f64, opts: &SolverOptions) -> u6
 }
 
 /// The equilibrium described by a converged solve; `warm` holds the approximate inverse
-/// Jacobian the solve left behind (its other fields are filled here).
+/// Jacobian the solve left behind and the trail before it (its other fields are filled here).
 pub(crate) fn equilibrium(
     setup: &Setup,
     mode: &Mode,
@@ -98,6 +102,7 @@ pub(crate) fn equilibrium(
     warm.fk = matches!(mode, Mode::Fk(_));
     warm.integrated = integrated;
     warm.tips = tips;
+    warm.trail = warm.trail.push(mode.input(), z);
     Equilibrium {
         q,
         pose,
@@ -110,7 +115,8 @@ pub(crate) fn equilibrium(
 
 /// Continuation from a solved `(setup0, mode0, z0)` to `(setup1, mode1)` along straight
 /// blends; returns the solution and the Newton iterations spent, and leaves the solution's
-/// approximate inverse Jacobian in `inverse` (which holds the start's when `known`).
+/// approximate inverse Jacobian in `inverse` (which holds the start's when `known`). The
+/// start's prediction is tried on the first try at the target only.
 pub(crate) fn track(
     setup0: &Setup,
     mode0: &Mode,
@@ -123,7 +129,7 @@ pub(crate) fn track(
     let (mut t, mut dt) = (0.0_f64, 1.0_f64);
     let mut z = start.z;
     let mut tips = start.tips.copied();
-    // The start's inverse, then the last solved step's: a failed try leaves it unchanged.
+    // The start's inverse, then the last solved step's (a failed try in place forgets it).
     let Inverse { h, mut known } = inverse;
     let mut iterations = 0;
     let mut last = String::new();
@@ -136,6 +142,7 @@ pub(crate) fn track(
         let guess = Start {
             z,
             tips: tips.as_ref(),
+            predicted: start.predicted.filter(|_| t1 >= 1.0 && !subdivided),
         };
         // Where the setup changes along the way (the load or the clamps are blended in) or
         // the path had to be subdivided, every solution is checked against a fresh Jacobian:
@@ -143,7 +150,10 @@ pub(crate) fn track(
         // and a bifurcation (buckling) may lie on the way. That solve's own inverse is then
         // left in a scratch copy, so a failed check leaves `h` as it was.
         let checked = if setup0 == setup1 && !subdivided {
-            newton::newton(&setup, &mode, &guess, Inverse { h: &mut *h, known }, opts)
+            let solved = newton::newton(&setup, &mode, &guess, Inverse { h: &mut *h, known }, opts);
+            // A failed solve in place leaves no usable inverse: the next try makes a fresh one.
+            known &= solved.is_ok();
+            solved
         } else {
             let mut scratch = *h;
             let inv = Inverse {
