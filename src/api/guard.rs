@@ -48,7 +48,8 @@ pub(super) struct Guard<S> {
     state: Arc<AppState>,
 }
 
-type Answer = Pin<Box<dyn Future<Output = Result<Response, Infallible>> + Send>>;
+/// The boxed response future of the API's own tower services (this guard and the route metrics).
+pub(super) type Answer = Pin<Box<dyn Future<Output = Result<Response, Infallible>> + Send>>;
 
 impl<S> Service<Request> for Guard<S>
 where

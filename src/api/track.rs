@@ -4,8 +4,6 @@
 //! registry lookup (the recorder is the one installed when the route first answers).
 
 use std::convert::Infallible;
-use std::future::Future;
-use std::pin::Pin;
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::Instant;
@@ -15,6 +13,8 @@ use axum::http::Method;
 use axum::response::Response;
 use metrics::{Counter, Histogram};
 use tower_service::Service;
+
+use super::guard::Answer;
 
 /// Makes a [`Track`] around each route of the router (not the fallback).
 #[derive(Debug, Clone, Default)]
@@ -85,8 +85,6 @@ impl Handles {
         c
     }
 }
-
-type Answer = Pin<Box<dyn Future<Output = Result<Response, Infallible>> + Send>>;
 
 impl<S> Service<Request> for Track<S>
 where
