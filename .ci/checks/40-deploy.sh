@@ -109,6 +109,10 @@ sed -i "s#\"/etc/calibd/secrets/#\"$root/etc/calibd/secrets/#" "$root$lab_file"
 # 4. Start it as nobody, on a free loopback port (CALIBD_LISTEN overrides the file's listen).
 out=$scratch/stdout.log
 err=$scratch/stderr.log
+# Created before the start: the wait below reads them at once, and under load the subshell's
+# redirection could come later (a `sed: can't read` that ended the check under set -e).
+: >"$out"
+: >"$err"
 (
   umask "${umask_unit:-0022}"
   exec env -i PATH=/usr/local/bin:/usr/bin:/bin "${envs[@]}" CALIBD_LISTEN=127.0.0.1:0 \
@@ -216,6 +220,8 @@ grep -q '^HEALTHCHECK .*"/usr/local/bin/calibd", "health"' deploy/Containerfile 
 layer=$(mktemp -d)
 cp Cargo.toml Cargo.lock "$layer/"
 mkdir -p "$layer/drivers" && cp drivers/Cargo.toml "$layer/drivers/"
+grep -qx 'COPY fft fft' deploy/Containerfile || fail "deploy/Containerfile's dependency layer does not copy fft/"
+cp -r fft "$layer/"
 stub=$(awk '/^RUN mkdir -p src drivers\/src/,/^COPY \. \./' deploy/Containerfile |
   grep -v '^COPY' | sed -e 's/^RUN //' -e 's/\\$//' | tr '\n' ' ')
 [ -n "$stub" ] || fail "deploy/Containerfile has no dependency layer (RUN mkdir -p src drivers/src ...)"

@@ -8,9 +8,7 @@
 use std::f64::consts::{FRAC_PI_4, PI, TAU};
 use std::sync::Arc;
 
-use realfft::{RealFftPlanner, RealToComplex};
-use rustfft::num_complex::Complex;
-use rustfft::{Fft, FftPlanner};
+use calibd_fft::{Complex, Fft, RealToComplex};
 
 use super::{GrayImage, PatternError, PatternPose, wrap_half};
 
@@ -155,9 +153,9 @@ impl PhaseEstimator {
         };
         let outer_kx = (RANGE * width as f64 / period_px).ceil() as usize + m / 2 + 2;
         let ncols = (width / 2 + 1).min(outer_kx);
-        let r2c = RealFftPlanner::<f32>::new().plan_fft_forward(width);
-        let col_fft = FftPlanner::<f32>::new().plan_fft_forward(height);
-        let block_fft = FftPlanner::<f64>::new().plan_fft_inverse(m);
+        let r2c = calibd_fft::real_forward_f32(width);
+        let col_fft = calibd_fft::forward_f32(height);
+        let block_fft = calibd_fft::inverse_f64(m);
         let row_scratch = r2c.make_scratch_vec();
         let col_scratch = vec![Complex::default(); col_fft.get_inplace_scratch_len()];
         let block_scratch = vec![Complex::default(); block_fft.get_inplace_scratch_len()];
