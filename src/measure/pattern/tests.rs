@@ -319,3 +319,51 @@ fn small_noisy_8_bit_images_are_measured_near_the_noise_limit() {
         assert!(worst < 0.01, "{size} {bits}: {worst}");
     }
 }
+
+/// Each plan against the direct sum of its definition on a seeded signal.
+#[test]
+fn fft_plans_match_the_direct_transform() {
+    let n = 12;
+    let x: Vec<f64> = (0..n).map(|i| ((i * 7 + 3) % 11) as f64 - 5.0).collect();
+    let dft = |sign: f64| -> Vec<calibd_fft::Complex<f64>> {
+        (0..n)
+            .map(|k| {
+                (0..n)
+                    .map(|j| {
+                        let a = sign * std::f64::consts::TAU * (j * k) as f64 / n as f64;
+                        calibd_fft::Complex::new(x[j] * a.cos(), x[j] * a.sin())
+                    })
+                    .sum()
+            })
+            .collect()
+    };
+    let (fwd, inv) = (dft(-1.0), dft(1.0));
+
+    let r2c = calibd_fft::real_forward_f32(n);
+    let mut input: Vec<f32> = x.iter().map(|&v| v as f32).collect();
+    let mut out = r2c.make_output_vec();
+    r2c.process(&mut input, &mut out)
+        .expect("lengths match the plan");
+    assert_eq!(out.len(), n / 2 + 1);
+    for (a, b) in out.iter().zip(&fwd) {
+        assert!((a.re as f64 - b.re).abs() < 1e-4 && (a.im as f64 - b.im).abs() < 1e-4);
+    }
+
+    let mut c: Vec<calibd_fft::Complex<f32>> = x
+        .iter()
+        .map(|&v| calibd_fft::Complex::new(v as f32, 0.0))
+        .collect();
+    calibd_fft::forward_f32(n).process(&mut c);
+    for (a, b) in c.iter().zip(&fwd) {
+        assert!((a.re as f64 - b.re).abs() < 1e-4 && (a.im as f64 - b.im).abs() < 1e-4);
+    }
+
+    let mut d: Vec<calibd_fft::Complex<f64>> = x
+        .iter()
+        .map(|&v| calibd_fft::Complex::new(v, 0.0))
+        .collect();
+    calibd_fft::inverse_f64(n).process(&mut d);
+    for (a, b) in d.iter().zip(&inv) {
+        assert!((a - b).norm() < 1e-12);
+    }
+}
