@@ -92,7 +92,9 @@ impl Rows<'_> {
             })
             .collect();
         let mut out = vec![0.0f64; vs.len()];
-        for (src, cols) in &self.blocks {
+        // Last block first: the latest rows were evaluated last, so a problem's memos of
+        // that point still hold (the maxima do not depend on the order).
+        for (src, cols) in self.blocks.iter().rev() {
             match src {
                 Src::Dense(j) => {
                     for (o, w) in out.iter_mut().zip(&ws) {

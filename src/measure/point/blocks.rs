@@ -1,6 +1,6 @@
 //! The Jacobian of a [`PointProblem`] in row blocks ([`Problem::jacobian_blocks`]): each
-//! block's rows gathered row by row in a small staging buffer, then written to the
-//! column-major block column by column (no strided stores into the block).
+//! measurement writes its rows of each column straight into the column-major block, a
+//! contiguous run of three (no row-major staging copy to transpose afterwards).
 
 use nalgebra::{DMatrix, Vector3};
 
@@ -48,6 +48,11 @@ impl PointProblem {
             .zip(&at)
             .filter_map(|(&col, &oc)| oc.filter(|_| col < params).map(|oc| (col, oc)))
             .collect();
+        // Output columns written for every measured row (the rest are zeroed per block).
+        let mut full = vec![false; width];
+        for &(_, oc) in &pairs {
+            full[oc] = true;
+        }
         self.with_chain(x, |chain| {
             let centres = self.centres(x);
             let nj = chain.joints.len();
@@ -62,7 +67,6 @@ impl PointProblem {
                 let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
                 let mut scratch = JacobianScratch::default();
                 scratch.set_wanted(wanted.clone());
-                let mut stage: Vec<f64> = Vec::new();
                 let measured = part.start.min(base)..part.end.min(base);
                 let mut first = measured.start / 3;
                 while 3 * first < measured.end {
@@ -73,9 +77,15 @@ impl PointProblem {
                     if block.nrows() != len {
                         block = DMatrix::zeros(len, width);
                     }
-                    // Row-major staging: each measurement writes its three rows contiguously.
-                    stage.clear();
-                    stage.resize(len * width, 0.0);
+                    // Columns not written for every row (an unknown ball's, one not asked
+                    // for) start at zero; each measurement then writes its rows of every
+                    // other column as one short contiguous run.
+                    let data = block.as_mut_slice();
+                    for (oc, column) in data.chunks_exact_mut(len).enumerate() {
+                        if !full[oc] {
+                            column.fill(0.0);
+                        }
+                    }
                     for i in first..last {
                         let (m, tau) = (&self.meas[i], &self.tau[i]);
                         let memo_i = match memo.as_deref_mut() {
@@ -97,25 +107,30 @@ impl PointProblem {
                             Target::Ball(b) => self.free_slot(b),
                             Target::Point(_) => None,
                         };
-                        for a in 0..3 {
-                            let row = 3 * i + a;
-                            if !(lo..hi).contains(&row) {
-                                continue;
-                            }
-                            let out = &mut stage[(row - lo) * width..(row - lo + 1) * width];
+                        // The rows a0..a1 of this measurement's three within lo..hi.
+                        let (a0, a1) = (lo.max(3 * i) - 3 * i, hi.min(3 * i + 3) - 3 * i);
+                        let at_row = 3 * i + a0 - lo;
+                        if a1 - a0 == 3 {
+                            // A fixed-size copy (a slice copy of unknown length calls memmove).
                             for &(col, oc) in &pairs {
-                                out[oc] = buf[col][a];
+                                let (start, v) = (oc * len + at_row, &buf[col]);
+                                data[start] = v[0];
+                                data[start + 1] = v[1];
+                                data[start + 2] = v[2];
                             }
-                            if let Some(o) = ball {
-                                if let Some(oc) = at[o + a] {
-                                    out[oc] = -1.0;
+                        } else {
+                            for &(col, oc) in &pairs {
+                                for a in a0..a1 {
+                                    data[oc * len + at_row + a - a0] = buf[col][a];
                                 }
                             }
                         }
-                    }
-                    for (oc, column) in block.as_mut_slice().chunks_exact_mut(len).enumerate() {
-                        for (v, row) in column.iter_mut().zip(stage.chunks_exact(width)) {
-                            *v = row[oc];
+                        if let Some(o) = ball {
+                            for a in a0..a1 {
+                                if let Some(oc) = at[o + a] {
+                                    data[oc * len + at_row + a - a0] = -1.0;
+                                }
+                            }
                         }
                     }
                     visit(lo..hi, &block);

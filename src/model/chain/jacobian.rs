@@ -137,7 +137,8 @@ impl Chain {
         let nb = self.param_index(ParamId::Base(0)).unwrap_or(0);
         let key = self.base.map(f64::to_bits);
         let base = match scratch.base.take() {
-            Some(b) if b.0 == key && b.1 == nb => b,
+            // Compared element by element (an array compare calls memcmp).
+            Some(b) if b.0.iter().zip(&key).all(|(a, k)| a == k) && b.1 == nb => b,
             _ => {
                 let mut gens = Vec::with_capacity(6);
                 let base_rots = self.end_rotations(0, &self.base);
@@ -162,12 +163,19 @@ impl Chain {
             let m = self.motion(j, q, tau);
             let tau_k = self.tau_of(j, tau);
             let fields = joint_fields(joint);
-            let col = |f: JointField| fields.iter().position(|x| *x == f).map(|c| ps + c);
+            // The field's column: at its usual place in `fields` (`hint`), else searched.
+            let col = |f: JointField, hint: usize| {
+                if fields.get(hint) == Some(&f) {
+                    Some(ps + hint)
+                } else {
+                    fields.iter().position(|x| *x == f).map(|c| ps + c)
+                }
+            };
             // A mimic joint's multiplier moves it by the leader's variable per unit.
             let q_lead = joint.mimic.as_ref().map_or(0.0, |mm| q[mm.leader]);
             let mj = memo.as_deref_mut().and_then(|m| m.get_mut(j));
-            let mut push = |f: JointField, g: Gen, coef: f64| {
-                if let Some(c) = col(f) {
+            let mut push = |f: JointField, hint: usize, g: Gen, coef: f64| {
+                if let Some(c) = col(f, hint) {
                     if wanted.get(c) != Some(&false) {
                         recs.push((c, g, coef));
                     }
@@ -181,20 +189,20 @@ impl Chain {
                         axis: f0.r.column(0).into(),
                         origin: f0.p,
                     };
-                    push(JointField::Alpha, x0, 1.0);
+                    push(JointField::Alpha, 0, x0, 1.0);
                     // The elementary factors without their products with zeros and ones
                     // (the same values, see `Frame::then_rot_x`).
                     let f1 = f0.then_rot_x(&rx.r);
                     let dx = Gen::Trans {
                         dir: f1.r.column(0).into(),
                     };
-                    push(JointField::A, dx, 1.0);
+                    push(JointField::A, 1, dx, 1.0);
                     let f1 = f1.then_dx(*a);
                     let y1 = Gen::Rot {
                         axis: f1.r.column(1).into(),
                         origin: f1.p,
                     };
-                    push(JointField::Beta, y1, 1.0);
+                    push(JointField::Beta, 2, y1, 1.0);
                     let f2 = f1.then_rot_y(&ry.r);
                     let zg = Gen::Rot {
                         axis: f2.r.column(2).into(),
@@ -203,15 +211,15 @@ impl Chain {
                     let zt = Gen::Trans {
                         dir: f2.r.column(2).into(),
                     };
-                    push(JointField::Offset, zg, 1.0);
-                    push(JointField::Compliance, zg, tau_k);
-                    push(JointField::D, zt, 1.0);
+                    push(JointField::Offset, 4, zg, 1.0);
+                    push(JointField::Compliance, 5, zg, tau_k);
+                    push(JointField::D, 3, zt, 1.0);
                     let mg = if joint.kind == JointKind::Prismatic {
                         zt
                     } else {
                         zg
                     };
-                    push(JointField::Multiplier, mg, q_lead);
+                    push(JointField::Multiplier, 5, mg, q_lead);
                     let (sin, cos) = trig::sin_cos(m.theta, mj);
                     t = f2.then_rot_z_sin_cos(sin, cos).then_dz(*d + m.shift);
                 }
@@ -239,7 +247,7 @@ impl Chain {
                         } else {
                             Gen::Trans { dir }
                         };
-                        push(JointField::Err(e as u8), g, 1.0);
+                        push(JointField::Err(e as u8), e, g, 1.0);
                         f = f.mul(&mo.frame(errors[e]));
                     }
                     let dir = f.r * axis;
@@ -249,14 +257,14 @@ impl Chain {
                                 axis: dir,
                                 origin: f.p,
                             };
-                            push(JointField::Offset, g, 1.0);
-                            push(JointField::Compliance, g, tau_k);
-                            push(JointField::Multiplier, g, q_lead);
+                            push(JointField::Offset, 6, g, 1.0);
+                            push(JointField::Compliance, 7, g, tau_k);
+                            push(JointField::Multiplier, 7, g, q_lead);
                         }
                         JointKind::Prismatic => {
                             let g = Gen::Trans { dir };
-                            push(JointField::LinearOffset, g, 1.0);
-                            push(JointField::Multiplier, g, q_lead);
+                            push(JointField::LinearOffset, 6, g, 1.0);
+                            push(JointField::Multiplier, 7, g, q_lead);
                         }
                         JointKind::Fixed => {}
                     }
@@ -265,7 +273,8 @@ impl Chain {
             }
         }
         if body >= self.joints.len() {
-            let nt = self.param_index(ParamId::Tool(0)).unwrap_or(0);
+            // The tool's columns follow the base's six (as `param_index` places them).
+            let nt = nb + 6;
             let tool_rots = self.end_rotations(1, &self.tool);
             push_xyzabc_gens(&t, &self.tool, &tool_rots, nt, recs);
             t = t.mul(&self.tool_frame());
