@@ -173,8 +173,10 @@ fn justin_runs_through_the_front_door_as_a_tree_identify_job() {
 
 /// The largest Justin errors under a robust loss: the same job with `options.robust`
 /// (Huber, Cauchy) refits the last step with per-marker weights; the robust line is added
-/// to the table, the down-weighted measurements are listed largest error first, and the
-/// K-fold held-out figure uses the robust fit too. Prints before/after mean, RMS and max.
+/// to the table and the down-weighted measurements are listed largest error first. Prints
+/// before/after mean, RMS and max. Without the K-fold (five more robust calibrations per
+/// loss, ~10 CPU-minutes in a test build): that each fold is refitted robustly is tested on
+/// a twin with an outlier (`jobs::tree::tests::tree_robust_loss_down_weights_an_outlier_*`).
 #[test]
 fn justin_with_a_robust_loss_lists_what_it_down_weights() {
     let Some(doc) = justin_job() else {
@@ -183,6 +185,9 @@ fn justin_with_a_robust_loss_lists_what_it_down_weights() {
     for loss in ["huber", "cauchy"] {
         let mut d = doc.clone();
         d["options"]["robust"] = serde_json::json!({"loss": loss, "rounds": 5});
+        if let Some(o) = d["options"].as_object_mut() {
+            o.remove("folds");
+        }
         let r = run_job(&d);
         let steps = r["steps"].as_array().expect("steps");
         assert_eq!(steps.len(), 6);
@@ -212,13 +217,7 @@ fn justin_with_a_robust_loss_lists_what_it_down_weights() {
                 .collect::<Vec<_>>()
                 .join(", ")
         );
-        let held = &r["held_out"]["error_mm"];
-        println!(
-            "  5-fold held out: mean {:.2} rms {:.2} max {:.2} mm",
-            held["mean"].as_f64().unwrap_or(f64::NAN),
-            held["rms"].as_f64().unwrap_or(f64::NAN),
-            held["max"].as_f64().unwrap_or(f64::NAN)
-        );
+        assert!(r["held_out"].is_null());
         assert_eq!(
             r["worst_samples"][0]["error_mm"],
             steps[5]["error_mm"]["max"]
