@@ -3,7 +3,9 @@
 //! pointed at the same file, and the three example campaigns of `examples/` submitted
 //! unchanged. The only edits to the lab file are the ones a rehearsal needs: device
 //! addresses moved to loopback ports, the serial port and the password file to a scratch
-//! folder.
+//! folder, and the humanoid's planned joint speed raised tenfold (0.3 -> 3 rad/s: the mock
+//! plays every move in real time, and the 20 postures then take seconds, not three
+//! minutes).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -17,7 +19,8 @@ pub(crate) fn repo(p: &str) -> PathBuf {
 }
 
 /// The example lab in `dir`: every `address = "host:port"` on a free loopback port, the
-/// U-WAVE port and the RWS password file in `dir`, the models copied beside it.
+/// U-WAVE port and the RWS password file in `dir`, the humanoid's moves planned at 3 rad/s,
+/// the models copied beside it.
 pub(crate) fn scratch_lab(dir: &Path) -> PathBuf {
     let text = std::fs::read_to_string(repo("deploy/lab.example.toml")).expect("example lab");
     let mut out = String::new();
@@ -33,12 +36,18 @@ pub(crate) fn scratch_lab(dir: &Path) -> PathBuf {
             format!("port = \"{}\"", dir.join("ttyUWAVE").display())
         } else if line.starts_with("password_file = ") {
             "password_file = \"rws-password\"".to_string()
+        } else if let Some(rest) = line.strip_prefix("speed_rad_s = 0.3 ") {
+            format!("speed_rad_s = 3.0 {rest}")
         } else {
             line.to_string()
         };
         out.push_str(&moved);
         out.push('\n');
     }
+    assert!(
+        out.contains("speed_rad_s = 3.0"),
+        "the example lab's humanoid joints no longer say `speed_rad_s = 0.3`"
+    );
     std::fs::create_dir_all(dir.join("models")).expect("models dir");
     for f in ["irb120.json", "pcr3pf.json", "talos_reduced.urdf"] {
         std::fs::copy(
