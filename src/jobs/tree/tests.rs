@@ -73,6 +73,14 @@ fn twin_job(twin: &ElasticTwin, elastic: Value, folds: Option<usize>) -> Value {
     })
 }
 
+/// Prepare and run a `tree.identify` document.
+fn calibrate(doc: &Value) -> Run<TreeCalibration> {
+    prepare(doc, &Inputs::new(&NoReferences))
+        .expect("prepares")
+        .calibrate(&NoMonitor)
+        .expect("runs")
+}
+
 fn all() -> ElasticOptions {
     ElasticOptions {
         joint: revolute_rows(),
@@ -89,8 +97,7 @@ fn tree_identify_runs_the_cumulative_steps_with_lumped_and_lateral_elasticity() 
         json!({"joint": ["*"], "lateral": ["*"], "lumping": "subtree"}),
         Some(3),
     );
-    let job = prepare(&doc, &Inputs::new(&NoReferences)).expect("prepares");
-    let r = job.calibrate(&NoMonitor).expect("runs").result;
+    let r = calibrate(&doc).result;
     let means: Vec<f64> = r.steps.iter().map(|s| s.error_mm.mean).collect();
     assert_eq!(r.steps.len(), 5, "{means:?}");
     assert!(means[4] < 0.2 && means[2] > 1.0, "{means:?}");
@@ -174,11 +181,7 @@ fn tree_identify_takes_a_user_prior() {
         for (k, v) in options.as_object().into_iter().flatten() {
             doc["options"][k] = v.clone();
         }
-        prepare(&doc, &Inputs::new(&NoReferences))
-            .expect("prepares")
-            .calibrate(&NoMonitor)
-            .expect("runs")
-            .result
+        calibrate(&doc).result
     };
     let name = format!("r2.{}", GEOMETRY[1]);
     let moved = |r: &TreeCalibration| {
@@ -256,10 +259,7 @@ fn tree_k_fold_coverage_matches_the_noise_model() {
         for (k, v) in options.as_object().into_iter().flatten() {
             doc["options"][k] = v.clone();
         }
-        prepare(&doc, &Inputs::new(&NoReferences))
-            .expect("prepares")
-            .calibrate(&NoMonitor)
-            .expect("runs")
+        calibrate(&doc)
     };
     let optimistic = |r: &TreeCalibration| {
         r.assessment
@@ -321,16 +321,9 @@ fn tree_robust_loss_down_weights_an_outlier_in_the_fit_and_in_every_fold() {
     let x = format!("{marker}_x");
     let v = doc["samples"][17][&x].as_f64().expect("marker x");
     doc["samples"][17][&x] = json!(v + 0.02);
-    let run = |doc: &Value| {
-        prepare(doc, &Inputs::new(&NoReferences))
-            .expect("prepares")
-            .calibrate(&NoMonitor)
-            .expect("runs")
-            .result
-    };
-    let plain = run(&doc);
+    let plain = calibrate(&doc).result;
     doc["options"]["robust"] = json!({"loss": "cauchy"});
-    let robust = run(&doc);
+    let robust = calibrate(&doc).result;
     let rob = robust.robust.as_ref().expect("robust outcome");
     let first = &rob.downweighted[0];
     assert_eq!(
