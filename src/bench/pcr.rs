@@ -33,7 +33,7 @@ pub fn run() -> Vec<Figure> {
         "FK per configuration, warm along a path (steps of 3 um)",
         9,
         n,
-        Some(Duration::from_micros(2)),
+        Some(Duration::from_micros(1)),
         || {
             let mut e = start.clone();
             for q in &path {
@@ -78,7 +78,7 @@ pub fn run() -> Vec<Figure> {
         "IK per pose, warm along a 3 mm circle (400 poses)",
         9,
         poses.len(),
-        Some(Duration::from_micros(3)),
+        Some(Duration::from_nanos(1500)),
         || {
             let mut e = ik0.clone();
             for p in &poses {

@@ -171,7 +171,7 @@ pub struct SolverOptions {
     /// Broyden updates of the reused inverse Jacobian after every Newton step, so it follows
     /// the solution along a path and fresh Jacobians are needed less often.
     pub broyden: bool,
-    /// Start a warm solve from the solution extrapolated (quadratic) through the last three
+    /// Start a warm solve from the solution extrapolated (quartic) through the last five
     /// warm solves' when the inputs follow a smooth, evenly stepped path (`trail`).
     pub predict: bool,
 }
@@ -211,5 +211,6 @@ pub struct Equilibrium {
     /// Scaled proximal wrenches (n_x, n_y, m per limb), kept for warm starts.
     scaled: [f64; 9],
     /// The last factorised shooting Jacobian, reused by warm starts of the same kind.
-    warm: Option<track::Warm>,
+    /// (boxed: an equilibrium is moved and returned by value, the warm data stays put).
+    warm: Option<Box<track::Warm>>,
 }

@@ -51,6 +51,9 @@ pub(crate) fn residual_ratio(setup: &Setup, opts: &SolverOptions, z: &Vec12, r: 
 pub(crate) struct Solved {
     /// The solution.
     pub(crate) z: Vec12,
+    /// The solution one more chord step on, unchecked: more accurate than `z` with a good
+    /// inverse, for the trail's predictions only (which are checked by integrating).
+    pub(crate) refined: Vec12,
     /// Iterations spent (integrations after the start's residual).
     pub(crate) iterations: usize,
     /// The last integrated point: `z` itself, or the point one chord step before it when
@@ -58,7 +61,23 @@ pub(crate) struct Solved {
     pub(crate) integrated: Vec12,
     /// Relative distal states at `integrated` (warm starts from there need no integration).
     pub(crate) tips: Tips,
+    /// The inverse's convergence rate as last observed (for the next solve along a path).
+    pub(crate) rate: Option<Rate>,
 }
+
+/// The convergence rate of chord steps with an inverse: the residual ratio after a step over
+/// the ratio before it, and how many solves ago it was observed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Rate {
+    /// Residual ratio after a step / before it.
+    pub(crate) value: f64,
+    /// Solves since it was observed (0: in this one).
+    pub(crate) age: u8,
+}
+
+/// A rate carried to later solves is used this many times before a step must observe it
+/// again (the Jacobian drifts along the path; the inverse follows by Broyden updates).
+const MAX_RATE_AGE: u8 = 3;
 
 /// A start for [`newton`]: unknowns and, when known, what was solved there.
 #[derive(Debug, Clone, Copy)]
@@ -71,6 +90,10 @@ pub(crate) struct Start<'a> {
     /// A predicted solution (`trail`), taken instead of the first Newton step when the two
     /// agree to half the step.
     pub(crate) predicted: Option<Vec12>,
+    /// The convergence rate the start's inverse showed in an earlier solve: with it, a
+    /// prediction whose residual is small enough is finished by one chord step without
+    /// integrating again (see [`newton`]).
+    pub(crate) rate: Option<Rate>,
 }
 
 /// The approximate inverse Jacobian a [`newton`] solve starts from and leaves behind: read
@@ -130,10 +153,17 @@ const SAFETY: f64 = 10.0;
 /// to `h^T s`. Skipped when the update is numerically meaningless.
 #[inline(always)]
 fn broyden(h: &mut Mat12, s: &Vec12, y: &Vec12) {
-    let hy = mat_vec(h, y);
-    // s^T h, as a sum of rows.
+    // h y (as `mat_vec` sums) and s^T h (a sum of rows), in one pass over h.
+    let mut hy = [0.0; N];
     let mut sh = [0.0; N];
-    for (si, row) in s.iter().zip(h.iter()) {
+    for ((o, row), si) in hy.iter_mut().zip(h.iter()).zip(s) {
+        let mut acc = [0.0; 4];
+        for (r4, v4) in row.chunks_exact(4).zip(y.chunks_exact(4)) {
+            for ((a, x), v) in acc.iter_mut().zip(r4).zip(v4) {
+                *a += x * v;
+            }
+        }
+        *o = (acc[0] + acc[2]) + (acc[1] + acc[3]);
         for (a, b) in sh.iter_mut().zip(row) {
             *a += si * b;
         }
@@ -171,6 +201,12 @@ fn broyden(h: &mut Mat12, s: &Vec12, y: &Vec12) {
 /// regime the residual falls faster than the estimate. A rate observed with an inverse
 /// that was then thrown away is not used. (Residuals at tolerance mean 1e-12 m; the
 /// model's accuracy requirement is 1 nm.)
+///
+/// Along a path the start's prediction usually lands within a few tolerances, and the
+/// inverse is the one the previous solves used (Broyden-updated): the rate it showed there
+/// (`start.rate`) predicts the chord step after the prediction in the same way, so that
+/// solve ends after one integration. Such a carried rate is used for at most
+/// `MAX_RATE_AGE` solves in a row; then a step observes it again.
 pub(crate) fn newton(
     setup: &Setup,
     mode: &Mode,
@@ -225,6 +261,8 @@ fn newton_body(
     let mut prev_step = f64::INFINITY;
     let mut fresh = false;
     let mut taken = 0;
+    // The rate as last observed (or carried in), returned for the next solve.
+    let mut rate = start.rate.filter(|r| have && r.age < MAX_RATE_AGE);
     for it in 0..=opts.max_iterations {
         if !ratio.is_finite() {
             return Err((Failure::NotFinite, it));
@@ -236,21 +274,26 @@ fn newton_body(
             *h = fresh_inverse(&coarse, mode, &z).map_err(|f| (f, it))?;
             have = true;
         }
+        let mut dz = mat_vec(h, &r.map(|v| -v));
         if ratio <= 1.0 {
             return Ok(Solved {
                 z,
+                refined: std::array::from_fn(|k| z[k] + dz[k]),
                 iterations: it,
                 integrated: z,
                 tips,
+                rate,
             });
         }
-        let mut dz = mat_vec(h, &r.map(|v| -v));
         if opts.accept_predicted && prev_ratio.is_finite() && SAFETY * ratio * ratio <= prev_ratio {
+            let z1 = std::array::from_fn(|k| z[k] + dz[k]);
             return Ok(Solved {
-                z: std::array::from_fn(|k| z[k] + dz[k]),
+                z: z1,
+                refined: z1,
                 iterations: it,
                 integrated: z,
                 tips,
+                rate,
             });
         }
         if it == opts.max_iterations {
@@ -265,6 +308,7 @@ fn newton_body(
                 // A stale inverse: take no step, refresh it here (its convergence rate says
                 // nothing about the new one's).
                 have = false;
+                rate = None;
                 prev_ratio = f64::INFINITY;
                 continue;
             }
@@ -294,6 +338,7 @@ fn newton_body(
         if !fresh && !(ratio1 < ratio) {
             // A stale inverse made things worse: reject the step, refresh the inverse.
             have = false;
+            rate = None;
             prev_ratio = f64::INFINITY;
             continue;
         }
@@ -303,8 +348,27 @@ fn newton_body(
             let y: Vec12 = std::array::from_fn(|k| r1[k] - r[k]);
             broyden(h, &dz, &y);
         }
-        // A prediction's reduction of the residual is no convergence rate of the iteration.
-        let rate_from = if guess { f64::INFINITY } else { ratio };
+        // A prediction's reduction of the residual is no convergence rate of the iteration:
+        // after one, the next chord step is judged by the rate carried in (when this solve
+        // still uses the inverse that showed it); after a chord step, by the step's own.
+        let rate_from = if guess {
+            match rate.filter(|_| !fresh) {
+                Some(r) => {
+                    rate = Some(Rate {
+                        value: r.value,
+                        age: r.age + 1,
+                    });
+                    ratio1 / r.value
+                }
+                None => f64::INFINITY,
+            }
+        } else {
+            rate = Some(Rate {
+                value: ratio1 / ratio,
+                age: 0,
+            });
+            ratio
+        };
         (prev_ratio, z, r, tips, ratio) = (rate_from, z1, r1, t1, ratio1);
         // The second step also corrects the quadratic error of the first (a warm start is
         // one input step away), which a fresh Jacobian would not remove: judge the inverse
@@ -313,6 +377,7 @@ fn newton_body(
         if !fresh && taken > 2 && step > 1e-9 && step > opts.refresh_rate * prev_step {
             // Converging slowly on an old inverse: refresh it.
             have = false;
+            rate = None;
         }
         fresh = false;
         prev_step = step;

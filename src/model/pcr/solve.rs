@@ -90,8 +90,9 @@ impl Pcr {
             z: [0.0; N],
             tips: None,
             predicted: None,
+            rate: None,
         };
-        let mut warm = Warm::new(key, None);
+        let mut warm = Box::new(Warm::new(key));
         let inverse = Inverse {
             h: &mut warm.inverse,
             known: false,
@@ -288,11 +289,9 @@ impl Pcr {
             predicted: same_rods
                 .filter(|_| self.options.predict)
                 .and_then(|w| w.trail.predict(&to.input())),
+            rate: same_rods.and_then(|w| w.rate),
         };
-        let mut warm = Warm::new(self.key, prior.map(|w| &w.inverse));
-        if let Some(w) = same_rods {
-            warm.trail = w.trail;
-        }
+        let mut warm = Warm::from_prior(self.key, prior);
         let inverse = Inverse {
             h: &mut warm.inverse,
             known: prior.is_some(),

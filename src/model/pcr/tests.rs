@@ -281,47 +281,63 @@ fn warm_solves_equal_cold_solves() {
     assert!(worst_q < 1e-11, "IK: {worst_q:e} m");
 }
 
-/// The trail's prediction is exact for unknowns quadratic in the distance along a straight
+/// The trail's prediction is exact for unknowns quintic in the distance along a straight
 /// path of inputs (uneven steps), and there is none off a smooth path, after a much longer
-/// or shorter step, or with fewer than three solutions.
+/// or shorter step, or with fewer than six solutions.
 #[test]
-fn trail_extrapolates_quadratics_exactly_and_only_along_a_path() {
+fn trail_extrapolates_quintics_exactly_and_only_along_a_path() {
     use super::trail::Trail;
     let dir = [0.6, -0.48, 0.64];
     let at = |s: f64| dir.map(|d| 1e-3 + d * s);
+    // Distances in units of 1e-4 keep the polynomial's terms comparable.
     let z = |s: f64| -> [f64; 12] {
+        let u = s * 1e4;
         std::array::from_fn(|k| {
-            0.3 - 0.1 * k as f64 + (k as f64 - 5.0) * s + 7.0 * (k % 3) as f64 * s * s
+            let c = k as f64;
+            0.3 - 0.1 * c + (c - 5.0) * 1e-2 * u + 7e-3 * (k % 3) as f64 * u * u
+                - 2e-3 * (c - 6.0) * u.powi(3)
+                + 3e-4 * (k % 4) as f64 * u.powi(4)
+                - 1e-5 * (c + 1.0) * u.powi(5)
         })
     };
     let mut trail = Trail::EMPTY;
-    for s in [0.0, 1e-4, 2.5e-4] {
-        assert_eq!(trail.predict(&at(s)), None, "fewer than three solutions");
-        trail = trail.push(at(s), z(s));
+    let known = [0.0, 1e-4, 2.5e-4, 3.7e-4, 5.2e-4, 6.4e-4];
+    for s in known {
+        assert_eq!(trail.predict(&at(s)), None, "fewer than six solutions");
+        trail.push(at(s), z(s));
     }
-    let s = 3.7e-4;
+    let s = 7.9e-4;
     let p = trail.predict(&at(s)).expect("on the path");
     let worst = (0..12).fold(0.0_f64, |m, k| m.max((p[k] - z(s)[k]).abs()));
-    assert!(worst < 1e-12, "quadratic extrapolated with error {worst:e}");
+    assert!(worst < 1e-10, "quintic extrapolated with error {worst:e}");
+    // A degree more is not reproduced: the prediction does extrapolate, it does not look up.
+    let z6 = |s: f64| z(s).map(|v| v + (s * 1e4).powi(6) * 1e-4);
+    let mut sextic = Trail::EMPTY;
+    for s in known {
+        sextic.push(at(s), z6(s));
+    }
+    let p6 = sextic.predict(&at(s)).expect("on the path");
+    assert!((p6[0] - z6(s)[0]).abs() > 1e-3, "a sextic term is missed");
     // Off the path: the step turned by 90 degrees.
-    let (base, side) = (at(2.5e-4), [0.625, 0.78125, 0.0]);
+    let (base, side) = (at(6.4e-4), [0.625, 0.78125, 0.0]);
     let off: [f64; 3] = std::array::from_fn(|k| base[k] + 1.2e-4 * side[k]);
     assert_eq!(trail.predict(&off), None, "off the path");
     assert_eq!(
-        trail.predict(&at(2.5e-4 + 4e-4)),
+        trail.predict(&at(6.4e-4 + 3e-4)),
         None,
-        "a step 2.7 times the last"
+        "a step 2.5 times the last"
     );
     assert_eq!(
-        trail.predict(&at(2.5e-4 + 0.5e-4)),
+        trail.predict(&at(6.4e-4 + 0.4e-4)),
         None,
         "a step a third of the last"
     );
-    // Only the newest three count.
-    let newer = trail.push(at(s), z(s));
-    let q = newer.predict(&at(4.9e-4)).expect("on the path");
-    let worst = (0..12).fold(0.0_f64, |m, k| m.max((q[k] - z(4.9e-4)[k]).abs()));
-    assert!(worst < 1e-12, "after a fourth solution: {worst:e}");
+    // Only the newest six count.
+    let mut newer = trail;
+    newer.push(at(s), z(s));
+    let q = newer.predict(&at(9.1e-4)).expect("on the path");
+    let worst = (0..12).fold(0.0_f64, |m, k| m.max((q[k] - z(9.1e-4)[k]).abs()));
+    assert!(worst < 1e-10, "after a seventh solution: {worst:e}");
 }
 
 /// Warm solves started from the trail's prediction give the answers of warm solves without

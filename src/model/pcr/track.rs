@@ -7,7 +7,7 @@
 //! (a fold, a bifurcation, a snap to another branch) and a [`PcrError::BranchJump`] is
 //! returned instead of a pose.
 
-use super::newton::{self, Failure, Inverse, Solved, Start};
+use super::newton::{self, Failure, Inverse, Rate, Solved, Start};
 use super::params::PcrParams;
 use super::setup::{Mode, Setup};
 use super::shooting::{Mat12, N, Tips, Vec12};
@@ -16,8 +16,8 @@ use super::{Equilibrium, PcrError, SolverOptions};
 use crate::geometry::Pose2;
 
 /// What a solve leaves for the next one: an approximate inverse Jacobian and the distal
-/// states of the rods (held in the solution itself: no allocation per solve).
-#[derive(Debug, Clone)]
+/// states of the rods, boxed in the solution (one copy per solve, into a new box).
+#[derive(Debug, Clone, Copy)]
 pub(crate) struct Warm {
     /// True for a forward-kinematics solve (pose unknowns), false for inverse (joints).
     pub(crate) fk: bool,
@@ -31,19 +31,38 @@ pub(crate) struct Warm {
     pub(crate) tips: Tips,
     /// The solutions of the last consecutive solves with these rods, this one newest.
     pub(crate) trail: Trail,
+    /// The convergence rate the inverse showed (see [`newton::newton`]).
+    pub(crate) rate: Option<Rate>,
 }
 
 impl Warm {
-    /// Warm-start data of the rods `key`, to be filled by a solve: its inverse Jacobian
-    /// starts as `inverse` (zero when none is known).
-    pub(crate) fn new(key: u64, inverse: Option<&Mat12>) -> Self {
+    /// The warm data a solve from `prior` (if any) with the rods `key` fills: the prior's
+    /// inverse Jacobian, and its trail when the rods are the same (copied straight into
+    /// the new box).
+    pub(crate) fn from_prior(key: u64, prior: Option<&Box<Self>>) -> Box<Self> {
+        match prior {
+            Some(p) => {
+                let mut w = p.clone();
+                if w.key != key {
+                    w.key = key;
+                    w.trail = Trail::EMPTY;
+                }
+                w
+            }
+            None => Box::new(Self::new(key)),
+        }
+    }
+
+    /// Warm-start data of the rods `key`, to be filled by a solve (no inverse known yet).
+    pub(crate) fn new(key: u64) -> Self {
         Self {
             fk: false,
             key,
-            inverse: inverse.copied().unwrap_or([[0.0; N]; N]),
+            inverse: [[0.0; N]; N],
             integrated: [0.0; N],
             tips: [[0.0; 4]; 3],
             trail: Trail::EMPTY,
+            rate: None,
         }
     }
 }
@@ -79,13 +98,15 @@ pub(crate) fn equilibrium(
     setup: &Setup,
     mode: &Mode,
     solved: Solved,
-    mut warm: Warm,
+    mut warm: Box<Warm>,
 ) -> Equilibrium {
     let Solved {
         z,
         iterations,
+        refined,
         integrated,
         tips,
+        rate,
     } = solved;
     let lr = setup.l_ref;
     let (q, pose) = match mode {
@@ -102,7 +123,8 @@ pub(crate) fn equilibrium(
     warm.fk = matches!(mode, Mode::Fk(_));
     warm.integrated = integrated;
     warm.tips = tips;
-    warm.trail = warm.trail.push(mode.input(), z);
+    warm.rate = rate;
+    warm.trail.push(mode.input(), refined);
     Equilibrium {
         q,
         pose,
@@ -143,6 +165,7 @@ pub(crate) fn track(
             z,
             tips: tips.as_ref(),
             predicted: start.predicted.filter(|_| t1 >= 1.0 && !subdivided),
+            rate: start.rate,
         };
         // Where the setup changes along the way (the load or the clamps are blended in) or
         // the path had to be subdivided, every solution is checked against a fresh Jacobian:
