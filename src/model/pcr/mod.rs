@@ -171,7 +171,7 @@ pub struct SolverOptions {
     /// Broyden updates of the reused inverse Jacobian after every Newton step, so it follows
     /// the solution along a path and fresh Jacobians are needed less often.
     pub broyden: bool,
-    /// Start a warm solve from the solution extrapolated (quartic) through the last five
+    /// Start a warm solve from the solution extrapolated (quintic) through the last six
     /// warm solves' when the inputs follow a smooth, evenly stepped path (`trail`).
     pub predict: bool,
 }

@@ -133,15 +133,21 @@ pub(crate) fn fresh_inverse(setup: &Setup, mode: &Mode, z: &Vec12) -> Result<Mat
 fn mat_vec(h: &Mat12, v: &Vec12) -> Vec12 {
     let mut out = [0.0; N];
     for (o, row) in out.iter_mut().zip(h) {
-        let mut acc = [0.0; 4];
-        for (r4, v4) in row.chunks_exact(4).zip(v.chunks_exact(4)) {
-            for ((a, x), y) in acc.iter_mut().zip(r4).zip(v4) {
-                *a += x * y;
-            }
-        }
-        *o = (acc[0] + acc[2]) + (acc[1] + acc[3]);
+        *o = row_dot(row, v);
     }
     out
+}
+
+/// One row's dot product with `v`, in four interleaved partial sums (vector lanes).
+#[inline(always)]
+fn row_dot(row: &[f64; N], v: &Vec12) -> f64 {
+    let mut acc = [0.0; 4];
+    for (r4, v4) in row.chunks_exact(4).zip(v.chunks_exact(4)) {
+        for ((a, x), y) in acc.iter_mut().zip(r4).zip(v4) {
+            *a += x * y;
+        }
+    }
+    (acc[0] + acc[2]) + (acc[1] + acc[3])
 }
 
 /// Safety factor on the predicted residual of a solution accepted without integrating at
@@ -157,13 +163,7 @@ fn broyden(h: &mut Mat12, s: &Vec12, y: &Vec12) {
     let mut hy = [0.0; N];
     let mut sh = [0.0; N];
     for ((o, row), si) in hy.iter_mut().zip(h.iter()).zip(s) {
-        let mut acc = [0.0; 4];
-        for (r4, v4) in row.chunks_exact(4).zip(y.chunks_exact(4)) {
-            for ((a, x), v) in acc.iter_mut().zip(r4).zip(v4) {
-                *a += x * v;
-            }
-        }
-        *o = (acc[0] + acc[2]) + (acc[1] + acc[3]);
+        *o = row_dot(row, y);
         for (a, b) in sh.iter_mut().zip(row) {
             *a += si * b;
         }

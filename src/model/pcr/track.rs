@@ -37,10 +37,9 @@ pub(crate) struct Warm {
 
 impl Warm {
     /// The warm data a solve from `prior` (if any) with the rods `key` fills: the prior's
-    /// inverse Jacobian, and its trail when the rods are the same (copied straight into
-    /// the new box).
-    /// (A `&Box`: `Box::clone` copies straight into the new allocation; a clone of the
-    /// value would be built on the stack and moved, 2 kB more copying per solve.)
+    /// inverse Jacobian, and its trail when the rods are the same. It takes a `&Box`
+    /// because `Box::clone` copies straight into the new allocation; a clone of the value
+    /// would be built on the stack and moved, 2 kB more copying per solve.
     #[allow(clippy::borrowed_box)]
     pub(crate) fn from_prior(key: u64, prior: Option<&Box<Self>>) -> Box<Self> {
         match prior {
