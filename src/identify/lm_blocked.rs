@@ -197,12 +197,22 @@ pub(crate) fn levenberg_marquardt_blocked(
                 for k in 0..m {
                     d[k] = d[k].max(norms[k]);
                 }
-                mu *= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0);
+                mu *= super::lm::damping_decrease(rho);
                 nu = 2.0;
                 break;
             }
             if step_norm <= opts.xtol * (xnorm + opts.xtol) {
                 stop = StopReason::SmallStep;
+                break;
+            }
+            if super::lm::at_minimum(predicted, cost_new, cost, opts.ftol) {
+                // As the held fit: the last correction, below the cost's rounding, is taken.
+                if super::lm::takes_last_correction(predicted, cost_new, cost) {
+                    x = xn;
+                    std::mem::swap(&mut r, &mut r_new);
+                    cost = cost_new;
+                }
+                stop = StopReason::SmallCostReduction;
                 break;
             }
             mu *= nu;
