@@ -35,7 +35,15 @@ pub fn identify_once(twin: &SerialTwin, meas: &[PointMeasurement]) -> f64 {
     let p = PointProblem::new(twin.nominal.clone(), ids, twin.plate.clone(), meas.to_vec())
         .expect("twin data are consistent");
     let x0 = p.initial();
-    let s = solve(&p, &p.unknowns(), &x0, &SolveOptions::default(), &NoMonitor)
+    // As a `serial.identify` job solves it: a nearly linear fit from the nominal model.
+    let o = SolveOptions {
+        lm: crate::identify::LmOptions {
+            nearly_linear: true,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let s = solve(&p, &p.unknowns(), &x0, &o, &NoMonitor)
         .expect("twin identification converges");
     s.cost_after
 }

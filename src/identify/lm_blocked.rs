@@ -197,7 +197,7 @@ pub(crate) fn levenberg_marquardt_blocked(
                 for k in 0..m {
                     d[k] = d[k].max(norms[k]);
                 }
-                mu *= super::lm::damping_decrease(rho);
+                mu *= super::lm::damping_decrease(rho, opts.nearly_linear);
                 nu = 2.0;
                 break;
             }
@@ -205,7 +205,7 @@ pub(crate) fn levenberg_marquardt_blocked(
                 stop = StopReason::SmallStep;
                 break;
             }
-            if super::lm::at_minimum(predicted, cost_new, cost, opts.ftol) {
+            if opts.nearly_linear && super::lm::at_minimum(predicted, cost_new, cost, opts.ftol) {
                 // As the held fit: the last correction, below the cost's rounding, is taken.
                 if super::lm::takes_last_correction(predicted, cost_new, cost) {
                     x = xn;

@@ -435,6 +435,8 @@ impl IdentifyInputs {
         if let Some(n) = self.options.max_iterations {
             o.lm.max_iterations = n;
         }
+        // A serial arm's fit from its nominal model is nearly linear (gain ratios ~1).
+        o.lm.nearly_linear = true;
         o
     }
 
@@ -506,6 +508,8 @@ impl IdentifyInputs {
         if let Some(n) = self.options.max_iterations {
             o.lm.max_iterations = n;
         }
+        // A serial arm's fit from its nominal model is nearly linear (gain ratios ~1).
+        o.lm.nearly_linear = true;
         o
     }
 
