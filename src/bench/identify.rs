@@ -43,8 +43,7 @@ pub fn identify_once(twin: &SerialTwin, meas: &[PointMeasurement]) -> f64 {
         },
         ..Default::default()
     };
-    let s = solve(&p, &p.unknowns(), &x0, &o, &NoMonitor)
-        .expect("twin identification converges");
+    let s = solve(&p, &p.unknowns(), &x0, &o, &NoMonitor).expect("twin identification converges");
     s.cost_after
 }
 

@@ -1,7 +1,8 @@
 //! The identification examples give the same parameters as before the faer kernels (issue
 //! 17, item 4): values and standard deviations unchanged to 1e-9 relative, the same
 //! parameters identifiable. The reference values in `tests/data/identify_reference.json`
-//! were computed by calibd at commit ad98d36 (nalgebra kernels only, release build). The
+//! were computed by calibd at commit ad98d36 (nalgebra kernels only, release build; the serial
+//! example again when serial fits became nearly linear LM fits, issue 35). The
 //! PCR example is checked on release builds only (`calibd run`): its shooting model gives
 //! values 2.7e-7 apart between the dev and release profiles, with or without faer.
 
