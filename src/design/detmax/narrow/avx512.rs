@@ -147,6 +147,7 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
     bg: &[f64],
     p: &[f64],
     m: usize,
+    ps: usize,
     dg: &mut [f64],
     sg: &[f64],
     det: &mut [f64],
@@ -157,12 +158,12 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
     let mut c2 = 0;
     while c2 + 3 <= m {
         // SAFETY: the caller's CPU has AVX-512F and FMA.
-        unsafe { rebuild_columns::<R, 3>(bg, p, m, c2, &mut d) };
+        unsafe { rebuild_columns::<R, 3>(bg, p, m, ps, c2, &mut d) };
         c2 += 3;
     }
     while c2 < m {
         // SAFETY: as above.
-        unsafe { rebuild_columns::<R, 1>(bg, p, m, c2, &mut d) };
+        unsafe { rebuild_columns::<R, 1>(bg, p, m, ps, c2, &mut d) };
         c2 += 1;
     }
     for x in 0..R {
@@ -187,11 +188,12 @@ unsafe fn rebuild_columns<const R: usize, const C: usize>(
     bg: &[f64],
     p: &[f64],
     m: usize,
+    ps: usize,
     c2: usize,
     d: &mut [[__m512d; R]; R],
 ) {
     let mut w = [[_mm512_setzero_pd(); R]; C];
-    for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(m)).take(m) {
+    for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(ps)).take(m) {
         let mut b = [_mm512_setzero_pd(); R];
         for (x, bx) in b.iter_mut().enumerate() {
             // SAFETY: `bc` holds R rows of eight lanes.
@@ -212,6 +214,108 @@ unsafe fn rebuild_columns<const R: usize, const C: usize>(
                 let b = unsafe { _mm512_loadu_pd(bc2[y * L..(y + 1) * L].as_ptr()) };
                 d[x][y] = _mm512_fmadd_pd(wj[x], b, d[x][y]);
             }
+        }
+    }
+}
+
+/// P' = P - sign (U S^-1) U^T with U^T = B_a P into `ut` (as `pass::inverse_update`, whose
+/// per-entry operations these are, in registers: a column block's sums over the rows of P
+/// stay in vectors, and each row of P is loaded and stored once). Every matrix has its rows
+/// `ps` apart, a multiple of eight, the padding zero.
+///
+/// # Safety
+/// The CPU must have AVX-512F and FMA.
+#[target_feature(enable = "avx512f,fma")]
+pub(super) unsafe fn inverse_update<const R: usize>(
+    p: &mut [f64],
+    ut: &mut [f64],
+    ba: &[f64],
+    s: &[[f64; R]; R],
+    sign: f64,
+    m: usize,
+    ps: usize,
+) {
+    let (p, ut, ba) = (&mut p[..m * ps], &mut ut[..R * ps], &ba[..R * ps]);
+    // U^T, two column blocks of eight at a time (2 R independent sums).
+    let mut j = 0;
+    while j < ps {
+        let two = j + 2 * L <= ps;
+        let mut acc = [[_mm512_setzero_pd(); 2]; R];
+        for (k, prow) in p.chunks_exact(ps).enumerate() {
+            // SAFETY: j + 8 (j + 16 when `two`) <= ps = the row's length.
+            let p0 = unsafe { _mm512_loadu_pd(prow[j..j + L].as_ptr()) };
+            let p1 = if two {
+                unsafe { _mm512_loadu_pd(prow[j + L..j + 2 * L].as_ptr()) }
+            } else {
+                p0
+            };
+            for (y, a) in acc.iter_mut().enumerate() {
+                let b = _mm512_set1_pd(ba[y * ps + k]);
+                a[0] = _mm512_fmadd_pd(b, p0, a[0]);
+                a[1] = _mm512_fmadd_pd(b, p1, a[1]);
+            }
+        }
+        for (y, a) in acc.iter().enumerate() {
+            let o = &mut ut[y * ps + j..y * ps + j + L];
+            // SAFETY: `o` holds eight f64.
+            unsafe { _mm512_storeu_pd(o.as_mut_ptr(), a[0]) };
+            if two {
+                let o = &mut ut[y * ps + j + L..y * ps + j + 2 * L];
+                // SAFETY: as above.
+                unsafe { _mm512_storeu_pd(o.as_mut_ptr(), a[1]) };
+            }
+        }
+        j += if two { 2 * L } else { L };
+    }
+    // P row by row: f = -sign S^-1 U(c) (scalar, as the portable kernel), then the row's R
+    // terms in order, the row in registers block by block.
+    for (c, row) in p.chunks_exact_mut(ps).enumerate() {
+        let mut f = [0.0; R];
+        for (y, v) in f.iter_mut().enumerate() {
+            for k in 0..R {
+                *v = ut[k * ps + c].mul_add(s[k][y], *v);
+            }
+            *v *= -sign;
+        }
+        let fv: [__m512d; R] = std::array::from_fn(|y| _mm512_set1_pd(f[y]));
+        for (jb, blk) in row.chunks_exact_mut(L).enumerate() {
+            // SAFETY: `blk` holds eight f64, each row of `ut` ps >= 8 (jb + 1) of them.
+            let mut v = unsafe { _mm512_loadu_pd(blk.as_ptr()) };
+            for (y, &fy) in fv.iter().enumerate() {
+                let u = unsafe { _mm512_loadu_pd(ut[y * ps + jb * L..].as_ptr()) };
+                v = _mm512_fmadd_pd(fy, u, v);
+            }
+            // SAFETY: as above.
+            unsafe { _mm512_storeu_pd(blk.as_mut_ptr(), v) };
+        }
+    }
+}
+
+/// M += sign B_a^T B_a (as `pass::info_update`, whose per-entry operations these are, each
+/// row in registers block by block; rows `ps` apart, a multiple of eight).
+///
+/// # Safety
+/// The CPU must have AVX-512F and FMA.
+#[target_feature(enable = "avx512f,fma")]
+pub(super) unsafe fn info_update<const R: usize>(
+    info: &mut [f64],
+    ba: &[f64],
+    sign: f64,
+    m: usize,
+    ps: usize,
+) {
+    let ba = &ba[..R * ps];
+    for (c, row) in info[..m * ps].chunks_exact_mut(ps).enumerate() {
+        let fv: [__m512d; R] = std::array::from_fn(|y| _mm512_set1_pd(sign * ba[y * ps + c]));
+        for (jb, blk) in row.chunks_exact_mut(L).enumerate() {
+            // SAFETY: `blk` holds eight f64, each row of `ba` ps >= 8 (jb + 1) of them.
+            let mut v = unsafe { _mm512_loadu_pd(blk.as_ptr()) };
+            for (y, &fy) in fv.iter().enumerate() {
+                let b = unsafe { _mm512_loadu_pd(ba[y * ps + jb * L..].as_ptr()) };
+                v = _mm512_fmadd_pd(fy, b, v);
+            }
+            // SAFETY: as above.
+            unsafe { _mm512_storeu_pd(blk.as_mut_ptr(), v) };
         }
     }
 }

@@ -59,14 +59,38 @@ impl LanePool {
         self.b[((g * self.m + c) * self.r + x) * L + l]
     }
 
-    /// Candidate i's block into `out` (r x m, row-major).
+    /// The row stride of the design's m-wide matrices: m rounded up to whole vectors, the
+    /// padding zero, so their row operations run at the full width with no remainder.
+    fn stride(&self) -> usize {
+        self.m.next_multiple_of(L)
+    }
+
+    /// Candidate i's block into `out` (r x m, row-major, rows [`LanePool::stride`] apart).
     fn block_into(&self, i: usize, out: &mut [f64]) {
+        let s = self.stride();
         for y in 0..self.r {
             for k in 0..self.m {
-                out[y * self.m + k] = self.at(i, y, k);
+                out[y * s + k] = self.at(i, y, k);
             }
         }
     }
+}
+
+/// An m x m row-major matrix with its rows `s` apart (zero padding).
+fn padded(a: &[f64], m: usize, s: usize) -> Vec<f64> {
+    let mut out = vec![0.0; m * s];
+    for (o, row) in out.chunks_exact_mut(s).zip(a.chunks_exact(m)) {
+        o[..m].copy_from_slice(row);
+    }
+    out
+}
+
+/// The m x m row-major matrix of a padded one (rows `s` apart).
+fn unpadded(a: &[f64], m: usize, s: usize) -> Vec<f64> {
+    a.chunks_exact(s)
+        .flat_map(|row| &row[..m])
+        .copied()
+        .collect()
 }
 
 /// Exchange state of a design over a [`LanePool`].
@@ -74,9 +98,9 @@ pub(super) struct Design<'a> {
     lp: &'a LanePool,
     pub(super) member: Vec<bool>,
     pub(super) log_det: f64,
-    /// P = (M + ridge I)^-1 (m x m, row-major, symmetric).
+    /// P = (M + ridge I)^-1 (m x m, row-major, symmetric; rows [`LanePool::stride`] apart).
     p: Vec<f64>,
-    /// M = sum of the members' B_i^T B_i (m x m, row-major) but for the toggles in
+    /// M = sum of the members' B_i^T B_i (m x m, row-major, rows [`LanePool::stride`] apart) but for the toggles in
     /// `info_pending`, which it takes when an exact determinant asks (most trial designs
     /// are dropped without one): an exact determinant costs one Cholesky, not a product
     /// over the design's rows.
@@ -96,7 +120,7 @@ pub(super) struct Design<'a> {
     /// Per group, the largest det of its outside candidates and of its members (-inf: none),
     /// kept by the passes, so a greedy scan reads one number per group.
     gmax: Vec<[f64; 2]>,
-    /// Scratch of a toggle: B_a (r x m, row-major) and U^T (r x m).
+    /// Scratch of a toggle: B_a (r x m, row-major) and U^T (r x m), rows a stride apart.
     ba: Vec<f64>,
     ut: Vec<f64>,
     /// U = P B_a^T (m x r, row-major).
@@ -151,20 +175,20 @@ impl<'a> Design<'a> {
         for &i in start {
             member[i] = true;
         }
-        let (m, r) = (lp.m, lp.r);
+        let (m, r, s) = (lp.m, lp.r, lp.stride());
         let mut d = Self {
             lp,
             member,
             log_det: 0.0,
-            p: vec![0.0; m * m],
+            p: vec![0.0; m * s],
             info: Vec::new(),
             info_pending: Vec::new(),
             d: vec![0.0; lp.n.div_ceil(L) * r * r * L],
             dets: vec![0.0; lp.n.div_ceil(L) * L],
             sgn: vec![0.0; lp.n.div_ceil(L) * L],
             gmax: vec![[f64::NEG_INFINITY; 2]; lp.n.div_ceil(L)],
-            ba: vec![0.0; m * r],
-            ut: vec![0.0; m * r],
+            ba: vec![0.0; s * r],
+            ut: vec![0.0; s * r],
             u: vec![0.0; m * r],
             updates: 0,
         };
@@ -178,11 +202,13 @@ impl<'a> Design<'a> {
         for (s, &inside) in self.sgn.iter_mut().zip(&self.member) {
             *s = if inside { -1.0 } else { 1.0 };
         }
-        self.info = pool.information(&members);
+        let (m, s) = (self.lp.m, self.lp.stride());
+        let info = pool.information(&members);
+        self.info = padded(&info, m, s);
         self.info_pending.clear();
-        let f = Info::ridged(self.lp.m, self.info.clone(), ridge).factor()?;
+        let f = Info::ridged(m, info, ridge).factor()?;
         self.log_det = f.log_det();
-        self.p = f.inverse();
+        self.p = padded(&f.inverse(), m, s);
         match self.lp.r {
             2 => dispatch::<2>(Kernel::Rebuild, self),
             3 => dispatch::<3>(Kernel::Rebuild, self),
@@ -265,7 +291,7 @@ impl<'a> Design<'a> {
                 _ => dispatch::<6>(Kernel::Info, self),
             }
         }
-        let mut a = Info::ridged(m, self.info.clone(), 0.0);
+        let mut a = Info::ridged(m, unpadded(&self.info, m, self.lp.stride()), 0.0);
         if let Some((i, add)) = extra {
             let sign = if add { 1.0 } else { -1.0 };
             for c in 0..m {

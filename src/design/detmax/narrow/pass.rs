@@ -116,7 +116,7 @@ unsafe fn run_fma<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
 /// called from `run_avx512`; W = 4: a group in two halves).
 #[inline(always)]
 fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
-    let m = d.lp.m;
+    let (m, ps) = (d.lp.m, d.lp.stride());
     let blocks = d.lp.b.chunks_exact(m * R * L);
     match k {
         Kernel::Rebuild => {
@@ -127,13 +127,14 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
-                    *gm = unsafe { super::avx512::rebuild_group::<R>(bg, &d.p, m, dg, sg, det) };
+                    *gm =
+                        unsafe { super::avx512::rebuild_group::<R>(bg, &d.p, m, ps, dg, sg, det) };
                     continue;
                 }
-                let dr = rebuild_group::<R, FMA, W, 0>(bg, &d.p, m, dg);
+                let dr = rebuild_group::<R, FMA, W, 0>(bg, &d.p, m, ps, dg);
                 dets_group::<R, W, 0>(&dr, sg, det);
                 if W < L {
-                    let dr = rebuild_group::<R, FMA, W, 1>(bg, &d.p, m, dg);
+                    let dr = rebuild_group::<R, FMA, W, 1>(bg, &d.p, m, ps, dg);
                     dets_group::<R, W, 1>(&dr, sg, det);
                 }
                 *gm = group_max(det, sg);
@@ -143,7 +144,13 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
             // M' = M + sign B_a^T B_a, toggle by toggle in the order they were made.
             for &(a, sign) in &d.info_pending {
                 d.lp.block_into(a, &mut d.ba);
-                info_update::<R, FMA>(&mut d.info, &d.ba, sign, m);
+                #[cfg(target_arch = "x86_64")]
+                if W == L {
+                    // SAFETY: whole vectors only from `run_avx512`.
+                    unsafe { super::avx512::info_update::<R>(&mut d.info, &d.ba, sign, m, ps) };
+                    continue;
+                }
+                info_update::<R, FMA>(&mut d.info, &d.ba, sign, m, ps);
             }
             d.info_pending.clear();
         }
@@ -154,10 +161,20 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                     s[x][y] = sinv[x * R + y];
                 }
             }
-            inverse_update::<R, FMA>(&mut d.p, &mut d.ut, &d.ba, &s, sign, m);
+            #[cfg(target_arch = "x86_64")]
+            if W == L {
+                // SAFETY: whole vectors only from `run_avx512`.
+                unsafe {
+                    super::avx512::inverse_update::<R>(&mut d.p, &mut d.ut, &d.ba, &s, sign, m, ps);
+                }
+            } else {
+                inverse_update::<R, FMA>(&mut d.p, &mut d.ut, &d.ba, &s, sign, m, ps);
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            inverse_update::<R, FMA>(&mut d.p, &mut d.ut, &d.ba, &s, sign, m, ps);
             for c in 0..m {
                 for y in 0..R {
-                    d.u[c * R + y] = d.ut[y * m + c];
+                    d.u[c * R + y] = d.ut[y * ps + c];
                 }
             }
             let outs =
@@ -184,13 +201,19 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
     }
 }
 
-/// M += sign B_a^T B_a (m x m `info`, B_a r x m), row by row, each entry taking its R terms
-/// in order (slices of their own, so the rows vectorise).
+/// M += sign B_a^T B_a (m x m `info`, B_a r x m, rows `ps` apart), row by row, each entry
+/// taking its R terms in order (whole padded rows, so they vectorise without a remainder).
 #[inline(always)]
-fn info_update<const R: usize, const FMA: bool>(info: &mut [f64], ba: &[f64], sign: f64, m: usize) {
-    let ba = &ba[..R * m];
-    for (c, row) in info[..m * m].chunks_exact_mut(m).enumerate() {
-        for bay in ba.chunks_exact(m) {
+fn info_update<const R: usize, const FMA: bool>(
+    info: &mut [f64],
+    ba: &[f64],
+    sign: f64,
+    m: usize,
+    ps: usize,
+) {
+    let ba = &ba[..R * ps];
+    for (c, row) in info[..m * ps].chunks_exact_mut(ps).enumerate() {
+        for bay in ba.chunks_exact(ps) {
             let f = sign * bay[c];
             for (mv, &bv) in row.iter_mut().zip(bay) {
                 *mv = madd::<FMA>(f, bv, *mv);
@@ -199,8 +222,9 @@ fn info_update<const R: usize, const FMA: bool>(info: &mut [f64], ba: &[f64], si
     }
 }
 
-/// U^T = (P B_a^T)^T into `ut` (r x m), then P' = P - sign (U S^-1) U^T row by row (P m x m,
-/// S^-1 as `s`); slices of their own, so the rows vectorise.
+/// U^T = B_a P into `ut` (r x m; P is symmetric, so this is (P B_a^T)^T), then
+/// P' = P - sign (U S^-1) U^T row by row (P m x m, S^-1 as `s`; every matrix with rows `ps`
+/// apart). Both run along whole padded rows of P, so they vectorise without a remainder.
 #[inline(always)]
 fn inverse_update<const R: usize, const FMA: bool>(
     p: &mut [f64],
@@ -209,15 +233,20 @@ fn inverse_update<const R: usize, const FMA: bool>(
     s: &[[f64; R]; R],
     sign: f64,
     m: usize,
+    ps: usize,
 ) {
-    let (p, ut, ba) = (&mut p[..m * m], &mut ut[..R * m], &ba[..R * m]);
-    for (uty, bay) in ut.chunks_exact_mut(m).zip(ba.chunks_exact(m)) {
-        for (u, prow) in uty.iter_mut().zip(p.chunks_exact(m)) {
-            *u = dot::<FMA>(prow, bay);
+    let (p, ut, ba) = (&mut p[..m * ps], &mut ut[..R * ps], &ba[..R * ps]);
+    ut.fill(0.0);
+    for (k, prow) in p.chunks_exact(ps).enumerate() {
+        for (uty, bay) in ut.chunks_exact_mut(ps).zip(ba.chunks_exact(ps)) {
+            let b = bay[k];
+            for (u, &pv) in uty.iter_mut().zip(prow) {
+                *u = madd::<FMA>(b, pv, *u);
+            }
         }
     }
-    let rows: [&[f64]; R] = std::array::from_fn(|y| &ut[y * m..(y + 1) * m]);
-    for (c, row) in p.chunks_exact_mut(m).enumerate() {
+    let rows: [&[f64]; R] = std::array::from_fn(|y| &ut[y * ps..(y + 1) * ps]);
+    for (c, row) in p.chunks_exact_mut(ps).enumerate() {
         let mut f = [0.0; R];
         for (y, v) in f.iter_mut().enumerate() {
             for k in 0..R {
@@ -225,13 +254,11 @@ fn inverse_update<const R: usize, const FMA: bool>(
             }
             *v *= -sign;
         }
-        // Each entry takes its R terms in registers (y in order, as row by row).
-        for (k, pv) in row.iter_mut().enumerate() {
-            let mut v = *pv;
-            for (y, &fy) in f.iter().enumerate() {
-                v = madd::<FMA>(fy, rows[y][k], v);
+        // Each entry takes its R terms in order (y by y, a whole row per term).
+        for (&fy, uty) in f.iter().zip(rows) {
+            for (pv, &uv) in row.iter_mut().zip(uty) {
+                *pv = madd::<FMA>(fy, uv, *pv);
             }
-            *pv = v;
         }
     }
 }
@@ -251,24 +278,6 @@ pub(super) fn group_max(det: &[f64], sg: &[f64]) -> [f64; 2] {
             .fold(f64::NEG_INFINITY, |a, &b| if b > a { b } else { a })
     };
     [top(out), top(ins)]
-}
-
-/// Dot product with four accumulators (fused when compiled for FMA).
-#[inline(always)]
-fn dot<const FMA: bool>(a: &[f64], b: &[f64]) -> f64 {
-    let mut acc = [0.0; 4];
-    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
-    let (ra, rb) = (ca.remainder(), cb.remainder());
-    for (x, y) in ca.zip(cb) {
-        for l in 0..4 {
-            acc[l] = madd::<FMA>(x[l], y[l], acc[l]);
-        }
-    }
-    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
-    for (x, y) in ra.iter().zip(rb) {
-        s = madd::<FMA>(*x, *y, s);
-    }
-    s
 }
 
 /// det(I + sign D) of the `W` candidates from lane `H W` of a group, each with its own sign
@@ -319,13 +328,14 @@ fn rebuild_group<const R: usize, const FMA: bool, const W: usize, const H: usize
     bg: &[f64],
     p: &[f64],
     m: usize,
+    ps: usize,
     dg: &mut [f64],
 ) -> [[[f64; W]; R]; R] {
     let mut d = [[[0.0; W]; R]; R];
     for c2 in 0..m {
         // w[x] = (B P)(x, c2), then D(x, y) += w[x] B(y, c2).
         let mut w = [[0.0; W]; R];
-        for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(m)).take(m) {
+        for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(ps)).take(m) {
             let pc = prow[c2];
             for x in 0..R {
                 for l in 0..W {
