@@ -128,6 +128,24 @@ impl<'a> Design<'a> {
         }
     }
 
+    /// `src` with its greedy step taken, into this design's buffers: a lane design writes
+    /// its updated state straight from `src`'s (no copy of the per-candidate state first);
+    /// the others copy `src`, then step. On None this design is left in no useful state.
+    fn greedy_from(&mut self, src: &Self, add: bool, memo: &mut gram::Memo) -> Option<usize> {
+        match (&mut *self, src) {
+            (Self::Lanes(d), Self::Lanes(s)) => {
+                let (i, change) = s.best(add)?;
+                (change > f64::NEG_INFINITY).then_some(())?;
+                d.toggle_from(s, i, if add { 1.0 } else { -1.0 })?;
+                Some(i)
+            }
+            _ => {
+                self.clone_from(src);
+                self.greedy(add, memo)
+            }
+        }
+    }
+
     /// The last greedy step of an excursion, looked at before it is taken: the candidate and
     /// the log det after it. A lane design defers the toggle (most excursions are rejected);
     /// [`Design::commit`] takes it.
@@ -267,30 +285,35 @@ pub fn detmax(
             let (out, taken) = (&mut ahead[slot], &mut ahead_k[slot]);
             let mut steps = match *taken {
                 Some(s) if reuse && s + 1 == k => s,
-                _ => {
-                    out.clone_from(&design);
-                    0
-                }
+                // The first step out written from the design's state.
+                _ if out.greedy_from(&design, up, &mut memo).is_some() => 1,
+                _ => 0,
             };
             *taken = None;
-            while steps < k && out.greedy(up, &mut memo).is_some() {
+            while (1..k).contains(&steps) && out.greedy(up, &mut memo).is_some() {
                 steps += 1;
             }
             if steps < k {
                 continue;
             }
-            // The steps back, on a copy when the steps out are kept for the next size.
-            let trial = if let (true, Some(d)) = (k > 1, back.first_mut()) {
-                d.clone_from(out);
-                d
-            } else {
-                out
+            // The steps back, on a copy when the steps out are kept for the next size (the
+            // first step back written from the steps out).
+            let (trial, first_back) = match (k > 1, back.first_mut()) {
+                (true, Some(d)) => {
+                    let taken_back = d.greedy_from(out, !up, &mut memo).is_some();
+                    (d, Some(taken_back))
+                }
+                _ => (out, None),
             };
             if reuse {
                 *taken = Some(k);
             }
             // The last step is looked at first and taken only if the excursion is accepted.
-            let came_back = (0..k - 1).all(|_| trial.greedy(!up, &mut memo).is_some());
+            let came_back = match first_back {
+                Some(false) => false,
+                Some(true) => (1..k - 1).all(|_| trial.greedy(!up, &mut memo).is_some()),
+                None => (0..k - 1).all(|_| trial.greedy(!up, &mut memo).is_some()),
+            };
             let Some((last, log_det)) = came_back.then(|| trial.peek(!up, &mut memo)).flatten()
             else {
                 continue;

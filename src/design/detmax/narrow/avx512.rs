@@ -77,7 +77,8 @@ unsafe fn dets_and_max<const R: usize>(
     ]
 }
 
-/// D -= sign (B U) S^-1 (B U)^T for the eight candidates of one group, their determinants
+/// D -= sign (B U) S^-1 (B U)^T for the eight candidates of one group (D read from `sd` when
+/// given, else from `dg`; written to `dg`), their determinants
 /// (signs `sg`) into `det`, and the group's largest outside and member determinant (as
 /// `pass::update_group` with eight lanes, then `pass::group_max`).
 ///
@@ -90,6 +91,7 @@ pub(super) unsafe fn update_group<const R: usize>(
     m: usize,
     s: &[[f64; R]; R],
     sign: f64,
+    sd: Option<&[f64]>,
     dg: &mut [f64],
     sg: &[f64],
     det: &mut [f64],
@@ -117,6 +119,13 @@ pub(super) unsafe fn update_group<const R: usize>(
         }
     }
     let sign = _mm512_set1_pd(sign);
+    // Where D is read from, chosen once (a branch per entry keeps the compiler from holding
+    // the sums in registers); in place, both pointers come from one mutable borrow.
+    let to = dg[..R * R * L].as_mut_ptr();
+    let from: *const f64 = match sd {
+        Some(sd) => sd[..R * R * L].as_ptr(),
+        None => to,
+    };
     let mut out = [[_mm512_setzero_pd(); R]; R];
     for x in 0..R {
         for y in 0..R {
@@ -124,11 +133,11 @@ pub(super) unsafe fn update_group<const R: usize>(
             for k in 0..R {
                 v = _mm512_fmadd_pd(es[x][k], e[y][k], v);
             }
-            let o = &mut dg[(x * R + y) * L..(x * R + y + 1) * L];
-            // SAFETY: `o` holds eight f64.
-            let dv = unsafe { _mm512_loadu_pd(o.as_ptr()) };
+            // SAFETY: `from` and `to` hold the group's R x R x 8 f64 (sliced above).
+            let dv = unsafe { _mm512_loadu_pd(from.add((x * R + y) * L)) };
             let dv = _mm512_sub_pd(dv, _mm512_mul_pd(sign, v));
-            unsafe { _mm512_storeu_pd(o.as_mut_ptr(), dv) };
+            // SAFETY: as above.
+            unsafe { _mm512_storeu_pd(to.add((x * R + y) * L), dv) };
             out[x][y] = dv;
         }
     }

@@ -218,12 +218,13 @@ impl<'a> Design<'a> {
         Some(())
     }
 
-    /// D_i of candidate i as a row-major r x r block.
-    fn d_of(&self, i: usize, out: &mut [f64; 36]) {
+    /// D_i of candidate i as a row-major r x r block, from `d` (a design's lane-interleaved
+    /// D).
+    fn d_of(&self, d: &[f64], i: usize, out: &mut [f64; 36]) {
         let r = self.lp.r;
         let (g, l) = (i / L, i % L);
         for k in 0..r * r {
-            out[k] = self.d[(g * r * r + k) * L + l];
+            out[k] = d[(g * r * r + k) * L + l];
         }
     }
 
@@ -255,9 +256,30 @@ impl<'a> Design<'a> {
 
     /// Add (sign +1) or remove (sign -1) candidate `a`: P and every D_i by Woodbury.
     pub(super) fn toggle(&mut self, a: usize, sign: f64) -> Option<()> {
+        self.toggle_over(a, sign, None)
+    }
+
+    /// `src` with candidate `a` toggled, into this design's buffers: the pass reads `src`'s
+    /// D and writes this design's D, determinants and group maxima, so they are not copied
+    /// first. On None this design is left in no useful state.
+    pub(super) fn toggle_from(&mut self, src: &Self, a: usize, sign: f64) -> Option<()> {
+        self.lp = src.lp;
+        self.member.clone_from(&src.member);
+        self.log_det = src.log_det;
+        self.p.clone_from(&src.p);
+        self.info.clone_from(&src.info);
+        self.info_pending.clone_from(&src.info_pending);
+        self.sgn.clone_from(&src.sgn);
+        self.updates = src.updates;
+        self.toggle_over(a, sign, Some(&src.d))
+    }
+
+    /// The toggle, its D read from `src_d` (another design's) or, when None, from this
+    /// design's own.
+    fn toggle_over(&mut self, a: usize, sign: f64, src_d: Option<&[f64]>) -> Option<()> {
         let r = self.lp.r;
         let mut block = [0.0; 36];
-        self.d_of(a, &mut block);
+        self.d_of(src_d.unwrap_or(&self.d), a, &mut block);
         for x in 0..r {
             for y in 0..r {
                 block[x * r + y] = sign * block[x * r + y] + if x == y { 1.0 } else { 0.0 };
@@ -268,7 +290,11 @@ impl<'a> Design<'a> {
         // The kernel writes a's determinant for its next toggle, the other way.
         self.member[a] = sign > 0.0;
         self.sgn[a] = -sign;
-        let kernel = Kernel::Update { sinv: &sinv, sign };
+        let kernel = Kernel::Update {
+            sinv: &sinv,
+            sign,
+            src: src_d,
+        };
         match r {
             2 => dispatch::<2>(kernel, self),
             3 => dispatch::<3>(kernel, self),

@@ -54,8 +54,13 @@ pub(super) enum Kernel<'s> {
     Rebuild,
     /// M += sign B_a^T B_a for the toggles M has not taken yet (`Design::info_pending`).
     Info,
-    /// D_i -= sign E_i S^-1 E_i^T with E_i = B_i U.
-    Update { sinv: &'s [f64], sign: f64 },
+    /// D_i -= sign E_i S^-1 E_i^T with E_i = B_i U; D read from `src` (another design's,
+    /// the one this design is a toggle of) when given, else from the design's own.
+    Update {
+        sinv: &'s [f64],
+        sign: f64,
+        src: Option<&'s [f64]>,
+    },
 }
 
 /// Run a kernel with FMA and 512-bit vectors (a group's eight lanes at once) when the CPU has
@@ -154,7 +159,7 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
             }
             d.info_pending.clear();
         }
-        Kernel::Update { sinv, sign } => {
+        Kernel::Update { sinv, sign, src } => {
             let mut s = [[0.0; R]; R];
             for x in 0..R {
                 for y in 0..R {
@@ -180,19 +185,20 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
             let outs =
                 d.d.chunks_exact_mut(R * R * L)
                     .zip(d.dets.chunks_exact_mut(L).zip(d.sgn.chunks_exact(L)));
-            for ((bg, (dg, (det, sg))), gm) in blocks.zip(outs).zip(&mut d.gmax) {
+            for (g, ((bg, (dg, (det, sg))), gm)) in blocks.zip(outs).zip(&mut d.gmax).enumerate() {
+                let sd = src.map(|x| &x[g * R * R * L..(g + 1) * R * R * L]);
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
                     *gm = unsafe {
-                        super::avx512::update_group::<R>(bg, &d.u, m, &s, sign, dg, sg, det)
+                        super::avx512::update_group::<R>(bg, &d.u, m, &s, sign, sd, dg, sg, det)
                     };
                     continue;
                 }
-                let dr = update_group::<R, FMA, W, 0>(bg, &d.u, m, &s, sign, dg);
+                let dr = update_group::<R, FMA, W, 0>(bg, &d.u, m, &s, sign, sd, dg);
                 dets_group::<R, W, 0>(&dr, sg, det);
                 if W < L {
-                    let dr = update_group::<R, FMA, W, 1>(bg, &d.u, m, &s, sign, dg);
+                    let dr = update_group::<R, FMA, W, 1>(bg, &d.u, m, &s, sign, sd, dg);
                     dets_group::<R, W, 1>(&dr, sg, det);
                 }
                 *gm = group_max(det, sg);
@@ -361,14 +367,17 @@ fn rebuild_group<const R: usize, const FMA: bool, const W: usize, const H: usize
     d
 }
 
-/// D -= sign (B U) S^-1 (B U)^T for the `W` candidates from lane `H W` of one group.
+/// D -= sign (B U) S^-1 (B U)^T for the `W` candidates from lane `H W` of one group (D read
+/// from `sd` when given, else from `dg`; written to `dg`).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>(
     bg: &[f64],
     u: &[f64],
     m: usize,
     s: &[[f64; R]; R],
     sign: f64,
+    sd: Option<&[f64]>,
     dg: &mut [f64],
 ) -> [[[f64; W]; R]; R] {
     let mut e = [[[0.0; W]; R]; R];
@@ -401,7 +410,8 @@ fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>
                 for k in 0..R {
                     v = madd::<FMA>(es[x][k][l], e[y][k][l], v);
                 }
-                dg[o + l] -= sign * v;
+                let cur = sd.map_or(dg[o + l], |sd| sd[o + l]);
+                dg[o + l] = cur - sign * v;
                 out[x][y][l] = dg[o + l];
             }
         }
