@@ -73,10 +73,16 @@ impl Factor {
 
     /// The full inverse (row-major), from L^-1.
     pub(super) fn inverse(&self) -> Vec<f64> {
+        self.inverse_and_lower().0
+    }
+
+    /// The full inverse P = L^-T L^-1 and L^-1 (both row-major m x m; L^-1 lower
+    /// triangular, zero above the diagonal).
+    pub(super) fn inverse_and_lower(&self) -> (Vec<f64>, Vec<f64>) {
         let m = self.m;
         let (mut li, mut p) = (vec![0.0; m * m], vec![0.0; m * m]);
         inverse_into(&self.l, m, &mut li, &mut p);
-        p
+        (p, li)
     }
 }
 

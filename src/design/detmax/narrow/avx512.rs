@@ -85,6 +85,7 @@ unsafe fn dets_and_max<const R: usize>(
 /// # Safety
 /// The CPU must have AVX-512F and FMA.
 #[target_feature(enable = "avx512f,fma")]
+#[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn update_group<const R: usize>(
     bg: &[f64],
     u: &[f64],
@@ -145,35 +146,68 @@ pub(super) unsafe fn update_group<const R: usize>(
     unsafe { dets_and_max::<R>(&out, sg, det) }
 }
 
-/// D = B P B^T for the eight candidates of one group, their determinants (signs `sg`) into
-/// `det`, and the group's largest outside and member determinant (as `pass::rebuild_group`
-/// with eight lanes, then `pass::group_max`).
+/// D = B P B^T = V^T V, V = L^-1 B^T, for the eight candidates of one group, their
+/// determinants (signs `sg`) into `det`, and the group's largest outside and member
+/// determinant (as `pass::rebuild_group` with eight lanes, then `pass::group_max`; `li`:
+/// L^-1, rows `ps` apart).
 ///
 /// # Safety
 /// The CPU must have AVX-512F and FMA.
 #[target_feature(enable = "avx512f,fma")]
 pub(super) unsafe fn rebuild_group<const R: usize>(
     bg: &[f64],
-    p: &[f64],
+    li: &[f64],
     m: usize,
     ps: usize,
     dg: &mut [f64],
     sg: &[f64],
     det: &mut [f64],
 ) -> [f64; 2] {
-    let mut d = [[_mm512_setzero_pd(); R]; R];
-    // Three columns of B P at a time: 3 R independent sums keep both FMA pipes busy (one
-    // column at a time, the R sums wait on the FMA latency).
-    let mut c2 = 0;
-    while c2 + 3 <= m {
-        // SAFETY: the caller's CPU has AVX-512F and FMA.
-        unsafe { rebuild_columns::<R, 3>(bg, p, m, ps, c2, &mut d) };
-        c2 += 3;
+    let zero = _mm512_setzero_pd();
+    let mut d = [[zero; R]; R];
+    // The group's B, column by column: R vectors of eight lanes each.
+    let col = |k: usize| -> [__m512d; R] {
+        let bk = &bg[k * R * L..(k + 1) * R * L];
+        // SAFETY: `bk` holds R rows of eight lanes; the caller's CPU has AVX-512F.
+        std::array::from_fn(|x| unsafe { _mm512_loadu_pd(bk[x * L..(x + 1) * L].as_ptr()) })
+    };
+    // Two columns of V at a time (2 R independent sums share the loads of B); each sums its
+    // terms in order, as the portable kernel does.
+    let mut c = 0;
+    while c < m {
+        let two = c + 1 < m;
+        let (l0, l1) = (&li[c * ps..c * ps + c + 1], &li[(c + two as usize) * ps..]);
+        let (mut v0, mut v1) = ([zero; R], [zero; R]);
+        for (k, &a0) in l0.iter().enumerate() {
+            let b = col(k);
+            let (a0, a1) = (_mm512_set1_pd(a0), _mm512_set1_pd(l1[k]));
+            for x in 0..R {
+                v0[x] = _mm512_fmadd_pd(a0, b[x], v0[x]);
+                v1[x] = _mm512_fmadd_pd(a1, b[x], v1[x]);
+            }
+        }
+        for x in 0..R {
+            for y in x..R {
+                d[x][y] = _mm512_fmadd_pd(v0[x], v0[y], d[x][y]);
+            }
+        }
+        if two {
+            let (b, a1) = (col(c + 1), _mm512_set1_pd(l1[c + 1]));
+            for x in 0..R {
+                v1[x] = _mm512_fmadd_pd(a1, b[x], v1[x]);
+            }
+            for x in 0..R {
+                for y in x..R {
+                    d[x][y] = _mm512_fmadd_pd(v1[x], v1[y], d[x][y]);
+                }
+            }
+        }
+        c += 1 + two as usize;
     }
-    while c2 < m {
-        // SAFETY: as above.
-        unsafe { rebuild_columns::<R, 1>(bg, p, m, ps, c2, &mut d) };
-        c2 += 1;
+    for x in 0..R {
+        for y in 0..x {
+            d[x][y] = d[y][x];
+        }
     }
     for x in 0..R {
         for y in 0..R {
@@ -184,47 +218,6 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
     }
     // SAFETY: the caller's CPU has AVX-512F.
     unsafe { dets_and_max::<R>(&d, sg, det) }
-}
-
-/// D += W W' for columns c2..c2 + C of W = B P (w[j][x] = (B P)(x, c2 + j)), each column summed
-/// over the pool's m columns in order (as the portable kernel does).
-///
-/// # Safety
-/// The CPU must have AVX-512F and FMA.
-#[target_feature(enable = "avx512f,fma")]
-#[inline]
-unsafe fn rebuild_columns<const R: usize, const C: usize>(
-    bg: &[f64],
-    p: &[f64],
-    m: usize,
-    ps: usize,
-    c2: usize,
-    d: &mut [[__m512d; R]; R],
-) {
-    let mut w = [[_mm512_setzero_pd(); R]; C];
-    for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(ps)).take(m) {
-        let mut b = [_mm512_setzero_pd(); R];
-        for (x, bx) in b.iter_mut().enumerate() {
-            // SAFETY: `bc` holds R rows of eight lanes.
-            *bx = unsafe { _mm512_loadu_pd(bc[x * L..(x + 1) * L].as_ptr()) };
-        }
-        for (j, wj) in w.iter_mut().enumerate() {
-            let pc = _mm512_set1_pd(prow[c2 + j]);
-            for x in 0..R {
-                wj[x] = _mm512_fmadd_pd(b[x], pc, wj[x]);
-            }
-        }
-    }
-    for (j, wj) in w.iter().enumerate() {
-        let bc2 = &bg[(c2 + j) * R * L..(c2 + j + 1) * R * L];
-        for x in 0..R {
-            for y in 0..R {
-                // SAFETY: `bc2` holds R rows of eight lanes.
-                let b = unsafe { _mm512_loadu_pd(bc2[y * L..(y + 1) * L].as_ptr()) };
-                d[x][y] = _mm512_fmadd_pd(wj[x], b, d[x][y]);
-            }
-        }
-    }
 }
 
 /// P' = P - sign (U S^-1) U^T with U^T = B_a P into `ut` (as `pass::inverse_update`, whose

@@ -208,11 +208,15 @@ impl<'a> Design<'a> {
         self.info_pending.clear();
         let f = Info::ridged(m, info, ridge).factor()?;
         self.log_det = f.log_det();
-        self.p = padded(&f.inverse(), m, s);
+        let (p, li) = f.inverse_and_lower();
+        self.p = padded(&p, m, s);
+        // D_i = B_i P B_i^T = V_i^T V_i with V_i = L^-1 B_i^T: half the products of B P B^T.
+        let li = padded(&li, m, s);
+        let kernel = Kernel::Rebuild { li: &li };
         match self.lp.r {
-            2 => dispatch::<2>(Kernel::Rebuild, self),
-            3 => dispatch::<3>(Kernel::Rebuild, self),
-            _ => dispatch::<6>(Kernel::Rebuild, self),
+            2 => dispatch::<2>(kernel, self),
+            3 => dispatch::<3>(kernel, self),
+            _ => dispatch::<6>(kernel, self),
         }
         self.updates = 0;
         Some(())

@@ -50,8 +50,9 @@ pub(super) fn det_identity_plus(d: &[f64], r: usize, sign: f64) -> f64 {
 /// Which pass over the pool a kernel makes.
 #[derive(Clone, Copy)]
 pub(super) enum Kernel<'s> {
-    /// D_i = B_i P B_i^T for every candidate.
-    Rebuild,
+    /// D_i = B_i P B_i^T = V_i^T V_i with V_i = L^-1 B_i^T for every candidate (`li`: L^-1 of
+    /// the Cholesky factor of P^-1, lower triangular, rows a stride apart).
+    Rebuild { li: &'s [f64] },
     /// M += sign B_a^T B_a for the toggles M has not taken yet (`Design::info_pending`).
     Info,
     /// D_i -= sign E_i S^-1 E_i^T with E_i = B_i U; D read from `src` (another design's,
@@ -124,7 +125,7 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
     let (m, ps) = (d.lp.m, d.lp.stride());
     let blocks = d.lp.b.chunks_exact(m * R * L);
     match k {
-        Kernel::Rebuild => {
+        Kernel::Rebuild { li } => {
             let outs =
                 d.d.chunks_exact_mut(R * R * L)
                     .zip(d.dets.chunks_exact_mut(L).zip(d.sgn.chunks_exact(L)));
@@ -132,14 +133,13 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
-                    *gm =
-                        unsafe { super::avx512::rebuild_group::<R>(bg, &d.p, m, ps, dg, sg, det) };
+                    *gm = unsafe { super::avx512::rebuild_group::<R>(bg, li, m, ps, dg, sg, det) };
                     continue;
                 }
-                let dr = rebuild_group::<R, FMA, W, 0>(bg, &d.p, m, ps, dg);
+                let dr = rebuild_group::<R, FMA, W, 0>(bg, li, m, ps, dg);
                 dets_group::<R, W, 0>(&dr, sg, det);
                 if W < L {
-                    let dr = rebuild_group::<R, FMA, W, 1>(bg, &d.p, m, ps, dg);
+                    let dr = rebuild_group::<R, FMA, W, 1>(bg, li, m, ps, dg);
                     dets_group::<R, W, 1>(&dr, sg, det);
                 }
                 *gm = group_max(det, sg);
@@ -328,34 +328,38 @@ pub(super) fn dets_group<const R: usize, const W: usize, const H: usize>(
     }
 }
 
-/// D = B P B^T for the `W` candidates from lane `H W` of one group.
+/// D = B P B^T = V^T V, V = L^-1 B^T, for the `W` candidates from lane `H W` of one group:
+/// column c of V sums its c + 1 terms in order, then D's upper triangle takes V's columns in
+/// order and is mirrored (`li`: L^-1, rows `ps` apart).
 #[inline(always)]
 fn rebuild_group<const R: usize, const FMA: bool, const W: usize, const H: usize>(
     bg: &[f64],
-    p: &[f64],
+    li: &[f64],
     m: usize,
     ps: usize,
     dg: &mut [f64],
 ) -> [[[f64; W]; R]; R] {
     let mut d = [[[0.0; W]; R]; R];
-    for c2 in 0..m {
-        // w[x] = (B P)(x, c2), then D(x, y) += w[x] B(y, c2).
-        let mut w = [[0.0; W]; R];
-        for (bc, prow) in bg.chunks_exact(R * L).zip(p.chunks_exact(ps)).take(m) {
-            let pc = prow[c2];
+    for (c, lrow) in li.chunks_exact(ps).take(m).enumerate() {
+        let mut v = [[0.0; W]; R];
+        for (bk, &lk) in bg.chunks_exact(R * L).zip(&lrow[..=c]) {
             for x in 0..R {
                 for l in 0..W {
-                    w[x][l] = madd::<FMA>(bc[x * L + H * W + l], pc, w[x][l]);
+                    v[x][l] = madd::<FMA>(lk, bk[x * L + H * W + l], v[x][l]);
                 }
             }
         }
-        let bc2 = &bg[c2 * R * L..(c2 + 1) * R * L];
         for x in 0..R {
-            for y in 0..R {
+            for y in x..R {
                 for l in 0..W {
-                    d[x][y][l] = madd::<FMA>(w[x][l], bc2[y * L + H * W + l], d[x][y][l]);
+                    d[x][y][l] = madd::<FMA>(v[x][l], v[y][l], d[x][y][l]);
                 }
             }
+        }
+    }
+    for x in 0..R {
+        for y in 0..x {
+            d[x][y] = d[y][x];
         }
     }
     for x in 0..R {
