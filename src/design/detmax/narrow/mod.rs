@@ -76,6 +76,13 @@ impl LanePool {
     }
 }
 
+/// A number no design's `info_id` has had yet.
+fn fresh_info_id() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static NEXT: AtomicU64 = AtomicU64::new(1);
+    NEXT.fetch_add(1, Ordering::Relaxed)
+}
+
 /// An m x m row-major matrix with its rows `s` apart (zero padding).
 fn padded(a: &[f64], m: usize, s: usize) -> Vec<f64> {
     let mut out = vec![0.0; m * s];
@@ -105,6 +112,10 @@ pub(super) struct Design<'a> {
     /// are dropped without one): an exact determinant costs one Cholesky, not a product
     /// over the design's rows.
     info: Vec<f64>,
+    /// Which content `info` holds: a fresh number at every change, carried with every copy,
+    /// so a copy from a design with the same number skips `info` (it changes only when an
+    /// exact determinant or a rebuild asks, far less often than designs are copied).
+    info_id: u64,
     /// Toggles (candidate, sign) made since `info` was last brought up to date.
     info_pending: Vec<(usize, f64)>,
     /// D_i = B_i P B_i^T, lane-interleaved: entry (x, y) of candidate 4 g + l at
@@ -136,6 +147,7 @@ impl Clone for Design<'_> {
             log_det: self.log_det,
             p: self.p.clone(),
             info: self.info.clone(),
+            info_id: self.info_id,
             info_pending: self.info_pending.clone(),
             d: self.d.clone(),
             dets: self.dets.clone(),
@@ -154,7 +166,7 @@ impl Clone for Design<'_> {
         self.member.clone_from(&src.member);
         self.log_det = src.log_det;
         self.p.clone_from(&src.p);
-        self.info.clone_from(&src.info);
+        self.info_from(src);
         self.info_pending.clone_from(&src.info_pending);
         self.d.clone_from(&src.d);
         self.dets.clone_from(&src.dets);
@@ -182,6 +194,7 @@ impl<'a> Design<'a> {
             log_det: 0.0,
             p: vec![0.0; m * s],
             info: Vec::new(),
+            info_id: 0,
             info_pending: Vec::new(),
             d: vec![0.0; lp.n.div_ceil(L) * r * r * L],
             dets: vec![0.0; lp.n.div_ceil(L) * L],
@@ -205,6 +218,7 @@ impl<'a> Design<'a> {
         let (m, s) = (self.lp.m, self.lp.stride());
         let info = pool.information(&members);
         self.info = padded(&info, m, s);
+        self.info_id = fresh_info_id();
         self.info_pending.clear();
         let f = Info::ridged(m, info, ridge).factor()?;
         self.log_det = f.log_det();
@@ -263,6 +277,14 @@ impl<'a> Design<'a> {
         self.toggle_over(a, sign, None)
     }
 
+    /// `src`'s information matrix, copied only when this design holds another content.
+    fn info_from(&mut self, src: &Self) {
+        if self.info_id != src.info_id || self.info.len() != src.info.len() {
+            self.info.clone_from(&src.info);
+            self.info_id = src.info_id;
+        }
+    }
+
     /// `src` with candidate `a` toggled, into this design's buffers: the pass reads `src`'s
     /// D and writes this design's D, determinants and group maxima, so they are not copied
     /// first. On None this design is left in no useful state.
@@ -271,7 +293,7 @@ impl<'a> Design<'a> {
         self.member.clone_from(&src.member);
         self.log_det = src.log_det;
         self.p.clone_from(&src.p);
-        self.info.clone_from(&src.info);
+        self.info_from(src);
         self.info_pending.clone_from(&src.info_pending);
         self.sgn.clone_from(&src.sgn);
         self.updates = src.updates;
@@ -315,6 +337,7 @@ impl<'a> Design<'a> {
     pub(super) fn exact_log_det(&mut self, extra: Option<(usize, bool)>) -> f64 {
         let (m, r) = (self.lp.m, self.lp.r);
         if !self.info_pending.is_empty() {
+            self.info_id = fresh_info_id();
             match r {
                 2 => dispatch::<2>(Kernel::Info, self),
                 3 => dispatch::<3>(Kernel::Info, self),
