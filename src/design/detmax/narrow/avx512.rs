@@ -279,17 +279,32 @@ pub(super) unsafe fn inverse_update<const R: usize>(
             }
             *v *= -sign;
         }
-        let fv: [__m512d; R] = std::array::from_fn(|y| _mm512_set1_pd(f[y]));
-        for (jb, blk) in row.chunks_exact_mut(L).enumerate() {
-            // SAFETY: `blk` holds eight f64, each row of `ut` ps >= 8 (jb + 1) of them.
-            let mut v = unsafe { _mm512_loadu_pd(blk.as_ptr()) };
-            for (y, &fy) in fv.iter().enumerate() {
-                let u = unsafe { _mm512_loadu_pd(ut[y * ps + jb * L..].as_ptr()) };
-                v = _mm512_fmadd_pd(fy, u, v);
-            }
-            // SAFETY: as above.
-            unsafe { _mm512_storeu_pd(blk.as_mut_ptr(), v) };
+        // SAFETY: the caller's CPU has AVX-512F and FMA.
+        unsafe { add_rows::<R>(row, &f, ut, ps) };
+    }
+}
+
+/// row += sum over y of f[y] times row y of `rows` (rows `ps` apart, ps a multiple of eight
+/// and the length of `row`), eight entries at a time in registers, the terms in y order.
+///
+/// # Safety
+/// The CPU must have AVX-512F and FMA.
+#[target_feature(enable = "avx512f,fma")]
+#[inline]
+unsafe fn add_rows<const R: usize>(row: &mut [f64], f: &[f64; R], rows: &[f64], ps: usize) {
+    let fv: [__m512d; R] = std::array::from_fn(|y| _mm512_set1_pd(f[y]));
+    let rows = &rows[..R * ps];
+    for (jb, blk) in row[..ps].chunks_exact_mut(L).enumerate() {
+        // SAFETY: `blk` holds eight f64.
+        let mut v = unsafe { _mm512_loadu_pd(blk.as_ptr()) };
+        for (y, &fy) in fv.iter().enumerate() {
+            let at = &rows[y * ps + jb * L..y * ps + (jb + 1) * L];
+            // SAFETY: `at` holds eight f64.
+            let b = unsafe { _mm512_loadu_pd(at.as_ptr()) };
+            v = _mm512_fmadd_pd(fy, b, v);
         }
+        // SAFETY: as above.
+        unsafe { _mm512_storeu_pd(blk.as_mut_ptr(), v) };
     }
 }
 
@@ -308,17 +323,9 @@ pub(super) unsafe fn info_update<const R: usize>(
 ) {
     let ba = &ba[..R * ps];
     for (c, row) in info[..m * ps].chunks_exact_mut(ps).enumerate() {
-        let fv: [__m512d; R] = std::array::from_fn(|y| _mm512_set1_pd(sign * ba[y * ps + c]));
-        for (jb, blk) in row.chunks_exact_mut(L).enumerate() {
-            // SAFETY: `blk` holds eight f64, each row of `ba` ps >= 8 (jb + 1) of them.
-            let mut v = unsafe { _mm512_loadu_pd(blk.as_ptr()) };
-            for (y, &fy) in fv.iter().enumerate() {
-                let b = unsafe { _mm512_loadu_pd(ba[y * ps + jb * L..].as_ptr()) };
-                v = _mm512_fmadd_pd(fy, b, v);
-            }
-            // SAFETY: as above.
-            unsafe { _mm512_storeu_pd(blk.as_mut_ptr(), v) };
-        }
+        let f: [f64; R] = std::array::from_fn(|y| sign * ba[y * ps + c]);
+        // SAFETY: the caller's CPU has AVX-512F and FMA.
+        unsafe { add_rows::<R>(row, &f, ba, ps) };
     }
 }
 

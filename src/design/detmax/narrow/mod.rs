@@ -162,17 +162,10 @@ impl Clone for Design<'_> {
 
     /// A copy into the buffers already held (an excursion's trial design, once per try).
     fn clone_from(&mut self, src: &Self) {
-        self.lp = src.lp;
-        self.member.clone_from(&src.member);
-        self.log_det = src.log_det;
-        self.p.clone_from(&src.p);
-        self.info_from(src);
-        self.info_pending.clone_from(&src.info_pending);
+        self.copy_but_candidates(src);
         self.d.clone_from(&src.d);
         self.dets.clone_from(&src.dets);
-        self.sgn.clone_from(&src.sgn);
         self.gmax.clone_from(&src.gmax);
-        self.updates = src.updates;
     }
 }
 
@@ -289,6 +282,13 @@ impl<'a> Design<'a> {
     /// D and writes this design's D, determinants and group maxima, so they are not copied
     /// first. On None this design is left in no useful state.
     pub(super) fn toggle_from(&mut self, src: &Self, a: usize, sign: f64) -> Option<()> {
+        self.copy_but_candidates(src);
+        self.toggle_over(a, sign, Some(&src.d))
+    }
+
+    /// `src`'s state but the per-candidate D, determinants and group maxima (which a pass
+    /// writes), into the buffers already held.
+    fn copy_but_candidates(&mut self, src: &Self) {
         self.lp = src.lp;
         self.member.clone_from(&src.member);
         self.log_det = src.log_det;
@@ -297,7 +297,6 @@ impl<'a> Design<'a> {
         self.info_pending.clone_from(&src.info_pending);
         self.sgn.clone_from(&src.sgn);
         self.updates = src.updates;
-        self.toggle_over(a, sign, Some(&src.d))
     }
 
     /// The toggle, its D read from `src_d` (another design's) or, when None, from this
