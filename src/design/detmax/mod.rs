@@ -298,22 +298,20 @@ pub fn detmax(
             }
             // The steps back, on a copy when the steps out are kept for the next size (the
             // first step back written from the steps out).
-            let (trial, first_back) = match (k > 1, back.first_mut()) {
+            // `back_taken`: the steps back taken so far (None: the first one failed).
+            let (trial, back_taken) = match (k > 1, back.first_mut()) {
                 (true, Some(d)) => {
-                    let taken_back = d.greedy_from(out, !up, &mut memo).is_some();
-                    (d, Some(taken_back))
+                    let first = d.greedy_from(out, !up, &mut memo).is_some();
+                    (d, first.then_some(1))
                 }
-                _ => (out, None),
+                _ => (out, Some(0)),
             };
             if reuse {
                 *taken = Some(k);
             }
             // The last step is looked at first and taken only if the excursion is accepted.
-            let came_back = match first_back {
-                Some(false) => false,
-                Some(true) => (1..k - 1).all(|_| trial.greedy(!up, &mut memo).is_some()),
-                None => (0..k - 1).all(|_| trial.greedy(!up, &mut memo).is_some()),
-            };
+            let came_back = back_taken
+                .is_some_and(|b| (b..k - 1).all(|_| trial.greedy(!up, &mut memo).is_some()));
             let Some((last, log_det)) = came_back.then(|| trial.peek(!up, &mut memo)).flatten()
             else {
                 continue;

@@ -107,10 +107,10 @@ pub(super) struct Design<'a> {
     pub(super) log_det: f64,
     /// P = (M + ridge I)^-1 (m x m, row-major, symmetric; rows [`LanePool::stride`] apart).
     p: Vec<f64>,
-    /// M = sum of the members' B_i^T B_i (m x m, row-major, rows [`LanePool::stride`] apart) but for the toggles in
-    /// `info_pending`, which it takes when an exact determinant asks (most trial designs
-    /// are dropped without one): an exact determinant costs one Cholesky, not a product
-    /// over the design's rows.
+    /// M = sum of the members' B_i^T B_i (m x m, row-major, rows [`LanePool::stride`] apart)
+    /// but for the toggles in `info_pending`, which it takes when an exact determinant asks
+    /// (most trial designs are dropped without one): an exact determinant costs one
+    /// Cholesky, not a product over the design's rows.
     info: Vec<f64>,
     /// Which content `info` holds: a fresh number at every change, carried with every copy,
     /// so a copy from a design with the same number skips `info` (it changes only when an

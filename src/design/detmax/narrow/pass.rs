@@ -166,17 +166,7 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
                     s[x][y] = sinv[x * R + y];
                 }
             }
-            #[cfg(target_arch = "x86_64")]
-            if W == L {
-                // SAFETY: whole vectors only from `run_avx512`.
-                unsafe {
-                    super::avx512::inverse_update::<R>(&mut d.p, &mut d.ut, &d.ba, &s, sign, m, ps);
-                }
-            } else {
-                inverse_update::<R, FMA>(&mut d.p, &mut d.ut, &d.ba, &s, sign, m, ps);
-            }
-            #[cfg(not(target_arch = "x86_64"))]
-            inverse_update::<R, FMA>(&mut d.p, &mut d.ut, &d.ba, &s, sign, m, ps);
+            inverse_update_at::<R, FMA, W>(d, &s, sign);
             for c in 0..m {
                 for y in 0..R {
                     d.u[c * R + y] = d.ut[y * ps + c];
@@ -226,6 +216,23 @@ fn info_update<const R: usize, const FMA: bool>(
             }
         }
     }
+}
+
+/// [`inverse_update`] of the design's P, in AVX-512 registers when called from `run_avx512`.
+#[inline(always)]
+fn inverse_update_at<const R: usize, const FMA: bool, const W: usize>(
+    d: &mut Design<'_>,
+    s: &[[f64; R]; R],
+    sign: f64,
+) {
+    let (m, ps) = (d.lp.m, d.lp.stride());
+    #[cfg(target_arch = "x86_64")]
+    if W == L {
+        // SAFETY: whole vectors only from `run_avx512`.
+        unsafe { super::avx512::inverse_update::<R>(&mut d.p, &mut d.ut, &d.ba, s, sign, m, ps) };
+        return;
+    }
+    inverse_update::<R, FMA>(&mut d.p, &mut d.ut, &d.ba, s, sign, m, ps);
 }
 
 /// U^T = B_a P into `ut` (r x m; P is symmetric, so this is (P B_a^T)^T), then
