@@ -162,7 +162,7 @@ pub async fn start(
         send_timeout: Duration::from_secs(config.send_timeout_s.max(1)),
         ..Default::default()
     };
-    let state = AppState {
+    let state = AppState::new(api::AppShared {
         service,
         scheduler,
         auth: Arc::new(auth),
@@ -185,7 +185,7 @@ pub async fn start(
         min_schedule_interval: Duration::from_secs(config.min_schedule_interval_s),
         metrics,
         shutdown,
-    };
+    });
     Ok((state, workers, startup))
 }
 

@@ -18,8 +18,8 @@ use super::{ApiError, ApiPath, AppState, Caller, Role, attachment, body, check_n
 
 pub(super) fn router() -> Router<AppState> {
     Router::new()
-        .route("/datasets", get(list).post(upload))
-        .route("/datasets/{id}", get(one))
+        .route("/v1/datasets", get(list).post(upload))
+        .route("/v1/datasets/{id}", get(one))
 }
 
 #[derive(Debug, Deserialize)]

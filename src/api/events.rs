@@ -24,8 +24,8 @@ use crate::service::Event;
 
 pub(super) fn router() -> Router<AppState> {
     Router::new()
-        .route("/events", get(all))
-        .route("/jobs/{id}/events", get(job))
+        .route("/v1/events", get(all))
+        .route("/v1/jobs/{id}/events", get(job))
 }
 
 fn sse(e: &Event) -> SseEvent {

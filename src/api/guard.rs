@@ -6,7 +6,6 @@
 use std::convert::Infallible;
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::Arc;
 use std::task::{Context, Poll};
 
 use axum::extract::Request;
@@ -14,19 +13,17 @@ use axum::http::{HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 use tower_service::Service;
 
-use super::{ApiError, AppState, CSP, Peer, Role, auth, budget, host_name};
+use super::{ApiError, AppState, CSP, Peer, Role, auth, budget, host_part};
 
 /// Makes a [`Guard`] around each route (and the fallback) of the router.
 #[derive(Debug, Clone)]
 pub(super) struct GuardLayer {
-    state: Arc<AppState>,
+    state: AppState,
 }
 
 impl GuardLayer {
     pub(super) fn new(state: AppState) -> Self {
-        Self {
-            state: Arc::new(state),
-        }
+        Self { state }
     }
 }
 
@@ -45,7 +42,7 @@ impl<S> tower_layer::Layer<S> for GuardLayer {
 #[derive(Debug, Clone)]
 pub(super) struct Guard<S> {
     inner: S,
-    state: Arc<AppState>,
+    state: AppState,
 }
 
 /// The boxed response future of the API's own tower services (this guard and the route metrics).
@@ -143,10 +140,11 @@ fn check_host(s: &AppState, req: &Request) -> Option<Response> {
     let Some(given) = given else {
         return Some(ApiError::BadRequest("the request has no Host header".into()).into_response());
     };
-    let name = host_name(given);
-    if s.allowed_hosts.contains(&name) {
+    let host = host_part(given);
+    if s.allowed_hosts.iter().any(|h| h.eq_ignore_ascii_case(host)) {
         return None;
     }
+    let name = host.to_ascii_lowercase();
     let mut shown: String = name.chars().take(100).collect();
     if shown.len() < name.len() {
         shown.push_str("...");

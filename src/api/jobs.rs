@@ -17,18 +17,18 @@ use crate::store::{JobFilter, JobRecord, JobState};
 
 pub(super) fn router() -> Router<AppState> {
     Router::new()
-        .route("/jobs", post(submit).get(list))
-        .route("/jobs/{id}", get(one))
-        .route("/jobs/{id}/cancel", post(cancel))
-        .route("/jobs/{id}/resume", post(resume))
-        .route("/jobs/{id}/measurements", get(measurements))
-        .route("/jobs/{id}/rerun", post(rerun))
-        .route("/jobs/{id}/result", get(result))
-        .route("/jobs/{id}/report", get(super::report::report))
-        .route("/jobs/{id}/table", get(table))
-        .route("/jobs/{id}/artefacts", get(artefacts))
-        .route("/jobs/{id}/artefacts/{name}", get(artefact))
-        .route("/jobs/{id}/logs", get(logs))
+        .route("/v1/jobs", post(submit).get(list))
+        .route("/v1/jobs/{id}", get(one))
+        .route("/v1/jobs/{id}/cancel", post(cancel))
+        .route("/v1/jobs/{id}/resume", post(resume))
+        .route("/v1/jobs/{id}/measurements", get(measurements))
+        .route("/v1/jobs/{id}/rerun", post(rerun))
+        .route("/v1/jobs/{id}/result", get(result))
+        .route("/v1/jobs/{id}/report", get(super::report::report))
+        .route("/v1/jobs/{id}/table", get(table))
+        .route("/v1/jobs/{id}/artefacts", get(artefacts))
+        .route("/v1/jobs/{id}/artefacts/{name}", get(artefact))
+        .route("/v1/jobs/{id}/logs", get(logs))
 }
 
 fn submitter(c: &Caller, role: Role) -> Submitter {

@@ -40,9 +40,29 @@ use crate::service::Service;
 /// The contract, served at `/openapi.yaml`.
 pub const OPENAPI_YAML: &str = include_str!("../../openapi.yaml");
 
-/// Everything handlers need; cheap to clone.
+/// Everything handlers need, behind one `Arc`: axum clones the router's state for every
+/// request, so a clone is one reference count, not one per field.
 #[derive(Debug, Clone)]
-pub struct AppState {
+pub struct AppState(Arc<AppShared>);
+
+impl AppState {
+    /// The state handlers share.
+    pub fn new(shared: AppShared) -> Self {
+        Self(Arc::new(shared))
+    }
+}
+
+impl std::ops::Deref for AppState {
+    type Target = AppShared;
+
+    fn deref(&self) -> &AppShared {
+        &self.0
+    }
+}
+
+/// What [`AppState`] holds.
+#[derive(Debug)]
+pub struct AppShared {
     /// The job service.
     pub service: Service,
     /// The scheduler (schedules CRUD tells it to reload).
@@ -81,14 +101,14 @@ pub fn metrics_handle() -> Option<PrometheusHandle> {
 pub fn app(state: AppState) -> Router {
     let limit = state.max_body_bytes;
     let timeout = state.request_timeout;
-    let v1 = Router::new()
+    // The resources' routes carry their `/v1` prefix (a `nest` would rebuild every
+    // request's URI to strip it).
+    Router::new()
         .merge(jobs::router())
         .merge(datasets::router())
         .merge(schedules::router())
         .merge(events::router())
-        .merge(system::router());
-    Router::new()
-        .nest("/v1", v1)
+        .merge(system::router())
         .merge(system::root_router())
         .merge(web::router())
         .route_layer(track::TrackLayer)
@@ -118,6 +138,12 @@ async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) ->
 /// The host name of a `Host` header or URI authority: lowercase, without port, brackets or
 /// a trailing dot.
 pub fn host_name(authority: &str) -> String {
+    host_part(authority).to_ascii_lowercase()
+}
+
+/// The host name of an authority as written (any case), without port, brackets or a
+/// trailing dot: [`host_name`] without the copy, for the per-request Host check.
+fn host_part(authority: &str) -> &str {
     let a = authority.trim();
     let host = if let Some(rest) = a.strip_prefix('[') {
         rest.split(']').next().unwrap_or(rest)
@@ -127,7 +153,7 @@ pub fn host_name(authority: &str) -> String {
             _ => a,
         }
     };
-    host.trim_end_matches('.').to_ascii_lowercase()
+    host.trim_end_matches('.')
 }
 
 /// The Content-Security-Policy of every response: the page's own script and style only;

@@ -16,9 +16,9 @@ use crate::store::{NewSchedule, ScheduleRecord, format_time};
 
 pub(super) fn router() -> Router<AppState> {
     Router::new()
-        .route("/schedules", get(list).post(create))
-        .route("/schedules/{id}", get(one).put(replace).delete(remove))
-        .route("/schedules/{id}/runs", get(runs))
+        .route("/v1/schedules", get(list).post(create))
+        .route("/v1/schedules/{id}", get(one).put(replace).delete(remove))
+        .route("/v1/schedules/{id}/runs", get(runs))
 }
 
 /// A schedule as the API shows it: the record plus its next occurrence.

@@ -12,16 +12,16 @@ use crate::jobs::{KINDS, envelope::VERSION, examples};
 
 pub(super) fn router() -> Router<AppState> {
     Router::new()
-        .route("/health", get(health))
-        .route("/version", get(version))
-        .route("/kinds", get(kinds))
-        .route("/examples", get(example_list))
-        .route("/examples/{name}", get(example))
-        .route("/devices", get(devices))
-        .route("/cells", get(cells))
-        .route("/cells/{name}/indicators", get(indicators))
-        .route("/cells/{name}/drift", get(drift))
-        .route("/lab", get(lab))
+        .route("/v1/health", get(health))
+        .route("/v1/version", get(version))
+        .route("/v1/kinds", get(kinds))
+        .route("/v1/examples", get(example_list))
+        .route("/v1/examples/{name}", get(example))
+        .route("/v1/devices", get(devices))
+        .route("/v1/cells", get(cells))
+        .route("/v1/cells/{name}/indicators", get(indicators))
+        .route("/v1/cells/{name}/drift", get(drift))
+        .route("/v1/lab", get(lab))
 }
 
 pub(super) fn root_router() -> Router<AppState> {

@@ -60,7 +60,7 @@ impl Service {
                 doc,
                 priority,
                 devices,
-                inputs_sha256: serde_json::to_value(&job.inputs_sha256).unwrap_or(Value::Null),
+                inputs_sha256: job.inputs_sha256.clone(),
                 submitted_by: who.name,
                 schedule_id: origin.schedule.as_ref().map(|s| s.id),
                 rerun_of: origin.rerun_of,

@@ -75,8 +75,8 @@ pub struct JobRecord {
     pub priority: i64,
     /// Devices the job holds while it runs.
     pub devices: Vec<String>,
-    /// SHA-256 of the job document and of each input.
-    pub inputs_sha256: Value,
+    /// SHA-256 (hex) of the job document and of each input, by input name.
+    pub inputs_sha256: std::collections::BTreeMap<String, String>,
     /// When it was accepted (RFC 3339, UTC).
     pub submitted_at: String,
     /// When it first started (a resumed job keeps its first start).
@@ -115,8 +115,8 @@ pub struct NewJob {
     pub priority: i64,
     /// Devices it needs.
     pub devices: Vec<String>,
-    /// Input hashes.
-    pub inputs_sha256: Value,
+    /// SHA-256 (hex) of the job document and of each input, by input name.
+    pub inputs_sha256: std::collections::BTreeMap<String, String>,
     /// Token name.
     pub submitted_by: Option<String>,
     /// Submitting schedule.

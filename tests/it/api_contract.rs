@@ -11,8 +11,8 @@ use serde_json::{Value, json};
 use server::schema::{assert_response, contract};
 use server::{OPERATOR, SUBMITTER, VIEWER, start};
 
-/// (method, path template) of every `.route(...)` in src/api, with the `/v1` prefix for
-/// routers nested under it (all but `root_router` and the web page).
+/// (method, path template) of every `.route(...)` in src/api (each route is written with
+/// its whole path, `/v1` included).
 fn implemented_routes() -> BTreeSet<(String, String)> {
     let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/src/api");
     let mut out = BTreeSet::new();
@@ -21,18 +21,10 @@ fn implemented_routes() -> BTreeSet<(String, String)> {
         if p.extension().and_then(|e| e.to_str()) != Some("rs") {
             continue;
         }
-        let file = p.file_name().unwrap().to_str().unwrap().to_string();
         let text = std::fs::read_to_string(&p).unwrap();
-        let mut func = String::new();
         let mut pending: Option<String> = None;
         for line in text.lines() {
             let t = line.trim();
-            if let Some(rest) = t
-                .strip_prefix("pub(super) fn ")
-                .or_else(|| t.strip_prefix("fn "))
-            {
-                func = rest.split('(').next().unwrap_or("").to_string();
-            }
             let stmt = match (pending.take(), t.starts_with(".route(")) {
                 (Some(mut acc), _) => {
                     acc.push_str(t);
@@ -46,18 +38,13 @@ fn implemented_routes() -> BTreeSet<(String, String)> {
                 continue;
             }
             let path = stmt.split('"').nth(1).unwrap().to_string();
-            let prefix = if file == "web.rs" || func == "root_router" || file == "mod.rs" {
-                ""
-            } else {
-                "/v1"
-            };
             for m in ["get", "post", "put", "delete"] {
                 let pat = format!("{m}(");
                 let called = stmt
                     .match_indices(&pat)
                     .any(|(i, _)| !stmt[..i].ends_with(|c: char| c.is_alphanumeric() || c == '_'));
                 if called {
-                    out.insert((m.to_string(), format!("{prefix}{path}")));
+                    out.insert((m.to_string(), path.clone()));
                 }
             }
         }

@@ -29,7 +29,7 @@ fn record(r: &Row<'_>) -> rusqlite::Result<(JobRecord, String, String, String)> 
             state: JobState::Queued,
             priority: r.get(3)?,
             devices: vec![],
-            inputs_sha256: Value::Null,
+            inputs_sha256: Default::default(),
             submitted_at: r.get(6)?,
             started_at: r.get(7)?,
             resumed_at: r.get(16)?,

@@ -11,7 +11,7 @@ fn job(kind: &str) -> NewJob {
         doc: json!({"kind": kind}),
         priority: 0,
         devices: vec![],
-        inputs_sha256: json!({"job": "00"}),
+        inputs_sha256: [("job".to_owned(), "00".to_owned())].into(),
         submitted_by: Some("test".into()),
         schedule_id: None,
         rerun_of: None,
