@@ -47,18 +47,15 @@ impl BodyBudget {
     }
 }
 
-/// Reserve the request's body bytes, let `next` answer, give them back (called by
-/// [`super::guard::Guard`] once the request is admitted).
-pub(super) async fn within<S>(s: &AppState, req: Request, mut next: S) -> Response
-where
-    S: Service<Request, Response = Response, Error = Infallible>,
-{
+/// The body bytes a request may bring: its Content-Length, none for a method without a
+/// body, else (a streamed body of unknown length) the largest body allowed.
+pub(super) fn declared_bytes(s: &AppState, req: &Request) -> u64 {
     let declared = req
         .headers()
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.trim().parse::<u64>().ok());
-    let bytes = match declared {
+    match declared {
         Some(n) => n,
         None if matches!(
             *req.method(),
@@ -67,9 +64,17 @@ where
         {
             0
         }
-        // A streamed body of unknown length may grow to the largest body allowed.
         None => s.max_body_bytes as u64,
-    };
+    }
+}
+
+/// Reserve the request's body bytes, let `next` answer, give them back (called by
+/// [`super::guard::Guard`] once the request is admitted).
+pub(super) async fn within<S>(s: &AppState, req: Request, mut next: S) -> Response
+where
+    S: Service<Request, Response = Response, Error = Infallible>,
+{
+    let bytes = declared_bytes(s, &req);
     if bytes == 0 {
         return answer(next.call(req).await);
     }

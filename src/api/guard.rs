@@ -1,7 +1,9 @@
 //! The API's per-request checks as one tower layer over every route and the fallback:
 //! admission on the operators' reserved connections, the Host check, the body budget, then
-//! the security headers on whatever answers. One shared state is borrowed, not cloned,
-//! and the next service is not boxed again per request (`middleware::from_fn` does both).
+//! the security headers on whatever answers, and the request metrics ([`super::track`]).
+//! One shared state is borrowed, not cloned, and the next service is not boxed again per
+//! request (`middleware::from_fn` does both); a request without a body is called on the
+//! route polled ready, not on a copy of it.
 
 use std::convert::Infallible;
 use std::future::Future;
@@ -13,6 +15,7 @@ use axum::http::{HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 use tower_service::Service;
 
+use super::track::Tracker;
 use super::{ApiError, AppState, CSP, Peer, Role, auth, budget, host_part};
 
 /// Makes a [`Guard`] around each route (and the fallback) of the router.
@@ -34,6 +37,7 @@ impl<S> tower_layer::Layer<S> for GuardLayer {
         Guard {
             inner,
             state: self.state.clone(),
+            tracker: Tracker::default(),
         }
     }
 }
@@ -43,9 +47,11 @@ impl<S> tower_layer::Layer<S> for GuardLayer {
 pub(super) struct Guard<S> {
     inner: S,
     state: AppState,
+    /// The route's request metrics.
+    tracker: Tracker,
 }
 
-/// The boxed response future of the API's own tower services (this guard and the route metrics).
+/// The boxed response future of the guard.
 pub(super) type Answer = Pin<Box<dyn Future<Output = Result<Response, Infallible>> + Send>>;
 
 impl<S> Service<Request> for Guard<S>
@@ -62,16 +68,32 @@ where
     }
 
     fn call(&mut self, req: Request) -> Answer {
+        if let Some(mut res) = refusal(&self.state, &req) {
+            secure(&mut res);
+            return Box::pin(std::future::ready(Ok(res)));
+        }
+        // Counted from here: a refused request is not a request of the route.
+        let timing = self.tracker.start(&req);
+        // A request without a body is called on the service polled ready, here (no copy of
+        // the route); one with a body waits for its share of the body budget first, on the
+        // service's copy.
+        if budget::declared_bytes(&self.state, &req) == 0 {
+            let answer = self.inner.call(req);
+            return Box::pin(async move {
+                let mut res = answer.await?;
+                secure(&mut res);
+                timing.finish(&res);
+                Ok(res)
+            });
+        }
         // The service polled ready serves this request; its clone waits for the next one.
         let fresh = self.inner.clone();
         let inner = std::mem::replace(&mut self.inner, fresh);
         let state = self.state.clone();
         Box::pin(async move {
-            let mut res = match refusal(&state, &req) {
-                Some(r) => r,
-                None => budget::within(&state, req, inner).await,
-            };
+            let mut res = budget::within(&state, req, inner).await;
             secure(&mut res);
+            timing.finish(&res);
             Ok(res)
         })
     }

@@ -111,7 +111,6 @@ pub fn app(state: AppState) -> Router {
         .merge(system::router())
         .merge(system::root_router())
         .merge(web::router())
-        .route_layer(track::TrackLayer)
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         // One layer of four (outermost first), so a request clones one boxed stack per

@@ -1,41 +1,59 @@
-//! Request metrics by route template (never by raw path): `calibd_http_requests_total`
-//! {method, path, status} and `calibd_http_request_duration_seconds` {method, path}. Each
-//! route keeps the handles it registered, so a request makes no label strings and no
-//! registry lookup (the recorder is the one installed when the route first answers).
+//! Request metrics by route template (never by raw path; `unmatched` for a path no route
+//! has): `calibd_http_requests_total` {method, path, status} and
+//! `calibd_http_request_duration_seconds` {method, path}, taken by
+//! [`super::guard::Guard`] around each route. Each route keeps the handles it registered, so
+//! a request makes no label strings and no registry lookup (the recorder is the one
+//! installed when the route first answers).
 
-use std::convert::Infallible;
 use std::sync::{Arc, Mutex};
-use std::task::{Context, Poll};
 use std::time::Instant;
 
 use axum::extract::{MatchedPath, Request};
 use axum::http::Method;
 use axum::response::Response;
 use metrics::{Counter, Histogram};
-use tower_service::Service;
 
-use super::guard::Answer;
-
-/// Makes a [`Track`] around each route of the router (not the fallback).
+/// The metric handles of one route, shared by its copies.
 #[derive(Debug, Clone, Default)]
-pub(super) struct TrackLayer;
+pub(super) struct Tracker {
+    handles: Arc<Mutex<Handles>>,
+}
 
-impl<S> tower_layer::Layer<S> for TrackLayer {
-    type Service = Track<S>;
+/// One request being counted and timed.
+pub(super) struct Timing {
+    t0: Instant,
+    method: Method,
+    path: Option<MatchedPath>,
+    handles: Arc<Mutex<Handles>>,
+}
 
-    fn layer(&self, inner: S) -> Track<S> {
-        Track {
-            inner,
-            handles: Arc::default(),
+impl Tracker {
+    /// Start timing `req`.
+    pub(super) fn start(&self, req: &Request) -> Timing {
+        Timing {
+            t0: Instant::now(),
+            method: req.method().clone(),
+            path: req.extensions().get::<MatchedPath>().cloned(),
+            handles: self.handles.clone(),
         }
     }
 }
 
-/// One route, counted and timed.
-#[derive(Debug, Clone)]
-pub(super) struct Track<S> {
-    inner: S,
-    handles: Arc<Mutex<Handles>>,
+impl Timing {
+    /// Count the request with the response's status and record its duration.
+    pub(super) fn finish(self, res: &Response) {
+        let path = self.path.as_ref().map_or("unmatched", MatchedPath::as_str);
+        let status = res.status().as_u16();
+        let (count, duration) = {
+            let mut h = self.handles.lock().unwrap_or_else(|p| p.into_inner());
+            (
+                h.count(&self.method, path, status),
+                h.duration(&self.method, path),
+            )
+        };
+        count.increment(1);
+        duration.record(self.t0.elapsed().as_secs_f64());
+    }
 }
 
 /// The metric handles a route has used, by method (and status).
@@ -83,40 +101,5 @@ impl Handles {
         self.counts
             .push((method.clone(), path.to_owned(), status, c.clone()));
         c
-    }
-}
-
-impl<S> Service<Request> for Track<S>
-where
-    S: Service<Request, Response = Response, Error = Infallible> + Clone + Send + 'static,
-    S::Future: Send + 'static,
-{
-    type Response = Response;
-    type Error = Infallible;
-    type Future = Answer;
-
-    fn poll_ready(&mut self, cx: &mut Context<'_>) -> Poll<Result<(), Infallible>> {
-        self.inner.poll_ready(cx)
-    }
-
-    fn call(&mut self, req: Request) -> Answer {
-        let t0 = Instant::now();
-        let path = req.extensions().get::<MatchedPath>().cloned();
-        let method = req.method().clone();
-        let fresh = self.inner.clone();
-        let mut inner = std::mem::replace(&mut self.inner, fresh);
-        let handles = self.handles.clone();
-        Box::pin(async move {
-            let res = inner.call(req).await?;
-            let path = path.as_ref().map_or("unmatched", MatchedPath::as_str);
-            let status = res.status().as_u16();
-            let (count, duration) = {
-                let mut h = handles.lock().unwrap_or_else(|p| p.into_inner());
-                (h.count(&method, path, status), h.duration(&method, path))
-            };
-            count.increment(1);
-            duration.record(t0.elapsed().as_secs_f64());
-            Ok(res)
-        })
     }
 }

@@ -452,11 +452,18 @@ async fn request_metrics_count_answered_requests_by_route_template_and_status() 
     let refused = [route[0], route[1], r#"status="401""#];
     let count = "calibd_http_requests_total";
     let timed = "calibd_http_request_duration_seconds_count";
+    // Paths no route has: one label, however many paths (the raw path is never a label).
+    let unmatched = [r#"method="GET""#, r#"path="unmatched""#, r#"status="404""#];
     let before = metrics().await;
-    let (n0, t0) = (
+    let (n0, t0, u0) = (
         sample(&before, count, &refused),
         sample(&before, timed, &route),
+        sample(&before, count, &unmatched),
     );
+    for path in ["/v1/no-such-thing", "/v1/jobs/1/nope", "/nope/at/all"] {
+        let r = s.req(Method::GET, path, Some(VIEWER)).send().await.unwrap();
+        assert_eq!(r.status().as_u16(), 404, "{path}");
+    }
     for id in [1, 22, 333] {
         let path = format!("/v1/jobs/{id}/measurements");
         let r = s
@@ -481,4 +488,6 @@ async fn request_metrics_count_answered_requests_by_route_template_and_status() 
     let after = metrics().await;
     assert_eq!(sample(&after, count, &refused) - n0, 3.0, "{after}");
     assert_eq!(sample(&after, timed, &route) - t0, 3.0, "{after}");
+    assert_eq!(sample(&after, count, &unmatched) - u0, 3.0, "{after}");
+    assert!(!after.contains("no-such-thing"), "{after}");
 }
