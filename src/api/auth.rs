@@ -5,6 +5,7 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use axum::extract::FromRequestParts;
 use axum::http::request::Parts;
@@ -70,7 +71,8 @@ pub enum AuthError {
 /// The known tokens.
 #[derive(Debug, Clone, Default)]
 pub struct Auth {
-    by_hash: HashMap<[u8; 32], (String, Role)>,
+    /// Name (shared by every request that shows the token) and role, by token hash.
+    by_hash: HashMap<[u8; 32], (Arc<str>, Role)>,
     /// Reads allowed without a token.
     pub anonymous_read: bool,
 }
@@ -139,7 +141,7 @@ impl Auth {
         let mut by_hash = HashMap::new();
         for t in tokens {
             let h = decode_hex(&t.sha256).ok_or_else(|| AuthError::BadHash(t.name.clone()))?;
-            by_hash.insert(h, (t.name.clone(), t.role));
+            by_hash.insert(h, (Arc::from(t.name.as_str()), t.role));
         }
         Ok(Auth {
             by_hash,
@@ -163,7 +165,7 @@ impl Auth {
     }
 
     /// The name and role of `token`, if it is known.
-    pub fn check(&self, token: &str) -> Option<(String, Role)> {
+    pub fn check(&self, token: &str) -> Option<(Arc<str>, Role)> {
         let d = digest(token);
         // Constant-time comparison against every stored hash (a HashMap lookup alone
         // would branch on the hash bytes; the hashes are few).
@@ -185,7 +187,7 @@ impl Auth {
 #[derive(Debug, Clone)]
 pub struct Caller {
     /// Token name.
-    pub name: Option<String>,
+    pub name: Option<Arc<str>>,
     /// Role, if a valid token was given.
     pub role: Option<Role>,
     anonymous_read: bool,

@@ -70,7 +70,7 @@ async fn create(
     let now = format_time(s.scheduler.now());
     let id = s
         .service
-        .insert_schedule(spec, caller.name.clone(), now)
+        .insert_schedule(spec, caller.name.as_deref().map(str::to_owned), now)
         .await?;
     s.scheduler.reload();
     let rec = s.service.schedule(id).await?;
