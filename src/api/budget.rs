@@ -68,16 +68,13 @@ pub(super) fn declared_bytes(s: &AppState, req: &Request) -> u64 {
     }
 }
 
-/// Reserve the request's body bytes, let `next` answer, give them back (called by
-/// [`super::guard::Guard`] once the request is admitted).
-pub(super) async fn within<S>(s: &AppState, req: Request, mut next: S) -> Response
+/// Reserve the request's `bytes` of body ([`declared_bytes`], more than none), let `next`
+/// answer, give them back (called by [`super::guard::Guard`] once the request is admitted;
+/// a request without a body goes to its route directly).
+pub(super) async fn within<S>(s: &AppState, req: Request, mut next: S, bytes: u64) -> Response
 where
     S: Service<Request, Response = Response, Error = Infallible>,
 {
-    let bytes = declared_bytes(s, &req);
-    if bytes == 0 {
-        return answer(next.call(req).await);
-    }
     // Only a submitter may send a body: anyone else is refused before it is read.
     let (mut parts, body) = req.into_parts();
     match Caller::from_request_parts(&mut parts, s).await {

@@ -52,7 +52,7 @@ pub(super) struct Guard<S> {
 }
 
 /// The boxed response future of the guard.
-pub(super) type Answer = Pin<Box<dyn Future<Output = Result<Response, Infallible>> + Send>>;
+type Answer = Pin<Box<dyn Future<Output = Result<Response, Infallible>> + Send>>;
 
 impl<S> Service<Request> for Guard<S>
 where
@@ -77,7 +77,8 @@ where
         // A request without a body is called on the service polled ready, here (no copy of
         // the route); one with a body waits for its share of the body budget first, on the
         // service's copy.
-        if budget::declared_bytes(&self.state, &req) == 0 {
+        let bytes = budget::declared_bytes(&self.state, &req);
+        if bytes == 0 {
             let answer = self.inner.call(req);
             return Box::pin(async move {
                 let mut res = answer.await?;
@@ -91,7 +92,7 @@ where
         let inner = std::mem::replace(&mut self.inner, fresh);
         let state = self.state.clone();
         Box::pin(async move {
-            let mut res = budget::within(&state, req, inner).await;
+            let mut res = budget::within(&state, req, inner, bytes).await;
             secure(&mut res);
             timing.finish(&res);
             Ok(res)
