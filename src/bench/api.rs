@@ -166,6 +166,137 @@ fn open_loop_reads(
     })
 }
 
+/// A phase of status reads at a fixed rate, as the whole process and its client saw it.
+struct Measured {
+    client: Phase1,
+    wall: Duration,
+    /// The process's CPU time and context switches over the phase.
+    whole: Option<Duration>,
+    whole_switches: Option<Switches>,
+}
+
+impl Measured {
+    /// The server's CPU time: the process's less the client thread's.
+    fn server_cpu(&self) -> Option<Duration> {
+        Some(self.whole?.saturating_sub(self.client.cpu?))
+    }
+
+    /// The report lines: latencies, CPU and context switches per read.
+    fn lines(&self, name: &str, n: u64) -> Vec<String> {
+        let per = |d: Duration| format!("{:.1} us", d.as_secs_f64() * 1e6 / n.max(1) as f64);
+        let per_read = |k: u64| k as f64 / n.max(1) as f64;
+        let cpu = match (self.whole, self.client.cpu) {
+            (Some(w), Some(c)) => format!(
+                "  CPU per status read: server {} (the process less the client thread), client {}, both {}",
+                per(w.saturating_sub(c)),
+                per(c),
+                per(w)
+            ),
+            (Some(w), None) => format!(
+                "  CPU per status read (whole process: HTTP client and server): {}",
+                per(w)
+            ),
+            _ => "  CPU per status read: n/a".into(),
+        };
+        let switches = match (self.whole_switches, self.client.switches) {
+            (Some(w), Some(c)) => {
+                let server = w.since(c);
+                format!(
+                    "  context switches per status read: server {:.2} waiting + {:.2} preempted, \
+                     client {:.2} + {:.2}",
+                    per_read(server.voluntary),
+                    per_read(server.involuntary),
+                    per_read(c.voluntary),
+                    per_read(c.involuntary)
+                )
+            }
+            _ => "  context switches per status read: n/a".into(),
+        };
+        vec![
+            line(
+                name,
+                self.client.latencies.clone(),
+                self.client.errors,
+                self.wall,
+            ),
+            cpu,
+            switches,
+        ]
+    }
+}
+
+/// `n` status reads of job `id` at `base`, `rate` per second, from a client thread of its
+/// own; the process's CPU and context switches over the phase beside the client's.
+async fn reads_at_rate(
+    base: &str,
+    token: Option<String>,
+    id: i64,
+    rate: u32,
+    n: u64,
+) -> Result<Measured, ApiBenchError> {
+    let base = base.to_string();
+    let (cpu0, switches0) = (super::cpu_time(), super::context_switches());
+    let t0 = Instant::now();
+    let client = tokio::task::spawn_blocking(move || open_loop_reads(&base, token, id, rate, n))
+        .await
+        .map_err(|e| ApiBenchError::Service(format!("the phase-1 client thread: {e}")))??;
+    Ok(Measured {
+        client,
+        wall: t0.elapsed(),
+        whole: delta(cpu0, super::cpu_time()),
+        whole_switches: switched(switches0, super::context_switches()),
+    })
+}
+
+/// The HTTP floor of a status read: a bare hyper server (HTTP/1, on this runtime, no
+/// routing, checks, store or JSON) answering every request with the status, headers and
+/// body the daemon at `base` answered a read of job `id` with (Date left to hyper, as for
+/// the daemon). Returns its address and its accept loop, to abort.
+async fn floor_server(
+    base: &str,
+    token: Option<&str>,
+    id: i64,
+) -> Result<(std::net::SocketAddr, tokio::task::JoinHandle<()>), ApiBenchError> {
+    let mut req = reqwest::Client::new().get(format!("{base}/v1/jobs/{id}"));
+    if let Some(t) = token {
+        req = req.bearer_auth(t);
+    }
+    let res = req
+        .send()
+        .await
+        .map_err(|e| ApiBenchError::Service(format!("the floor's template read: {e}")))?;
+    let status = res.status();
+    let mut headers = res.headers().clone();
+    headers.remove(axum::http::header::DATE);
+    let body = res
+        .bytes()
+        .await
+        .map_err(|e| ApiBenchError::Service(format!("the floor's template body: {e}")))?;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let addr = listener.local_addr()?;
+    let answer = Arc::new((status, headers, body));
+    let task = tokio::spawn(async move {
+        while let Ok((stream, _)) = listener.accept().await {
+            let _ = stream.set_nodelay(true);
+            let answer = answer.clone();
+            tokio::spawn(async move {
+                let service = hyper::service::service_fn(move |_req| {
+                    let (status, headers, body) = &*answer;
+                    let mut r = axum::http::Response::new(axum::body::Body::from(body.clone()));
+                    *r.status_mut() = *status;
+                    *r.headers_mut() = headers.clone();
+                    std::future::ready(Ok::<_, std::convert::Infallible>(r))
+                });
+                let io = hyper_util::rt::TokioIo::new(stream);
+                let _ = hyper::server::conn::http1::Builder::new()
+                    .serve_connection(io, service)
+                    .await;
+            });
+        }
+    });
+    Ok((addr, task))
+}
+
 /// Run the benchmark against a fresh daemon in a temporary folder; returns the report.
 pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
     let dir = std::env::temp_dir().join(format!("calibd-bench-{}", std::process::id()));
@@ -233,52 +364,26 @@ pub async fn run(o: ApiBenchOptions) -> Result<String, ApiBenchError> {
     // that the server's CPU and context switches (the process's less the client thread's)
     // can be told apart.
     let n = o.rate as u64 * o.seconds;
-    let (base, token) = (format!("http://{addr}"), Client::find_token(None, &dir));
-    let rate = o.rate;
-    let (cpu0, switches0) = (super::cpu_time(), super::context_switches());
-    let t0 = Instant::now();
-    let phase1 = tokio::task::spawn_blocking(move || open_loop_reads(&base, token, first, rate, n));
-    let p1 = phase1
-        .await
-        .map_err(|e| ApiBenchError::Service(format!("the phase-1 client thread: {e}")))??;
-    let wall = t0.elapsed();
-    let whole = delta(cpu0, super::cpu_time());
-    let whole_switches = switched(switches0, super::context_switches());
-    report.push(line(
+    let base = format!("http://{addr}");
+    let token = Client::find_token(None, &dir);
+    let daemon = reads_at_rate(&base, token.clone(), first, o.rate, n).await?;
+    report.extend(daemon.lines(
         &format!("phase 1: status reads at {} req/s (open loop)", o.rate),
-        p1.latencies,
-        p1.errors,
-        wall,
+        n,
     ));
-    let per = |d: Duration| format!("{:.1} us", d.as_secs_f64() * 1e6 / n.max(1) as f64);
-    report.push(match (whole, p1.cpu) {
-        (Some(w), Some(c)) => format!(
-            "  CPU per status read: server {} (the process less the client thread), client {}, both {}",
-            per(w.saturating_sub(c)),
-            per(c),
-            per(w)
-        ),
-        (Some(w), None) => format!(
-            "  CPU per status read (whole process: HTTP client and server): {}",
-            per(w)
-        ),
-        _ => "  CPU per status read: n/a".into(),
-    });
-    let per_read = |k: u64| k as f64 / n.max(1) as f64;
-    report.push(match (whole_switches, p1.switches) {
-        (Some(w), Some(c)) => {
-            let server = w.since(c);
-            format!(
-                "  context switches per status read: server {:.2} waiting + {:.2} preempted, \
-                 client {:.2} + {:.2}",
-                per_read(server.voluntary),
-                per_read(server.involuntary),
-                per_read(c.voluntary),
-                per_read(c.involuntary)
-            )
-        }
-        _ => "  context switches per status read: n/a".into(),
-    });
+    // The floor: the same reads from a bare hyper server that answers the daemon's bytes.
+    let (floor_addr, floor) = floor_server(&base, token.as_deref(), first).await?;
+    let bare = reads_at_rate(&format!("http://{floor_addr}"), None, first, o.rate, n).await;
+    floor.abort();
+    let bare = bare?;
+    report.extend(bare.lines("phase 1, floor: the same reads, bare hyper server", n));
+    if let (Some(d), Some(b)) = (daemon.server_cpu(), bare.server_cpu()) {
+        report.push(format!(
+            "  calibd's status read over the HTTP floor: {:.2} x ({:.1} us more server CPU per read)",
+            d.as_secs_f64() / b.as_secs_f64().max(1e-12),
+            (d.as_secs_f64() - b.as_secs_f64()) * 1e6 / n.max(1) as f64
+        ));
+    }
 
     // Phase 2: closed loop, mixed submissions and reads.
     let reads = Arc::new(Mutex::new(Vec::new()));
