@@ -128,13 +128,29 @@ impl Jobs for Sqlite {
     }
 
     fn job(&self, id: i64) -> Result<Option<JobRecord>, StoreError> {
-        self.read(|c| job_on(c, id))
+        if let Some(rec) = self.recent.get(id) {
+            return Ok(Some(rec));
+        }
+        let at = self.recent.now();
+        let rec = self.read(|c| job_on(c, id))?;
+        if let Some(r) = &rec {
+            self.recent.keep(at, r);
+        }
+        Ok(rec)
     }
 
     fn job_now(&self, id: i64) -> Option<Result<Option<JobRecord>, StoreError>> {
+        if let Some(rec) = self.recent.get(id) {
+            return Some(Ok(Some(rec)));
+        }
         // A read by primary key on a free WAL reader takes microseconds and waits on no
         // writer; with every reader busy, the caller waits off the runtime instead.
-        self.try_read(|c| job_on(c, id)).ok()
+        let at = self.recent.now();
+        let rec = self.try_read(|c| job_on(c, id)).ok()?;
+        if let Ok(Some(r)) = &rec {
+            self.recent.keep(at, r);
+        }
+        Some(rec)
     }
 
     fn job_doc(&self, id: i64) -> Result<Option<Value>, StoreError> {

@@ -5,6 +5,7 @@
 mod campaigns;
 mod datasets;
 mod jobs;
+mod recent;
 mod results;
 mod runs;
 mod schedules;
@@ -27,6 +28,8 @@ pub(crate) struct Sqlite {
     readers: Vec<Mutex<Connection>>,
     next_reader: AtomicUsize,
     path: PathBuf,
+    /// Job records read since the last write (status reads from memory).
+    recent: recent::Recent,
 }
 
 /// Number of read connections.
@@ -117,10 +120,12 @@ impl Sqlite {
             readers,
             next_reader: AtomicUsize::new(0),
             path,
+            recent: recent::Recent::default(),
         })
     }
 
-    /// The writer connection, locked (for a copy that must see no write meanwhile).
+    /// The writer connection, locked (for a copy that must see no write meanwhile; it only
+    /// reads: writes go through [`Sqlite::write`], which the kept job records rely on).
     pub(crate) fn writer(&self) -> MutexGuard<'_, Connection> {
         lock(&self.writer)
     }
@@ -131,7 +136,10 @@ impl Sqlite {
         f: impl FnOnce(&mut Connection) -> Result<T, StoreError>,
     ) -> Result<T, StoreError> {
         let mut c = lock(&self.writer);
-        f(&mut c)
+        let out = f(&mut c);
+        // After the commit (or the rollback): a record read from here on is fresh.
+        self.recent.wrote();
+        out
     }
 
     /// Run `f` on a free read connection; `f` back, not run, when all are busy.
