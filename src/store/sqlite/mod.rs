@@ -1,6 +1,8 @@
 //! The SQLite backend: one file (bundled SQLite, WAL mode, `synchronous = FULL`). Writes go
 //! through one connection; reads use a small pool of connections that WAL lets run beside
 //! the writer. Statements are prepared once per connection and cached (`prepare_cached`).
+//! One daemon owns the file (its in-memory queue is the queue), so a job record read since
+//! the last write is answered from memory ([`recent`]).
 
 mod campaigns;
 mod datasets;

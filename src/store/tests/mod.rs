@@ -80,6 +80,7 @@ on_both!(
     idempotent_submission_and_campaign_state,
     a_run_whose_job_was_taken_writes_nothing,
     a_resumed_job_keeps_its_first_start_and_says_when_it_resumed,
+    a_status_read_after_a_write_sees_the_write,
 );
 
 /// The store's clock has moved on from `t` (timestamps have millisecond resolution).
@@ -165,6 +166,43 @@ fn a_large_main_table_and_dataset_go_through_files(f: &Fixture) {
     let back = dir.path().join("back.csv");
     assert!(s.dataset_to_file(&info.id, &back).unwrap());
     assert_eq!(std::fs::read_to_string(&back).unwrap(), csv);
+}
+
+/// Status reads (the in-place `job_now` and the blocking `job`) made between writes
+/// answer what a store opened afresh on the same database reads, after every kind of
+/// write: SQLite answers repeated reads from memory until the next write.
+fn a_status_read_after_a_write_sees_the_write(f: &Fixture) {
+    let s = f.open();
+    let id = s.insert_job(&job("serial.fk")).unwrap();
+    let other = s.insert_job(&job("serial.fk")).unwrap();
+    let check = |what: &str| {
+        for _ in 0..2 {
+            let truth = f.open().job(id).unwrap();
+            assert_eq!(s.job(id).unwrap(), truth, "job() after {what}");
+            if let Some(now) = s.job_now(id) {
+                assert_eq!(now.unwrap(), truth, "job_now() after {what}");
+            }
+        }
+    };
+    check("the insert");
+    let run = s.start_job(id).unwrap().unwrap();
+    check("the start");
+    s.record_progress(run, 0.25, "fk", Some("a quarter"), false)
+        .unwrap();
+    check("a progress write");
+    // A write to another job, and a log line, leave this one's record as it was.
+    assert!(s.end_job(other, JobState::Cancelled, None).unwrap());
+    s.log(Some(id), "info", "a line").unwrap();
+    check("writes elsewhere");
+    assert!(s.end_job(id, JobState::Failed, Some("it broke")).unwrap());
+    check("the end");
+    let r = s.job(id).unwrap().unwrap();
+    assert_eq!(
+        (r.state, r.error.as_deref()),
+        (JobState::Failed, Some("it broke"))
+    );
+    assert_eq!(s.job(other).unwrap().unwrap().state, JobState::Cancelled);
+    assert!(s.job(other + 100).unwrap().is_none());
 }
 
 fn job_life_and_result_in_one_piece(f: &Fixture) {
