@@ -14,7 +14,7 @@ use crate::api::{self, AppState, Auth, Role, auth::AuthError};
 use crate::config::Config;
 use crate::schedule::{Clock, Scheduler};
 use crate::service::{Service, ServiceConfig, ServiceError};
-use crate::store::{Store, StoreError};
+use crate::store::{DataLock, Store, StoreError};
 
 /// Why the daemon could not start or stopped with an error.
 #[derive(Debug, thiserror::Error)]
@@ -66,13 +66,20 @@ pub async fn start(
     crate::util::tune_allocator();
     // The recorder first, so the service's gauges are recorded from the start.
     let metrics = api::metrics_handle();
+    let mut data_lock = None;
     let store = match &config.store {
         // The default, exactly as before: the SQLite file in the data folder.
-        None => Store::open(&config.data)?,
+        None => {
+            data_lock = Some(DataLock::take(&config.data)?);
+            Store::open(&config.data)?
+        }
         Some(_) => {
             let location = config
                 .store_location(&|k| std::env::var(k).ok())
                 .map_err(|e| ServeError::Config(e.to_string()))?;
+            if let crate::store::Location::Sqlite(dir) = &location {
+                data_lock = Some(DataLock::take(dir)?);
+            }
             tracing::info!(store = %location.display(), "opening the store");
             // Connecting blocks (and PostgreSQL's client runs its own small runtime).
             crate::service::open_store(location).await?
@@ -185,6 +192,7 @@ pub async fn start(
         min_schedule_interval: Duration::from_secs(config.min_schedule_interval_s),
         metrics,
         shutdown,
+        _data_lock: data_lock.map(Arc::new),
     });
     Ok((state, workers, startup))
 }

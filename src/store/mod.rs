@@ -14,6 +14,7 @@ mod copy;
 mod datasets;
 mod jobs;
 mod location;
+mod lock;
 mod migrate;
 mod pg;
 mod records;
@@ -37,6 +38,7 @@ pub use jobs::{
     IdempotencyKey, JobFilter, JobRecord, JobState, LogLine, NewJob, ProgressPoint, Recovered, Run,
 };
 pub use location::{Location, PgLocation};
+pub use lock::DataLock;
 pub use migrate::SCHEMA_VERSION;
 pub use results::{ArtefactInfo, MainTableCsv};
 pub use schedules::{MissedPolicy, NewSchedule, ScheduleRecord, ScheduleRun};
@@ -65,6 +67,17 @@ pub enum StoreError {
         path: PathBuf,
         /// The error.
         source: std::io::Error,
+    },
+    /// Another daemon serves this data folder (one daemon per SQLite store).
+    #[error(
+        "store: another calibd daemon (process {holder}) serves this data folder: it holds \
+         {path}; stop it, or give this daemon its own data folder or a PostgreSQL store"
+    )]
+    InUse {
+        /// The lock file.
+        path: PathBuf,
+        /// What the lock file says of its holder (its process id).
+        holder: String,
     },
     /// The database was written by a newer calibd.
     #[error("store: database schema version {found} is newer than this calibd knows ({known})")]

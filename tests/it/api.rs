@@ -491,3 +491,30 @@ async fn request_metrics_count_answered_requests_by_route_template_and_status() 
     assert_eq!(sample(&after, count, &unmatched) - u0, 3.0, "{after}");
     assert!(!after.contains("no-such-thing"), "{after}");
 }
+
+/// One daemon per SQLite data folder (its queue and the job states it answers from memory
+/// are its own): a second daemon started on the folder of a running one is refused, and
+/// the message names the lock file and the process that holds it.
+#[tokio::test]
+async fn a_second_daemon_on_the_same_data_folder_is_refused() {
+    let s = start(|_| {}).await;
+    let config = calibd::config::Config {
+        data: s.dir.path().to_path_buf(),
+        lab: "none".into(),
+        ..calibd::config::Config::default()
+    };
+    let stop = tokio_util::sync::CancellationToken::new();
+    let second = calibd::server::start(&config, calibd::schedule::Clock::system(), stop).await;
+    let msg = match second {
+        Ok(_) => panic!("a second daemon started on a folder another one serves"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        msg.contains("another calibd daemon")
+            && msg.contains("calibd.lock")
+            && msg.contains(&std::process::id().to_string()),
+        "{msg}"
+    );
+    // The first one still answers.
+    assert_eq!(s.get("/v1/health").await.0, 200);
+}
