@@ -192,7 +192,7 @@ pub async fn start(
         min_schedule_interval: Duration::from_secs(config.min_schedule_interval_s),
         metrics,
         shutdown,
-        _data_lock: data_lock.map(Arc::new),
+        _data_lock: data_lock,
     });
     Ok((state, workers, startup))
 }

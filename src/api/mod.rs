@@ -88,7 +88,7 @@ pub struct AppShared {
     /// Cancelled at shutdown: ends event streams so the server can drain.
     pub shutdown: tokio_util::sync::CancellationToken,
     /// The daemon's lock on its SQLite data folder, held while the server runs.
-    pub(crate) _data_lock: Option<Arc<crate::store::DataLock>>,
+    pub(crate) _data_lock: Option<crate::store::DataLock>,
 }
 
 /// The process-wide Prometheus recorder (installed once; later calls reuse it).

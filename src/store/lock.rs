@@ -22,7 +22,7 @@ const NAME: &str = "calibd.lock";
 impl DataLock {
     /// Take the lock on `dir` (created if missing), or say which process holds it.
     pub fn take(dir: &Path) -> Result<DataLock, StoreError> {
-        let path = dir.join(NAME);
+        let path = Self::path(dir);
         let io = |source| StoreError::Io {
             path: path.clone(),
             source,
@@ -36,7 +36,11 @@ impl DataLock {
         #[cfg(unix)]
         std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
         let mut file = options.open(&path).map_err(io)?;
-        if !exclusive(&file).map_err(io)? {
+        // flock(2) on Linux: held by this open file, dropped with it or the process.
+        if let Err(e) = file.try_lock() {
+            if let std::fs::TryLockError::Error(source) = e {
+                return Err(io(source));
+            }
             let holder = std::fs::read_to_string(&path).unwrap_or_default();
             return Err(StoreError::InUse {
                 path,
@@ -53,29 +57,6 @@ impl DataLock {
     pub fn path(dir: &Path) -> PathBuf {
         dir.join(NAME)
     }
-}
-
-/// Try an exclusive, non-blocking lock on `file`: false when another holds it.
-#[cfg(unix)]
-fn exclusive(file: &File) -> std::io::Result<bool> {
-    use std::os::fd::AsRawFd;
-    // SAFETY: flock on a file descriptor this function borrows for the call.
-    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-    if rc == 0 {
-        return Ok(true);
-    }
-    let e = std::io::Error::last_os_error();
-    if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
-        Ok(false)
-    } else {
-        Err(e)
-    }
-}
-
-/// Elsewhere: no lock (the daemon is built and tested for Linux).
-#[cfg(not(unix))]
-fn exclusive(_file: &File) -> std::io::Result<bool> {
-    Ok(true)
 }
 
 #[cfg(test)]

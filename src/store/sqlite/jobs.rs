@@ -66,6 +66,26 @@ fn job_on(c: &rusqlite::Connection, id: i64) -> Result<Option<JobRecord>, StoreE
     raw.map(finish).transpose()
 }
 
+impl Sqlite {
+    /// Job `id` as kept since the last write, else by `read` (None: it could not read
+    /// now), and kept for the next reads.
+    fn job_kept(
+        &self,
+        id: i64,
+        read: impl FnOnce() -> Option<Result<Option<JobRecord>, StoreError>>,
+    ) -> Option<Result<Option<JobRecord>, StoreError>> {
+        if let Some(rec) = self.recent.get(id) {
+            return Some(Ok(Some(rec)));
+        }
+        let at = self.recent.now();
+        let rec = read()?;
+        if let Ok(Some(r)) = &rec {
+            self.recent.keep(at, r);
+        }
+        Some(rec)
+    }
+}
+
 /// Append a log line within `c` (a transaction or a connection).
 pub(super) fn log_tx(
     c: &rusqlite::Connection,
@@ -128,29 +148,14 @@ impl Jobs for Sqlite {
     }
 
     fn job(&self, id: i64) -> Result<Option<JobRecord>, StoreError> {
-        if let Some(rec) = self.recent.get(id) {
-            return Ok(Some(rec));
-        }
-        let at = self.recent.now();
-        let rec = self.read(|c| job_on(c, id))?;
-        if let Some(r) = &rec {
-            self.recent.keep(at, r);
-        }
-        Ok(rec)
+        self.job_kept(id, || Some(self.read(|c| job_on(c, id))))
+            .unwrap_or(Ok(None))
     }
 
     fn job_now(&self, id: i64) -> Option<Result<Option<JobRecord>, StoreError>> {
-        if let Some(rec) = self.recent.get(id) {
-            return Some(Ok(Some(rec)));
-        }
         // A read by primary key on a free WAL reader takes microseconds and waits on no
         // writer; with every reader busy, the caller waits off the runtime instead.
-        let at = self.recent.now();
-        let rec = self.try_read(|c| job_on(c, id)).ok()?;
-        if let Ok(Some(r)) = &rec {
-            self.recent.keep(at, r);
-        }
-        Some(rec)
+        self.job_kept(id, || self.try_read(|c| job_on(c, id)).ok())
     }
 
     fn job_doc(&self, id: i64) -> Result<Option<Value>, StoreError> {
