@@ -71,6 +71,11 @@ impl Factor {
         (0..self.m).map(|i| 2.0 * self.l[i * self.m + i].ln()).sum()
     }
 
+    /// L itself (lower triangular, row-major m x m).
+    pub(super) fn lower(&self) -> &[f64] {
+        &self.l
+    }
+
     /// The full inverse (row-major), from L^-1.
     pub(super) fn inverse(&self) -> Vec<f64> {
         self.inverse_and_lower().0
@@ -205,6 +210,12 @@ pub(super) fn gemm(
 /// a * b + c, fused when the calling kernel is compiled for FMA.
 #[inline(always)]
 pub(super) fn madd<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
+    if FMA { a.mul_add(b, c) } else { a * b + c }
+}
+
+/// a * b + c in single precision, fused when the calling kernel is compiled for FMA.
+#[inline(always)]
+pub(super) fn madd32<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
     if FMA { a.mul_add(b, c) } else { a * b + c }
 }
 

@@ -152,7 +152,10 @@ impl<'a> Design<'a> {
     fn peek(&mut self, add: bool, memo: &mut gram::Memo) -> Option<(usize, f64)> {
         match self {
             Self::Lanes(d) => {
+                // Ranked on the tracked determinants, judged on the exact one.
                 let (i, change) = d.best(add)?;
+                (change > f64::NEG_INFINITY).then_some(())?;
+                let change = d.exact_change(i, add);
                 (change > f64::NEG_INFINITY).then_some((i, d.log_det + change))
             }
             _ => {

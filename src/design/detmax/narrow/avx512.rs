@@ -4,7 +4,8 @@
 //! fused operations in the same order as the portable kernel, so the results are identical.
 
 use std::arch::x86_64::{
-    __m512d, _CMP_GT_OQ, _CMP_LT_OQ, _mm512_add_pd, _mm512_cmp_pd_mask, _mm512_fmadd_pd,
+    __m512d, _CMP_GT_OQ, _CMP_LT_OQ, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_set1_ps,
+    _mm256_setzero_ps, _mm512_add_pd, _mm512_cmp_pd_mask, _mm512_cvtps_pd, _mm512_fmadd_pd,
     _mm512_loadu_pd, _mm512_mask_blend_pd, _mm512_maskz_mov_pd, _mm512_mul_pd,
     _mm512_reduce_max_pd, _mm512_set1_pd, _mm512_setzero_pd, _mm512_storeu_pd, _mm512_sub_pd,
 };
@@ -77,40 +78,42 @@ unsafe fn dets_and_max<const R: usize>(
     ]
 }
 
-/// D -= sign (B U) S^-1 (B U)^T for the eight candidates of one group (D read from `sd` when
-/// given, else from `dg`; written to `dg`), their determinants
-/// (signs `sg`) into `det`, and the group's largest outside and member determinant (as
-/// `pass::update_group` with eight lanes, then `pass::group_max`).
+/// D -= E S E^T, E = C Uw, for the eight candidates of one group (as `pass::update_group`
+/// with eight lanes: E summed in single precision over `bw` and `uw`, one 256-bit vector per
+/// entry, then widened; `s`: sign S^-1; D read from `sd` when given, else from `dg`;
+/// written to `dg`, the upper triangle mirrored), their determinants (signs `sg`) into
+/// `det`, and the group's largest outside and member determinant (then `pass::group_max`).
 ///
 /// # Safety
 /// The CPU must have AVX-512F and FMA.
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::too_many_arguments)]
 pub(super) unsafe fn update_group<const R: usize>(
-    bg: &[f64],
-    u: &[f64],
+    bw: &[f32],
+    uw: &[f32],
     m: usize,
     s: &[[f64; R]; R],
-    sign: f64,
     sd: Option<&[f64]>,
     dg: &mut [f64],
     sg: &[f64],
     det: &mut [f64],
 ) -> [f64; 2] {
-    let mut e = [[_mm512_setzero_pd(); R]; R];
-    for (bc, uc) in bg.chunks_exact(R * L).zip(u.chunks_exact(R)).take(m) {
-        let mut bx = [_mm512_setzero_pd(); R];
+    let mut e32 = [[_mm256_setzero_ps(); R]; R];
+    for (bc, uc) in bw.chunks_exact(R * L).zip(uw.chunks_exact(R)).take(m) {
+        let mut bx = [_mm256_setzero_ps(); R];
         for (x, v) in bx.iter_mut().enumerate() {
             // SAFETY: `bc` holds R rows of eight lanes.
-            *v = unsafe { _mm512_loadu_pd(bc[x * L..(x + 1) * L].as_ptr()) };
+            *v = unsafe { _mm256_loadu_ps(bc[x * L..(x + 1) * L].as_ptr()) };
         }
         for (y, &uy) in uc.iter().enumerate() {
-            let uy = _mm512_set1_pd(uy);
+            let uy = _mm256_set1_ps(uy);
             for x in 0..R {
-                e[x][y] = _mm512_fmadd_pd(bx[x], uy, e[x][y]);
+                e32[x][y] = _mm256_fmadd_ps(bx[x], uy, e32[x][y]);
             }
         }
     }
+    let e: [[__m512d; R]; R] =
+        std::array::from_fn(|x| std::array::from_fn(|y| _mm512_cvtps_pd(e32[x][y])));
     let mut es = [[_mm512_setzero_pd(); R]; R];
     for x in 0..R {
         for y in 0..R {
@@ -119,7 +122,6 @@ pub(super) unsafe fn update_group<const R: usize>(
             }
         }
     }
-    let sign = _mm512_set1_pd(sign);
     // Where D is read from, chosen once (a branch per entry keeps the compiler from holding
     // the sums in registers); in place, both pointers come from one mutable borrow.
     let to = dg[..R * R * L].as_mut_ptr();
@@ -129,17 +131,22 @@ pub(super) unsafe fn update_group<const R: usize>(
     };
     let mut out = [[_mm512_setzero_pd(); R]; R];
     for x in 0..R {
-        for y in 0..R {
+        for y in x..R {
             let mut v = _mm512_setzero_pd();
             for k in 0..R {
                 v = _mm512_fmadd_pd(es[x][k], e[y][k], v);
             }
-            // SAFETY: `from` and `to` hold the group's R x R x 8 f64 (sliced above).
+            // SAFETY: `from` and `to` hold the group's R x R x 8 f64 (sliced above); the
+            // upper entry is read before either is written.
             let dv = unsafe { _mm512_loadu_pd(from.add((x * R + y) * L)) };
-            let dv = _mm512_sub_pd(dv, _mm512_mul_pd(sign, v));
+            let dv = _mm512_sub_pd(dv, v);
             // SAFETY: as above.
-            unsafe { _mm512_storeu_pd(to.add((x * R + y) * L), dv) };
+            unsafe {
+                _mm512_storeu_pd(to.add((x * R + y) * L), dv);
+                _mm512_storeu_pd(to.add((y * R + x) * L), dv);
+            }
             out[x][y] = dv;
+            out[y][x] = dv;
         }
     }
     // SAFETY: the caller's CPU has AVX-512F.
@@ -220,24 +227,21 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
     unsafe { dets_and_max::<R>(&d, sg, det) }
 }
 
-/// P' = P - sign (U S^-1) U^T with U^T = B_a P into `ut` (as `pass::inverse_update`, whose
-/// per-entry operations these are, in registers: a column block's sums over the rows of P
-/// stay in vectors, and each row of P is loaded and stored once). Every matrix has its rows
-/// `ps` apart, a multiple of eight, the padding zero.
+/// U^T = B_a P into `ut` (as `pass::ut_of`, whose per-entry operations these are, in
+/// registers: a column block's sums over the rows of P stay in vectors). Every matrix has
+/// its rows `ps` apart, a multiple of eight, the padding zero.
 ///
 /// # Safety
 /// The CPU must have AVX-512F and FMA.
 #[target_feature(enable = "avx512f,fma")]
-pub(super) unsafe fn inverse_update<const R: usize>(
-    p: &mut [f64],
+pub(super) unsafe fn ut_of<const R: usize>(
+    p: &[f64],
     ut: &mut [f64],
     ba: &[f64],
-    s: &[[f64; R]; R],
-    sign: f64,
     m: usize,
     ps: usize,
 ) {
-    let (p, ut, ba) = (&mut p[..m * ps], &mut ut[..R * ps], &ba[..R * ps]);
+    let (p, ut, ba) = (&p[..m * ps], &mut ut[..R * ps], &ba[..R * ps]);
     // U^T, two column blocks of eight at a time (2 R independent sums).
     let mut j = 0;
     while j < ps {
@@ -269,6 +273,23 @@ pub(super) unsafe fn inverse_update<const R: usize>(
         }
         j += if two { 2 * L } else { L };
     }
+}
+
+/// P' = P - sign (U S^-1) U^T from U^T in `ut` (as `pass::p_update`, in registers: each row
+/// of P is loaded and stored once).
+///
+/// # Safety
+/// The CPU must have AVX-512F and FMA.
+#[target_feature(enable = "avx512f,fma")]
+pub(super) unsafe fn p_update<const R: usize>(
+    p: &mut [f64],
+    ut: &[f64],
+    s: &[[f64; R]; R],
+    sign: f64,
+    m: usize,
+    ps: usize,
+) {
+    let (p, ut) = (&mut p[..m * ps], &ut[..R * ps]);
     // P row by row: f = -sign S^-1 U(c) (scalar, as the portable kernel), then the row's R
     // terms in order, the row in registers block by block.
     for (c, row) in p.chunks_exact_mut(ps).enumerate() {

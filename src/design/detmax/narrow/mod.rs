@@ -18,14 +18,24 @@ use pass::{Kernel, dispatch};
 /// Candidates per group (one 512-bit vector of f64, or two 256-bit ones).
 pub(super) const L: usize = 8;
 
-/// The blocks of a uniform pool, lane-interleaved: entry (x, c) of candidate 4 g + l at
+/// The blocks of a uniform pool, lane-interleaved: entry (x, c) of candidate 8 g + l at
 /// `b[((g m + c) r + x) L + l]`; padding candidates are zero.
+///
+/// Beside them, the same blocks whitened by the pool's own information M0 = L0 L0^T, in
+/// single precision: C_i = B_i L0^-T (same layout, `w`). The passes form E_i = B_i U as
+/// C_i (L0^T U): in whitened coordinates the sum has no cancellation between columns of
+/// different units or correlated columns, so single precision (twice the lanes per
+/// instruction) costs ~1e-7 relative in E_i, which only the ranking of candidates sees;
+/// every determinant a decision is taken on is recomputed in double precision.
 #[derive(Debug, Clone)]
 pub(super) struct LanePool {
     r: usize,
     m: usize,
     n: usize,
     b: Vec<f64>,
+    w: Vec<f32>,
+    /// L0 (row-major m x m, lower triangular, rows [`LanePool::stride`] apart).
+    l0: Vec<f64>,
 }
 
 impl LanePool {
@@ -50,7 +60,59 @@ impl LanePool {
                 }
             }
         }
-        Some(Self { r, m, n, b })
+        let mut lp = Self {
+            r,
+            m,
+            n,
+            b,
+            w: Vec::new(),
+            l0: Vec::new(),
+        };
+        lp.whiten();
+        Some(lp)
+    }
+
+    /// The whitened single-precision blocks `w` and L0^T, L0 the Cholesky factor of the
+    /// pool's information matrix (with the designs' tiny ridge); a pool whose information
+    /// is singular even so is scaled by its column norms instead (L0 diagonal).
+    fn whiten(&mut self) {
+        let (r, m) = (self.r, self.m);
+        let mut info = vec![0.0; m * m];
+        for i in 0..self.n {
+            for c in 0..m {
+                for c2 in 0..=c {
+                    let v: f64 = (0..r).map(|x| self.at(i, x, c) * self.at(i, x, c2)).sum();
+                    info[c * m + c2] += v;
+                }
+            }
+        }
+        let trace: f64 = (0..m).map(|c| info[c * m + c]).sum();
+        let ridge = 1e-9 * trace / m.max(1) as f64;
+        let (l0, li) = match Info::ridged(m, info.clone(), ridge).factor() {
+            Some(f) => (f.lower().to_vec(), f.inverse_and_lower().1),
+            None => {
+                let (mut l0, mut li) = (vec![0.0; m * m], vec![0.0; m * m]);
+                for c in 0..m {
+                    let d = (info[c * m + c] + ridge).sqrt();
+                    let d = if d > 0.0 && d.is_finite() { d } else { 1.0 };
+                    l0[c * m + c] = d;
+                    li[c * m + c] = 1.0 / d;
+                }
+                (l0, li)
+            }
+        };
+        self.l0 = padded(&l0, m, self.stride());
+        // C_i = B_i L0^-T: entry (x, c) = sum over k <= c of B_i(x, k) L0^-1(c, k).
+        self.w = vec![0.0; self.b.len()];
+        for i in 0..self.n {
+            let (g, l) = (i / L, i % L);
+            for c in 0..m {
+                for x in 0..r {
+                    let v: f64 = (0..=c).map(|k| self.at(i, x, k) * li[c * m + k]).sum();
+                    self.w[((g * m + c) * r + x) * L + l] = v as f32;
+                }
+            }
+        }
     }
 
     /// Entry (x, c) of candidate i's block.
@@ -131,11 +193,16 @@ pub(super) struct Design<'a> {
     /// Per group, the largest det of its outside candidates and of its members (-inf: none),
     /// kept by the passes, so a greedy scan reads one number per group.
     gmax: Vec<[f64; 2]>,
-    /// Scratch of a toggle: B_a (r x m, row-major) and U^T (r x m), rows a stride apart.
+    /// Scratch of a toggle: B_a (r x m, row-major) and U^T = B_a P (r x m), rows a stride
+    /// apart.
     ba: Vec<f64>,
     ut: Vec<f64>,
-    /// U = P B_a^T (m x r, row-major).
-    u: Vec<f64>,
+    /// U^T L0 (r x m, rows a stride apart), U = P B_a^T.
+    wt: Vec<f64>,
+    /// L0^T U in single precision (m x r, row-major): what the whitened blocks multiply.
+    uw: Vec<f32>,
+    /// D of the candidate [`Design::exact_change`] asked for (row-major r x r).
+    exact: [f64; 36],
     pub(super) updates: usize,
 }
 
@@ -155,7 +222,9 @@ impl Clone for Design<'_> {
             gmax: self.gmax.clone(),
             ba: self.ba.clone(),
             ut: self.ut.clone(),
-            u: self.u.clone(),
+            wt: self.wt.clone(),
+            uw: self.uw.clone(),
+            exact: self.exact,
             updates: self.updates,
         }
     }
@@ -195,7 +264,9 @@ impl<'a> Design<'a> {
             gmax: vec![[f64::NEG_INFINITY; 2]; lp.n.div_ceil(L)],
             ba: vec![0.0; s * r],
             ut: vec![0.0; s * r],
-            u: vec![0.0; m * r],
+            wt: vec![0.0; s * r],
+            uw: vec![0.0; m * r],
+            exact: [0.0; 36],
             updates: 0,
         };
         d.rebuild(pool, ridge)?;
@@ -224,18 +295,26 @@ impl<'a> Design<'a> {
             2 => dispatch::<2>(kernel, self),
             3 => dispatch::<3>(kernel, self),
             _ => dispatch::<6>(kernel, self),
-        }
+        };
         self.updates = 0;
         Some(())
     }
 
-    /// D_i of candidate i as a row-major r x r block, from `d` (a design's lane-interleaved
-    /// D).
-    fn d_of(&self, d: &[f64], i: usize, out: &mut [f64; 36]) {
+    /// The change of log det that toggling candidate i (add: an outside one) brings, from its
+    /// D in double precision: what [`Design::best`]'s ranking is confirmed on.
+    pub(super) fn exact_change(&mut self, i: usize, add: bool) -> f64 {
         let r = self.lp.r;
-        let (g, l) = (i / L, i % L);
-        for k in 0..r * r {
-            out[k] = d[(g * r * r + k) * L + l];
+        let kernel = Kernel::Exact { a: i };
+        match r {
+            2 => dispatch::<2>(kernel, self),
+            3 => dispatch::<3>(kernel, self),
+            _ => dispatch::<6>(kernel, self),
+        };
+        let det = pass::det_identity_plus(&self.exact[..r * r], r, if add { 1.0 } else { -1.0 });
+        if det > 0.0 {
+            det.ln()
+        } else {
+            f64::NEG_INFINITY
         }
     }
 
@@ -302,29 +381,16 @@ impl<'a> Design<'a> {
     /// The toggle, its D read from `src_d` (another design's) or, when None, from this
     /// design's own.
     fn toggle_over(&mut self, a: usize, sign: f64, src_d: Option<&[f64]>) -> Option<()> {
-        let r = self.lp.r;
-        let mut block = [0.0; 36];
-        self.d_of(src_d.unwrap_or(&self.d), a, &mut block);
-        for x in 0..r {
-            for y in 0..r {
-                block[x * r + y] = sign * block[x * r + y] + if x == y { 1.0 } else { 0.0 };
-            }
-        }
-        let (ld, sinv) = super::kernels::small_inverse6(&block[..r * r], r)?;
-        self.lp.block_into(a, &mut self.ba);
-        // The kernel writes a's determinant for its next toggle, the other way.
-        self.member[a] = sign > 0.0;
-        self.sgn[a] = -sign;
         let kernel = Kernel::Update {
-            sinv: &sinv,
+            a,
             sign,
             src: src_d,
         };
-        match r {
+        let ld = match self.lp.r {
             2 => dispatch::<2>(kernel, self),
             3 => dispatch::<3>(kernel, self),
             _ => dispatch::<6>(kernel, self),
-        }
+        }?;
         self.log_det += ld;
         self.info_pending.push((a, sign));
         self.updates += 1;
@@ -341,7 +407,7 @@ impl<'a> Design<'a> {
                 2 => dispatch::<2>(Kernel::Info, self),
                 3 => dispatch::<3>(Kernel::Info, self),
                 _ => dispatch::<6>(Kernel::Info, self),
-            }
+            };
         }
         let mut a = Info::ridged(m, unpadded(&self.info, m, self.lp.stride()), 0.0);
         if let Some((i, add)) = extra {

@@ -2,7 +2,7 @@
 //! (E_i = B_i U, D_i -= sign E_i S^-1 E_i^T, both determinants) and the rebuild
 //! D_i = B_i P B_i^T, compiled for AVX2 and FMA where the CPU has them.
 
-use super::super::kernels::madd;
+use super::super::kernels::{madd, madd32};
 use super::{Design, L};
 
 /// det(I + sign D) of a symmetric r x r block (row-major), 0 when the matrix is not positive
@@ -55,10 +55,15 @@ pub(super) enum Kernel<'s> {
     Rebuild { li: &'s [f64] },
     /// M += sign B_a^T B_a for the toggles M has not taken yet (`Design::info_pending`).
     Info,
-    /// D_i -= sign E_i S^-1 E_i^T with E_i = B_i U; D read from `src` (another design's,
-    /// the one this design is a toggle of) when given, else from the design's own.
+    /// Candidate `a`'s D in double precision from P as it is, into `Design::exact`.
+    Exact { a: usize },
+    /// Toggle candidate `a` (sign +1: add): S = I + sign D_a from its exact D, P by
+    /// Woodbury, then D_i -= sign E_i S^-1 E_i^T for every candidate with E_i = B_i U,
+    /// formed in single precision as C_i (L0^T U) from the whitened blocks; D read from
+    /// `src` (another design's, the one this design is a toggle of) when given, else from
+    /// the design's own.
     Update {
-        sinv: &'s [f64],
+        a: usize,
         sign: f64,
         src: Option<&'s [f64]>,
     },
@@ -67,7 +72,9 @@ pub(super) enum Kernel<'s> {
 /// Run a kernel with FMA and 512-bit vectors (a group's eight lanes at once) when the CPU has
 /// them, else with FMA and 256-bit vectors (a group in two halves of four). Each lane sees
 /// the same operations in the same order on every path, so the results are identical.
-pub(super) fn dispatch<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
+/// An update answers the change of log det it made, None when S is not positive definite
+/// (then nothing was changed); the other kernels answer Some(0).
+pub(super) fn dispatch<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) -> Option<f64> {
     #[cfg(target_arch = "x86_64")]
     {
         let widest = widest();
@@ -76,19 +83,17 @@ pub(super) fn dispatch<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
             && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports the features the function is compiled for.
-            unsafe { run_avx512::<R>(k, d) };
-            return;
+            return unsafe { run_avx512::<R>(k, d) };
         }
         if widest >= 4
             && std::arch::is_x86_feature_detected!("avx2")
             && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: as above.
-            unsafe { run_fma::<R>(k, d) };
-            return;
+            return unsafe { run_fma::<R>(k, d) };
         }
     }
-    run::<R, false, 4>(k, d);
+    run::<R, false, 4>(k, d)
 }
 
 #[cfg(test)]
@@ -108,20 +113,23 @@ fn widest() -> usize {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx2,fma")]
-unsafe fn run_avx512<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
-    run::<R, true, 8>(k, d);
+unsafe fn run_avx512<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) -> Option<f64> {
+    run::<R, true, 8>(k, d)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn run_fma<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
-    run::<R, true, 4>(k, d);
+unsafe fn run_fma<const R: usize>(k: Kernel<'_>, d: &mut Design<'_>) -> Option<f64> {
+    run::<R, true, 4>(k, d)
 }
 
 /// One pass, `W` lanes at a time (W = 8: a whole group, in the AVX-512 kernels, only when
 /// called from `run_avx512`; W = 4: a group in two halves).
 #[inline(always)]
-fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut Design<'_>) {
+fn run<const R: usize, const FMA: bool, const W: usize>(
+    k: Kernel<'_>,
+    d: &mut Design<'_>,
+) -> Option<f64> {
     let (m, ps) = (d.lp.m, d.lp.stride());
     let blocks = d.lp.b.chunks_exact(m * R * L);
     match k {
@@ -159,42 +167,77 @@ fn run<const R: usize, const FMA: bool, const W: usize>(k: Kernel<'_>, d: &mut D
             }
             d.info_pending.clear();
         }
-        Kernel::Update { sinv, sign, src } => {
+        Kernel::Exact { a } => {
+            d.lp.block_into(a, &mut d.ba);
+            d.exact = exact_at::<R, FMA, W>(d);
+        }
+        Kernel::Update { a, sign, src } => {
+            d.lp.block_into(a, &mut d.ba);
+            let mut block = exact_at::<R, FMA, W>(d);
+            for x in 0..R {
+                block[x * R + x] = sign * block[x * R + x] + 1.0;
+                for y in (0..R).filter(|&y| y != x) {
+                    block[x * R + y] *= sign;
+                }
+            }
+            let (ld, sinv) = super::super::kernels::small_inverse6(&block[..R * R], R)?;
+            // The pass writes a's determinant for its next toggle, the other way.
+            d.member[a] = sign > 0.0;
+            d.sgn[a] = -sign;
             let mut s = [[0.0; R]; R];
             for x in 0..R {
                 for y in 0..R {
                     s[x][y] = sinv[x * R + y];
                 }
             }
-            inverse_update_at::<R, FMA, W>(d, &s, sign);
-            for c in 0..m {
-                for y in 0..R {
-                    d.u[c * R + y] = d.ut[y * ps + c];
+            p_update::<R, FMA, W>(d, &s, sign);
+            // (L0^T U)^T = U^T L0 along whole padded rows of L0, rounded once to single
+            // precision.
+            d.wt.fill(0.0);
+            for (wy, uty) in d.wt.chunks_exact_mut(ps).zip(d.ut.chunks_exact(ps)) {
+                for (&f, lrow) in uty[..m].iter().zip(d.lp.l0.chunks_exact(ps)) {
+                    for (w, &l) in wy.iter_mut().zip(lrow) {
+                        *w = madd::<FMA>(f, l, *w);
+                    }
                 }
             }
+            for c in 0..m {
+                for y in 0..R {
+                    d.uw[c * R + y] = d.wt[y * ps + c] as f32;
+                }
+            }
+            // The sign taken into S^-1 (exact: +-1), so the kernels subtract.
+            for row in &mut s {
+                for v in row.iter_mut() {
+                    *v *= sign;
+                }
+            }
+            let wblocks = d.lp.w.chunks_exact(m * R * L);
             let outs =
                 d.d.chunks_exact_mut(R * R * L)
                     .zip(d.dets.chunks_exact_mut(L).zip(d.sgn.chunks_exact(L)));
-            for (g, ((bg, (dg, (det, sg))), gm)) in blocks.zip(outs).zip(&mut d.gmax).enumerate() {
+            for (g, ((wg, (dg, (det, sg))), gm)) in wblocks.zip(outs).zip(&mut d.gmax).enumerate() {
                 let sd = src.map(|x| &x[g * R * R * L..(g + 1) * R * R * L]);
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
                     *gm = unsafe {
-                        super::avx512::update_group::<R>(bg, &d.u, m, &s, sign, sd, dg, sg, det)
+                        super::avx512::update_group::<R>(wg, &d.uw, m, &s, sd, dg, sg, det)
                     };
                     continue;
                 }
-                let dr = update_group::<R, FMA, W, 0>(bg, &d.u, m, &s, sign, sd, dg);
+                let dr = update_group::<R, FMA, W, 0>(wg, &d.uw, m, &s, sd, dg);
                 dets_group::<R, W, 0>(&dr, sg, det);
                 if W < L {
-                    let dr = update_group::<R, FMA, W, 1>(bg, &d.u, m, &s, sign, sd, dg);
+                    let dr = update_group::<R, FMA, W, 1>(wg, &d.uw, m, &s, sd, dg);
                     dets_group::<R, W, 1>(&dr, sg, det);
                 }
                 *gm = group_max(det, sg);
             }
+            return Some(ld);
         }
     }
+    Some(0.0)
 }
 
 /// M += sign B_a^T B_a (m x m `info`, B_a r x m, rows `ps` apart), row by row, each entry
@@ -218,37 +261,55 @@ fn info_update<const R: usize, const FMA: bool>(
     }
 }
 
-/// [`inverse_update`] of the design's P, in AVX-512 registers when called from `run_avx512`.
+/// U^T = B_a P into the design's `ut` (B_a in `ba`), then D_a = U^T B_a^T, candidate a's D
+/// in double precision from P as it is (row-major R x R), in AVX-512 registers when called
+/// from `run_avx512`.
 #[inline(always)]
-fn inverse_update_at<const R: usize, const FMA: bool, const W: usize>(
-    d: &mut Design<'_>,
-    s: &[[f64; R]; R],
-    sign: f64,
-) {
+fn exact_at<const R: usize, const FMA: bool, const W: usize>(d: &mut Design<'_>) -> [f64; 36] {
     let (m, ps) = (d.lp.m, d.lp.stride());
     #[cfg(target_arch = "x86_64")]
     if W == L {
         // SAFETY: whole vectors only from `run_avx512`.
-        unsafe { super::avx512::inverse_update::<R>(&mut d.p, &mut d.ut, &d.ba, s, sign, m, ps) };
-        return;
+        unsafe { super::avx512::ut_of::<R>(&d.p, &mut d.ut, &d.ba, m, ps) };
+    } else {
+        ut_of::<R, FMA>(&d.p, &mut d.ut, &d.ba, m, ps);
     }
-    inverse_update::<R, FMA>(&mut d.p, &mut d.ut, &d.ba, s, sign, m, ps);
+    #[cfg(not(target_arch = "x86_64"))]
+    ut_of::<R, FMA>(&d.p, &mut d.ut, &d.ba, m, ps);
+    let mut out = [0.0; 36];
+    for x in 0..R {
+        for y in 0..R {
+            let (a, b) = (&d.ut[x * ps..(x + 1) * ps], &d.ba[y * ps..(y + 1) * ps]);
+            out[x * R + y] = dot8::<FMA>(a, b);
+        }
+    }
+    out
 }
 
-/// U^T = B_a P into `ut` (r x m; P is symmetric, so this is (P B_a^T)^T), then
-/// P' = P - sign (U S^-1) U^T row by row (P m x m, S^-1 as `s`; every matrix with rows `ps`
-/// apart). Both run along whole padded rows of P, so they vectorise without a remainder.
+/// The dot product of two padded rows (length a multiple of eight) in eight lanes, summed
+/// in a fixed tree: the same value at every vector width.
 #[inline(always)]
-fn inverse_update<const R: usize, const FMA: bool>(
-    p: &mut [f64],
+fn dot8<const FMA: bool>(a: &[f64], b: &[f64]) -> f64 {
+    let mut acc = [0.0; L];
+    for (ac, bc) in a.chunks_exact(L).zip(b.chunks_exact(L)) {
+        for l in 0..L {
+            acc[l] = madd::<FMA>(ac[l], bc[l], acc[l]);
+        }
+    }
+    ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
+}
+
+/// U^T = B_a P into `ut` (r x m; P is symmetric, so this is (P B_a^T)^T), along whole padded
+/// rows of P, so it vectorises without a remainder.
+#[inline(always)]
+fn ut_of<const R: usize, const FMA: bool>(
+    p: &[f64],
     ut: &mut [f64],
     ba: &[f64],
-    s: &[[f64; R]; R],
-    sign: f64,
     m: usize,
     ps: usize,
 ) {
-    let (p, ut, ba) = (&mut p[..m * ps], &mut ut[..R * ps], &ba[..R * ps]);
+    let (p, ut, ba) = (&p[..m * ps], &mut ut[..R * ps], &ba[..R * ps]);
     ut.fill(0.0);
     for (k, prow) in p.chunks_exact(ps).enumerate() {
         for (uty, bay) in ut.chunks_exact_mut(ps).zip(ba.chunks_exact(ps)) {
@@ -258,6 +319,24 @@ fn inverse_update<const R: usize, const FMA: bool>(
             }
         }
     }
+}
+
+/// P' = P - sign (U S^-1) U^T row by row (P m x m, U^T in `ut`, S^-1 as `s`; every matrix
+/// with rows `ps` apart), in AVX-512 registers when called from `run_avx512`.
+#[inline(always)]
+fn p_update<const R: usize, const FMA: bool, const W: usize>(
+    d: &mut Design<'_>,
+    s: &[[f64; R]; R],
+    sign: f64,
+) {
+    let (m, ps) = (d.lp.m, d.lp.stride());
+    #[cfg(target_arch = "x86_64")]
+    if W == L {
+        // SAFETY: whole vectors only from `run_avx512`.
+        unsafe { super::avx512::p_update::<R>(&mut d.p, &d.ut, s, sign, m, ps) };
+        return;
+    }
+    let (p, ut) = (&mut d.p[..m * ps], &d.ut[..R * ps]);
     let rows: [&[f64]; R] = std::array::from_fn(|y| &ut[y * ps..(y + 1) * ps]);
     for (c, row) in p.chunks_exact_mut(ps).enumerate() {
         let mut f = [0.0; R];
@@ -378,30 +457,32 @@ fn rebuild_group<const R: usize, const FMA: bool, const W: usize, const H: usize
     d
 }
 
-/// D -= sign (B U) S^-1 (B U)^T for the `W` candidates from lane `H W` of one group (D read
-/// from `sd` when given, else from `dg`; written to `dg`).
+/// D -= E S E^T, E = C Uw, for the `W` candidates from lane `H W` of one group (`bw`: the
+/// group's whitened single-precision blocks, `uw`: L0^T U, E summed in single precision
+/// and then widened; `s`: sign S^-1; D read from `sd` when given, else from `dg`; written to
+/// `dg`). D is symmetric: its upper triangle is computed and mirrored.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>(
-    bg: &[f64],
-    u: &[f64],
+    bw: &[f32],
+    uw: &[f32],
     m: usize,
     s: &[[f64; R]; R],
-    sign: f64,
     sd: Option<&[f64]>,
     dg: &mut [f64],
 ) -> [[[f64; W]; R]; R] {
-    let mut e = [[[0.0; W]; R]; R];
+    let mut e32 = [[[0.0f32; W]; R]; R];
     // Iterators, not indices: no bounds checks in the innermost loop.
-    for (bc, uc) in bg.chunks_exact(R * L).zip(u.chunks_exact(R)).take(m) {
+    for (bc, uc) in bw.chunks_exact(R * L).zip(uw.chunks_exact(R)).take(m) {
         for x in 0..R {
             for y in 0..R {
                 for l in 0..W {
-                    e[x][y][l] = madd::<FMA>(bc[x * L + H * W + l], uc[y], e[x][y][l]);
+                    e32[x][y][l] = madd32::<FMA>(bc[x * L + H * W + l], uc[y], e32[x][y][l]);
                 }
             }
         }
     }
+    let e: [[[f64; W]; R]; R] =
+        std::array::from_fn(|x| std::array::from_fn(|y| e32[x][y].map(f64::from)));
     let mut es = [[[0.0; W]; R]; R];
     for x in 0..R {
         for y in 0..R {
@@ -414,16 +495,19 @@ fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>
     }
     let mut out = [[[0.0; W]; R]; R];
     for x in 0..R {
-        for y in 0..R {
-            let o = (x * R + y) * L + H * W;
+        for y in x..R {
+            let (o, o2) = ((x * R + y) * L + H * W, (y * R + x) * L + H * W);
             for l in 0..W {
                 let mut v = 0.0;
                 for k in 0..R {
                     v = madd::<FMA>(es[x][k][l], e[y][k][l], v);
                 }
                 let cur = sd.map_or(dg[o + l], |sd| sd[o + l]);
-                dg[o + l] = cur - sign * v;
-                out[x][y][l] = dg[o + l];
+                let nv = cur - v;
+                dg[o + l] = nv;
+                dg[o2 + l] = nv;
+                out[x][y][l] = nv;
+                out[y][x][l] = nv;
             }
         }
     }
