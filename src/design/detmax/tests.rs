@@ -5,6 +5,14 @@ use super::*;
 use crate::util::NoMonitor;
 use nalgebra::DMatrix;
 
+thread_local! {
+    /// Periodic rebuilds of the searches run on this thread (so a test can show it had some).
+    pub(super) static REBUILDS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+    /// The rebuild interval of the searches run on this thread.
+    pub(super) static REBUILD_AFTER_TEST: std::cell::Cell<usize> =
+        const { std::cell::Cell::new(super::REBUILD_AFTER) };
+}
+
 /// log det(sum of B_i^T B_i over `set` + ridge I), -inf if not positive definite.
 fn dense_log_det(blocks: &[DMatrix<f64>], set: &[bool], ridge: f64) -> f64 {
     let m = blocks[0].ncols();
@@ -280,9 +288,12 @@ fn reduced_blocks_pick_the_same_set_as_the_full_blocks() {
 
 /// Uniform pools of 2, 3 and 6 rows take the fused lane path; it picks the set of the general
 /// Woodbury path and of the straightforward implementation, with the same excursions and
-/// history (pools not a multiple of the eight lanes, rebuilds every 64 updates included).
+/// history (pools not a multiple of the eight lanes; a rebuild every 16 toggles, so that the
+/// searches rebuild).
 #[test]
 fn lane_path_picks_the_general_paths_set() {
+    REBUILD_AFTER_TEST.with(|r| r.set(16));
+    let before = REBUILDS.with(|r| r.get());
     let mut rng = Rng::new(17);
     for (r, count, m, n) in [
         (3, 61, 13, 9),
@@ -323,6 +334,8 @@ fn lane_path_picks_the_general_paths_set() {
             }
         }
     }
+    // The lane searches and the general ones rebuilt (four of the eight searches of each).
+    assert!(REBUILDS.with(|r| r.get()) - before >= 8);
 }
 
 /// The lane pass ranks in single precision on blocks whitened by the pool's information: on a
