@@ -191,14 +191,20 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
                 }
             }
             p_update::<R, FMA, W>(d, &s, sign);
-            // (L0^T U)^T = U^T L0 along whole padded rows of L0, rounded once to single
+            // (L0^T U)^T = U^T L0, eight columns at a time in registers (L0 is lower
+            // triangular: rows above a block are zero there), rounded once to single
             // precision.
-            d.wt.fill(0.0);
+            let l0 = &d.lp.l0;
             for (wy, uty) in d.wt.chunks_exact_mut(ps).zip(d.ut.chunks_exact(ps)) {
-                for (&f, lrow) in uty[..m].iter().zip(d.lp.l0.chunks_exact(ps)) {
-                    for (w, &l) in wy.iter_mut().zip(lrow) {
-                        *w = madd::<FMA>(f, l, *w);
+                for j in (0..ps).step_by(L) {
+                    let mut acc = [0.0; L];
+                    for k in j..m {
+                        let (f, lrow) = (uty[k], &l0[k * ps + j..k * ps + j + L]);
+                        for l in 0..L {
+                            acc[l] = madd::<FMA>(f, lrow[l], acc[l]);
+                        }
                     }
+                    wy[j..j + L].copy_from_slice(&acc);
                 }
             }
             for c in 0..m {
