@@ -2,8 +2,10 @@
 //! or tracker measurement is 3 rows). The candidates are stored in groups of eight,
 //! lane-interleaved, so the Woodbury update of every D_i after a toggle is one fused pass
 //! over the pool in SIMD lanes: E_i = B_i U and D_i -= sign E_i S^-1 E_i^T together, in
-//! registers, with no packing and no temporaries. The general [`super::exchange`] state is
-//! the reference it is tested against.
+//! registers, with no packing and no temporaries. E_i is summed in single precision over
+//! whitened blocks (see [`LanePool`]), so the tracked D_i only rank candidates: the toggled
+//! candidate's D_a, and the determinant an exchange is accepted on, come from P in double
+//! precision. The general [`super::exchange`] state is the reference it is tested against.
 
 #[cfg(target_arch = "x86_64")]
 mod avx512;
