@@ -74,7 +74,7 @@ impl LanePool {
         Some(lp)
     }
 
-    /// The whitened single-precision blocks `w` and L0^T, L0 the Cholesky factor of the
+    /// The whitened single-precision blocks `w` and L0, the Cholesky factor of the
     /// pool's information matrix (with the designs' tiny ridge); a pool whose information
     /// is singular even so is scaled by its column norms instead (L0 diagonal).
     fn whiten(&mut self) {
@@ -380,8 +380,8 @@ impl<'a> Design<'a> {
         self.updates = src.updates;
     }
 
-    /// The toggle, its D read from `src_d` (another design's) or, when None, from this
-    /// design's own.
+    /// The toggle, the candidates' D read from `src_d` (another design's, whose P this
+    /// design holds) or, when None, from this design's own.
     fn toggle_over(&mut self, a: usize, sign: f64, src_d: Option<&[f64]>) -> Option<()> {
         let kernel = Kernel::Update {
             a,
