@@ -204,7 +204,7 @@ pub(super) struct Design<'a> {
     /// L0^T U in single precision (m x r, row-major): what the whitened blocks multiply.
     uw: Vec<f32>,
     /// D of the candidate [`Design::exact_change`] asked for (row-major r x r).
-    exact: [f64; 36],
+    exact: Vec<f64>,
     pub(super) updates: usize,
 }
 
@@ -226,7 +226,7 @@ impl Clone for Design<'_> {
             ut: self.ut.clone(),
             wt: self.wt.clone(),
             uw: self.uw.clone(),
-            exact: self.exact,
+            exact: self.exact.clone(),
             updates: self.updates,
         }
     }
@@ -268,7 +268,7 @@ impl<'a> Design<'a> {
             ut: vec![0.0; s * r],
             wt: vec![0.0; s * r],
             uw: vec![0.0; m * r],
-            exact: [0.0; 36],
+            exact: vec![0.0; 36],
             updates: 0,
         };
         d.rebuild(pool, ridge)?;

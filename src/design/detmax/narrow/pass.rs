@@ -169,7 +169,8 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
         }
         Kernel::Exact { a } => {
             d.lp.block_into(a, &mut d.ba);
-            d.exact = exact_at::<R, FMA, W>(d);
+            let e = exact_at::<R, FMA, W>(d);
+            d.exact.copy_from_slice(&e);
         }
         Kernel::Update { a, sign, src } => {
             d.lp.block_into(a, &mut d.ba);
