@@ -273,16 +273,8 @@ fn info_update<const R: usize, const FMA: bool>(
 /// from `run_avx512`.
 #[inline(always)]
 fn exact_at<const R: usize, const FMA: bool, const W: usize>(d: &mut Design<'_>) -> [f64; 36] {
-    let (m, ps) = (d.lp.m, d.lp.stride());
-    #[cfg(target_arch = "x86_64")]
-    if W == L {
-        // SAFETY: whole vectors only from `run_avx512`.
-        unsafe { super::avx512::ut_of::<R>(&d.p, &mut d.ut, &d.ba, m, ps) };
-    } else {
-        ut_of::<R, FMA>(&d.p, &mut d.ut, &d.ba, m, ps);
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    ut_of::<R, FMA>(&d.p, &mut d.ut, &d.ba, m, ps);
+    ut_at::<R, FMA, W>(d);
+    let ps = d.lp.stride();
     let mut out = [0.0; 36];
     for x in 0..R {
         for y in 0..R {
@@ -291,6 +283,20 @@ fn exact_at<const R: usize, const FMA: bool, const W: usize>(d: &mut Design<'_>)
         }
     }
     out
+}
+
+/// [`ut_of`] of the design's P and B_a into its `ut`, in AVX-512 registers when called from
+/// `run_avx512`.
+#[inline(always)]
+fn ut_at<const R: usize, const FMA: bool, const W: usize>(d: &mut Design<'_>) {
+    let (m, ps) = (d.lp.m, d.lp.stride());
+    #[cfg(target_arch = "x86_64")]
+    if W == L {
+        // SAFETY: whole vectors only from `run_avx512`.
+        unsafe { super::avx512::ut_of::<R>(&d.p, &mut d.ut, &d.ba, m, ps) };
+        return;
+    }
+    ut_of::<R, FMA>(&d.p, &mut d.ut, &d.ba, m, ps);
 }
 
 /// The dot product of two padded rows (length a multiple of eight) in eight lanes, summed
