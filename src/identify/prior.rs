@@ -97,7 +97,7 @@ impl Problem for MapProblem<'_> {
         let (n, m) = (self.inner.residual_count(), self.inner.unknown_count());
         let mut jd = DMatrix::zeros(n, m);
         self.inner.jacobian(x, &mut jd)?;
-        j.fill(0.0);
+        j.as_mut_slice().fill(0.0);
         j.rows_mut(0, n).copy_from(&(jd / self.prior.noise));
         let w = self.prior.weight.sqrt();
         for (p, &k) in self.rows.iter().enumerate() {

@@ -138,7 +138,7 @@ impl Problem for Restricted<'_> {
         let (n, m) = (self.inner.residual_count(), self.inner.unknown_count());
         if self.free.len() == m && self.free.iter().enumerate().all(|(k, &i)| k == i) {
             // The inner problem writes straight into `j`, zeroed as a fresh matrix.
-            j.fill(0.0);
+            j.as_mut_slice().fill(0.0);
             return self.inner.jacobian(&self.expand(x), j);
         }
         let x = self.expand(x);
@@ -150,7 +150,7 @@ impl Problem for Restricted<'_> {
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         if full.shape() == (n, m) {
-            full.fill(0.0);
+            full.as_mut_slice().fill(0.0);
         } else {
             *full = DMatrix::zeros(n, m);
         }

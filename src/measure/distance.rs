@@ -233,7 +233,7 @@ impl Problem for DistanceProblem {
         let chain = self.model(x);
         let (a, _) = self.anchor(x);
         let o = self.ids.len();
-        j.fill(0.0);
+        j.as_mut_slice().fill(0.0);
         let mut buf = vec![Vector3::zeros(); chain.param_ids().len()];
         for (i, (m, tau)) in self.meas.iter().zip(&self.tau).enumerate() {
             let p = chain.point_jacobian(&m.q, Some(tau), &Vector3::zeros(), &mut buf);

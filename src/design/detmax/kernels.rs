@@ -142,7 +142,7 @@ pub(super) fn log_det_identity_plus(d: &[f64], r: usize, sign: f64, scratch: &mu
 /// log det and inverse of a small symmetric positive-definite matrix (r x r, row-major).
 pub(super) fn small_inverse(a: &[f64], r: usize) -> Option<(f64, Vec<f64>)> {
     if r <= 6 {
-        return small_inverse6(a, r).map(|(ld, p)| (ld, p[..r * r].to_vec()));
+        return small_inverse6(a, r).map(|(ld, p, _)| (ld, p[..r * r].to_vec()));
     }
     let f = Info {
         m: r,
@@ -239,13 +239,14 @@ pub(super) fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// [`small_inverse`] for r <= 6 on the stack (the lane design's toggle, 163 times per
-/// DETMAX run): the same operations in the same order, nothing allocated.
-pub(super) fn small_inverse6(a: &[f64], r: usize) -> Option<(f64, [f64; 36])> {
+/// DETMAX run): the same operations in the same order, nothing allocated. Also answers
+/// L^-1 (row-major, lower triangular), L the Cholesky factor of `a`: a^-1 = L^-T L^-1.
+pub(super) fn small_inverse6(a: &[f64], r: usize) -> Option<(f64, [f64; 36], [f64; 36])> {
     let (mut l, mut li, mut p) = ([0.0; 36], [0.0; 36], [0.0; 36]);
     if r > 6 || !cholesky_into(&a[..r * r], r, &mut l) {
         return None;
     }
     let ld = (0..r).map(|i| 2.0 * l[i * r + i].ln()).sum();
     inverse_into(&l, r, &mut li, &mut p);
-    Some((ld, p))
+    Some((ld, p, li))
 }

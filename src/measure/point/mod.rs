@@ -497,7 +497,7 @@ impl PointProblem {
         let (at, wanted) = self.column_map(cols);
         self.with_chain(x, |chain| {
             let centres = self.centres(x);
-            j.fill(0.0);
+            j.as_mut_slice().fill(0.0);
             let (n, width) = j.shape();
             let ranges = measurement_ranges(self.meas.len());
             let nj = chain.joints.len();

@@ -78,9 +78,9 @@ unsafe fn dets_and_max<const R: usize>(
     ]
 }
 
-/// D -= E S E^T, E = C Uw, for the eight candidates of one group (as `pass::update_group`
-/// with eight lanes: E summed in single precision over `bw` and `uw`, one 256-bit vector per
-/// entry, then widened; `s`: sign S^-1; D read from `sd` when given, else from `dg`;
+/// D -= sign F F^T, F = C Uw, for the eight candidates of one group (as
+/// `pass::update_group` with eight lanes: F summed in single precision over `bw` and `uw`,
+/// one 256-bit vector per entry, then widened; D read from `sd` when given, else from `dg`;
 /// written to `dg`, the upper triangle mirrored), their determinants (signs `sg`) into
 /// `det`, and the group's largest outside and member determinant (then `pass::group_max`).
 ///
@@ -92,13 +92,13 @@ pub(super) unsafe fn update_group<const R: usize>(
     bw: &[f32],
     uw: &[f32],
     m: usize,
-    s: &[[f64; R]; R],
+    sign: f64,
     sd: Option<&[f64]>,
     dg: &mut [f64],
     sg: &[f64],
     det: &mut [f64],
 ) -> [f64; 2] {
-    let mut e32 = [[_mm256_setzero_ps(); R]; R];
+    let mut f32s = [[_mm256_setzero_ps(); R]; R];
     for (bc, uc) in bw.chunks_exact(R * L).zip(uw.chunks_exact(R)).take(m) {
         let mut bx = [_mm256_setzero_ps(); R];
         for (x, v) in bx.iter_mut().enumerate() {
@@ -108,20 +108,13 @@ pub(super) unsafe fn update_group<const R: usize>(
         for (y, &uy) in uc.iter().enumerate() {
             let uy = _mm256_set1_ps(uy);
             for x in 0..R {
-                e32[x][y] = _mm256_fmadd_ps(bx[x], uy, e32[x][y]);
+                f32s[x][y] = _mm256_fmadd_ps(bx[x], uy, f32s[x][y]);
             }
         }
     }
-    let e: [[__m512d; R]; R] =
-        std::array::from_fn(|x| std::array::from_fn(|y| _mm512_cvtps_pd(e32[x][y])));
-    let mut es = [[_mm512_setzero_pd(); R]; R];
-    for x in 0..R {
-        for y in 0..R {
-            for k in 0..R {
-                es[x][y] = _mm512_fmadd_pd(e[x][k], _mm512_set1_pd(s[k][y]), es[x][y]);
-            }
-        }
-    }
+    let f: [[__m512d; R]; R] =
+        std::array::from_fn(|x| std::array::from_fn(|y| _mm512_cvtps_pd(f32s[x][y])));
+    let sign = _mm512_set1_pd(sign);
     // Where D is read from, chosen once (a branch per entry keeps the compiler from holding
     // the sums in registers); in place, both pointers come from one mutable borrow.
     let to = dg[..R * R * L].as_mut_ptr();
@@ -134,12 +127,12 @@ pub(super) unsafe fn update_group<const R: usize>(
         for y in x..R {
             let mut v = _mm512_setzero_pd();
             for k in 0..R {
-                v = _mm512_fmadd_pd(es[x][k], e[y][k], v);
+                v = _mm512_fmadd_pd(f[x][k], f[y][k], v);
             }
             // SAFETY: `from` and `to` hold the group's R x R x 8 f64 (sliced above); the
             // upper entry is read before either is written.
             let dv = unsafe { _mm512_loadu_pd(from.add((x * R + y) * L)) };
-            let dv = _mm512_sub_pd(dv, v);
+            let dv = _mm512_sub_pd(dv, _mm512_mul_pd(sign, v));
             // SAFETY: as above.
             unsafe {
                 _mm512_storeu_pd(to.add((x * R + y) * L), dv);

@@ -59,7 +59,8 @@ pub(super) enum Kernel<'s> {
     Exact { a: usize },
     /// Toggle candidate `a` (sign +1: add): S = I + sign D_a from its exact D, P by
     /// Woodbury, then D_i -= sign E_i S^-1 E_i^T for every candidate with E_i = B_i U,
-    /// formed in single precision as C_i (L0^T U) from the whitened blocks; D read from
+    /// as F_i F_i^T with F_i = E_i L^-T (S = L L^T) formed in single precision as
+    /// C_i (L0^T U L^-T) from the whitened blocks; D read from
     /// `src` (another design's, the one this design is a toggle of) when given, else from
     /// the design's own.
     Update {
@@ -181,16 +182,12 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
                     block[x * R + y] *= sign;
                 }
             }
-            let (ld, sinv) = super::super::kernels::small_inverse6(&block[..R * R], R)?;
+            let (ld, sinv, li) = super::super::kernels::small_inverse6(&block[..R * R], R)?;
             // The pass writes a's determinant for its next toggle, the other way.
             d.member[a] = sign > 0.0;
             d.sgn[a] = -sign;
-            let mut s = [[0.0; R]; R];
-            for x in 0..R {
-                for y in 0..R {
-                    s[x][y] = sinv[x * R + y];
-                }
-            }
+            let s: [[f64; R]; R] =
+                std::array::from_fn(|x| std::array::from_fn(|y| sinv[x * R + y]));
             p_update::<R, FMA, W>(d, &s, sign);
             // (L0^T U)^T = U^T L0, eight columns at a time in registers (L0 is lower
             // triangular: rows above a block are zero there), rounded once to single
@@ -208,15 +205,16 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
                     wy[j..j + L].copy_from_slice(&acc);
                 }
             }
+            // S^-1 = L^-T L^-1 (L the Cholesky factor of S), so E S^-1 E^T = F F^T with
+            // F = E L^-T = C (L0^T U L^-T): the factor goes into what the blocks multiply,
+            // and the pass forms F F^T (6 of 9 sums for three rows) with no product by S^-1.
             for c in 0..m {
-                for y in 0..R {
-                    d.uw[c * R + y] = d.wt[y * ps + c] as f32;
-                }
-            }
-            // The sign taken into S^-1 (exact: +-1), so the kernels subtract.
-            for row in &mut s {
-                for v in row.iter_mut() {
-                    *v *= sign;
+                for k in 0..R {
+                    let mut v = 0.0;
+                    for y in 0..=k {
+                        v = madd::<FMA>(d.wt[y * ps + c], li[k * R + y], v);
+                    }
+                    d.uw[c * R + k] = v as f32;
                 }
             }
             let wblocks = d.lp.w.chunks_exact(m * R * L);
@@ -229,14 +227,14 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
                     *gm = unsafe {
-                        super::avx512::update_group::<R>(wg, &d.uw, m, &s, sd, dg, sg, det)
+                        super::avx512::update_group::<R>(wg, &d.uw, m, sign, sd, dg, sg, det)
                     };
                     continue;
                 }
-                let dr = update_group::<R, FMA, W, 0>(wg, &d.uw, m, &s, sd, dg);
+                let dr = update_group::<R, FMA, W, 0>(wg, &d.uw, m, sign, sd, dg);
                 dets_group::<R, W, 0>(&dr, sg, det);
                 if W < L {
-                    let dr = update_group::<R, FMA, W, 1>(wg, &d.uw, m, &s, sd, dg);
+                    let dr = update_group::<R, FMA, W, 1>(wg, &d.uw, m, sign, sd, dg);
                     dets_group::<R, W, 1>(&dr, sg, det);
                 }
                 *gm = group_max(det, sg);
@@ -470,42 +468,32 @@ fn rebuild_group<const R: usize, const FMA: bool, const W: usize, const H: usize
     d
 }
 
-/// D -= E S E^T, E = C Uw, for the `W` candidates from lane `H W` of one group (`bw`: the
-/// group's whitened single-precision blocks, `uw`: L0^T U, E summed in single precision
-/// and then widened; `s`: sign S^-1; D read from `sd` when given, else from `dg`; written to
+/// D -= sign F F^T, F = C Uw, for the `W` candidates from lane `H W` of one group (`bw`:
+/// the group's whitened single-precision blocks, `uw`: L0^T U L^-T, F summed in single
+/// precision and then widened; D read from `sd` when given, else from `dg`; written to
 /// `dg`). D is symmetric: its upper triangle is computed and mirrored.
 #[inline(always)]
 fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>(
     bw: &[f32],
     uw: &[f32],
     m: usize,
-    s: &[[f64; R]; R],
+    sign: f64,
     sd: Option<&[f64]>,
     dg: &mut [f64],
 ) -> [[[f64; W]; R]; R] {
-    let mut e32 = [[[0.0f32; W]; R]; R];
+    let mut f32s = [[[0.0f32; W]; R]; R];
     // Iterators, not indices: no bounds checks in the innermost loop.
     for (bc, uc) in bw.chunks_exact(R * L).zip(uw.chunks_exact(R)).take(m) {
         for x in 0..R {
             for y in 0..R {
                 for l in 0..W {
-                    e32[x][y][l] = madd32::<FMA>(bc[x * L + H * W + l], uc[y], e32[x][y][l]);
+                    f32s[x][y][l] = madd32::<FMA>(bc[x * L + H * W + l], uc[y], f32s[x][y][l]);
                 }
             }
         }
     }
-    let e: [[[f64; W]; R]; R] =
-        std::array::from_fn(|x| std::array::from_fn(|y| e32[x][y].map(f64::from)));
-    let mut es = [[[0.0; W]; R]; R];
-    for x in 0..R {
-        for y in 0..R {
-            for k in 0..R {
-                for l in 0..W {
-                    es[x][y][l] = madd::<FMA>(e[x][k][l], s[k][y], es[x][y][l]);
-                }
-            }
-        }
-    }
+    let f: [[[f64; W]; R]; R] =
+        std::array::from_fn(|x| std::array::from_fn(|y| f32s[x][y].map(f64::from)));
     let mut out = [[[0.0; W]; R]; R];
     for x in 0..R {
         for y in x..R {
@@ -513,10 +501,11 @@ fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>
             for l in 0..W {
                 let mut v = 0.0;
                 for k in 0..R {
-                    v = madd::<FMA>(es[x][k][l], e[y][k][l], v);
+                    v = madd::<FMA>(f[x][k][l], f[y][k][l], v);
                 }
                 let cur = sd.map_or(dg[o + l], |sd| sd[o + l]);
-                let nv = cur - v;
+                // The product by +-1 is exact: the same sum as the AVX-512 kernel's.
+                let nv = cur - sign * v;
                 dg[o + l] = nv;
                 dg[o2 + l] = nv;
                 out[x][y][l] = nv;

@@ -145,7 +145,7 @@ impl Problem for FramesFit<'_> {
 
     fn jacobian(&self, xs: &[f64], j: &mut DMatrix<f64>) -> Result<(), IdentifyError> {
         let s = self.state(xs);
-        j.fill(0.0);
+        j.as_mut_slice().fill(0.0);
         let wants = |base: bool| {
             self.roles.iter().any(|r| match r {
                 Role::Base(_) => base,
