@@ -20,7 +20,7 @@ pub mod tree_robust;
 pub use ballplate::BallPlate;
 pub use distance::{DistanceMeasurement, DistanceProblem};
 pub use markers::{MarkerProblem, MarkerSample};
-pub use point::{PointMeasurement, PointProblem, Target};
+pub use point::{PointMeasurement, PointProblem, PointStart, Target};
 
 /// Errors in measurement data.
 #[derive(Debug, thiserror::Error)]

@@ -7,7 +7,8 @@ use serde_json::Value;
 use super::{ChainSpec, PlateSpec, SerialModel, load_model};
 use crate::identify::{Pivoting, PriorReport, Solution, SolveOptions};
 use crate::measure::{
-    BallPlate, DistanceMeasurement, DistanceProblem, PointMeasurement, PointProblem, Target,
+    BallPlate, DistanceMeasurement, DistanceProblem, PointMeasurement, PointProblem, PointStart,
+    Target,
 };
 use crate::model::ParamId;
 use crate::run::{Inputs, JobError, Table};
@@ -69,6 +70,9 @@ pub struct IdentifyInputs {
     /// Static torques of every calibration measurement with the starting model, computed
     /// on first use (see [`IdentifyInputs::start_torques`]).
     torques: std::sync::OnceLock<Vec<Vec<f64>>>,
+    /// Every calibration measurement's TCP and Jacobian rows at the start, computed on
+    /// first use and shared by the fits of its subsets (see [`IdentifyInputs::point_start`]).
+    point_start: std::sync::OnceLock<Option<std::sync::Arc<PointStart>>>,
 }
 
 /// Parse the inputs shared by `serial.identify` and `serial.dispersion`.
@@ -137,6 +141,7 @@ pub fn parse_inputs(
             warnings,
             options,
             torques: Default::default(),
+            point_start: Default::default(),
         };
         super::prior::validate(&inputs)?;
         return Ok(inputs);
@@ -277,6 +282,7 @@ pub(crate) fn point_inputs(
         warnings,
         options,
         torques: Default::default(),
+        point_start: Default::default(),
     };
     super::prior::validate(&inputs)?;
     Ok(inputs)
@@ -415,6 +421,26 @@ impl IdentifyInputs {
             .torques
             .get_or_init(|| crate::measure::point::start_torques(&self.model.chain, &self.meas));
         idx.iter().map(|&i| all[i].clone()).collect()
+    }
+
+    /// The start rows of every calibration measurement (None when the measurements do
+    /// not make a point problem): a subset's fit gathers its rows at the start from them
+    /// instead of evaluating the chain again (a dispersion study fits 2,000 subsets).
+    pub fn point_start(&self) -> Option<std::sync::Arc<PointStart>> {
+        self.point_start
+            .get_or_init(|| {
+                let all: Vec<usize> = (0..self.meas.len()).collect();
+                PointProblem::with_torques(
+                    self.model.chain.clone(),
+                    self.ids.clone(),
+                    self.plate.clone(),
+                    self.meas.clone(),
+                    Some(self.start_torques(&all)),
+                )
+                .ok()
+                .map(|p| std::sync::Arc::new(PointStart::of(&p)))
+            })
+            .clone()
     }
 
     /// Solver settings from the options.

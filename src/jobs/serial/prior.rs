@@ -46,13 +46,17 @@ impl SerialFit for PointProblem {
         inp.meas.len()
     }
     fn build(inp: &IdentifyInputs, idx: &[usize]) -> Result<Self, JobError> {
-        Ok(PointProblem::with_torques(
+        let p = PointProblem::with_torques(
             inp.model.chain.clone(),
             inp.ids.clone(),
             inp.plate.clone(),
             idx.iter().map(|&i| inp.meas[i].clone()).collect(),
             Some(inp.start_torques(idx)),
-        )?)
+        )?;
+        Ok(match inp.point_start() {
+            Some(start) => p.with_start(start, idx.to_vec()),
+            None => p,
+        })
     }
     fn start(&self) -> Vec<f64> {
         self.initial()

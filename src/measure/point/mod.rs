@@ -15,6 +15,9 @@ use crate::model::{Chain, ParamId, Quantity};
 
 mod blocks;
 mod point_frames;
+mod start;
+
+pub use start::PointStart;
 
 /// What the TCP coincided with.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -117,6 +120,9 @@ pub struct PointProblem {
     trig: TrigMemos,
     /// The chain evaluations run on, its parameters set in place.
     work: WorkChain,
+    /// Rows shared with other subsets of the same measurements at the start (see
+    /// [`PointStart`]), with each measurement's row there.
+    start: Option<(std::sync::Arc<PointStart>, Vec<usize>)>,
     /// Weight of the distance rows (residual per unit of distance error).
     pub distance_weight: f64,
 }
@@ -180,8 +186,31 @@ impl PointProblem {
             tau,
             trig,
             work: WorkChain::default(),
+            start: None,
             distance_weight: 10.0,
         })
+    }
+
+    /// This problem reading its start from `start`, measurement k at row `rows[k]` there
+    /// (the rows of a problem over a superset with the same chain, unknowns and torques);
+    /// unchanged when they do not fit.
+    pub fn with_start(mut self, start: std::sync::Arc<PointStart>, rows: Vec<usize>) -> Self {
+        if rows.len() == self.meas.len()
+            && rows.iter().all(|&r| r < start.len())
+            && start.width() == self.ids.len()
+        {
+            self.start = Some((start, rows));
+        }
+        self
+    }
+
+    /// The shared start and this problem's rows in it, when `x`'s chain unknowns are the
+    /// ones it holds for.
+    fn start_at(&self, x: &[f64]) -> Option<(&PointStart, &[usize])> {
+        self.start
+            .as_ref()
+            .filter(|(s, _)| s.holds_for(&x[..self.ids.len().min(x.len())]))
+            .map(|(s, rows)| (&**s, &rows[..]))
     }
 
     /// The measurements.
@@ -198,13 +227,18 @@ impl PointProblem {
     /// starting model's TCP positions measured on it.
     pub fn initial(&self) -> Vec<f64> {
         let mut x: Vec<f64> = self.ids.iter().map(|id| self.chain.param(*id)).collect();
+        let start = self.start_at(&x);
         for &b in &self.free_balls {
             let pts: Vec<Vector3<f64>> = self
                 .meas
                 .iter()
                 .zip(&self.tau)
-                .filter(|(m, _)| m.target == Target::Ball(b))
-                .map(|(m, t)| self.chain.tcp(&m.q, Some(t)).p)
+                .enumerate()
+                .filter(|(_, (m, _))| m.target == Target::Ball(b))
+                .map(|(k, (m, t))| match start {
+                    Some((s, rows)) => s.tcp(rows[k]),
+                    None => self.chain.tcp(&m.q, Some(t)).p,
+                })
                 .collect();
             let c = pts.iter().fold(Vector3::zeros(), |a, p| a + p) / pts.len() as f64;
             x.extend([c.x, c.y, c.z]);
@@ -380,6 +414,19 @@ impl Problem for PointProblem {
     }
 
     fn residuals(&self, x: &[f64], r: &mut [f64]) -> Result<(), IdentifyError> {
+        if let Some((start, rows)) = self.start_at(x) {
+            let centres = self.centres(x);
+            for (k, m) in self.meas.iter().enumerate() {
+                let target = match m.target {
+                    Target::Ball(b) => centres[b],
+                    Target::Point(p) => p,
+                };
+                let e = start.tcp(rows[k]) - target;
+                r[3 * k..3 * k + 3].copy_from_slice(e.as_slice());
+            }
+            self.distance_rows(&centres, r);
+            return Ok(());
+        }
         self.with_chain(x, |chain| {
             let centres = self.centres(x);
             let base = 3 * self.meas.len();
@@ -495,6 +542,21 @@ impl PointProblem {
     /// `c` of `j` is unknown `cols[c]`; the chain computes only those).
     fn fill_jacobian(&self, x: &[f64], cols: Option<&[usize]>, j: &mut DMatrix<f64>) {
         let (at, wanted) = self.column_map(cols);
+        if let Some((start, rows)) = self.start_at(x).filter(|_| cols.is_none()) {
+            j.as_mut_slice().fill(0.0);
+            for (k, m) in self.meas.iter().enumerate() {
+                for (c, v) in start.jacobian(rows[k]).iter().enumerate() {
+                    if let Some(oc) = at[c] {
+                        for a in 0..3 {
+                            j[(3 * k + a, oc)] = v[a];
+                        }
+                    }
+                }
+                self.ball_columns(m, k, &at, j);
+            }
+            self.distance_columns(&self.centres(x), &at, j);
+            return;
+        }
         self.with_chain(x, |chain| {
             let centres = self.centres(x);
             j.as_mut_slice().fill(0.0);
@@ -559,20 +621,51 @@ impl PointProblem {
                 }
             };
             on_threads(parts, &fill);
-            let base = 3 * self.meas.len();
-            for (k, &(bi, bj, _)) in self.plate.distances.iter().enumerate() {
-                let diff = centres[bi] - centres[bj];
-                let u = diff / diff.norm().max(f64::MIN_POSITIVE);
-                for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
-                    if let Some(o) = self.free_slot(ball) {
-                        for a in 0..3 {
-                            if let Some(oc) = at[o + a] {
-                                j[(base + k, oc)] = self.distance_weight * sign * u[a];
-                            }
+            self.distance_columns(&centres, &at, j);
+        })
+    }
+
+    /// Measurement k's ball-centre columns (-1 on its free ball's axes) into `j`.
+    fn ball_columns(
+        &self,
+        m: &PointMeasurement,
+        k: usize,
+        at: &[Option<usize>],
+        j: &mut DMatrix<f64>,
+    ) {
+        let slot = match m.target {
+            Target::Ball(b) => self.free_slot(b),
+            Target::Point(_) => None,
+        };
+        if let Some(o) = slot {
+            for a in 0..3 {
+                if let Some(oc) = at[o + a] {
+                    j[(3 * k + a, oc)] = -1.0;
+                }
+            }
+        }
+    }
+
+    /// The plate's distance rows (after the three rows per measurement) into `j`.
+    fn distance_columns(
+        &self,
+        centres: &[Vector3<f64>],
+        at: &[Option<usize>],
+        j: &mut DMatrix<f64>,
+    ) {
+        let base = 3 * self.meas.len();
+        for (k, &(bi, bj, _)) in self.plate.distances.iter().enumerate() {
+            let diff = centres[bi] - centres[bj];
+            let u = diff / diff.norm().max(f64::MIN_POSITIVE);
+            for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
+                if let Some(o) = self.free_slot(ball) {
+                    for a in 0..3 {
+                        if let Some(oc) = at[o + a] {
+                            j[(base + k, oc)] = self.distance_weight * sign * u[a];
                         }
                     }
                 }
             }
-        })
+        }
     }
 }
