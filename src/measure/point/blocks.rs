@@ -87,7 +87,7 @@ impl PointProblem {
                         }
                     }
                     for i in first..last {
-                        let (m, tau) = (&self.meas[i], &self.tau[i]);
+                        let m = &self.meas[i];
                         let memo_i = match memo.as_deref_mut() {
                             Some(mm) if own.contains(&i) => {
                                 let o = i - own.start;
@@ -95,14 +95,7 @@ impl PointProblem {
                             }
                             _ => None,
                         };
-                        chain.point_jacobian_memo(
-                            &m.q,
-                            Some(tau),
-                            &Vector3::zeros(),
-                            &mut buf,
-                            &mut scratch,
-                            memo_i,
-                        );
+                        self.chain_rows(chain, i, &mut buf, &mut scratch, memo_i);
                         let ball = match m.target {
                             Target::Ball(b) => self.free_slot(b),
                             Target::Point(_) => None,
@@ -140,19 +133,11 @@ impl PointProblem {
                 if !distances.is_empty() {
                     let mut block = DMatrix::<f64>::zeros(distances.len(), width);
                     for row in distances.clone() {
-                        let (bi, bj, _) = self.plate.distances[row - base];
-                        let diff = centres[bi] - centres[bj];
-                        let u = diff / diff.norm().max(f64::MIN_POSITIVE);
-                        for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
-                            if let Some(o) = self.free_slot(ball) {
-                                for a in 0..3 {
-                                    if let Some(oc) = at[o + a] {
-                                        block[(row - distances.start, oc)] =
-                                            self.distance_weight * sign * u[a];
-                                    }
-                                }
+                        self.distance_row(&centres, row - base, |u, v| {
+                            if let Some(oc) = at[u] {
+                                block[(row - distances.start, oc)] = v;
                             }
-                        }
+                        });
                     }
                     visit(distances, &block);
                 }

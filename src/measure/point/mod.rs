@@ -592,16 +592,11 @@ impl PointProblem {
                 let mut scratch = JacobianScratch::default();
                 scratch.set_wanted(wanted.clone());
                 for (row, i) in range.clone().enumerate() {
-                    let (m, tau) = (&self.meas[i], &self.tau[i]);
-                    chain.point_jacobian_memo(
-                        &m.q,
-                        Some(tau),
-                        &Vector3::zeros(),
-                        &mut buf,
-                        &mut scratch,
-                        memo.as_deref_mut()
-                            .map(|mm| &mut mm[nj * row..nj * (row + 1)]),
-                    );
+                    let m = &self.meas[i];
+                    let memo_i = memo
+                        .as_deref_mut()
+                        .map(|mm| &mut mm[nj * row..nj * (row + 1)]);
+                    self.chain_rows(chain, i, &mut buf, &mut scratch, memo_i);
                     for (c, &col) in self.cols.iter().enumerate() {
                         if let (Some(v), Some(oc)) = (buf.get(col), at[c]) {
                             for a in 0..3 {
@@ -654,18 +649,40 @@ impl PointProblem {
         j: &mut DMatrix<f64>,
     ) {
         let base = 3 * self.meas.len();
-        for (k, &(bi, bj, _)) in self.plate.distances.iter().enumerate() {
-            let diff = centres[bi] - centres[bj];
-            let u = diff / diff.norm().max(f64::MIN_POSITIVE);
-            for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
-                if let Some(o) = self.free_slot(ball) {
-                    for a in 0..3 {
-                        if let Some(oc) = at[o + a] {
-                            j[(base + k, oc)] = self.distance_weight * sign * u[a];
-                        }
-                    }
+        for k in 0..self.plate.distances.len() {
+            self.distance_row(centres, k, |u, v| {
+                if let Some(oc) = at[u] {
+                    j[(base + k, oc)] = v;
+                }
+            });
+        }
+    }
+
+    /// The nonzero entries (unknown, value) of the Jacobian's row of plate distance k.
+    fn distance_row(&self, centres: &[Vector3<f64>], k: usize, mut f: impl FnMut(usize, f64)) {
+        let (bi, bj, _) = self.plate.distances[k];
+        let diff = centres[bi] - centres[bj];
+        let u = diff / diff.norm().max(f64::MIN_POSITIVE);
+        for (ball, sign) in [(bi, 1.0), (bj, -1.0)] {
+            if let Some(o) = self.free_slot(ball) {
+                for a in 0..3 {
+                    f(o + a, self.distance_weight * sign * u[a]);
                 }
             }
         }
+    }
+
+    /// d TCP / d (chain parameter) of measurement i into `buf` (one vector per chain
+    /// parameter), its joint sines and cosines through `memo` when given.
+    fn chain_rows(
+        &self,
+        chain: &Chain,
+        i: usize,
+        buf: &mut [Vector3<f64>],
+        scratch: &mut JacobianScratch,
+        memo: Option<&mut [TrigMemo]>,
+    ) {
+        let (m, tau) = (&self.meas[i], &self.tau[i]);
+        chain.point_jacobian_memo(&m.q, Some(tau), &Vector3::zeros(), buf, scratch, memo);
     }
 }

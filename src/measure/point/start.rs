@@ -32,16 +32,9 @@ impl PointStart {
         let mut scratch = JacobianScratch::default();
         let mut tcp = Vec::with_capacity(problem.meas.len());
         let mut jac = Vec::with_capacity(problem.meas.len() * width);
-        for (m, tau) in problem.meas.iter().zip(&problem.tau) {
+        for (i, (m, tau)) in problem.meas.iter().zip(&problem.tau).enumerate() {
             tcp.push(chain.tcp(&m.q, Some(tau)).p);
-            chain.point_jacobian_memo(
-                &m.q,
-                Some(tau),
-                &Vector3::zeros(),
-                &mut buf,
-                &mut scratch,
-                None,
-            );
+            problem.chain_rows(chain, i, &mut buf, &mut scratch, None);
             jac.extend(
                 problem
                     .cols
