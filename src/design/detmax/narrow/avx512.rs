@@ -6,7 +6,7 @@
 use std::arch::x86_64::{
     __m512d, _CMP_GT_OQ, _CMP_LT_OQ, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_set1_ps,
     _mm256_setzero_ps, _mm512_add_pd, _mm512_cmp_pd_mask, _mm512_cvtps_pd, _mm512_fmadd_pd,
-    _mm512_loadu_pd, _mm512_mask_blend_pd, _mm512_maskz_mov_pd, _mm512_mul_pd,
+    _mm512_fnmadd_pd, _mm512_loadu_pd, _mm512_mask_blend_pd, _mm512_maskz_mov_pd, _mm512_mul_pd,
     _mm512_reduce_max_pd, _mm512_set1_pd, _mm512_setzero_pd, _mm512_storeu_pd, _mm512_sub_pd,
 };
 
@@ -114,7 +114,7 @@ pub(super) unsafe fn update_group<const R: usize>(
     }
     let f: [[__m512d; R]; R] =
         std::array::from_fn(|x| std::array::from_fn(|y| _mm512_cvtps_pd(f32s[x][y])));
-    let sign = _mm512_set1_pd(sign);
+    let add = sign > 0.0;
     // Where D is read from, chosen once (a branch per entry keeps the compiler from holding
     // the sums in registers); in place, both pointers come from one mutable borrow.
     let to = dg[..R * R * L].as_mut_ptr();
@@ -125,14 +125,17 @@ pub(super) unsafe fn update_group<const R: usize>(
     let mut out = [[_mm512_setzero_pd(); R]; R];
     for x in 0..R {
         for y in x..R {
-            let mut v = _mm512_setzero_pd();
-            for k in 0..R {
-                v = _mm512_fmadd_pd(f[x][k], f[y][k], v);
-            }
             // SAFETY: `from` and `to` hold the group's R x R x 8 f64 (sliced above); the
             // upper entry is read before either is written.
-            let dv = unsafe { _mm512_loadu_pd(from.add((x * R + y) * L)) };
-            let dv = _mm512_sub_pd(dv, _mm512_mul_pd(sign, v));
+            let mut dv = unsafe { _mm512_loadu_pd(from.add((x * R + y) * L)) };
+            // D - sign F F^T term by term, fused.
+            for k in 0..R {
+                dv = if add {
+                    _mm512_fnmadd_pd(f[x][k], f[y][k], dv)
+                } else {
+                    _mm512_fmadd_pd(f[x][k], f[y][k], dv)
+                };
+            }
             // SAFETY: as above.
             unsafe {
                 _mm512_storeu_pd(to.add((x * R + y) * L), dv);

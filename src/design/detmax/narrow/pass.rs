@@ -499,13 +499,12 @@ fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>
         for y in x..R {
             let (o, o2) = ((x * R + y) * L + H * W, (y * R + x) * L + H * W);
             for l in 0..W {
-                let mut v = 0.0;
+                // D - sign F F^T term by term from D, each fused (the product by +-1 is
+                // exact: the AVX-512 kernel's fnmadd or fmadd).
+                let mut nv = sd.map_or(dg[o + l], |sd| sd[o + l]);
                 for k in 0..R {
-                    v = madd::<FMA>(f[x][k][l], f[y][k][l], v);
+                    nv = madd::<FMA>(-sign * f[x][k][l], f[y][k][l], nv);
                 }
-                let cur = sd.map_or(dg[o + l], |sd| sd[o + l]);
-                // The product by +-1 is exact: the same sum as the AVX-512 kernel's.
-                let nv = cur - sign * v;
                 dg[o + l] = nv;
                 dg[o2 + l] = nv;
                 out[x][y][l] = nv;
