@@ -10,8 +10,8 @@ use std::arch::x86_64::{
     _mm512_reduce_max_pd, _mm512_set1_pd, _mm512_setzero_pd, _mm512_storeu_pd, _mm512_sub_pd,
 };
 
-use super::L;
 use super::pass::dets_group;
+use super::{L, upper, upper_len};
 
 /// The lanes of a vector as an array.
 #[inline(always)]
@@ -80,8 +80,8 @@ unsafe fn dets_and_max<const R: usize>(
 
 /// D -= sign F F^T, F = C Uw, for the eight candidates of one group (as
 /// `pass::update_group` with eight lanes: F summed in single precision over `bw` and `uw`,
-/// one 256-bit vector per entry, then widened; D read from `sd` when given, else from `dg`;
-/// written to `dg`, the upper triangle mirrored), their determinants (signs `sg`) into
+/// one 256-bit vector per entry, then widened; D's upper triangle read from `sd` when
+/// given, else from `dg`; written to `dg`), their determinants (signs `sg`) into
 /// `det`, and the group's largest outside and member determinant (then `pass::group_max`).
 ///
 /// # Safety
@@ -117,17 +117,19 @@ pub(super) unsafe fn update_group<const R: usize>(
     let add = sign > 0.0;
     // Where D is read from, chosen once (a branch per entry keeps the compiler from holding
     // the sums in registers); in place, both pointers come from one mutable borrow.
-    let to = dg[..R * R * L].as_mut_ptr();
+    let t = upper_len(R) * L;
+    let to = dg[..t].as_mut_ptr();
     let from: *const f64 = match sd {
-        Some(sd) => sd[..R * R * L].as_ptr(),
+        Some(sd) => sd[..t].as_ptr(),
         None => to,
     };
     let mut out = [[_mm512_setzero_pd(); R]; R];
     for x in 0..R {
         for y in x..R {
-            // SAFETY: `from` and `to` hold the group's R x R x 8 f64 (sliced above); the
-            // upper entry is read before either is written.
-            let mut dv = unsafe { _mm512_loadu_pd(from.add((x * R + y) * L)) };
+            // SAFETY: `from` and `to` hold the group's upper triangle of eight lanes (sliced
+            // above); an entry is read before it is written.
+            let at = upper(x, y, R) * L;
+            let mut dv = unsafe { _mm512_loadu_pd(from.add(at)) };
             // D - sign F F^T term by term, fused.
             for k in 0..R {
                 dv = if add {
@@ -137,10 +139,7 @@ pub(super) unsafe fn update_group<const R: usize>(
                 };
             }
             // SAFETY: as above.
-            unsafe {
-                _mm512_storeu_pd(to.add((x * R + y) * L), dv);
-                _mm512_storeu_pd(to.add((y * R + x) * L), dv);
-            }
+            unsafe { _mm512_storeu_pd(to.add(at), dv) };
             out[x][y] = dv;
             out[y][x] = dv;
         }
@@ -213,8 +212,9 @@ pub(super) unsafe fn rebuild_group<const R: usize>(
         }
     }
     for x in 0..R {
-        for y in 0..R {
-            let o = &mut dg[(x * R + y) * L..(x * R + y + 1) * L];
+        for y in x..R {
+            let at = upper(x, y, R) * L;
+            let o = &mut dg[at..at + L];
             // SAFETY: `o` holds eight f64.
             unsafe { _mm512_storeu_pd(o.as_mut_ptr(), d[x][y]) };
         }

@@ -140,6 +140,39 @@ impl LanePool {
     }
 }
 
+/// Index of entry (x, y), x <= y, of an r x r symmetric matrix stored as its upper
+/// triangle row by row.
+pub(super) const fn upper(x: usize, y: usize, r: usize) -> usize {
+    x * r - x * x.saturating_sub(1) / 2 + (y - x)
+}
+
+/// Entries of an r x r upper triangle.
+pub(super) const fn upper_len(r: usize) -> usize {
+    r * (r + 1) / 2
+}
+
+#[cfg(test)]
+mod upper_tests {
+    /// Every entry of the upper triangle has its own index, row by row, and they fill
+    /// 0..upper_len(r).
+    #[test]
+    fn upper_triangle_indices_are_dense_and_row_major() {
+        for r in [2, 3, 6] {
+            let mut seen = Vec::new();
+            for x in 0..r {
+                for y in x..r {
+                    seen.push(super::upper(x, y, r));
+                }
+            }
+            assert_eq!(
+                seen,
+                (0..super::upper_len(r)).collect::<Vec<_>>(),
+                "r = {r}"
+            );
+        }
+    }
+}
+
 /// A number no design's `info_id` has had yet.
 fn fresh_info_id() -> u64 {
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -182,8 +215,9 @@ pub(super) struct Design<'a> {
     info_id: u64,
     /// Toggles (candidate, sign) made since `info` was last brought up to date.
     info_pending: Vec<(usize, f64)>,
-    /// D_i = B_i P B_i^T, lane-interleaved: entry (x, y) of candidate 4 g + l at
-    /// `d[((g r + x) r + y) L + l]`.
+    /// D_i = B_i P B_i^T (symmetric: its upper triangle), lane-interleaved: entry (x, y),
+    /// x <= y, of candidate 8 g + l at `d[(g t + upper(x, y, r)) L + l]`, t = r (r + 1) / 2
+    /// (see [`upper`]).
     d: Vec<f64>,
     /// det(I + D_i) of an outside candidate, det(I - D_i) of a member (0: not positive
     /// definite): the determinant its toggle would bring, kept by the kernels so a greedy
@@ -260,7 +294,7 @@ impl<'a> Design<'a> {
             info: Vec::new(),
             info_id: 0,
             info_pending: Vec::new(),
-            d: vec![0.0; lp.n.div_ceil(L) * r * r * L],
+            d: vec![0.0; lp.n.div_ceil(L) * upper_len(r) * L],
             dets: vec![0.0; lp.n.div_ceil(L) * L],
             sgn: vec![0.0; lp.n.div_ceil(L) * L],
             gmax: vec![[f64::NEG_INFINITY; 2]; lp.n.div_ceil(L)],

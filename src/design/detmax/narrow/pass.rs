@@ -3,7 +3,7 @@
 //! D_i = B_i P B_i^T, compiled for AVX2 and FMA where the CPU has them.
 
 use super::super::kernels::{madd, madd32};
-use super::{Design, L};
+use super::{Design, L, upper, upper_len};
 
 /// det(I + sign D) of a symmetric r x r block (row-major), 0 when the matrix is not positive
 /// definite (closed form for 2 and 3 rows, else the product of the Cholesky pivots).
@@ -136,7 +136,7 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
     match k {
         Kernel::Rebuild { li } => {
             let outs =
-                d.d.chunks_exact_mut(R * R * L)
+                d.d.chunks_exact_mut(upper_len(R) * L)
                     .zip(d.dets.chunks_exact_mut(L).zip(d.sgn.chunks_exact(L)));
             for ((bg, (dg, (det, sg))), gm) in blocks.zip(outs).zip(&mut d.gmax) {
                 #[cfg(target_arch = "x86_64")]
@@ -219,10 +219,11 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
             }
             let wblocks = d.lp.w.chunks_exact(m * R * L);
             let outs =
-                d.d.chunks_exact_mut(R * R * L)
+                d.d.chunks_exact_mut(upper_len(R) * L)
                     .zip(d.dets.chunks_exact_mut(L).zip(d.sgn.chunks_exact(L)));
             for (g, ((wg, (dg, (det, sg))), gm)) in wblocks.zip(outs).zip(&mut d.gmax).enumerate() {
-                let sd = src.map(|x| &x[g * R * R * L..(g + 1) * R * R * L]);
+                let t = upper_len(R) * L;
+                let sd = src.map(|x| &x[g * t..(g + 1) * t]);
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: a whole group per vector only from `run_avx512`.
@@ -427,7 +428,7 @@ pub(super) fn dets_group<const R: usize, const W: usize, const H: usize>(
 
 /// D = B P B^T = V^T V, V = L^-1 B^T, for the `W` candidates from lane `H W` of one group:
 /// column c of V sums its c + 1 terms in order, then D's upper triangle takes V's columns in
-/// order and is mirrored (`li`: L^-1, rows `ps` apart).
+/// order; stored as it is and mirrored for the determinants (`li`: L^-1, rows `ps` apart).
 #[inline(always)]
 fn rebuild_group<const R: usize, const FMA: bool, const W: usize, const H: usize>(
     bg: &[f64],
@@ -460,8 +461,8 @@ fn rebuild_group<const R: usize, const FMA: bool, const W: usize, const H: usize
         }
     }
     for x in 0..R {
-        for y in 0..R {
-            let o = (x * R + y) * L + H * W;
+        for y in x..R {
+            let o = upper(x, y, R) * L + H * W;
             dg[o..o + W].copy_from_slice(&d[x][y]);
         }
     }
@@ -470,8 +471,8 @@ fn rebuild_group<const R: usize, const FMA: bool, const W: usize, const H: usize
 
 /// D -= sign F F^T, F = C Uw, for the `W` candidates from lane `H W` of one group (`bw`:
 /// the group's whitened single-precision blocks, `uw`: L0^T U L^-T, F summed in single
-/// precision and then widened; D read from `sd` when given, else from `dg`; written to
-/// `dg`). D is symmetric: its upper triangle is computed and mirrored.
+/// precision and then widened; D, its upper triangle, read from `sd` when given, else from
+/// `dg`; written to `dg`).
 #[inline(always)]
 fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>(
     bw: &[f32],
@@ -497,7 +498,7 @@ fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>
     let mut out = [[[0.0; W]; R]; R];
     for x in 0..R {
         for y in x..R {
-            let (o, o2) = ((x * R + y) * L + H * W, (y * R + x) * L + H * W);
+            let o = upper(x, y, R) * L + H * W;
             for l in 0..W {
                 // D - sign F F^T term by term from D, each fused (the product by +-1 is
                 // exact: the AVX-512 kernel's fnmadd or fmadd).
@@ -506,7 +507,6 @@ fn update_group<const R: usize, const FMA: bool, const W: usize, const H: usize>
                     nv = madd::<FMA>(-sign * f[x][k][l], f[y][k][l], nv);
                 }
                 dg[o + l] = nv;
-                dg[o2 + l] = nv;
                 out[x][y][l] = nv;
                 out[y][x][l] = nv;
             }
