@@ -316,20 +316,26 @@ pub fn solve_with(
     // The tall Jacobian is reduced once: rank and dependencies work on its R factor (the
     // one the rank detection computes of a tall matrix itself), the spectra of the plans
     // on R from the crossover on and on the Jacobian below it (their arithmetic as before).
-    let rq0 = match &j0 {
-        Start0::Dense(j) => reduced(j),
-        Start0::Folded(f) => f.r.clone(),
+    // Rows that only fix a gauge are left out of the rank detection. A small dense
+    // Jacobian is its own rows for the plans, so with gauge rows the R factor of all rows
+    // is not needed (`rq0` None): one factorisation of the start, not two.
+    let data_rows = n.saturating_sub(problem.gauge_rows());
+    let small = matches!(&j0, Start0::Dense(_) if n < super::dense::QR_FAER_MIN_ROWS);
+    let (rq_data, rq0) = match &j0 {
+        Start0::Dense(j) if data_rows < n => (
+            reduced(&j.rows(0, data_rows).into_owned()),
+            (!small).then(|| reduced(j)),
+        ),
+        Start0::Dense(j) => {
+            let r = reduced(j);
+            (r.clone(), Some(r))
+        }
+        Start0::Folded(f) => (f.r.clone(), Some(f.r.clone())),
     };
+    let rq_data = &rq_data;
     // Unknowns held by the caller enter the rank detection as zero columns (so no other
     // column is dropped for them); their dependencies are those of their real columns.
     let held_cols: Vec<usize> = opts.hold.iter().map(|h| h.0).filter(|&k| k < m).collect();
-    // Rows that only fix a gauge are left out of the rank detection.
-    let data_rows = n.saturating_sub(problem.gauge_rows());
-    let data_only = match &j0 {
-        Start0::Dense(j) if data_rows < n => Some(reduced(&j.rows(0, data_rows).into_owned())),
-        _ => None,
-    };
-    let rq_data = data_only.as_ref().unwrap_or(&rq0);
     let zeroed = (!held_cols.is_empty()).then(|| {
         let mut z = rq_data.clone();
         held_cols.iter().for_each(|&k| z.column_mut(k).fill(0.0));
@@ -346,9 +352,11 @@ pub fn solve_with(
             *dep = super::rank::dependency(rq_data, &rank.kept, *c);
         }
     }
-    let rf0 = match &j0 {
-        Start0::Dense(j) if n < super::dense::QR_FAER_MIN_ROWS => j.clone(),
-        _ => rq0,
+    let rf0 = match (&j0, rq0) {
+        (Start0::Dense(j), _) if small => j.clone(),
+        (_, Some(r)) => r,
+        (Start0::Dense(j), None) => reduced(j),
+        (Start0::Folded(f), None) => f.r.clone(),
     };
     let src0 = match &j0 {
         Start0::Dense(j) => Src::Dense(j),
