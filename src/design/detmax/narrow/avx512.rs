@@ -4,7 +4,7 @@
 //! fused operations in the same order as the portable kernel, so the results are identical.
 
 use std::arch::x86_64::{
-    __m512d, _CMP_GT_OQ, _CMP_LT_OQ, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_set1_ps,
+    __m256, __m512d, _CMP_GT_OQ, _CMP_LT_OQ, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_set1_ps,
     _mm256_setzero_ps, _mm512_add_pd, _mm512_cmp_pd_mask, _mm512_cvtps_pd, _mm512_fmadd_pd,
     _mm512_fnmadd_pd, _mm512_loadu_pd, _mm512_mask_blend_pd, _mm512_maskz_mov_pd, _mm512_mul_pd,
     _mm512_reduce_max_pd, _mm512_set1_pd, _mm512_setzero_pd, _mm512_storeu_pd, _mm512_sub_pd,
@@ -78,26 +78,60 @@ unsafe fn dets_and_max<const R: usize>(
     ]
 }
 
-/// D -= sign F F^T, F = C Uw, for the eight candidates of one group (as
-/// `pass::update_group` with eight lanes: F summed in single precision over `bw` and `uw`,
-/// one 256-bit vector per entry, then widened; D's upper triangle read from `sd` when
-/// given, else from `dg`; written to `dg`), their determinants (signs `sg`) into
-/// `det`, and the group's largest outside and member determinant (then `pass::group_max`).
+/// Groups whose F sums are formed before any of their tails runs: a tail (a chain of
+/// dependent operations from the widened F to the group's maxima) then overlaps the next
+/// group's tail in the out-of-order window instead of waiting behind its sums.
+const CHUNK: usize = 8;
+
+/// D -= sign F F^T, F = C Uw, for every group (as `pass::update_group` with eight lanes:
+/// F summed in single precision over the whitened blocks `w` and `uw`, one 256-bit vector
+/// per entry, then widened; D's upper triangle read from `src` when given, else from `d`;
+/// written to `d`), the determinants (signs `sgn`) into `dets`, and each group's largest
+/// outside and member determinant into `gmax` (then `pass::group_max`). The groups are
+/// taken [`CHUNK`] at a time, sums first: the same operations per group as one at a time.
 ///
 /// # Safety
 /// The CPU must have AVX-512F and FMA.
 #[target_feature(enable = "avx512f,fma")]
 #[allow(clippy::too_many_arguments)]
-pub(super) unsafe fn update_group<const R: usize>(
-    bw: &[f32],
+pub(super) unsafe fn update_groups<const R: usize>(
+    w: &[f32],
     uw: &[f32],
     m: usize,
     sign: f64,
-    sd: Option<&[f64]>,
-    dg: &mut [f64],
-    sg: &[f64],
-    det: &mut [f64],
-) -> [f64; 2] {
+    src: Option<&[f64]>,
+    d: &mut [f64],
+    sgn: &[f64],
+    dets: &mut [f64],
+    gmax: &mut [[f64; 2]],
+) {
+    let (wl, t) = (m * R * L, upper_len(R) * L);
+    let mut g0 = 0;
+    while g0 < gmax.len() {
+        let n = CHUNK.min(gmax.len() - g0);
+        let mut sums = [[[_mm256_setzero_ps(); R]; R]; CHUNK];
+        for (k, s) in sums.iter_mut().take(n).enumerate() {
+            let g = g0 + k;
+            // SAFETY: the caller's CPU has AVX-512F and FMA.
+            *s = unsafe { f_sums::<R>(&w[g * wl..(g + 1) * wl], uw, m) };
+        }
+        for (k, s) in sums.iter().take(n).enumerate() {
+            let g = g0 + k;
+            let sd = src.map(|x| &x[g * t..(g + 1) * t]);
+            let (dg, sg) = (&mut d[g * t..(g + 1) * t], &sgn[g * L..(g + 1) * L]);
+            // SAFETY: as above.
+            gmax[g] = unsafe { tail::<R>(s, sign, sd, dg, sg, &mut dets[g * L..(g + 1) * L]) };
+        }
+        g0 += n;
+    }
+}
+
+/// F = C Uw of one group in single precision (`bw`: its whitened blocks).
+///
+/// # Safety
+/// The CPU must have AVX-512F and FMA.
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn f_sums<const R: usize>(bw: &[f32], uw: &[f32], m: usize) -> [[__m256; R]; R] {
     let mut f32s = [[_mm256_setzero_ps(); R]; R];
     for (bc, uc) in bw.chunks_exact(R * L).zip(uw.chunks_exact(R)).take(m) {
         let mut bx = [_mm256_setzero_ps(); R];
@@ -112,6 +146,22 @@ pub(super) unsafe fn update_group<const R: usize>(
             }
         }
     }
+    f32s
+}
+
+/// One group's D -= sign F F^T from its sums, its determinants and maxima.
+///
+/// # Safety
+/// The CPU must have AVX-512F and FMA.
+#[target_feature(enable = "avx512f,fma")]
+unsafe fn tail<const R: usize>(
+    f32s: &[[__m256; R]; R],
+    sign: f64,
+    sd: Option<&[f64]>,
+    dg: &mut [f64],
+    sg: &[f64],
+    det: &mut [f64],
+) -> [f64; 2] {
     let f: [[__m512d; R]; R] =
         std::array::from_fn(|x| std::array::from_fn(|y| _mm512_cvtps_pd(f32s[x][y])));
     let add = sign > 0.0;

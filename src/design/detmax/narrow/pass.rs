@@ -217,6 +217,24 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
                     d.uw[c * R + k] = v as f32;
                 }
             }
+            #[cfg(target_arch = "x86_64")]
+            if W == L {
+                // SAFETY: whole groups per vector only from `run_avx512`.
+                unsafe {
+                    super::avx512::update_groups::<R>(
+                        &d.lp.w,
+                        &d.uw,
+                        m,
+                        sign,
+                        src,
+                        &mut d.d,
+                        &d.sgn,
+                        &mut d.dets,
+                        &mut d.gmax,
+                    )
+                };
+                return Some(ld);
+            }
             let wblocks = d.lp.w.chunks_exact(m * R * L);
             let outs =
                 d.d.chunks_exact_mut(upper_len(R) * L)
@@ -224,14 +242,6 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
             for (g, ((wg, (dg, (det, sg))), gm)) in wblocks.zip(outs).zip(&mut d.gmax).enumerate() {
                 let t = upper_len(R) * L;
                 let sd = src.map(|x| &x[g * t..(g + 1) * t]);
-                #[cfg(target_arch = "x86_64")]
-                if W == L {
-                    // SAFETY: a whole group per vector only from `run_avx512`.
-                    *gm = unsafe {
-                        super::avx512::update_group::<R>(wg, &d.uw, m, sign, sd, dg, sg, det)
-                    };
-                    continue;
-                }
                 let dr = update_group::<R, FMA, W, 0>(wg, &d.uw, m, sign, sd, dg);
                 dets_group::<R, W, 0>(&dr, sg, det);
                 if W < L {
