@@ -53,10 +53,14 @@ impl SerialFit for PointProblem {
             idx.iter().map(|&i| inp.meas[i].clone()).collect(),
             Some(inp.start_torques(idx)),
         )?;
-        Ok(match inp.point_start() {
-            Some(start) => p.with_start(start, idx.to_vec()),
-            None => p,
-        })
+        // A strict subset reads its start from the rows of all measurements (the whole set
+        // gains nothing from them).
+        Ok(
+            match inp.point_start().filter(|_| idx.len() < inp.meas.len()) {
+                Some(start) => p.with_start(start, idx.to_vec()),
+                None => p,
+            },
+        )
     }
     fn start(&self) -> Vec<f64> {
         self.initial()
