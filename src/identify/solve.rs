@@ -316,7 +316,7 @@ pub fn solve_with(
     // The tall Jacobian is reduced once: rank and dependencies work on its R factor (the
     // one the rank detection computes of a tall matrix itself), the spectra of the plans
     // on R from the crossover on and on the Jacobian below it (their arithmetic as before).
-    // Rows that only fix a gauge are left out of the rank detection. A small dense
+    // Rows that only fix a gauge are left out of the rank detection; a small dense
     // Jacobian is its own rows for the plans, so with gauge rows the R factor of all rows
     // is not needed (`rq0` None): one factorisation of the start, not two.
     let data_rows = n.saturating_sub(problem.gauge_rows());

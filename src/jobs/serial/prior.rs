@@ -55,12 +55,13 @@ impl SerialFit for PointProblem {
         )?;
         // A strict subset reads its start from the rows of all measurements (the whole set
         // gains nothing from them).
-        Ok(
-            match inp.point_start().filter(|_| idx.len() < inp.meas.len()) {
-                Some(start) => p.with_start(start, idx.to_vec()),
-                None => p,
-            },
-        )
+        let start = (idx.len() < inp.meas.len())
+            .then(|| inp.point_start())
+            .flatten();
+        Ok(match start {
+            Some(start) => p.with_start(start, idx.to_vec()),
+            None => p,
+        })
     }
     fn start(&self) -> Vec<f64> {
         self.initial()
