@@ -7,7 +7,7 @@ pub use crate::identify::prior::{CV_FOLDS, PriorWeight};
 use crate::identify::prior::{CV_WEIGHTS, Prior, PriorReport, choose_weight_grouped, solve_map};
 use crate::identify::{IdentifyError, Problem, Solution, SolveOptions, Unknown, solve};
 use crate::measure::distance::distance_errors;
-use crate::measure::{DistanceProblem, PointProblem, Target};
+use crate::measure::{DistanceProblem, PointProblem};
 use crate::run::JobError;
 use crate::util::{Monitor, NoMonitor, SubMonitor};
 
@@ -80,10 +80,7 @@ impl SerialFit for PointProblem {
             .iter()
             .map(|&i| {
                 let m = &inp.meas[i];
-                let target = match m.target {
-                    Target::Point(q) => q,
-                    Target::Ball(b) => centres[b],
-                };
+                let target = m.target_point(&centres);
                 let tau = inp.model.chain.static_torques(&m.q);
                 (chain.tcp(&m.q, Some(&tau)).p - target).norm_squared()
             })

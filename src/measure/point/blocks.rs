@@ -4,7 +4,7 @@
 
 use nalgebra::{DMatrix, Vector3};
 
-use super::{PointProblem, Target, memo_parts};
+use super::{PointProblem, memo_parts};
 use crate::identify::Problem;
 use crate::model::chain::JacobianScratch;
 use crate::model::trig::TrigMemo;
@@ -96,10 +96,7 @@ impl PointProblem {
                             _ => None,
                         };
                         self.chain_rows(chain, i, &mut buf, &mut scratch, memo_i);
-                        let ball = match m.target {
-                            Target::Ball(b) => self.free_slot(b),
-                            Target::Point(_) => None,
-                        };
+                        let ball = self.ball_slot(m);
                         // The rows a0..a1 of this measurement's three within lo..hi.
                         let (a0, a1) = (lo.max(3 * i) - 3 * i, hi.min(3 * i + 3) - 3 * i);
                         let at_row = 3 * i + a0 - lo;

@@ -37,6 +37,16 @@ pub struct PointMeasurement {
     pub target: Target,
 }
 
+impl PointMeasurement {
+    /// Where the TCP was: the point, or the centre of its ball among `centres`.
+    pub fn target_point(&self, centres: &[Vector3<f64>]) -> Vector3<f64> {
+        match self.target {
+            Target::Ball(b) => centres[b],
+            Target::Point(p) => p,
+        }
+    }
+}
+
 /// The unknowns of the chain parameters `ids`: name, file unit, nominal and plausible range.
 pub(crate) fn chain_unknowns(c: &Chain, ids: &[ParamId]) -> Vec<Unknown> {
     ids.iter()
@@ -327,6 +337,15 @@ impl PointProblem {
             .position(|&b| b == ball)
             .map(|k| self.ids.len() + 3 * k)
     }
+
+    /// The first unknown of the ball centre measurement `m` was taken on, when that centre
+    /// is unknown (its three columns hold -1 in the measurement's rows).
+    fn ball_slot(&self, m: &PointMeasurement) -> Option<usize> {
+        match m.target {
+            Target::Ball(b) => self.free_slot(b),
+            Target::Point(_) => None,
+        }
+    }
 }
 
 /// Static torques of every configuration with `chain` (compliance off), on every core for
@@ -417,11 +436,7 @@ impl Problem for PointProblem {
         if let Some((start, rows)) = self.start_at(x) {
             let centres = self.centres(x);
             for (k, m) in self.meas.iter().enumerate() {
-                let target = match m.target {
-                    Target::Ball(b) => centres[b],
-                    Target::Point(p) => p,
-                };
-                let e = start.tcp(rows[k]) - target;
+                let e = start.tcp(rows[k]) - m.target_point(&centres);
                 r[3 * k..3 * k + 3].copy_from_slice(e.as_slice());
             }
             self.distance_rows(&centres, r);
@@ -455,10 +470,7 @@ impl Problem for PointProblem {
             let fill = |(range, out, mut memo): Part<'_>| {
                 for (row, i) in range.clone().enumerate() {
                     let (m, tau) = (&self.meas[i], &self.tau[i]);
-                    let target = match m.target {
-                        Target::Ball(k) => centres[k],
-                        Target::Point(p) => p,
-                    };
+                    let target = m.target_point(&centres);
                     let frame = match memo.as_deref_mut() {
                         Some(mm) => {
                             chain.tcp_memo(&m.q, Some(tau), &mut mm[nj * row..nj * (row + 1)])
@@ -604,12 +616,10 @@ impl PointProblem {
                             }
                         }
                     }
-                    if let Target::Ball(b) = m.target {
-                        if let Some(o) = self.free_slot(b) {
-                            for a in 0..3 {
-                                if let Some(oc) = at[o + a] {
-                                    out[oc][3 * row + a] = -1.0;
-                                }
+                    if let Some(o) = self.ball_slot(m) {
+                        for a in 0..3 {
+                            if let Some(oc) = at[o + a] {
+                                out[oc][3 * row + a] = -1.0;
                             }
                         }
                     }
@@ -628,11 +638,7 @@ impl PointProblem {
         at: &[Option<usize>],
         j: &mut DMatrix<f64>,
     ) {
-        let slot = match m.target {
-            Target::Ball(b) => self.free_slot(b),
-            Target::Point(_) => None,
-        };
-        if let Some(o) = slot {
+        if let Some(o) = self.ball_slot(m) {
             for a in 0..3 {
                 if let Some(oc) = at[o + a] {
                     j[(3 * k + a, oc)] = -1.0;
