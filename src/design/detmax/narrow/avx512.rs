@@ -109,14 +109,18 @@ pub(super) unsafe fn update_groups<const R: usize>(
     let mut g0 = 0;
     while g0 < gmax.len() {
         let n = CHUNK.min(gmax.len() - g0);
-        let mut sums = [[[_mm256_setzero_ps(); R]; R]; CHUNK];
+        // Written once each, only the chunk's groups (a zeroed array first would be a
+        // memset per chunk).
+        let mut sums = [std::mem::MaybeUninit::<[[__m256; R]; R]>::uninit(); CHUNK];
         for (k, s) in sums.iter_mut().take(n).enumerate() {
             let g = g0 + k;
             // SAFETY: the caller's CPU has AVX-512F and FMA.
-            *s = unsafe { f_sums::<R>(&w[g * wl..(g + 1) * wl], uw, m) };
+            s.write(unsafe { f_sums::<R>(&w[g * wl..(g + 1) * wl], uw, m) });
         }
         for (k, s) in sums.iter().take(n).enumerate() {
             let g = g0 + k;
+            // SAFETY: the first n were written above.
+            let s = unsafe { s.assume_init_ref() };
             let sd = src.map(|x| &x[g * t..(g + 1) * t]);
             let (dg, sg) = (&mut d[g * t..(g + 1) * t], &sgn[g * L..(g + 1) * L]);
             // SAFETY: as above.
@@ -360,18 +364,19 @@ pub(super) unsafe fn p_update<const R: usize>(
 #[inline]
 unsafe fn add_rows<const R: usize>(row: &mut [f64], f: &[f64; R], rows: &[f64], ps: usize) {
     let fv: [__m512d; R] = std::array::from_fn(|y| _mm512_set1_pd(f[y]));
-    let rows = &rows[..R * ps];
-    for (jb, blk) in row[..ps].chunks_exact_mut(L).enumerate() {
-        // SAFETY: `blk` holds eight f64.
-        let mut v = unsafe { _mm512_loadu_pd(blk.as_ptr()) };
-        for (y, &fy) in fv.iter().enumerate() {
-            let at = &rows[y * ps + jb * L..y * ps + (jb + 1) * L];
-            // SAFETY: `at` holds eight f64.
-            let b = unsafe { _mm512_loadu_pd(at.as_ptr()) };
-            v = _mm512_fmadd_pd(fy, b, v);
+    assert!(ps % L == 0, "rows are padded to whole vectors");
+    let (row, rows) = (&mut row[..ps], &rows[..R * ps]);
+    // Offsets checked once here, not per block: block jb of row y is at y ps + 8 jb.
+    for jb in (0..ps).step_by(L) {
+        // SAFETY: jb + 8 <= ps = the row's length, and y ps + jb + 8 <= R ps.
+        unsafe {
+            let mut v = _mm512_loadu_pd(row.as_ptr().add(jb));
+            for (y, &fy) in fv.iter().enumerate() {
+                let b = _mm512_loadu_pd(rows.as_ptr().add(y * ps + jb));
+                v = _mm512_fmadd_pd(fy, b, v);
+            }
+            _mm512_storeu_pd(row.as_mut_ptr().add(jb), v);
         }
-        // SAFETY: as above.
-        unsafe { _mm512_storeu_pd(blk.as_mut_ptr(), v) };
     }
 }
 

@@ -192,17 +192,22 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
             // (L0^T U)^T = U^T L0, eight columns at a time in registers (L0 is lower
             // triangular: rows above a block are zero there), rounded once to single
             // precision.
-            let l0 = &d.lp.l0;
-            for (wy, uty) in d.wt.chunks_exact_mut(ps).zip(d.ut.chunks_exact(ps)) {
-                for j in (0..ps).step_by(L) {
-                    let mut acc = [0.0; L];
-                    for k in j..m {
-                        let (f, lrow) = (uty[k], &l0[k * ps + j..k * ps + j + L]);
+            // The R rows' sums of a block side by side: R independent chains per row of L0.
+            let l0 = &d.lp.l0[..m * ps];
+            let uts: [&[f64]; R] = std::array::from_fn(|y| &d.ut[y * ps..y * ps + m]);
+            for j in (0..ps).step_by(L) {
+                let mut acc = [[0.0; L]; R];
+                for (k, lrow) in l0.chunks_exact(ps).enumerate().skip(j) {
+                    let lb = &lrow[j..j + L];
+                    for (ay, uty) in acc.iter_mut().zip(&uts) {
+                        let f = uty[k];
                         for l in 0..L {
-                            acc[l] = madd::<FMA>(f, lrow[l], acc[l]);
+                            ay[l] = madd::<FMA>(f, lb[l], ay[l]);
                         }
                     }
-                    wy[j..j + L].copy_from_slice(&acc);
+                }
+                for (y, ay) in acc.iter().enumerate() {
+                    d.wt[y * ps + j..y * ps + j + L].copy_from_slice(ay);
                 }
             }
             // S^-1 = L^-T L^-1 (L the Cholesky factor of S), so E S^-1 E^T = F F^T with
