@@ -35,6 +35,9 @@ pub(super) struct LanePool {
     m: usize,
     n: usize,
     b: Vec<f64>,
+    /// The same blocks one after another, each row-major with rows [`LanePool::stride`]
+    /// apart: what a toggle reads of its candidate (one slice, not a gather from the lanes).
+    rows: Vec<f64>,
     w: Vec<f32>,
     /// L0 (row-major m x m, lower triangular, rows [`LanePool::stride`] apart).
     l0: Vec<f64>,
@@ -62,11 +65,21 @@ impl LanePool {
                 }
             }
         }
+        let ps = m.next_multiple_of(L);
+        let mut rows = vec![0.0; n * r * ps];
+        for (i, bi) in rows.chunks_exact_mut(r * ps).enumerate() {
+            for (x, row) in bi.chunks_exact_mut(ps).enumerate() {
+                for (c, v) in row[..m].iter_mut().enumerate() {
+                    *v = block(i, x, c);
+                }
+            }
+        }
         let mut lp = Self {
             r,
             m,
             n,
             b,
+            rows,
             w: Vec::new(),
             l0: Vec::new(),
         };
@@ -129,14 +142,10 @@ impl LanePool {
         self.m.next_multiple_of(L)
     }
 
-    /// Candidate i's block into `out` (r x m, row-major, rows [`LanePool::stride`] apart).
-    fn block_into(&self, i: usize, out: &mut [f64]) {
-        let s = self.stride();
-        for y in 0..self.r {
-            for k in 0..self.m {
-                out[y * s + k] = self.at(i, y, k);
-            }
-        }
+    /// Candidate i's block (r x m, row-major, rows [`LanePool::stride`] apart).
+    fn block(&self, i: usize) -> &[f64] {
+        let t = self.r * self.stride();
+        &self.rows[i * t..(i + 1) * t]
     }
 }
 
@@ -229,9 +238,7 @@ pub(super) struct Design<'a> {
     /// Per group, the largest det of its outside candidates and of its members (-inf: none),
     /// kept by the passes, so a greedy scan reads one number per group.
     gmax: Vec<[f64; 2]>,
-    /// Scratch of a toggle: B_a (r x m, row-major) and U^T = B_a P (r x m), rows a stride
-    /// apart.
-    ba: Vec<f64>,
+    /// Scratch of a toggle: U^T = B_a P (r x m, row-major), rows a stride apart.
     ut: Vec<f64>,
     /// U^T L0 (r x m, rows a stride apart), U = P B_a^T.
     wt: Vec<f64>,
@@ -256,7 +263,6 @@ impl Clone for Design<'_> {
             dets: self.dets.clone(),
             sgn: self.sgn.clone(),
             gmax: self.gmax.clone(),
-            ba: self.ba.clone(),
             ut: self.ut.clone(),
             wt: self.wt.clone(),
             uw: self.uw.clone(),
@@ -298,7 +304,6 @@ impl<'a> Design<'a> {
             dets: vec![0.0; lp.n.div_ceil(L) * L],
             sgn: vec![0.0; lp.n.div_ceil(L) * L],
             gmax: vec![[f64::NEG_INFINITY; 2]; lp.n.div_ceil(L)],
-            ba: vec![0.0; s * r],
             ut: vec![0.0; s * r],
             wt: vec![0.0; s * r],
             uw: vec![0.0; m * r],

@@ -156,26 +156,25 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
         }
         Kernel::Info => {
             // M' = M + sign B_a^T B_a, toggle by toggle in the order they were made.
+            let lp = d.lp;
             for &(a, sign) in &d.info_pending {
-                d.lp.block_into(a, &mut d.ba);
+                let ba = lp.block(a);
                 #[cfg(target_arch = "x86_64")]
                 if W == L {
                     // SAFETY: whole vectors only from `run_avx512`.
-                    unsafe { super::avx512::info_update::<R>(&mut d.info, &d.ba, sign, m, ps) };
+                    unsafe { super::avx512::info_update::<R>(&mut d.info, ba, sign, m, ps) };
                     continue;
                 }
-                info_update::<R, FMA>(&mut d.info, &d.ba, sign, m, ps);
+                info_update::<R, FMA>(&mut d.info, ba, sign, m, ps);
             }
             d.info_pending.clear();
         }
         Kernel::Exact { a } => {
-            d.lp.block_into(a, &mut d.ba);
-            let e = exact_at::<R, FMA, W>(d);
+            let e = exact_at::<R, FMA, W>(d, a);
             d.exact.copy_from_slice(&e);
         }
         Kernel::Update { a, sign, src } => {
-            d.lp.block_into(a, &mut d.ba);
-            let mut block = exact_at::<R, FMA, W>(d);
+            let mut block = exact_at::<R, FMA, W>(d, a);
             for x in 0..R {
                 block[x * R + x] = sign * block[x * R + x] + 1.0;
                 for y in (0..R).filter(|&y| y != x) {
@@ -282,17 +281,21 @@ fn info_update<const R: usize, const FMA: bool>(
     }
 }
 
-/// U^T = B_a P into the design's `ut` (B_a in `ba`), then D_a = U^T B_a^T, candidate a's D
-/// in double precision from P as it is (row-major R x R), in AVX-512 registers when called
-/// from `run_avx512`.
+/// U^T = B_a P into the design's `ut`, then D_a = U^T B_a^T, candidate a's D in double
+/// precision from P as it is (row-major R x R), in AVX-512 registers when called from
+/// `run_avx512`.
 #[inline(always)]
-fn exact_at<const R: usize, const FMA: bool, const W: usize>(d: &mut Design<'_>) -> [f64; 36] {
-    ut_at::<R, FMA, W>(d);
+fn exact_at<const R: usize, const FMA: bool, const W: usize>(
+    d: &mut Design<'_>,
+    a: usize,
+) -> [f64; 36] {
+    let ba = d.lp.block(a);
+    ut_at::<R, FMA, W>(d, ba);
     let ps = d.lp.stride();
     let mut out = [0.0; 36];
     for x in 0..R {
         for y in 0..R {
-            let (a, b) = (&d.ut[x * ps..(x + 1) * ps], &d.ba[y * ps..(y + 1) * ps]);
+            let (a, b) = (&d.ut[x * ps..(x + 1) * ps], &ba[y * ps..(y + 1) * ps]);
             out[x * R + y] = dot8::<FMA>(a, b);
         }
     }
@@ -302,15 +305,15 @@ fn exact_at<const R: usize, const FMA: bool, const W: usize>(d: &mut Design<'_>)
 /// [`ut_of`] of the design's P and B_a into its `ut`, in AVX-512 registers when called from
 /// `run_avx512`.
 #[inline(always)]
-fn ut_at<const R: usize, const FMA: bool, const W: usize>(d: &mut Design<'_>) {
+fn ut_at<const R: usize, const FMA: bool, const W: usize>(d: &mut Design<'_>, ba: &[f64]) {
     let (m, ps) = (d.lp.m, d.lp.stride());
     #[cfg(target_arch = "x86_64")]
     if W == L {
         // SAFETY: whole vectors only from `run_avx512`.
-        unsafe { super::avx512::ut_of::<R>(&d.p, &mut d.ut, &d.ba, m, ps) };
+        unsafe { super::avx512::ut_of::<R>(&d.p, &mut d.ut, ba, m, ps) };
         return;
     }
-    ut_of::<R, FMA>(&d.p, &mut d.ut, &d.ba, m, ps);
+    ut_of::<R, FMA>(&d.p, &mut d.ut, ba, m, ps);
 }
 
 /// The dot product of two padded rows (length a multiple of eight) in eight lanes, summed
