@@ -246,6 +246,10 @@ pub(super) struct Design<'a> {
     uw: Vec<f32>,
     /// D of the candidate [`Design::exact_change`] asked for (row-major r x r).
     exact: Vec<f64>,
+    /// The candidate whose U^T (`ut`) and D (`exact`) an exact change left from P as it is
+    /// now (None once P changes): a toggle of it, the commit of a peeked step, reads them
+    /// instead of forming them again.
+    exact_of: Option<usize>,
     pub(super) updates: usize,
 }
 
@@ -267,6 +271,7 @@ impl Clone for Design<'_> {
             wt: self.wt.clone(),
             uw: self.uw.clone(),
             exact: self.exact.clone(),
+            exact_of: self.exact_of,
             updates: self.updates,
         }
     }
@@ -308,6 +313,7 @@ impl<'a> Design<'a> {
             wt: vec![0.0; s * r],
             uw: vec![0.0; m * r],
             exact: vec![0.0; 36],
+            exact_of: None,
             updates: 0,
         };
         d.rebuild(pool, ridge)?;
@@ -329,6 +335,7 @@ impl<'a> Design<'a> {
         self.log_det = f.log_det();
         let (p, li) = f.inverse_and_lower();
         self.p = padded(&p, m, s);
+        self.exact_of = None;
         // D_i = B_i P B_i^T = V_i^T V_i with V_i = L^-1 B_i^T: half the products of B P B^T.
         let li = padded(&li, m, s);
         let kernel = Kernel::Rebuild { li: &li };
@@ -413,6 +420,7 @@ impl<'a> Design<'a> {
         self.member.clone_from(&src.member);
         self.log_det = src.log_det;
         self.p.clone_from(&src.p);
+        self.exact_of = None;
         self.info_from(src);
         self.info_pending.clone_from(&src.info_pending);
         self.sgn.clone_from(&src.sgn);

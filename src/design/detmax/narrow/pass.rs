@@ -172,9 +172,17 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
         Kernel::Exact { a } => {
             let e = exact_at::<R, FMA, W>(d, a);
             d.exact.copy_from_slice(&e);
+            d.exact_of = Some(a);
         }
         Kernel::Update { a, sign, src } => {
-            let mut block = exact_at::<R, FMA, W>(d, a);
+            // U^T and D_a as an exact change of `a` left them from this P, else afresh.
+            let mut block = [0.0; 36];
+            if d.exact_of == Some(a) {
+                block[..R * R].copy_from_slice(&d.exact[..R * R]);
+            } else {
+                block = exact_at::<R, FMA, W>(d, a);
+            }
+            d.exact_of = None;
             for x in 0..R {
                 block[x * R + x] = sign * block[x * R + x] + 1.0;
                 for y in (0..R).filter(|&y| y != x) {
