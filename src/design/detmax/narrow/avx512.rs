@@ -6,8 +6,9 @@
 use std::arch::x86_64::{
     __m256, __m512d, _CMP_GT_OQ, _CMP_LT_OQ, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_set1_ps,
     _mm256_setzero_ps, _mm512_add_pd, _mm512_cmp_pd_mask, _mm512_cvtps_pd, _mm512_fmadd_pd,
-    _mm512_fnmadd_pd, _mm512_loadu_pd, _mm512_mask_blend_pd, _mm512_maskz_mov_pd, _mm512_mul_pd,
-    _mm512_reduce_max_pd, _mm512_set1_pd, _mm512_setzero_pd, _mm512_storeu_pd, _mm512_sub_pd,
+    _mm512_fnmadd_pd, _mm512_loadu_pd, _mm512_mask_blend_pd, _mm512_maskz_mov_pd, _mm512_max_pd,
+    _mm512_mul_pd, _mm512_permute_pd, _mm512_set1_pd, _mm512_setzero_pd, _mm512_shuffle_f64x2,
+    _mm512_storeu_pd, _mm512_sub_pd,
 };
 
 use super::pass::dets_group;
@@ -40,11 +41,12 @@ unsafe fn dets_and_max<const R: usize>(
     let v = if R == 3 {
         use _mm512_mul_pd as mul;
         let one = _mm512_set1_pd(1.0);
-        let a = _mm512_add_pd(mul(s, d[0][0]), one);
+        // s d is exact (s is +-1 or 0), so the fused s d + 1 rounds as the sum does.
+        let a = _mm512_fmadd_pd(s, d[0][0], one);
         let (b, c) = (mul(s, d[0][1]), mul(s, d[0][2]));
-        let e = _mm512_add_pd(mul(s, d[1][1]), one);
+        let e = _mm512_fmadd_pd(s, d[1][1], one);
         let f = mul(s, d[1][2]);
-        let h = _mm512_add_pd(mul(s, d[2][2]), one);
+        let h = _mm512_fmadd_pd(s, d[2][2], one);
         let m2 = _mm512_sub_pd(mul(a, e), mul(b, b));
         let t1 = mul(a, _mm512_sub_pd(mul(e, h), mul(f, f)));
         let t2 = mul(b, _mm512_sub_pd(mul(b, h), mul(f, c)));
@@ -68,14 +70,26 @@ unsafe fn dets_and_max<const R: usize>(
         // SAFETY: as above.
         unsafe { _mm512_loadu_pd(det[..L].as_ptr()) }
     };
-    // Determinants are never NaN (0 where not positive definite), so the largest is exact.
+    // Determinants are never NaN (0 where not positive definite), so the largest is exact
+    // in any order: both maxima reduced side by side, the outside ones in lanes 0-3 and
+    // the members' in lanes 4-7 of each step.
     let none = _mm512_set1_pd(f64::NEG_INFINITY);
     let outside = _mm512_cmp_pd_mask::<_CMP_GT_OQ>(s, zero);
     let member = _mm512_cmp_pd_mask::<_CMP_LT_OQ>(s, zero);
-    [
-        _mm512_reduce_max_pd(_mm512_mask_blend_pd(outside, none, v)),
-        _mm512_reduce_max_pd(_mm512_mask_blend_pd(member, none, v)),
-    ]
+    let (o, i) = (
+        _mm512_mask_blend_pd(outside, none, v),
+        _mm512_mask_blend_pd(member, none, v),
+    );
+    // [o0 o1 o2 o3 | i0 i1 i2 i3] max [o4 o5 o6 o7 | i4 i5 i6 i7]
+    let x = _mm512_max_pd(
+        _mm512_shuffle_f64x2::<0b01_00_01_00>(o, i),
+        _mm512_shuffle_f64x2::<0b11_10_11_10>(o, i),
+    );
+    // Pairs of 128-bit blocks, then neighbours within a block.
+    let x = _mm512_max_pd(x, _mm512_shuffle_f64x2::<0b10_11_00_01>(x, x));
+    let x = _mm512_max_pd(x, _mm512_permute_pd::<0b0101_0101>(x));
+    let top = lanes(x);
+    [top[0], top[4]]
 }
 
 /// Groups whose F sums are formed before any of their tails runs: a tail (a chain of
