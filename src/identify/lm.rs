@@ -297,10 +297,15 @@ pub fn levenberg_marquardt_from(
     }
     let mut cost = r.norm_squared();
     let initial_cost = cost;
+    // The Jacobian's column norms, formed once per Jacobian (the gradient test and the
+    // scaling both read them).
+    let column_norms =
+        |j: &DMatrix<f64>| -> Vec<f64> { (0..m).map(|k| j.column(k).norm()).collect() };
+    let mut norms = column_norms(&j);
     // Moré's scaling: the largest column norm seen so far.
-    let mut d: Vec<f64> = (0..m)
-        .map(|k| j.column(k).norm())
-        .map(|v| if v > 0.0 { v } else { 1.0 })
+    let mut d: Vec<f64> = norms
+        .iter()
+        .map(|&v| if v > 0.0 { v } else { 1.0 })
         .collect();
     let mut mu = 0.0;
     let mut nu = 2.0;
@@ -329,7 +334,7 @@ pub fn levenberg_marquardt_from(
         let rn = cost.sqrt();
         let gmax = free
             .iter()
-            .map(|&k| g[k].abs() / (j.column(k).norm().max(f64::MIN_POSITIVE) * rn))
+            .map(|&k| g[k].abs() / (norms[k].max(f64::MIN_POSITIVE) * rn))
             .fold(0.0, f64::max);
         if gmax <= opts.gtol {
             stop = StopReason::SmallGradient;
@@ -382,8 +387,9 @@ pub fn levenberg_marquardt_from(
                 std::mem::swap(&mut r, &mut r_new);
                 cost = cost_new;
                 problem.jacobian(&x, &mut j)?;
+                norms = column_norms(&j);
                 for k in 0..m {
-                    d[k] = d[k].max(j.column(k).norm());
+                    d[k] = d[k].max(norms[k]);
                 }
                 mu *= damping_decrease(rho, opts.nearly_linear);
                 nu = 2.0;
