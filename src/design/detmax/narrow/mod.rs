@@ -132,8 +132,7 @@ impl LanePool {
 
     /// Entry (x, c) of candidate i's block.
     fn at(&self, i: usize, x: usize, c: usize) -> f64 {
-        let (g, l) = (i / L, i % L);
-        self.b[((g * self.m + c) * self.r + x) * L + l]
+        self.block(i)[x * self.stride() + c]
     }
 
     /// The row stride of the design's m-wide matrices: m rounded up to whole vectors, the
@@ -245,7 +244,7 @@ pub(super) struct Design<'a> {
     /// L0^T U in single precision (m x r, row-major): what the whitened blocks multiply.
     uw: Vec<f32>,
     /// D of the candidate [`Design::exact_change`] asked for (row-major r x r).
-    exact: Vec<f64>,
+    exact: [f64; 36],
     /// The candidate whose U^T (`ut`) and D (`exact`) an exact change left from P as it is
     /// now (None once P changes): a toggle of it, the commit of a peeked step, reads them
     /// instead of forming them again.
@@ -270,7 +269,7 @@ impl Clone for Design<'_> {
             ut: self.ut.clone(),
             wt: self.wt.clone(),
             uw: self.uw.clone(),
-            exact: self.exact.clone(),
+            exact: self.exact,
             exact_of: self.exact_of,
             updates: self.updates,
         }
@@ -312,7 +311,7 @@ impl<'a> Design<'a> {
             ut: vec![0.0; s * r],
             wt: vec![0.0; s * r],
             uw: vec![0.0; m * r],
-            exact: vec![0.0; 36],
+            exact: [0.0; 36],
             exact_of: None,
             updates: 0,
         };

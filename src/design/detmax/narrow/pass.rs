@@ -170,19 +170,16 @@ fn run<const R: usize, const FMA: bool, const W: usize>(
             d.info_pending.clear();
         }
         Kernel::Exact { a } => {
-            let e = exact_at::<R, FMA, W>(d, a);
-            d.exact.copy_from_slice(&e);
+            d.exact = exact_at::<R, FMA, W>(d, a);
             d.exact_of = Some(a);
         }
         Kernel::Update { a, sign, src } => {
-            // U^T and D_a as an exact change of `a` left them from this P, else afresh.
-            let mut block = [0.0; 36];
-            if d.exact_of == Some(a) {
-                block[..R * R].copy_from_slice(&d.exact[..R * R]);
-            } else {
-                block = exact_at::<R, FMA, W>(d, a);
-            }
-            d.exact_of = None;
+            // U^T and D_a as an exact change of `a` left them from this P, else afresh (P
+            // changes below either way).
+            let mut block = match d.exact_of.take() {
+                Some(e) if e == a => d.exact,
+                _ => exact_at::<R, FMA, W>(d, a),
+            };
             for x in 0..R {
                 block[x * R + x] = sign * block[x * R + x] + 1.0;
                 for y in (0..R).filter(|&y| y != x) {
