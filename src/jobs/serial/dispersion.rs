@@ -126,6 +126,10 @@ impl Memo {
     }
 }
 
+/// Progress reports per study at most (one per identification would wake the job's
+/// runtime 2,007 times).
+const PROGRESS_STEPS: usize = 200;
+
 /// The study as a library call: results per (size, repetition), in order.
 fn study(
     inp: &IdentifyInputs,
@@ -204,8 +208,12 @@ fn study(
                     if let Ok(mut v) = results.lock() {
                         v[t] = run;
                     }
+                    // Progress in steps of 1/200 (each report wakes the job's runtime:
+                    // one per identification cost ~2 % of the study).
                     let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                    monitor.progress(d as f64 / tasks.len() as f64, "identifications");
+                    if d * PROGRESS_STEPS / tasks.len() != (d - 1) * PROGRESS_STEPS / tasks.len() {
+                        monitor.progress(d as f64 / tasks.len() as f64, "identifications");
+                    }
                 }
             });
         }
