@@ -83,7 +83,7 @@ pub fn r_factor(j: &DMatrix<f64>) -> DMatrix<f64> {
 pub fn r_factor_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
     let faer = backend.faer(j.nrows() >= QR_FAER_MIN_ROWS);
     if !faer || j.ncols() == 0 || j.nrows() == 0 {
-        return j.clone().qr().r();
+        return super::householder::qr_r(j);
     }
     let (n, m) = j.shape();
     let ranges = row_ranges(n, threads_for(n * m));

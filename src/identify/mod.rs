@@ -16,6 +16,7 @@ pub mod duplicates;
 pub mod extrapolation;
 pub mod gauge;
 pub mod gauge_orbit;
+mod householder;
 mod lean;
 pub mod lm;
 mod lm_blocked;
