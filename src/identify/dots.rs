@@ -35,6 +35,13 @@ pub(crate) fn dots(cols: &[&[f64]], b: &[f64], out: &mut [f64]) {
     }
 }
 
+/// `|a|^2` bit for bit as nalgebra's `norm_squared` of a vector forms it (`0 + a . a`).
+pub(crate) fn norm_squared(a: &[f64]) -> f64 {
+    let mut out = [0.0];
+    dots(&[a], a, &mut out);
+    0.0 + out[0]
+}
+
 #[cfg(target_arch = "x86_64")]
 mod avx {
     use std::arch::x86_64::{
@@ -137,6 +144,8 @@ mod tests {
                 for (k, c) in cols.iter().enumerate() {
                     let expect = DVector::from_vec(c.clone()).dot(&DVector::from_vec(b.clone()));
                     assert_eq!(out[k].to_bits(), expect.to_bits(), "n {n} column {k}");
+                    let v = DVector::from_vec(c.clone());
+                    assert_eq!(norm_squared(c).to_bits(), v.norm_squared().to_bits());
                     let mut one = [0.0];
                     dots_generic::<1>([c], &b, &mut one);
                     assert_eq!(one[0].to_bits(), expect.to_bits(), "n {n} column {k}");
