@@ -32,8 +32,10 @@ pub struct DetmaxOptions {
     /// Largest excursion size tried before stopping.
     pub max_excursion: usize,
     /// Record the search's path in [`Selection::history`] (one exact determinant per
-    /// improving excursion) and the start's determinant; off, the history is empty and
-    /// [`Selection::log_det_start`] is NaN (a study that only wants the set).
+    /// improving excursion) and the start's determinant; off, the history is empty,
+    /// [`Selection::log_det_start`] is NaN and [`Selection::log_det`] is the value the search
+    /// tracked (log det(J^T J + ridge I), within ~1e-6 relative of the exact one, with no
+    /// factorisation at the end): for a study that only wants the set.
     pub path: bool,
 }
 
@@ -374,12 +376,13 @@ pub fn detmax(
         }
     }
     let selected = design.selected();
-    // With the path, from the members afresh (the last step's); else from the design's
-    // information matrix (the same sum, kept by toggles).
+    // With the path, from the members afresh (the last step's); else the tracked value (an
+    // exact one costs a factorisation per search; 0.5-0.9 % of a dispersion study, which
+    // only keeps the set).
     let log_det = if opts.path {
         pool.log_det(&selected)
     } else {
-        design.exact_log_det(pool, None)
+        design.log_det()
     };
     // The last step is the selection: its determinant computed afresh.
     if let Some(last) = history.last_mut() {

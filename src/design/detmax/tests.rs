@@ -424,10 +424,11 @@ fn every_kernel_width_picks_the_same_set() {
         );
         let quiet = quiet.unwrap();
         assert_eq!(quiet.selected, wide.selected, "{what}");
-        // Its determinant comes from the design's information matrix, kept by toggles, not
-        // from the members afresh: the same sum to rounding.
+        // Its determinant is the one the search tracked (with the ridge, after the toggles
+        // since the last rebuild), not the members' afresh: 5e-12 to 4e-11 relative apart
+        // here (the search bounds the drift at 1e-6).
         assert!(
-            (quiet.log_det - wide.log_det).abs() < 1e-12 * wide.log_det.abs().max(1.0),
+            (quiet.log_det - wide.log_det).abs() < 1e-9 * wide.log_det.abs().max(1.0),
             "{what}: {} vs {}",
             quiet.log_det,
             wide.log_det
