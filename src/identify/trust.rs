@@ -31,9 +31,41 @@ pub fn physical_scales(unknowns: &[Unknown]) -> Vec<f64> {
 /// Effect size of each column: the largest absolute change of any residual caused by a
 /// move of the unknown by its scale (`max_i |J_ik| * scale_k`, residual units).
 pub fn effect_sizes(j: &DMatrix<f64>, scale: &[f64]) -> Vec<f64> {
+    let n = j.nrows();
     (0..j.ncols())
-        .map(|k| j.column(k).amax() * scale.get(k).copied().unwrap_or(1.0))
+        .map(|k| amax(&j.as_slice()[k * n..(k + 1) * n]) * scale.get(k).copied().unwrap_or(1.0))
         .collect()
+}
+
+/// nalgebra's `amax` (a fold of `if m >= |x| { m } else { |x| }` from the first |x|; 0 when
+/// empty), bit for bit: without NaN it is the largest of non-negative values, the same in
+/// any order, so eight running maxima (independent chains, vectorised) replace the one
+/// fold; with a NaN (which resets that fold) it is the fold itself.
+pub(crate) fn amax(v: &[f64]) -> f64 {
+    let Some(first) = v.first() else {
+        return 0.0;
+    };
+    let mut acc = [0.0_f64; 8];
+    let mut nan = false;
+    let mut chunks = v.chunks_exact(8);
+    for c in &mut chunks {
+        for (a, x) in acc.iter_mut().zip(c) {
+            let x = x.abs();
+            nan |= x.is_nan();
+            *a = if *a >= x { *a } else { x };
+        }
+    }
+    for (a, x) in acc.iter_mut().zip(chunks.remainder()) {
+        let x = x.abs();
+        nan |= x.is_nan();
+        *a = if *a >= x { *a } else { x };
+    }
+    if nan {
+        return v[1..]
+            .iter()
+            .fold(first.abs(), |m, x| if m >= x.abs() { m } else { x.abs() });
+    }
+    acc.iter().fold(0.0, |m, &a| if m >= a { m } else { a })
 }
 
 /// Whether an unknown is an angle (unit `deg` or `rad`), for the half-turn check.
@@ -313,5 +345,32 @@ mod tests {
         let ratio = v[0] / v[1];
         assert!((ratio + 0.5).abs() < 1e-6, "{v:?}");
         assert!(s.condition_number > 1e5);
+    }
+}
+
+#[cfg(test)]
+mod amax_tests {
+    use super::amax;
+    use nalgebra::DVector;
+
+    /// Every length to 40, mixed signs and scales, NaN here and there, all NaN: nalgebra's
+    /// value bit for bit.
+    #[test]
+    fn amax_equals_nalgebra() {
+        for n in 0..=40 {
+            let mut v: Vec<f64> = (0..n)
+                .map(|i| ((i * 7919 % 101) as f64 - 50.0) * 10f64.powi((i % 7) as i32 - 3))
+                .collect();
+            let want = DVector::from_vec(v.clone()).amax();
+            assert_eq!(amax(&v).to_bits(), want.to_bits(), "{n}");
+            if n > 2 {
+                v[n / 2] = f64::NAN;
+                v[0] = -0.0;
+                let want = DVector::from_vec(v.clone()).amax();
+                assert_eq!(amax(&v).to_bits(), want.to_bits(), "{n} with NaN");
+                let nan = vec![f64::NAN; n];
+                assert!(amax(&nan).is_nan() && DVector::from_vec(nan).amax().is_nan());
+            }
+        }
     }
 }
