@@ -209,7 +209,7 @@ fn study(
                         v[t] = run;
                     }
                     // Progress in steps of 1/200 (each report wakes the job's runtime:
-                    // one per identification cost ~2 % of the study).
+                    // one per identification cost ~1.5 % of the study).
                     let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                     if d * PROGRESS_STEPS / tasks.len() != (d - 1) * PROGRESS_STEPS / tasks.len() {
                         monitor.progress(d as f64 / tasks.len() as f64, "identifications");
