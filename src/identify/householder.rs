@@ -4,6 +4,7 @@
 //! matrix's Q part kept. The rank detection of every small identification reduces its
 //! start Jacobian this way, so the same bits keep every decision it makes.
 
+use super::dots::norm_squared;
 use nalgebra::DMatrix;
 
 /// nalgebra's `j.clone().qr().r()`, the same value bit for bit: `min(rows, cols)` x `cols`,
@@ -76,7 +77,7 @@ fn qr_r_in(j: &DMatrix<f64>) -> DMatrix<f64> {
 /// column's signed norm and whether there is a reflection.
 #[inline(always)]
 fn reflection_axis(col: &mut [f64]) -> (f64, bool) {
-    let sq = dot(col, col);
+    let sq = norm_squared(col);
     let norm = sq.sqrt();
     // simba's `to_exp` of a real: (|x|, sign) with +0 taken as positive.
     let (modulus, sign) = if col[0] >= 0.0 {
@@ -93,16 +94,9 @@ fn reflection_axis(col: &mut [f64]) -> (f64, bool) {
     let s = factor.sqrt();
     col.iter_mut().for_each(|e| *e /= s);
     // nalgebra normalises a second time (the norm of a nearly unit vector).
-    let n2 = dot(col, col).sqrt();
+    let n2 = norm_squared(col).sqrt();
     col.iter_mut().for_each(|e| *e /= n2);
     (-signed_norm, true)
-}
-
-/// nalgebra's `dot` of two slices (its summation order).
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut out = [0.0];
-    super::dots::dots(&[a], b, &mut out);
-    out[0]
 }
 
 #[cfg(test)]

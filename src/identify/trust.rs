@@ -40,30 +40,24 @@ pub fn effect_sizes(j: &DMatrix<f64>, scale: &[f64]) -> Vec<f64> {
 /// nalgebra's `amax` (a fold of `if m >= |x| { m } else { |x| }` from the first |x|; 0 when
 /// empty), bit for bit: without NaN it is the largest of non-negative values, the same in
 /// any order, so eight running maxima (independent chains, vectorised) replace the one
-/// fold; with a NaN (which resets that fold) it is the fold itself.
-pub(crate) fn amax(v: &[f64]) -> f64 {
-    let Some(first) = v.first() else {
-        return 0.0;
-    };
+/// fold; with a NaN (which resets that fold) nalgebra's own fold answers.
+fn amax(v: &[f64]) -> f64 {
     let mut acc = [0.0_f64; 8];
     let mut nan = false;
     let mut chunks = v.chunks_exact(8);
-    for c in &mut chunks {
-        for (a, x) in acc.iter_mut().zip(c) {
-            let x = x.abs();
-            nan |= x.is_nan();
-            *a = if *a >= x { *a } else { x };
-        }
-    }
-    for (a, x) in acc.iter_mut().zip(chunks.remainder()) {
+    let mut take = |a: &mut f64, x: &f64| {
         let x = x.abs();
         nan |= x.is_nan();
         *a = if *a >= x { *a } else { x };
+    };
+    for c in &mut chunks {
+        acc.iter_mut().zip(c).for_each(|(a, x)| take(a, x));
     }
+    acc.iter_mut()
+        .zip(chunks.remainder())
+        .for_each(|(a, x)| take(a, x));
     if nan {
-        return v[1..]
-            .iter()
-            .fold(first.abs(), |m, x| if m >= x.abs() { m } else { x.abs() });
+        return nalgebra::DVectorView::from_slice(v, v.len()).amax();
     }
     acc.iter().fold(0.0, |m, &a| if m >= a { m } else { a })
 }
@@ -346,12 +340,6 @@ mod tests {
         assert!((ratio + 0.5).abs() < 1e-6, "{v:?}");
         assert!(s.condition_number > 1e5);
     }
-}
-
-#[cfg(test)]
-mod amax_tests {
-    use super::amax;
-    use nalgebra::DVector;
 
     /// Every length to 40, mixed signs and scales, NaN here and there, all NaN: nalgebra's
     /// value bit for bit.
@@ -361,15 +349,15 @@ mod amax_tests {
             let mut v: Vec<f64> = (0..n)
                 .map(|i| ((i * 7919 % 101) as f64 - 50.0) * 10f64.powi((i % 7) as i32 - 3))
                 .collect();
-            let want = DVector::from_vec(v.clone()).amax();
+            let want = nalgebra::DVector::from_vec(v.clone()).amax();
             assert_eq!(amax(&v).to_bits(), want.to_bits(), "{n}");
             if n > 2 {
                 v[n / 2] = f64::NAN;
                 v[0] = -0.0;
-                let want = DVector::from_vec(v.clone()).amax();
+                let want = nalgebra::DVector::from_vec(v.clone()).amax();
                 assert_eq!(amax(&v).to_bits(), want.to_bits(), "{n} with NaN");
                 let nan = vec![f64::NAN; n];
-                assert!(amax(&nan).is_nan() && DVector::from_vec(nan).amax().is_nan());
+                assert!(amax(&nan).is_nan() && nalgebra::DVector::from_vec(nan).amax().is_nan());
             }
         }
     }
