@@ -182,32 +182,30 @@ fn dispersion_identifications(
         .collect();
     let mut sink = 0.0;
     let mut figs = Vec::new();
-    for (name, values_only) in [
+    // The 600 us budget is the study's, which identifies values only; the figure with
+    // standard deviations is what one `serial.identify` job pays, shown beside it.
+    for (name, values_only, target) in [
         (
             "dispersion identification (DETMAX set of 20..100 of 360), values only",
             true,
+            Some(Duration::from_micros(600)),
         ),
         (
             "dispersion identification (DETMAX set of 20..100 of 360), with std",
             false,
+            None,
         ),
     ] {
-        figs.push(time(
-            name,
-            5,
-            sets.len(),
-            Some(Duration::from_micros(600)),
-            || {
-                for set in &sets {
-                    let r = if values_only {
-                        inputs.identify_values(Some(set), &NoMonitor)
-                    } else {
-                        inputs.identify(Some(set), &NoMonitor)
-                    };
-                    sink += r.map_or(0.0, |(_, s)| s.cost_after);
-                }
-            },
-        ));
+        figs.push(time(name, 5, sets.len(), target, || {
+            for set in &sets {
+                let r = if values_only {
+                    inputs.identify_values(Some(set), &NoMonitor)
+                } else {
+                    inputs.identify(Some(set), &NoMonitor)
+                };
+                sink += r.map_or(0.0, |(_, s)| s.cost_after);
+            }
+        }));
     }
     std::hint::black_box(sink);
     figs
