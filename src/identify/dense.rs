@@ -48,27 +48,27 @@ pub const SVD_FAER_MIN_COLS: usize = 127;
 /// so that DH models (whose Norm pivoting keeps base over link-1 parameters among exact
 /// duplicates by the loop's tie rule) keep the loop.
 pub const PIVOTED_QR_FAER_MIN_COLS: usize = 64;
-/// Elements (rows x columns) from which the tall kernels split the rows over the cores.
+/// Elements (rows x columns) from which the tall kernels split the rows into
+/// [`crate::util::parts::PARTS`] parts that the cores share.
 pub const PARALLEL_MIN_ELEMENTS: usize = 1 << 20;
 /// Rows of a block in the blocked reduction: a block and the running R factor stay in
 /// cache while Householder reflections sweep them.
 pub(crate) const BLOCK_ROWS: usize = 2048;
 
-pub(crate) fn threads_for(elements: usize) -> usize {
+/// Row parts of a tall kernel over `elements` (rows x columns): one below
+/// [`PARALLEL_MIN_ELEMENTS`], else [`crate::util::parts::PARTS`], however many cores there
+/// are (so the sums over the parts are the same bits on any machine).
+pub(crate) fn parts_for(elements: usize) -> usize {
     if elements < PARALLEL_MIN_ELEMENTS {
         1
     } else {
-        std::thread::available_parallelism().map_or(1, |n| n.get())
+        crate::util::parts::PARTS
     }
 }
 
-/// Contiguous row ranges of `n` rows for `parts` workers.
+/// Contiguous row ranges of `n` rows in `parts` parts.
 pub(crate) fn row_ranges(n: usize, parts: usize) -> Vec<std::ops::Range<usize>> {
-    let chunk = n.div_ceil(parts.max(1)).max(1);
-    (0..n)
-        .step_by(chunk)
-        .map(|s| s..(s + chunk).min(n))
-        .collect()
+    crate::util::parts::ranges(n, parts)
 }
 
 /// The R factor of the QR decomposition of `j` (`min(rows, cols)` x `cols`, upper
@@ -86,24 +86,8 @@ pub fn r_factor_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
         return super::householder::qr_r(j);
     }
     let (n, m) = j.shape();
-    let ranges = row_ranges(n, threads_for(n * m));
-    let parts: Vec<DMatrix<f64>> = if ranges.len() == 1 {
-        vec![reduce_rows(j, 0..n)]
-    } else {
-        std::thread::scope(|s| {
-            let handles: Vec<_> = ranges
-                .iter()
-                .map(|r| {
-                    let r = r.clone();
-                    s.spawn(move || reduce_rows(j, r))
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
-                .collect()
-        })
-    };
+    let ranges = row_ranges(n, parts_for(n * m));
+    let parts = crate::util::parts::map(ranges, &|r| reduce_rows(j, r));
     if parts.len() == 1 {
         return parts
             .into_iter()
@@ -250,7 +234,7 @@ pub fn gram_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
         return j.tr_mul(j);
     }
     let (n, m) = j.shape();
-    let ranges = row_ranges(n, threads_for(n * m));
+    let ranges = row_ranges(n, parts_for(n * m));
     let part = |r: std::ops::Range<usize>| {
         let view = faer::MatRef::from_column_major_slice_with_stride(
             &j.as_slice()[r.start..],
@@ -269,23 +253,7 @@ pub fn gram_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
         );
         g
     };
-    let parts: Vec<faer::Mat<f64>> = if ranges.len() <= 1 {
-        vec![part(0..n)]
-    } else {
-        std::thread::scope(|s| {
-            let handles: Vec<_> = ranges
-                .iter()
-                .map(|r| {
-                    let r = r.clone();
-                    s.spawn(move || part(r))
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
-                .collect()
-        })
-    };
+    let parts = crate::util::parts::map(ranges, &part);
     DMatrix::from_fn(m, m, |r, c| parts.iter().map(|p| p[(r, c)]).sum())
 }
 
@@ -399,6 +367,57 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// `f` on a thread allowed on one core only (`available_parallelism` then says 1).
+    fn on_one_core<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                let size = std::mem::size_of::<libc::cpu_set_t>();
+                // SAFETY: the sets are plain bit masks on this thread's stack, sized as the
+                // calls are told; pid 0 is the calling thread.
+                let ok = unsafe {
+                    let mut set: libc::cpu_set_t = std::mem::zeroed();
+                    assert_eq!(libc::sched_getaffinity(0, size, &mut set), 0);
+                    let first = (0..libc::CPU_SETSIZE as usize)
+                        .find(|&c| libc::CPU_ISSET(c, &set))
+                        .expect("this thread may run on some core");
+                    let mut one: libc::cpu_set_t = std::mem::zeroed();
+                    libc::CPU_SET(first, &mut one);
+                    libc::sched_setaffinity(0, size, &one)
+                };
+                assert_eq!(ok, 0, "sched_setaffinity");
+                assert_eq!(
+                    std::thread::available_parallelism().map(|n| n.get()).ok(),
+                    Some(1)
+                );
+                f()
+            })
+            .join()
+            .unwrap_or_else(|e| std::panic::resume_unwind(e))
+        })
+    }
+
+    /// Above the parallel threshold the rows are split into the same parts however many
+    /// cores share them, so `J^T J` and R are the same bits on one core as on all of them
+    /// (with one part per core they differed in the last bits).
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn tall_kernels_give_the_same_bits_on_one_core_as_on_all() {
+        let j = random(40_000, 31, 11);
+        assert!(parts_for(j.len()) > 1);
+        let all = (
+            gram_with(&j, Backend::Faer),
+            r_factor_with(&j, Backend::Faer),
+        );
+        let one = on_one_core(|| {
+            (
+                gram_with(&j, Backend::Faer),
+                r_factor_with(&j, Backend::Faer),
+            )
+        });
+        assert_eq!(all.0.as_slice(), one.0.as_slice(), "J^T J");
+        assert_eq!(all.1.as_slice(), one.1.as_slice(), "R");
     }
 
     /// faer's SVD gives nalgebra's singular values (relative to the largest) and the same

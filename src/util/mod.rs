@@ -3,6 +3,7 @@
 
 pub mod decimal;
 pub mod monitor;
+pub mod parts;
 pub mod rng;
 pub mod serde_num;
 pub mod stats;

@@ -1,8 +1,9 @@
 //! A tall Jacobian folded block by block ([`Problem::jacobian_blocks`]) into what large
 //! identifications need of it: the normal matrix `J^T J`, the gradient `J^T r`, the R
 //! factor, column maxima and the largest row effects of given moves, without ever holding
-//! the whole matrix (300,000 x 31 is 74 MB). Each core folds its own rows; the parts are
-//! summed (or stacked and reduced) at the end.
+//! the whole matrix (300,000 x 31 is 74 MB). The rows are split into parts the cores take
+//! in turn ([`crate::util::parts`]), each folded on its own; the parts are summed (or
+//! stacked and reduced) in order at the end.
 
 use nalgebra::{DMatrix, DVector};
 
@@ -49,7 +50,7 @@ pub(crate) struct Folded {
     pub(crate) rows: usize,
 }
 
-/// One core's accumulators.
+/// One part's accumulators.
 struct Part {
     gram: faer::Mat<f64>,
     jtr: Vec<f64>,
@@ -124,10 +125,21 @@ pub(crate) fn fold(
     let width = cols.map_or(problem.unknown_count(), <[usize]>::len);
     // The row parts of the held path's kernels (`super::dense::r_factor`): the same R.
     let n = problem.residual_count();
-    let threads = super::dense::row_ranges(n, super::dense::threads_for(n * width))
-        .len()
-        .max(1);
-    let mut parts: Vec<Part> = (0..threads).map(|_| Part::new(width, want)).collect();
+    fold_in_parts(problem, x, cols, want, super::dense::parts_for(n * width))
+}
+
+/// [`fold`] with the rows in (up to) `parts` parts.
+fn fold_in_parts(
+    problem: &dyn Problem,
+    x: &[f64],
+    cols: Option<&[usize]>,
+    want: &Want<'_>,
+    parts: usize,
+) -> Result<Option<Folded>, IdentifyError> {
+    let width = cols.map_or(problem.unknown_count(), <[usize]>::len);
+    let n = problem.residual_count();
+    let count = super::dense::row_ranges(n, parts).len().max(1);
+    let mut parts: Vec<Part> = (0..count).map(|_| Part::new(width, want)).collect();
     let mut visits: Vec<_> = parts
         .iter_mut()
         .map(|p| move |rows: std::ops::Range<usize>, j: &DMatrix<f64>| p.add(rows, j, want))
@@ -150,7 +162,7 @@ pub(crate) fn fold(
         rows: 0,
     };
     let mut stacked =
-        (want.r_factor && threads > 1).then(|| RowReducer::new(width, super::dense::BLOCK_ROWS));
+        (want.r_factor && count > 1).then(|| RowReducer::new(width, super::dense::BLOCK_ROWS));
     for p in &mut parts {
         out.rows += p.rows;
         for c in 0..p.gram.ncols() {

@@ -3,7 +3,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{BLOCK_ROWS, Want, fold};
+use super::{BLOCK_ROWS, Want, fold, fold_in_parts};
 use crate::identify::{Blocking, Problem, Solution, SolveOptions, solve_with};
 use crate::measure::PointProblem;
 use crate::twin::SerialTwin;
@@ -31,10 +31,17 @@ fn close(a: f64, b: f64, scale: f64, tol: f64) -> bool {
     (a - b).abs() <= tol * scale.max(f64::MIN_POSITIVE)
 }
 
-/// Every sum of the fold (threads, blocks, the distance rows) equals the one of the whole
-/// Jacobian evaluated at once: `J^T J`, `J^T r`, `R^T R`, column maxima, row effects.
+/// Every sum of the fold (blocks, the distance rows, one part or five shared by the
+/// cores) equals the one of the whole Jacobian evaluated at once: `J^T J`, `J^T r`,
+/// `R^T R`, column maxima, row effects.
 #[test]
 fn the_fold_equals_the_whole_jacobian() {
+    for parts in [1, 5] {
+        fold_equals_the_whole_jacobian(parts);
+    }
+}
+
+fn fold_equals_the_whole_jacobian(parts: usize) {
     let p = problem(700, false);
     let x = p.initial();
     let (n, m) = (p.residual_count(), p.unknown_count());
@@ -50,9 +57,11 @@ fn the_fold_equals_the_whole_jacobian() {
         residuals: Some(r.as_slice()),
         moves: &moves,
     };
-    let f = fold(&p, &x, None, &want).unwrap().expect("blocked form");
+    let f = fold_in_parts(&p, &x, None, &want, parts)
+        .unwrap()
+        .expect("blocked form");
     assert_eq!(f.rows, n);
-    assert!(n > 2 * BLOCK_ROWS, "several blocks per core");
+    assert!(n > 2 * parts * BLOCK_ROWS, "several blocks per part");
     let gram = j.tr_mul(&j);
     let rtr = f.r.tr_mul(&f.r);
     let jtr = j.tr_mul(&r);

@@ -145,25 +145,8 @@ impl PointProblem {
                 .zip(memos)
                 .zip(visitors.iter_mut())
                 .collect();
-            if jobs.len() == 1 {
-                for (((part, own), memo), visit) in jobs {
-                    work(part, own, memo, &mut **visit);
-                }
-                return;
-            }
-            std::thread::scope(|s| {
-                let work = &work;
-                let handles: Vec<_> = jobs
-                    .into_iter()
-                    .map(|(((part, own), memo), visit)| {
-                        s.spawn(move || work(part, own, memo, &mut **visit))
-                    })
-                    .collect();
-                for h in handles {
-                    if let Err(e) = h.join() {
-                        std::panic::resume_unwind(e);
-                    }
-                }
+            crate::util::parts::for_each(jobs, &|(((part, own), memo), visit)| {
+                work(part, own, memo, &mut **visit)
             });
         })
     }
