@@ -57,7 +57,7 @@ pub(crate) const BLOCK_ROWS: usize = 2048;
 
 /// Row parts of a tall kernel over `elements` (rows x columns): one below
 /// [`PARALLEL_MIN_ELEMENTS`], else [`crate::util::parts::PARTS`], however many cores there
-/// are (so the sums over the parts are the same bits on any machine).
+/// are (so the sums over the parts are the same bits on one core as on all).
 pub(crate) fn parts_for(elements: usize) -> usize {
     if elements < PARALLEL_MIN_ELEMENTS {
         1

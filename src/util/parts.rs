@@ -1,8 +1,8 @@
 //! Large computations split into a fixed number of parts that the cores take one at a time.
 //! A core slowed by another process then takes fewer parts instead of holding the others up
-//! at the join (with one part per core, a study on a loaded machine ran at the pace of its
-//! slowest core), and since the split does not depend on the number of cores, neither does
-//! any sum over the parts: the same input gives the same bits on 1, 2 or 64 cores.
+//! at the join (with one part per core, a large identification on a loaded machine ran at
+//! the pace of its slowest core), and since the split does not depend on the number of
+//! cores, neither does any sum over the parts: the same bits on 1, 2 or 64 cores.
 
 use std::sync::{Mutex, PoisonError};
 
