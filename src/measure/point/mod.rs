@@ -360,7 +360,7 @@ pub fn start_torques(chain: &Chain, meas: &[PointMeasurement]) -> Vec<Vec<f64>> 
         parts.push((range.start, head));
         rest = tail;
     }
-    crate::util::parts::for_each(parts, &|(start, out): (usize, &mut [Vec<f64>])| {
+    on_threads(parts, &|(start, out): (usize, &mut [Vec<f64>])| {
         for (k, t) in out.iter_mut().enumerate() {
             *t = chain.static_torques(&meas[start + k].q);
         }
@@ -392,15 +392,35 @@ fn memo_parts<'m>(
 /// parallel, with at most a few hundred measurements each).
 pub const PARALLEL_MIN_MEASUREMENTS: usize = 1024;
 
-/// Contiguous ranges of `n` measurements: one below [`PARALLEL_MIN_MEASUREMENTS`], else
-/// [`crate::util::parts::PARTS`] that the cores share.
+/// Contiguous ranges of `n` measurements, one per worker.
 fn measurement_ranges(n: usize) -> Vec<std::ops::Range<usize>> {
-    let parts = if n < PARALLEL_MIN_MEASUREMENTS {
+    let threads = if n < PARALLEL_MIN_MEASUREMENTS {
         1
     } else {
-        crate::util::parts::PARTS
+        std::thread::available_parallelism().map_or(1, |t| t.get())
     };
-    crate::util::parts::ranges(n, parts)
+    let chunk = n.div_ceil(threads).max(1);
+    (0..n)
+        .step_by(chunk)
+        .map(|s| s..(s + chunk).min(n))
+        .collect()
+}
+
+/// `f` on each part, on scoped threads when there are several (a worker's panic is
+/// passed on).
+fn on_threads<T: Send>(parts: Vec<T>, f: &(dyn Fn(T) + Sync)) {
+    if parts.len() <= 1 {
+        parts.into_iter().for_each(f);
+        return;
+    }
+    std::thread::scope(|s| {
+        let handles: Vec<_> = parts.into_iter().map(|p| s.spawn(move || f(p))).collect();
+        for h in handles {
+            if let Err(e) = h.join() {
+                std::panic::resume_unwind(e);
+            }
+        }
+    });
 }
 
 impl Problem for PointProblem {
@@ -461,7 +481,7 @@ impl Problem for PointProblem {
                     out[3 * row..3 * row + 3].copy_from_slice(e.as_slice());
                 }
             };
-            crate::util::parts::for_each(parts, &fill);
+            on_threads(parts, &fill);
             self.distance_rows(&centres, r);
             Ok(())
         })
@@ -605,7 +625,7 @@ impl PointProblem {
                     }
                 }
             };
-            crate::util::parts::for_each(parts, &fill);
+            on_threads(parts, &fill);
             self.distance_columns(&centres, &at, j);
         })
     }
