@@ -370,6 +370,7 @@ mod tests {
     }
 
     /// `f` on a thread allowed on one core only (`available_parallelism` then says 1).
+    #[cfg(target_os = "linux")]
     fn on_one_core<T: Send>(f: impl FnOnce() -> T + Send) -> T {
         std::thread::scope(|s| {
             s.spawn(|| {

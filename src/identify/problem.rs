@@ -35,9 +35,10 @@ pub trait Problem: Sync {
     /// accumulators instead of holding the whole matrix: the rows are split into
     /// `visitors.len()` contiguous parts of `ceil(rows / parts)` rows (the last shorter, as
     /// [`super::dense::row_ranges`] splits them), the parts shared out among the cores
-    /// ([`crate::util::parts::for_each`]), part `k` evaluated by one thread in order, in blocks of about `block_rows` rows, each handed to `visitors[k]` with its
-    /// row range (columns: `cols`, or every unknown when `None`; the values of
-    /// [`Problem::jacobian`] bit for bit). `Ok(false)` (the default): not supported.
+    /// ([`crate::util::parts::for_each`]), part `k` evaluated by one thread in order, in
+    /// blocks of about `block_rows` rows, each handed to `visitors[k]` with its row range
+    /// (columns: `cols`, or every unknown when `None`; the values of [`Problem::jacobian`]
+    /// bit for bit). `Ok(false)` (the default): not supported.
     fn jacobian_blocks(
         &self,
         _x: &[f64],
