@@ -105,7 +105,7 @@ mod tests {
         });
         assert_eq!(runs.load(Ordering::Relaxed), 100);
         assert_eq!(out, (0..100).map(|k| k * k).collect::<Vec<_>>());
-        let mut cells = vec![0u32; 40];
+        let mut cells = [0u32; 40];
         let parts: Vec<&mut u32> = cells.iter_mut().collect();
         for_each(parts, &|c: &mut u32| *c += 1);
         assert!(cells.iter().all(|&c| c == 1));
