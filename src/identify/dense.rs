@@ -66,11 +66,6 @@ pub(crate) fn parts_for(elements: usize) -> usize {
     }
 }
 
-/// Contiguous row ranges of `n` rows in `parts` parts.
-pub(crate) fn row_ranges(n: usize, parts: usize) -> Vec<std::ops::Range<usize>> {
-    crate::util::parts::ranges(n, parts)
-}
-
 /// The R factor of the QR decomposition of `j` (`min(rows, cols)` x `cols`, upper
 /// triangular, rows signed as the implementation leaves them): `R^T R = J^T J`, so column
 /// norms, singular values, right singular vectors and least-squares dependencies of `J`
@@ -86,7 +81,7 @@ pub fn r_factor_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
         return super::householder::qr_r(j);
     }
     let (n, m) = j.shape();
-    let ranges = row_ranges(n, parts_for(n * m));
+    let ranges = crate::util::parts::ranges(n, parts_for(n * m));
     let parts = crate::util::parts::map(ranges, &|r| reduce_rows(j, r));
     if parts.len() == 1 {
         return parts
@@ -234,7 +229,7 @@ pub fn gram_with(j: &DMatrix<f64>, backend: Backend) -> DMatrix<f64> {
         return j.tr_mul(j);
     }
     let (n, m) = j.shape();
-    let ranges = row_ranges(n, parts_for(n * m));
+    let ranges = crate::util::parts::ranges(n, parts_for(n * m));
     let part = |r: std::ops::Range<usize>| {
         let view = faer::MatRef::from_column_major_slice_with_stride(
             &j.as_slice()[r.start..],

@@ -34,7 +34,7 @@ pub trait Problem: Sync {
     /// The Jacobian at `x` in row blocks, for solvers that fold each block into small
     /// accumulators instead of holding the whole matrix: the rows are split into
     /// `visitors.len()` contiguous parts of `ceil(rows / parts)` rows (the last shorter, as
-    /// [`super::dense::row_ranges`] splits them), the parts shared out among the cores
+    /// [`crate::util::parts::ranges`] splits them), the parts shared out among the cores
     /// ([`crate::util::parts::for_each`]), part `k` evaluated by one thread in order, in
     /// blocks of about `block_rows` rows, each handed to `visitors[k]` with its row range
     /// (columns: `cols`, or every unknown when `None`; the values of [`Problem::jacobian`]

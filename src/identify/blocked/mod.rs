@@ -138,7 +138,7 @@ fn fold_in_parts(
 ) -> Result<Option<Folded>, IdentifyError> {
     let width = cols.map_or(problem.unknown_count(), <[usize]>::len);
     let n = problem.residual_count();
-    let count = super::dense::row_ranges(n, parts).len().max(1);
+    let count = crate::util::parts::ranges(n, parts).len().max(1);
     let mut parts: Vec<Part> = (0..count).map(|_| Part::new(width, want)).collect();
     let mut visits: Vec<_> = parts
         .iter_mut()

@@ -399,11 +399,7 @@ fn measurement_ranges(n: usize) -> Vec<std::ops::Range<usize>> {
     } else {
         std::thread::available_parallelism().map_or(1, |t| t.get())
     };
-    let chunk = n.div_ceil(threads).max(1);
-    (0..n)
-        .step_by(chunk)
-        .map(|s| s..(s + chunk).min(n))
-        .collect()
+    crate::util::parts::ranges(n, threads)
 }
 
 /// `f` on each part, on scoped threads when there are several (a worker's panic is
